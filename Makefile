@@ -1,0 +1,35 @@
+# xray_viz developer entry points. `make demo` and `make test` are the README's Quick start.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup demo test test-all bench clean
+
+$(STAMP): pyproject.toml .ci/system-deps
+	bash .ci/system-deps
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+## Render the bundled default scene to out/default.png (and print where it went).
+demo: setup
+	$(VENV)/bin/xray-viz render default -o out/default.png
+
+## Run the test suite (a bounded sample of the slow stress cases included).
+test: setup
+	$(PY) -m pytest -q
+
+## Everything, including every slow stress case.
+test-all: setup
+	$(PY) -m pytest -q -m "slow or not slow"
+
+bench: setup
+	$(PY) -m pip install --quiet -e '.[bench]'
+	$(VENV)/bin/xray-viz bench
+
+clean:
+	rm -rf $(VENV) out build *.egg-info

@@ -1,0 +1,564 @@
+"""The scene model: an X-ray source, a detector (the thesis' viewport) and bodies.
+
+One model is shared by the command line, the Python API, the viewer and the tests. A scene is
+described in a TOML file::
+
+    [source]
+    position = [0.0, 0.0, 1000.0]   # mm; the thesis' r0
+    kind = "point"                  # or "parallel"
+    energy = 60.0                   # keV
+
+    [detector]
+    center = [0.0, 0.0, -500.0]     # mm
+    up = [0.0, 1.0, 0.0]
+    shape = [512, 384]              # [W, H] pixels
+    pitch = 0.25                    # mm between neighbouring rays (or size = [|HO|, |VE|])
+
+    [[body]]
+    name = "ball"
+    mesh = "ball.stl"               # relative to the scene file
+    mu = 0.2                        # 1/cm
+
+Geometry is in millimetres, linear attenuation coefficients in 1/cm, energies in keV.
+Unknown keys are an error, so that a typo is never silently ignored.
+
+Examples
+--------
+>>> import xray_viz
+>>> scene = xray_viz.load_scene("sphere")          # a bundled phantom, or a path to a .toml
+>>> scene.detector.shape
+(256, 256)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from xray_viz.errors import SceneError, SceneFileNotFoundError, XrayVizError
+
+__all__ = ["Source", "Detector", "Body", "Scene", "load_scene", "scene_from_dict"]
+
+#: Length units accepted by a body's ``units`` key, in millimetres.
+LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
+
+
+def _vec3(value, *, name: str = "vector") -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(3)
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f"{name} must be finite, got {arr.tolist()}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class Source:
+    """The X-ray source: the thesis' camera position r0.
+
+    Parameters
+    ----------
+    position : (3,) float
+        Focal spot position in mm (``r0``).
+    kind : {"point", "parallel"}
+        A point source (cone beam, rays fan out from ``position``) or a parallel beam (every ray
+        along ``position -> detector centre``, one ray per pixel).
+    energy : float or None
+        Photon energy in keV of a monochromatic beam.
+    spectrum : dict or None
+        Tube spectrum description (see :mod:`xray_viz.physics`); when set it replaces ``energy``.
+    """
+
+    position: np.ndarray
+    kind: str = "point"
+    energy: float | None = 60.0
+    spectrum: dict | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "position", _vec3(self.position, name="source position"))
+        if self.kind not in ("point", "parallel"):
+            raise SceneError(f"[source] kind must be 'point' or 'parallel', got {self.kind!r}")
+        if self.energy is not None and not (math.isfinite(self.energy) and self.energy > 0):
+            raise SceneError(f"[source] energy must be > 0 keV, got {self.energy}")
+
+
+@dataclass(frozen=True)
+class Detector:
+    """The detector: the thesis' viewport, a W x H grid of rays.
+
+    Parameters
+    ----------
+    center : (3,) float
+        Centre of the viewport in mm. ``FL = r0 - center``.
+    up : (3,) float
+        Approximate up direction; ``VE`` is the part of it orthogonal to the beam.
+    shape : (int, int)
+        ``(W, H)``: W rays along ``HO`` (image columns), H rays along ``VE`` (image rows).
+    pitch : (float, float)
+        Distance in mm between neighbouring rays along HO and VE. ``|HO| = (W - 1) * pitch[0]``.
+    """
+
+    center: np.ndarray
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
+    shape: tuple[int, int] = (256, 256)
+    pitch: tuple[float, float] = (1.0, 1.0)
+
+    def __post_init__(self):
+        object.__setattr__(self, "center", _vec3(self.center, name="detector center"))
+        object.__setattr__(self, "up", _vec3(self.up, name="detector up"))
+        shape = tuple(int(s) for s in np.broadcast_to(self.shape, (2,)))
+        if any(s < 1 for s in shape):
+            raise SceneError(f"[detector] shape must be >= 1 pixel each way, got {list(shape)}")
+        pitch = tuple(float(p) for p in np.broadcast_to(np.asarray(self.pitch, float), (2,)))
+        if not all(math.isfinite(p) and p > 0 for p in pitch):
+            raise SceneError(f"[detector] pitch must be > 0 mm, got {list(pitch)}")
+        if np.linalg.norm(self.up) == 0:
+            raise SceneError("[detector] up must be a non-zero vector")
+        object.__setattr__(self, "shape", shape)
+        object.__setattr__(self, "pitch", pitch)
+
+    @property
+    def size(self) -> tuple[float, float]:
+        """``(|HO|, |VE|)`` in mm: the distance between the first and last rays."""
+        (w, h), (px, py) = self.shape, self.pitch
+        return (max(w - 1, 0) * px, max(h - 1, 0) * py)
+
+    @classmethod
+    def from_size(cls, center, up, shape, size) -> "Detector":
+        """Make a detector from its size ``[|HO|, |VE|]`` in mm instead of its pitch."""
+        shape = tuple(int(s) for s in np.broadcast_to(shape, (2,)))
+        size = np.broadcast_to(np.asarray(size, float), (2,))
+        if not np.all(np.isfinite(size)) or np.any(size <= 0):
+            raise SceneError(f"[detector] size must be > 0 mm, got {size.tolist()}")
+        pitch = tuple(float(s / max(n - 1, 1)) for s, n in zip(size, shape))
+        return cls(center=center, up=up, shape=shape, pitch=pitch)
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """A closed triangle mesh filled with one material.
+
+    Parameters
+    ----------
+    name : str
+        Unique name of the body.
+    mesh : trimesh.Trimesh
+        Closed, outward-oriented surface, in scene coordinates (mm), transforms applied.
+    mu : float or None
+        Linear attenuation coefficient in 1/cm (energy independent).
+    material : str or None
+        A material name, chemical formula or element (see :mod:`xray_viz.physics.materials`);
+        used instead of ``mu`` when set.
+    density : float or None
+        Density in g/cm^3 for ``material``.
+    source_file : Path or None
+        File the mesh was read from, for messages.
+    """
+
+    name: str
+    mesh: Any
+    mu: float | None = None
+    material: str | None = None
+    density: float | None = None
+    source_file: Path | None = None
+
+    def __post_init__(self):
+        if self.mu is None and self.material is None:
+            raise SceneError(f"body {self.name!r}: give 'mu' (1/cm) or 'material'")
+        if self.mu is not None and not (math.isfinite(self.mu) and self.mu >= 0):
+            raise SceneError(f"body {self.name!r}: mu must be >= 0 (1/cm), got {self.mu}")
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(n, 3) float vertex positions in mm."""
+        return np.asarray(self.mesh.vertices, dtype=np.float64)
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(m, 3) int vertex indices of each triangle, counter-clockwise seen from outside."""
+        return np.asarray(self.mesh.faces, dtype=np.int64)
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A source, a detector and bodies.
+
+    Build one with :func:`load_scene` (a TOML file or a bundled phantom name) or directly.
+    Derived data (the concatenated triangle soup) is computed once and cached; use
+    :meth:`replace` to make a changed copy.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> moved = scene.replace(source=dataclasses.replace(scene.source, position=[0, 0, 800]))
+    """
+
+    source: Source
+    detector: Detector
+    bodies: tuple[Body, ...] = ()
+    path: Path | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "bodies", tuple(self.bodies))
+        names = [b.name for b in self.bodies]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise SceneError(f"{self._where()}body names must be unique, repeated: {dup}")
+        from xray_viz.geometry import beam_direction
+
+        forward = beam_direction(self.source.position, self.detector.center)
+        up = self.detector.up / np.linalg.norm(self.detector.up)
+        if np.linalg.norm(np.cross(forward, up)) < 1e-9:
+            raise SceneError(
+                f"{self._where()}[detector] up {self.detector.up.tolist()} is parallel to the beam "
+                "(source -> detector centre); choose an up vector across the beam"
+            )
+
+    def _where(self) -> str:
+        return f"{self.path}: " if self.path else ""
+
+    def replace(self, **changes) -> "Scene":
+        """Return a copy with fields replaced (``source=``, ``detector=``, ``bodies=``)."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def body_names(self) -> list[str]:
+        return [b.name for b in self.bodies]
+
+    @cached_property
+    def triangles(self) -> np.ndarray:
+        """(T, 3, 3) float: every triangle of every body, bodies in order."""
+        if not self.bodies:
+            return np.zeros((0, 3, 3))
+        tris = np.concatenate([b.vertices[b.faces] for b in self.bodies])
+        tris.setflags(write=False)
+        return tris
+
+    @cached_property
+    def triangle_body(self) -> np.ndarray:
+        """(T,) int: index of the body each triangle of :attr:`triangles` belongs to."""
+        counts = [len(b.faces) for b in self.bodies]
+        return np.repeat(np.arange(len(self.bodies)), counts)
+
+    @cached_property
+    def triangle_offset(self) -> np.ndarray:
+        """(n_bodies + 1,) int: body k owns triangles ``triangle_offset[k]:triangle_offset[k+1]``."""
+        return np.concatenate([[0], np.cumsum([len(b.faces) for b in self.bodies])]).astype(np.int64)
+
+    @cached_property
+    def precedence(self) -> np.ndarray:
+        """(n_bodies,) int rank: where bodies overlap, the highest rank gives the material.
+
+        Innermost wins (a body inside another replaces its material), and where bodies only
+        partly overlap the later-listed one wins. See :func:`xray_viz.attenuation.body_precedence`.
+        """
+        from xray_viz.attenuation import body_precedence
+
+        return body_precedence(self)
+
+
+# --------------------------------------------------------------------------------------------
+# TOML parsing and validation
+
+
+class _Table:
+    """Typed access to one TOML table that remembers which keys were read."""
+
+    def __init__(self, data, where: str, file: Path | None):
+        self.where = where
+        self.file = file
+        if not isinstance(data, dict):
+            self.fail(f"must be a table, got {type(data).__name__}")
+        self.data = data
+        self.used: set[str] = set()
+
+    def fail(self, msg: str):
+        prefix = f"{self.file}: " if self.file else ""
+        raise SceneError(f"{prefix}{self.where} {msg}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key, *, required=False, default=None):
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                self.fail(f"is missing the required key '{key}'")
+            return default
+        return self.data[key]
+
+    def number(self, key, *, required=False, default=None, positive=False, nonnegative=False):
+        value = self.raw(key, required=required, default=default)
+        if value is None or key not in self.data:
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.fail(f"{key} must be a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            self.fail(f"{key} must be finite, got {value}")
+        if positive and value <= 0:
+            self.fail(f"{key} must be > 0, got {value:g}")
+        if nonnegative and value < 0:
+            self.fail(f"{key} must be >= 0, got {value:g}")
+        return value
+
+    def string(self, key, *, required=False, default=None, choices=None):
+        value = self.raw(key, required=required, default=default)
+        if key not in self.data:
+            return value
+        if not isinstance(value, str):
+            self.fail(f"{key} must be a string, got {value!r}")
+        if choices is not None and value not in choices:
+            self.fail(f"{key} must be one of {', '.join(map(repr, choices))}; got {value!r}")
+        return value
+
+    def vector(self, key, n, *, required=False, default=None, positive=False, integer=False):
+        value = self.raw(key, required=required, default=default)
+        if key not in self.data:
+            return value
+        ok = isinstance(value, list) and len(value) == n and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+        )
+        if integer:
+            ok = ok and all(isinstance(v, int) for v in value)
+        if not ok:
+            kind = "integers" if integer else "numbers"
+            self.fail(f"{key} must be a list of {n} {kind}, got {value!r}")
+        arr = np.asarray(value, dtype=np.int64 if integer else np.float64)
+        if not np.all(np.isfinite(arr)):
+            self.fail(f"{key} must be finite, got {value!r}")
+        if positive and np.any(arr <= 0):
+            self.fail(f"{key} must be > 0, got {value!r}")
+        return arr
+
+    def scalar_or_vector(self, key, n, *, default=None, positive=False):
+        if key in self.data and isinstance(self.data[key], list):
+            return self.vector(key, n, positive=positive)
+        value = self.number(key, default=default, positive=positive)
+        return None if value is None else np.full(n, value)
+
+    def table(self, key, *, required=False):
+        value = self.raw(key, required=required, default=None)
+        if value is None:
+            return None
+        return _Table(value, f"{self.where[:-1]}.{key}]" if self.where.endswith("]") else key,
+                      self.file)
+
+    def done(self):
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            import difflib
+
+            hints = []
+            for key in unknown:
+                close = difflib.get_close_matches(key, sorted(self.used), n=1)
+                hints.append(f"'{key}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
+            self.fail(f"has unknown key{'s' if len(unknown) > 1 else ''} {', '.join(hints)}; "
+                      f"known keys: {', '.join(sorted(self.used))}")
+
+
+def _rotation_matrix(rotation) -> np.ndarray:
+    """3x3 rotation from Euler angles in degrees about x, then y, then z (fixed axes)."""
+    rotation = np.asarray(rotation, dtype=np.float64)
+    if rotation.shape == (3, 3):
+        return rotation
+    ax, ay, az = np.radians(rotation)
+    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def body_transform(*, position=None, rotation=None, scale=None, units="mm") -> np.ndarray:
+    """4x4 matrix taking mesh coordinates to scene millimetres.
+
+    The mesh is scaled (``units`` then ``scale``), then rotated (degrees about x, y, z in
+    that order, fixed axes, or a 3x3 matrix), then translated to ``position``.
+
+    Examples
+    --------
+    >>> body_transform(position=[1, 2, 3])[:3, 3].tolist()
+    [1.0, 2.0, 3.0]
+    """
+    m = np.eye(4)
+    s = np.ones(3) * LENGTH_UNITS[units]
+    if scale is not None:
+        s = s * np.broadcast_to(np.asarray(scale, float), (3,))
+    r = np.eye(3) if rotation is None else _rotation_matrix(rotation)
+    m[:3, :3] = r @ np.diag(s)
+    if position is not None:
+        m[:3, 3] = position
+    return m
+
+
+def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
+    from xray_viz.meshes.io import load_mesh
+
+    name = t.string("name", default=f"body{index}")
+    mesh_name = t.string("mesh", required=True)
+    mu = t.number("mu", nonnegative=True)
+    material = t.string("material")
+    density = t.number("density", positive=True)
+    if mu is not None and material is not None:
+        t.fail("gives both 'mu' and 'material'; use one")
+    if mu is None and material is None:
+        t.fail("needs 'mu' (linear attenuation coefficient, 1/cm) or 'material'")
+    position = t.vector("position", 3)
+    rotation = None
+    if t.has("rotation"):
+        raw = t.data["rotation"]
+        if isinstance(raw, list) and raw and all(isinstance(r, list) for r in raw):
+            t.used.add("rotation")
+            rot = np.asarray(raw, dtype=float) if all(len(r) == 3 for r in raw) else None
+            if rot is None or rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) \
+                    or np.linalg.det(rot) < 0:
+                t.fail(f"rotation must be 3 angles in degrees or a 3x3 rotation matrix, got {raw!r}")
+            rotation = rot
+        else:
+            rotation = t.vector("rotation", 3)
+    scale = t.scalar_or_vector("scale", 3, positive=True)
+    units = t.string("units", default="mm", choices=tuple(LENGTH_UNITS))
+    t.done()
+    path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
+    where = f"{t.file}: " if t.file else ""
+    try:
+        mesh = load_mesh(path)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}body {name!r}: {exc}") from None
+    transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
+    if not np.allclose(transform, np.eye(4)):
+        mesh = mesh.copy()
+        mesh.apply_transform(transform)
+    return Body(name=name, mesh=mesh, mu=mu, material=material, density=density, source_file=path)
+
+
+def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None = None) -> Scene:
+    """Build a :class:`Scene` from a parsed TOML document.
+
+    Parameters
+    ----------
+    doc : dict
+        The parsed document with ``source``, ``detector`` and ``body`` entries.
+    base_dir : path-like
+        Directory that mesh paths are relative to.
+    file : Path, optional
+        The file the document came from, named in error messages.
+    """
+    base_dir = Path(base_dir)
+    top = _Table(doc, "scene", file)
+    src = top.table("source", required=True)
+    src.where = "[source]"
+    position = src.vector("position", 3, required=True)
+    kind = src.string("kind", default="point", choices=("point", "parallel"))
+    spectrum = src.raw("spectrum")
+    energy = src.number("energy", default=None if spectrum is not None else 60.0, positive=True)
+    if spectrum is not None and src.has("energy"):
+        src.fail("gives both 'energy' and 'spectrum'; use one")
+    src.done()
+
+    det = top.table("detector", required=True)
+    det.where = "[detector]"
+    center = det.vector("center", 3, required=True)
+    up = det.vector("up", 3, default=np.array([0.0, 1.0, 0.0]))
+    shape = det.vector("shape", 2, required=True, integer=True)
+    if np.any(shape < 1):
+        det.fail(f"shape must be >= 1 pixel each way, got {shape.tolist()}")
+    if det.has("pitch") and det.has("size"):
+        det.fail("gives both 'pitch' and 'size'; use one")
+    if not det.has("pitch") and not det.has("size"):
+        det.fail("is missing the required key 'pitch' (mm between rays) or 'size' ([|HO|, |VE|] mm)")
+    if np.linalg.norm(up) == 0:
+        det.fail("up must be a non-zero vector")
+    if det.has("size"):
+        size = det.vector("size", 2, positive=True)
+        pitch = size / np.maximum(shape - 1, 1)
+    else:
+        pitch = det.scalar_or_vector("pitch", 2, positive=True)
+    det.done()
+
+    raw_bodies = top.raw("body", default=[])
+    if not isinstance(raw_bodies, list):
+        top.fail("'body' must be an array of tables: write [[body]]")
+    top.done()
+    bodies = []
+    for k, raw in enumerate(raw_bodies):
+        bt = _Table(raw, f"[[body]] #{k + 1}", file)
+        bodies.append(_parse_body(bt, base_dir, k))
+    try:
+        scene = Scene(
+            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum),
+            detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch)),
+            bodies=tuple(bodies),
+            path=file,
+        )
+    except SceneError as exc:
+        msg = str(exc)
+        if file and not msg.startswith(str(file)):
+            msg = f"{file}: {msg}"
+        raise SceneError(msg) from None
+    from xray_viz.attenuation import check_source_outside
+
+    check_source_outside(scene)
+    return scene
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load a scene from a TOML file, or a bundled phantom by name.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.toml`` scene file, or the name of a bundled phantom (see ``xray-viz phantoms``).
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneFileNotFoundError
+        If the file does not exist and no phantom has that name.
+    SceneError
+        If the file is not valid TOML or not a valid scene (unknown or missing keys, wrong types,
+        bad values, ``up`` parallel to the beam, the source inside a body).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> [body.name for body in scene.bodies]
+    ['ball']
+    """
+    p = Path(path)
+    if not p.exists():
+        from xray_viz import phantoms
+
+        resolved = phantoms.scene_path(str(path))
+        if resolved is None:
+            names = ", ".join(phantoms.names())
+            raise SceneFileNotFoundError(
+                f"{path}: no such scene file, and no bundled phantom of that name "
+                f"(phantoms: {names})"
+            )
+        p = resolved
+    if p.is_dir():
+        raise SceneError(f"{p}: is a directory, not a scene file")
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError:
+        raise SceneError(f"{p}: not a text (UTF-8) TOML file") from None
+    except OSError as exc:
+        raise SceneError(f"{p}: cannot read: {exc.strerror}") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{p}: malformed TOML: {exc}") from None
+    return scene_from_dict(doc, base_dir=p.parent, file=p)
