@@ -1,0 +1,32 @@
+"""xray_viz: simulate X-ray radiographs from triangle meshes, and see how the simulation works.
+
+The pipeline follows the thesis "Computational modeling of X-ray attenuation and simulation of
+medical imaging": scene (:mod:`~xray_viz.scene`) -> rays (:mod:`~xray_viz.geometry`) -> hits
+(:mod:`~xray_viz.tracing`) -> path lengths (:mod:`~xray_viz.attenuation`) -> image
+(:mod:`~xray_viz.physics`, :mod:`~xray_viz.output`). Meshes and phantoms feed the scene
+(:mod:`~xray_viz.meshes`, :mod:`~xray_viz.phantoms`); :mod:`~xray_viz.viz` only reads.
+
+Examples
+--------
+>>> import xray_viz
+>>> scene = xray_viz.load_scene("sphere")
+>>> image = xray_viz.render(scene)
+>>> image.line_integral.shape
+(256, 256)
+"""
+
+from xray_viz.errors import (MaterialError, MeshError, OutputError, SceneError,
+                             SceneFileNotFoundError, SpectrumError, XrayVizError)
+from xray_viz.geometry import Rays, Viewport, detector_rays, viewport
+from xray_viz.render import Radiograph, render
+from xray_viz.scene import Body, Detector, Scene, Source, load_scene
+from xray_viz.tracing import Hits, trace_rays
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Body", "Detector", "Hits", "MaterialError", "MeshError", "OutputError", "Radiograph",
+    "Rays", "Scene", "SceneError", "SceneFileNotFoundError", "Source", "SpectrumError",
+    "Viewport", "XrayVizError", "detector_rays", "load_scene", "render", "trace_rays",
+    "viewport",
+]
