@@ -1,0 +1,421 @@
+"""Compiled kernels of the fast engine (numba): projection, triangle set-up, footprint raster.
+
+Everything here works on a *fine grid*: the detector's rays (with ``n x n`` supersampling, the
+sub-rays) sit at the integer points ``(X, Y)``, ``0 <= X < n W``, ``0 <= Y < n H``, X along
+``HO`` and Y along ``VE``. Projected vertices are snapped to fixed point, ``2**-FRAC_BITS`` of a
+fine-grid step, and every coverage decision is an exact integer edge function with a tie rule
+(a symbolic perturbation of the sample point), so a ray through a shared edge or vertex is
+covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracing.fast`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+#: Fixed-point fraction bits of a projected vertex (units of a fine-grid step).
+FRAC_BITS = 16
+ONE = 1 << FRAC_BITS
+#: Projected coordinates (fine-grid steps) beyond this cannot be snapped safely.
+COORD_LIMIT = float(2 ** 41)
+#: A triangle whose snapped bounding box is smaller than this (fixed-point units) uses plain
+#: int64 edge functions (|E| < 2**61); larger ones use exact 128-bit-style limb arithmetic.
+SAFE_EXTENT = 1 << 30
+_MASK30 = (1 << 30) - 1
+
+# Triangle set-up status codes.
+SKIP = 0
+SMALL = 1
+GIANT = 2
+ERR_STRADDLE = -1
+ERR_TOO_CLOSE = -2
+
+
+@njit(cache=True, parallel=True)
+def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge):
+    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``."""
+    n = V.shape[0]
+    for i in prange(n):
+        r0x = V[i, 0] - r0[0]
+        r1 = V[i, 1] - r0[1]
+        r2 = V[i, 2] - r0[2]
+        wi = r0x * f[0] + r1 * f[1] + r2 * f[2]
+        a = r0x * eu[0] + r1 * eu[1] + r2 * eu[2]
+        b = r0x * ev[0] + r1 * ev[1] + r2 * ev[2]
+        w[i] = wi
+        if perspective:
+            if wi > 0.0:
+                x = sx * (a / wi) + bx
+                y = sy * (b / wi) + by
+            else:
+                x = np.inf
+                y = np.inf
+        else:
+            x = sx * a + bx
+            y = sy * b + by
+        if abs(x) < COORD_LIMIT and abs(y) < COORD_LIMIT:
+            XY[i, 0] = np.int64(np.floor(x * ONE + 0.5))
+            XY[i, 1] = np.int64(np.floor(y * ONE + 0.5))
+            huge[i] = False
+        else:
+            # Keep the float position (clamped) for culling only.
+            XY[i, 0] = np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE) if x == x else 0
+            XY[i, 1] = np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE) if y == y else 0
+            huge[i] = True
+
+
+@njit(cache=True, inline="always")
+def _split30(x):
+    return x >> 30, x & _MASK30
+
+
+@njit(cache=True)
+def exact_cross_sign(a, b, c, d):
+    """Exact sign of ``a*b - c*d`` for int64 inputs of magnitude below 2**60."""
+    ah, al = _split30(a)
+    bh, bl = _split30(b)
+    ch, cl = _split30(c)
+    dh, dl = _split30(d)
+    dH = ah * bh - ch * dh
+    dM = (ah * bl + al * bh) - (ch * dl + cl * dh)
+    dL = al * bl - cl * dl
+    dM += dL >> 30
+    r = dL & _MASK30
+    dH += dM >> 30
+    r2 = dM & _MASK30
+    if dH > 0:
+        return 1
+    if dH < 0:
+        return -1
+    if r2 > 0 or r > 0:
+        return 1
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _tie(ex, ey):
+    """Sign of an edge function at a sample point exactly on the edge, after moving the point
+    by ``(eps, eps * delta)``: the lexicographic sign of ``(-ey, ex)``."""
+    if ey != 0:
+        return 1 if ey < 0 else -1
+    if ex != 0:
+        return 1 if ex > 0 else -1
+    return 0
+
+
+@njit(cache=True, parallel=True)
+def setup_triangles(V, F, XY, w, huge, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
+                    status, box, orient, coef, wrange):
+    """Per triangle: status, sample bounding box, orientation, depth coefficients.
+
+    Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
+    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
+    """
+    T = F.shape[0]
+    for t in prange(T):
+        i0 = F[t, 0]
+        i1 = F[t, 1]
+        i2 = F[t, 2]
+        status[t] = SKIP
+        w0 = w[i0]
+        w1 = w[i1]
+        w2 = w[i2]
+        wmin = min(w0, min(w1, w2))
+        wmax = max(w0, max(w1, w2))
+        if wmax < 0.0 or wmin > FL:
+            continue  # behind the source or beyond the detector
+        if perspective and wmax <= 0.0:
+            continue
+        if wmin < 0.0 or (perspective and wmin <= 0.0):
+            status[t] = ERR_STRADDLE
+            continue
+        ax = XY[i0, 0]
+        ay = XY[i0, 1]
+        bx_ = XY[i1, 0]
+        by_ = XY[i1, 1]
+        cx = XY[i2, 0]
+        cy = XY[i2, 1]
+        xmin = min(ax, min(bx_, cx))
+        xmax = max(ax, max(bx_, cx))
+        ymin = min(ay, min(by_, cy))
+        ymax = max(ay, max(by_, cy))
+        # Sample bounding box: integer fine-grid points inside the snapped box.
+        X0 = max(-((-xmin) >> FRAC_BITS), 0)
+        X1 = min(xmax >> FRAC_BITS, nW - 1)
+        Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+        Y1 = min(ymax >> FRAC_BITS, nH - 1)
+        if X0 > X1 or Y0 > Y1:
+            continue
+        if huge[i0] or huge[i1] or huge[i2]:
+            status[t] = ERR_TOO_CLOSE
+            continue
+        ext = max(xmax - xmin, ymax - ymin)
+        if ext < SAFE_EXTENT:
+            area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
+            o = 1 if area > 0 else (-1 if area < 0 else 0)
+            kind = SMALL
+        else:
+            o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
+            kind = GIANT
+        if o == 0:
+            continue  # zero projected area: never hit
+        status[t] = kind
+        orient[t] = o
+        box[t, 0] = X0
+        box[t, 1] = X1
+        box[t, 2] = Y0
+        box[t, 3] = Y1
+        # Plane of the triangle (float64, from the unsnapped vertices).
+        e1x = V[i1, 0] - V[i0, 0]
+        e1y = V[i1, 1] - V[i0, 1]
+        e1z = V[i1, 2] - V[i0, 2]
+        e2x = V[i2, 0] - V[i0, 0]
+        e2y = V[i2, 1] - V[i0, 1]
+        e2z = V[i2, 2] - V[i0, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        qx = V[i0, 0] - r0[0]
+        qy = V[i0, 1] - r0[1]
+        qz = V[i0, 2] - r0[2]
+        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
+        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+        if perspective:
+            # Ray r0 + s D, D = P00 - r0 + X Ex + Y Ey; depth of the hit = s * FL.
+            coef[t, 0] = FL * (nx * qx + ny * qy + nz * qz)
+            coef[t, 1] = 0.0
+            coef[t, 2] = 0.0
+            coef[t, 3] = nx * P00[0] + ny * P00[1] + nz * P00[2]
+            coef[t, 4] = nEx
+            coef[t, 5] = nEy
+        else:
+            # Ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
+            coef[t, 0] = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
+            coef[t, 1] = -nEx
+            coef[t, 2] = -nEy
+            coef[t, 3] = nx * f[0] + ny * f[1] + nz * f[2]
+            coef[t, 4] = 0.0
+            coef[t, 5] = 0.0
+        wrange[t, 0] = wmin
+        wrange[t, 1] = wmax
+
+
+@njit(cache=True)
+def bin_triangles(status, box, band_height, n_bands):
+    """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
+    T = status.shape[0]
+    counts = np.zeros(n_bands + 1, np.int64)
+    for t in range(T):
+        if status[t] > 0:
+            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                counts[b + 1] += 1
+    for b in range(n_bands):
+        counts[b + 1] += counts[b]
+    fill = counts[:-1].copy()
+    tris = np.empty(counts[n_bands], np.int32)
+    for t in range(T):
+        if status[t] > 0:
+            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                tris[fill[b]] = t
+                fill[b] += 1
+    return counts, tris
+
+
+@njit(cache=True, inline="always")
+def _depth(coef, wrange, t, X, Y):
+    num = coef[t, 0] + coef[t, 1] * X + coef[t, 2] * Y
+    den = coef[t, 3] + coef[t, 4] * X + coef[t, 5] * Y
+    W = num / den
+    lo = wrange[t, 0]
+    hi = wrange[t, 1]
+    if W != W:
+        return 0.5 * (lo + hi)
+    if W < lo:
+        return lo
+    if W > hi:
+        return hi
+    return W
+
+
+@njit(cache=True)
+def _cover(t, y0, y1, mode, F, XY, status, box, orient, coef, wrange, tri_body, FL,
+           S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
+    """Visit the samples of triangle ``t`` in rows ``y0..y1`` that it covers.
+
+    mode 0: ``S[Y, X] += sign * W`` and ``N[Y, X] += entering`` (one body).
+    mode 1: count hits per sample of the band (``cnt``). mode 2: fill the band's hit buffers.
+    Hits beyond the detector (depth > FL) are dropped.
+    """
+    i0 = F[t, 0]
+    i1 = F[t, 1]
+    i2 = F[t, 2]
+    ax = XY[i0, 0]
+    ay = XY[i0, 1]
+    bx = XY[i1, 0]
+    by = XY[i1, 1]
+    cx = XY[i2, 0]
+    cy = XY[i2, 1]
+    o = orient[t]
+    X0 = box[t, 0]
+    X1 = box[t, 1]
+    entering = o > 0
+    sgn = -1.0 if entering else 1.0
+    dn = 1 if entering else -1
+    body = tri_body[t]
+    # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
+    e0x = bx - ax
+    e0y = by - ay
+    e1x = cx - bx
+    e1y = cy - by
+    e2x = ax - cx
+    e2y = ay - cy
+    bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+    bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+    bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+    if status[t] == SMALL:
+        px0 = X0 * ONE
+        stepx0 = -o * e0y * ONE
+        stepx1 = -o * e1y * ONE
+        stepx2 = -o * e2y * ONE
+        for Y in range(y0, y1 + 1):
+            py = Y * ONE
+            E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
+            E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
+            E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+            for X in range(X0, X1 + 1):
+                if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
+                    _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
+                            nW, buf_off, buf_w, buf_b)
+                E0 += stepx0
+                E1 += stepx1
+                E2 += stepx2
+    else:
+        for Y in range(y0, y1 + 1):
+            py = Y * ONE
+            for X in range(X0, X1 + 1):
+                px = X * ONE
+                s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
+                s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
+                s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
+                if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                    _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
+                            nW, buf_off, buf_w, buf_b)
+
+
+@njit(cache=True, inline="always")
+def _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
+            buf_w, buf_b):
+    if mode == 1:
+        # Counting pass: depth needed only to drop hits beyond the detector.
+        if _depth(coef, wrange, t, X, Y) <= FL:
+            cnt[(Y - row0) * nW + X] += 1
+        return
+    W = _depth(coef, wrange, t, X, Y)
+    if W > FL:
+        return
+    if mode == 0:
+        S[Y, X] += sgn * W
+        N[Y, X] += dn
+    else:
+        k = (Y - row0) * nW + X
+        j = buf_off[k] + cnt[k]
+        cnt[k] += 1
+        buf_w[j] = W
+        buf_b[j] = body * 2 + (1 if dn > 0 else 0)
+
+
+@njit(cache=True, parallel=True)
+def raster_single(order, band_start, band_tris, band_height, nH, nW, F, XY, status, box,
+                  orient, coef, wrange, tri_body, FL, S, N):
+    """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid."""
+    dummy_i = np.zeros(1, np.int64)
+    dummy_f = np.zeros(1, np.float64)
+    dummy_b = np.zeros(1, np.int32)
+    for k in prange(order.shape[0]):
+        b = order[k]
+        r0 = b * band_height
+        r1 = min(nH, r0 + band_height) - 1
+        for idx in range(band_start[b], band_start[b + 1]):
+            t = band_tris[idx]
+            y0 = max(box[t, 2], r0)
+            y1 = min(box[t, 3], r1)
+            _cover(t, y0, y1, 0, F, XY, status, box, orient, coef, wrange, tri_body, FL,
+                   S, N, dummy_i, 0, nW, dummy_i, dummy_f, dummy_b)
+
+
+@njit(cache=True, parallel=True)
+def raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, status, box,
+                 orient, coef, wrange, tri_body, FL, precedence, Lf):
+    """Several bodies: per band, count then store every hit, then sort and sweep each sample.
+
+    ``Lf[Y, X, b]`` receives the length (in depth units, along the beam axis) of the ray of
+    sample (X, Y) whose material is body ``b``: the body of highest ``precedence`` among those
+    the ray is inside (entries minus exits > 0), up to the detector (depth FL).
+    """
+    nb = precedence.shape[0]
+    dummy_S = np.zeros((1, 1), np.float64)
+    dummy_N = np.zeros((1, 1), np.int32)
+    for k in prange(order.shape[0]):
+        b = order[k]
+        r0 = b * band_height
+        r1 = min(nH, r0 + band_height) - 1
+        npix = (r1 - r0 + 1) * nW
+        cnt = np.zeros(npix, np.int64)
+        off = np.zeros(npix + 1, np.int64)
+        dummy_w = np.zeros(1, np.float64)
+        dummy_b = np.zeros(1, np.int32)
+        for idx in range(band_start[b], band_start[b + 1]):
+            t = band_tris[idx]
+            _cover(t, max(box[t, 2], r0), min(box[t, 3], r1), 1, F, XY, status, box, orient,
+                   coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, dummy_w,
+                   dummy_b)
+        for p in range(npix):
+            off[p + 1] = off[p] + cnt[p]
+            cnt[p] = 0
+        total = off[npix]
+        if total == 0:
+            continue
+        bw = np.empty(total, np.float64)
+        bb = np.empty(total, np.int32)
+        for idx in range(band_start[b], band_start[b + 1]):
+            t = band_tris[idx]
+            _cover(t, max(box[t, 2], r0), min(box[t, 3], r1), 2, F, XY, status, box, orient,
+                   coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, bw, bb)
+        inside = np.zeros(nb, np.int64)
+        for p in range(npix):
+            lo = off[p]
+            hi = off[p + 1]
+            if hi == lo:
+                continue
+            # Insertion sort of the sample's hits by depth (few per sample).
+            for i in range(lo + 1, hi):
+                kw = bw[i]
+                kb = bb[i]
+                j = i - 1
+                while j >= lo and bw[j] > kw:
+                    bw[j + 1] = bw[j]
+                    bb[j + 1] = bb[j]
+                    j -= 1
+                bw[j + 1] = kw
+                bb[j + 1] = kb
+            for q in range(nb):
+                inside[q] = 0
+            Y = r0 + p // nW
+            X = p % nW
+            for i in range(lo, hi):
+                code = bb[i]
+                if code & 1:
+                    inside[code >> 1] += 1
+                else:
+                    inside[code >> 1] -= 1
+                win = -1
+                best = -1
+                for q in range(nb):
+                    if inside[q] > 0 and precedence[q] > best:
+                        best = precedence[q]
+                        win = q
+                if win >= 0:
+                    nxt = bw[i + 1] if i + 1 < hi else FL
+                    seg = nxt - bw[i]
+                    if seg > 0.0:
+                        Lf[Y, X, win] += seg
