@@ -220,6 +220,9 @@ class Scene:
                 f"{self._where()}[detector] up {self.detector.up.tolist()} is parallel to the beam "
                 "(source -> detector centre); choose an up vector across the beam"
             )
+        from xray_viz.attenuation import check_source_outside
+
+        check_source_outside(self)
 
     def _where(self) -> str:
         return f"{self.path}: " if self.path else ""
@@ -351,6 +354,12 @@ class _Table:
         return _Table(value, f"{self.where[:-1]}.{key}]" if self.where.endswith("]") else key,
                       self.file)
 
+    def expect(self, keys):
+        """Fail now on keys outside ``keys`` (a typo is reported before the key it misspelt)."""
+        self.used.update(keys)
+        self.done()
+        self.used.difference_update(keys)
+
     def done(self):
         unknown = sorted(set(self.data) - self.used)
         if unknown:
@@ -454,6 +463,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     """
     base_dir = Path(base_dir)
     top = _Table(doc, "scene", file)
+    top.expect(("source", "detector", "body"))
     src = top.table("source", required=True)
     src.where = "[source]"
     position = src.vector("position", 3, required=True)
@@ -504,9 +514,6 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         if file and not msg.startswith(str(file)):
             msg = f"{file}: {msg}"
         raise SceneError(msg) from None
-    from xray_viz.attenuation import check_source_outside
-
-    check_source_outside(scene)
     return scene
 
 
