@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quantity", choices=QUANTITIES, default="intensity",
                    help="what to write: intensity I = I0 exp(-line integral) (default), the "
                         "line integral sum(mu L), or the total path length in mm")
-    p.add_argument("--engine", default="numpy", choices=sorted(ENGINES),
+    p.add_argument("--engine", default="fast", choices=sorted(ENGINES),
                    help="tracing engine (default: %(default)s)")
     p.set_defaults(func=_render_command)
 
