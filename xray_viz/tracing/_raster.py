@@ -27,8 +27,8 @@ _MASK30 = (1 << 30) - 1
 SKIP = 0
 SMALL = 1
 GIANT = 2
-ERR_STRADDLE = -1
-ERR_TOO_CLOSE = -2
+ERR_STRADDLE = -100
+ERR_TOO_CLOSE = -101
 
 
 @njit(cache=True, parallel=True)
@@ -104,12 +104,10 @@ def _tie(ex, ey):
 
 
 @njit(cache=True, parallel=True)
-def setup_triangles(V, F, XY, w, huge, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
-                    status, box, orient, coef, wrange):
-    """Per triangle: status, sample bounding box, orientation, depth coefficients.
+def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box):
+    """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
 
-    Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
-    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
+    Only triangles that can cover a sample get a box; ``status`` is written for all.
     """
     T = F.shape[0]
     for t in prange(T):
@@ -117,18 +115,6 @@ def setup_triangles(V, F, XY, w, huge, perspective, r0, P00, Ex, Ey, f, FL, nW, 
         i1 = F[t, 1]
         i2 = F[t, 2]
         status[t] = SKIP
-        w0 = w[i0]
-        w1 = w[i1]
-        w2 = w[i2]
-        wmin = min(w0, min(w1, w2))
-        wmax = max(w0, max(w1, w2))
-        if wmax < 0.0 or wmin > FL:
-            continue  # behind the source or beyond the detector
-        if perspective and wmax <= 0.0:
-            continue
-        if wmin < 0.0 or (perspective and wmin <= 0.0):
-            status[t] = ERR_STRADDLE
-            continue
         ax = XY[i0, 0]
         ay = XY[i0, 1]
         bx_ = XY[i1, 0]
@@ -144,8 +130,20 @@ def setup_triangles(V, F, XY, w, huge, perspective, r0, P00, Ex, Ey, f, FL, nW, 
         X1 = min(xmax >> FRAC_BITS, nW - 1)
         Y0 = max(-((-ymin) >> FRAC_BITS), 0)
         Y1 = min(ymax >> FRAC_BITS, nH - 1)
-        if X0 > X1 or Y0 > Y1:
+        w0 = w[i0]
+        w1 = w[i1]
+        w2 = w[i2]
+        wmin = min(w0, min(w1, w2))
+        wmax = max(w0, max(w1, w2))
+        if wmax < 0.0 or wmin > FL:
+            continue  # behind the source or beyond the detector
+        if perspective and wmax <= 0.0:
             continue
+        if wmin < 0.0 or (perspective and wmin <= 0.0):
+            status[t] = ERR_STRADDLE
+            continue
+        if X0 > X1 or Y0 > Y1:
+            continue  # covers no sample (outside the beam or between samples)
         if huge[i0] or huge[i1] or huge[i2]:
             status[t] = ERR_TOO_CLOSE
             continue
@@ -159,13 +157,32 @@ def setup_triangles(V, F, XY, w, huge, perspective, r0, P00, Ex, Ey, f, FL, nW, 
             kind = GIANT
         if o == 0:
             continue  # zero projected area: never hit
-        status[t] = kind
-        orient[t] = o
+        status[t] = kind * o
         box[t, 0] = X0
         box[t, 1] = X1
         box[t, 2] = Y0
         box[t, 3] = Y1
-        # Plane of the triangle (float64, from the unsnapped vertices).
+
+
+@njit(cache=True, parallel=True)
+def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
+                 kind, orient, cbox, coef, wrange):
+    """Compact per-triangle data of the triangles ``tri`` that cover samples.
+
+    Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
+    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
+    """
+    M = tri.shape[0]
+    for m in prange(M):
+        t = tri[m]
+        st = status[t]
+        orient[m] = 1 if st > 0 else -1
+        kind[m] = abs(st)
+        for q in range(4):
+            cbox[m, q] = box[t, q]
+        i0 = F[t, 0]
+        i1 = F[t, 1]
+        i2 = F[t, 2]
         e1x = V[i1, 0] - V[i0, 0]
         e1y = V[i1, 1] - V[i0, 1]
         e1z = V[i1, 2] - V[i0, 2]
@@ -181,32 +198,35 @@ def setup_triangles(V, F, XY, w, huge, perspective, r0, P00, Ex, Ey, f, FL, nW, 
         nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
         nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
         if perspective:
-            # Ray r0 + s D, D = P00 - r0 + X Ex + Y Ey; depth of the hit = s * FL.
-            coef[t, 0] = FL * (nx * qx + ny * qy + nz * qz)
-            coef[t, 1] = 0.0
-            coef[t, 2] = 0.0
-            coef[t, 3] = nx * P00[0] + ny * P00[1] + nz * P00[2]
-            coef[t, 4] = nEx
-            coef[t, 5] = nEy
+            # Ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0); hit depth = s * FL.
+            coef[m, 0] = FL * (nx * qx + ny * qy + nz * qz)
+            coef[m, 1] = 0.0
+            coef[m, 2] = 0.0
+            coef[m, 3] = nx * P00[0] + ny * P00[1] + nz * P00[2]
+            coef[m, 4] = nEx
+            coef[m, 5] = nEy
         else:
             # Ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
-            coef[t, 0] = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
-            coef[t, 1] = -nEx
-            coef[t, 2] = -nEy
-            coef[t, 3] = nx * f[0] + ny * f[1] + nz * f[2]
-            coef[t, 4] = 0.0
-            coef[t, 5] = 0.0
-        wrange[t, 0] = wmin
-        wrange[t, 1] = wmax
+            coef[m, 0] = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
+            coef[m, 1] = -nEx
+            coef[m, 2] = -nEy
+            coef[m, 3] = nx * f[0] + ny * f[1] + nz * f[2]
+            coef[m, 4] = 0.0
+            coef[m, 5] = 0.0
+        w0 = w[i0]
+        w1 = w[i1]
+        w2 = w[i2]
+        wrange[m, 0] = min(w0, min(w1, w2))
+        wrange[m, 1] = max(w0, max(w1, w2))
 
 
 @njit(cache=True)
-def bin_triangles(status, box, band_height, n_bands):
+def bin_triangles(box, band_height, n_bands):
     """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
-    T = status.shape[0]
+    T = box.shape[0]
     counts = np.zeros(n_bands + 1, np.int64)
     for t in range(T):
-        if status[t] > 0:
+        if True:
             for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
                 counts[b + 1] += 1
     for b in range(n_bands):
@@ -214,7 +234,7 @@ def bin_triangles(status, box, band_height, n_bands):
     fill = counts[:-1].copy()
     tris = np.empty(counts[n_bands], np.int32)
     for t in range(T):
-        if status[t] > 0:
+        if True:
             for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
                 tris[fill[b]] = t
                 fill[b] += 1
@@ -238,14 +258,15 @@ def _depth(coef, wrange, t, X, Y):
 
 
 @njit(cache=True)
-def _cover(t, y0, y1, mode, F, XY, status, box, orient, coef, wrange, tri_body, FL,
+def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
            S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
-    """Visit the samples of triangle ``t`` in rows ``y0..y1`` that it covers.
+    """Visit the samples of compact triangle ``m`` in rows ``y0..y1`` that it covers.
 
     mode 0: ``S[Y, X] += sign * W`` and ``N[Y, X] += entering`` (one body).
     mode 1: count hits per sample of the band (``cnt``). mode 2: fill the band's hit buffers.
     Hits beyond the detector (depth > FL) are dropped.
     """
+    t = tri[m]
     i0 = F[t, 0]
     i1 = F[t, 1]
     i2 = F[t, 2]
@@ -255,9 +276,9 @@ def _cover(t, y0, y1, mode, F, XY, status, box, orient, coef, wrange, tri_body, 
     by = XY[i1, 1]
     cx = XY[i2, 0]
     cy = XY[i2, 1]
-    o = orient[t]
-    X0 = box[t, 0]
-    X1 = box[t, 1]
+    o = np.int64(orient[m])
+    X0 = cbox[m, 0]
+    X1 = cbox[m, 1]
     entering = o > 0
     sgn = -1.0 if entering else 1.0
     dn = 1 if entering else -1
@@ -272,7 +293,7 @@ def _cover(t, y0, y1, mode, F, XY, status, box, orient, coef, wrange, tri_body, 
     bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
     bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
     bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-    if status[t] == SMALL:
+    if kind[m] == SMALL:
         px0 = X0 * ONE
         stepx0 = -o * e0y * ONE
         stepx1 = -o * e1y * ONE
@@ -284,7 +305,7 @@ def _cover(t, y0, y1, mode, F, XY, status, box, orient, coef, wrange, tri_body, 
             E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
             for X in range(X0, X1 + 1):
                 if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                    _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
+                    _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
                             nW, buf_off, buf_w, buf_b)
                 E0 += stepx0
                 E1 += stepx1
@@ -298,24 +319,21 @@ def _cover(t, y0, y1, mode, F, XY, status, box, orient, coef, wrange, tri_body, 
                 s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
                 s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
                 if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                    _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
+                    _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
                             nW, buf_off, buf_w, buf_b)
 
 
 @njit(cache=True, inline="always")
-def _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
+def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
             buf_w, buf_b):
-    if mode == 1:
-        # Counting pass: depth needed only to drop hits beyond the detector.
-        if _depth(coef, wrange, t, X, Y) <= FL:
-            cnt[(Y - row0) * nW + X] += 1
-        return
-    W = _depth(coef, wrange, t, X, Y)
+    W = _depth(coef, wrange, m, X, Y)
     if W > FL:
         return
     if mode == 0:
         S[Y, X] += sgn * W
         N[Y, X] += dn
+    elif mode == 1:
+        cnt[(Y - row0) * nW + X] += 1
     else:
         k = (Y - row0) * nW + X
         j = buf_off[k] + cnt[k]
@@ -325,26 +343,26 @@ def _record(t, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW,
 
 
 @njit(cache=True, parallel=True)
-def raster_single(order, band_start, band_tris, band_height, nH, nW, F, XY, status, box,
+def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                   orient, coef, wrange, tri_body, FL, S, N):
     """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid."""
-    dummy_i = np.zeros(1, np.int64)
-    dummy_f = np.zeros(1, np.float64)
-    dummy_b = np.zeros(1, np.int32)
     for k in prange(order.shape[0]):
+        dummy_i = np.zeros(1, np.int64)
+        dummy_f = np.zeros(1, np.float64)
+        dummy_b = np.zeros(1, np.int32)
         b = order[k]
         r0 = b * band_height
         r1 = min(nH, r0 + band_height) - 1
         for idx in range(band_start[b], band_start[b + 1]):
-            t = band_tris[idx]
-            y0 = max(box[t, 2], r0)
-            y1 = min(box[t, 3], r1)
-            _cover(t, y0, y1, 0, F, XY, status, box, orient, coef, wrange, tri_body, FL,
+            m = band_tris[idx]
+            y0 = max(cbox[m, 2], r0)
+            y1 = min(cbox[m, 3], r1)
+            _cover(m, y0, y1, 0, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
                    S, N, dummy_i, 0, nW, dummy_i, dummy_f, dummy_b)
 
 
 @njit(cache=True, parallel=True)
-def raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, status, box,
+def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                  orient, coef, wrange, tri_body, FL, precedence, Lf):
     """Several bodies: per band, count then store every hit, then sort and sweep each sample.
 
@@ -353,9 +371,9 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, statu
     the ray is inside (entries minus exits > 0), up to the detector (depth FL).
     """
     nb = precedence.shape[0]
-    dummy_S = np.zeros((1, 1), np.float64)
-    dummy_N = np.zeros((1, 1), np.int32)
     for k in prange(order.shape[0]):
+        dummy_S = np.zeros((1, 1), np.float64)
+        dummy_N = np.zeros((1, 1), np.int32)
         b = order[k]
         r0 = b * band_height
         r1 = min(nH, r0 + band_height) - 1
@@ -365,10 +383,10 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, statu
         dummy_w = np.zeros(1, np.float64)
         dummy_b = np.zeros(1, np.int32)
         for idx in range(band_start[b], band_start[b + 1]):
-            t = band_tris[idx]
-            _cover(t, max(box[t, 2], r0), min(box[t, 3], r1), 1, F, XY, status, box, orient,
-                   coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, dummy_w,
-                   dummy_b)
+            m = band_tris[idx]
+            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), 1, tri, F, XY, kind, cbox,
+                   orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off,
+                   dummy_w, dummy_b)
         for p in range(npix):
             off[p + 1] = off[p] + cnt[p]
             cnt[p] = 0
@@ -378,9 +396,10 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, statu
         bw = np.empty(total, np.float64)
         bb = np.empty(total, np.int32)
         for idx in range(band_start[b], band_start[b + 1]):
-            t = band_tris[idx]
-            _cover(t, max(box[t, 2], r0), min(box[t, 3], r1), 2, F, XY, status, box, orient,
-                   coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, bw, bb)
+            m = band_tris[idx]
+            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), 2, tri, F, XY, kind, cbox,
+                   orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, bw,
+                   bb)
         inside = np.zeros(nb, np.int64)
         for p in range(npix):
             lo = off[p]
@@ -419,3 +438,38 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, statu
                     seg = nxt - bw[i]
                     if seg > 0.0:
                         Lf[Y, X, win] += seg
+
+
+@njit(cache=True, parallel=True)
+def finish(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
+    """Fine grid -> rays in image order, depth units -> mm along each ray.
+
+    Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
+    ``((H - 1 - j) W + i) n n + r n + c``. A point-source ray's length is its depth span times
+    ``|D| / FL`` (D from the source to the sample's detector point).
+    """
+    nH = H * n
+    nW = W * n
+    nb = L.shape[1]
+    for Y in prange(nH):
+        j = Y // n
+        r = n - 1 - (Y - j * n)
+        for X in range(nW):
+            if single:
+                v = S[Y, X] + N[Y, X] * FL
+                if v == 0.0:
+                    continue
+            i = X // n
+            c = X - i * n
+            ray = ((H - 1 - j) * W + i) * n * n + r * n + c
+            scale = 1.0
+            if perspective:
+                dx = P00[0] + X * Ex[0] + Y * Ey[0]
+                dy = P00[1] + X * Ex[1] + Y * Ey[1]
+                dz = P00[2] + X * Ex[2] + Y * Ey[2]
+                scale = np.sqrt(dx * dx + dy * dy + dz * dz) / FL
+            if single:
+                L[ray, 0] = v * scale
+            else:
+                for q in range(nb):
+                    L[ray, q] = Lf[Y, X, q] * scale

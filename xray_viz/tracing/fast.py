@@ -55,6 +55,7 @@ def clear_caches() -> None:
     """Forget cached meshes and path lengths (for timing cold runs)."""
     _MESH_CACHE.clear()
     _L_CACHE.clear()
+    _WORK.clear()
 
 
 def _mesh_key(body):
@@ -120,6 +121,20 @@ def _frame(scene, n):
     Ey = (py / n) * ev
     P00 = -bx * Ex - by * Ey          # offset of fine sample (0, 0) from the detector centre
     return r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00
+
+
+_WORK: dict = {}
+
+
+def _workspace(n_vertices, n_triangles):
+    """Scratch arrays reused between calls (fresh pages cost more than the projection)."""
+    if _WORK.get("size") != (n_vertices, n_triangles):
+        _WORK.clear()
+        _WORK["size"] = (n_vertices, n_triangles)
+        _WORK["arrays"] = (np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
+                           np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
+                           np.empty((n_triangles, 4), np.int64))
+    return _WORK["arrays"]
 
 
 def _band_order(n_bands):
@@ -216,58 +231,52 @@ def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndar
     perspective = scene.source.kind != "parallel"
     r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = _frame(scene, n)
     nW, nH = W * n, H * n
-    XY = np.empty((len(V), 2), np.int64)
-    w = np.empty(len(V))
-    huge = np.empty(len(V), np.bool_)
+    XY, w, huge, status, box = _workspace(len(V), len(F))
     if perspective:
         R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge)
         P0 = (center + P00) - r0
     else:
         R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge)
         P0 = P00
-    T = len(F)
-    status = np.empty(T, np.int8)
-    box = np.empty((T, 4), np.int64)
-    orient = np.empty(T, np.int8)
-    coef = np.empty((T, 6))
-    wrange = np.empty((T, 2))
-    R.setup_triangles(V, F, XY, w, huge, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                      status, box, orient, coef, wrange)
-    smin = status.min()
-    if smin < 0:
-        t = int(np.flatnonzero(status < 0)[0])
+    R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box)
+    if status.min() <= R.ERR_STRADDLE:
+        t = int(np.flatnonzero(status <= R.ERR_STRADDLE)[0])
         body = scene.bodies[int(B[t])].name
-        if smin == R.ERR_STRADDLE or status[t] == R.ERR_STRADDLE:
+        if status[t] == R.ERR_STRADDLE:
             raise SceneError(
-                f"body {body!r} crosses the plane of the source (through "
-                f"{r0.tolist()}, across the beam): the fast engine cannot project it; move the "
-                "source back or use engine='numpy'")
+                f"body {body!r} crosses the plane of the source (through {r0.tolist()}, "
+                "across the beam): the fast engine cannot project it; move the source back "
+                "or use engine='numpy'")
         raise SceneError(
             f"body {body!r} is too close to the plane of the source to project onto the "
             "detector; move the source back or use engine='numpy'")
+    tri = np.flatnonzero(status).astype(np.int64)
+    M = len(tri)
+    kind = np.empty(M, np.int8)
+    orient = np.empty(M, np.int8)
+    cbox = np.empty((M, 4), np.int64)
+    coef = np.empty((M, 6))
+    wrange = np.empty((M, 2))
+    R.setup_planes(tri, V, F, w, status, box, perspective, r0, P0, Ex, Ey, f, FL,
+                   kind, orient, cbox, coef, wrange)
     n_bands = int(min(nH, max(2, 16 * (os.cpu_count() or 2))))
     band_height = int(math.ceil(nH / n_bands))
     n_bands = int(math.ceil(nH / band_height))
-    band_start, band_tris = R.bin_triangles(status, box, band_height, n_bands)
+    band_start, band_tris = R.bin_triangles(cbox, band_height, n_bands)
     order = _band_order(n_bands)
+    L = np.zeros((n_rays, nb))
     if nb == 1:
         S = np.zeros((nH, nW))
         N = np.zeros((nH, nW), np.int32)
-        R.raster_single(order, band_start, band_tris, band_height, nH, nW, F, XY, status, box,
-                        orient, coef, wrange, B, FL, S, N)
-        Lf = (S + N * FL)[:, :, None]
+        R.raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                        cbox, orient, coef, wrange, B, FL, S, N)
+        Lf = np.zeros((1, 1, 1))
     else:
+        S = np.zeros((1, 1))
+        N = np.zeros((1, 1), np.int32)
         Lf = np.zeros((nH, nW, nb))
         prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
-        R.raster_multi(order, band_start, band_tris, band_height, nH, nW, F, XY, status, box,
-                       orient, coef, wrange, B, FL, prec, Lf)
-    if perspective:
-        # Depth along the beam -> distance along the ray: t = depth * |D| / FL.
-        X = np.arange(nW)
-        Y = np.arange(nH)
-        D = P0[None, None, :] + Y[:, None, None] * Ey + X[None, :, None] * Ex
-        Lf = Lf * (np.sqrt(np.einsum("ijk,ijk->ij", D, D)) / FL)[:, :, None]
-    # Fine grid (Y up, X right) -> image order: ray = ((H-1-j) W + i) n n + r n + c with
-    # X = n i + c and Y = n j + (n - 1 - r).
-    Lf = Lf.reshape(H, n, W, n, nb)[::-1, ::-1]          # (row, r, i, c, b)
-    return np.ascontiguousarray(Lf.transpose(0, 2, 1, 3, 4)).reshape(n_rays, nb)
+        R.raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                       cbox, orient, coef, wrange, B, FL, prec, Lf)
+    R.finish(S, N, Lf, nb == 1, FL, perspective, P0, Ex, Ey, n, W, H, L)
+    return L
