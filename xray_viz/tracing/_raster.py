@@ -13,13 +13,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-#: Fixed-point fraction bits of a projected vertex (units of a fine-grid step).
-FRAC_BITS = 16
+#: Fixed-point fraction bits of a projected vertex (units of a fine-grid step). The snapped
+#: geometry is watertight whatever this is; it moves vertices by at most 2**-(FRAC_BITS+1)
+#: of a grid step, which bounds the path-length error of rays grazing a silhouette.
+FRAC_BITS = 22
 ONE = 1 << FRAC_BITS
-#: Projected coordinates (fine-grid steps) beyond this cannot be snapped safely.
-COORD_LIMIT = float(2 ** 41)
-#: A triangle whose snapped bounding box is smaller than this (fixed-point units) uses plain
-#: int64 edge functions (|E| < 2**61); larger ones use exact 128-bit-style limb arithmetic.
+#: Projected coordinates (fine-grid steps) beyond this cannot be snapped safely (2**57 units).
+COORD_LIMIT = float(2 ** (57 - FRAC_BITS))
+#: A triangle whose snapped bounding box is smaller than this (fixed-point units, i.e. 256
+#: grid steps) uses plain int64 edge functions (|E| < 2**61); larger ones use exact limb
+#: arithmetic (sign of a 128-bit product difference).
 SAFE_EXTENT = 1 << 30
 _MASK30 = (1 << 30) - 1
 

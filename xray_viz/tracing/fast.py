@@ -5,13 +5,14 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
 
 1. **Project** each mesh vertex onto the detector (perspective for a point source, orthographic
    for a parallel beam) in units of the ray grid (with ``n x n`` supersampling, the sub-ray grid),
-   and **snap** it to fixed point, ``2**-16`` of a grid step. Shared vertices snap identically.
+   and **snap** it to fixed point, ``2**-22`` of a grid step (``FRAC_BITS``). Shared vertices
+   snap identically.
 2. **Footprint only**: each triangle visits the rays inside its snapped bounding box (clipped to
    the detector); triangles outside the beam, behind the source or beyond the detector are culled.
 3. **Exact coverage**: three int64 edge functions per ray; a ray exactly on an edge or vertex
    is resolved by a tie rule (the ray is moved by an infinitesimal ``(eps, eps * delta)``), so a
    ray through a shared edge or vertex belongs to exactly one triangle of each surface sheet, on
-   every configuration, by construction. Projected triangles larger than 2**14 grid steps use
+   every configuration, by construction. Projected triangles larger than 256 grid steps use
    exact limb arithmetic instead of int64.
 4. **Depth** of a covered ray: the exact ray-plane intersection in float64, from the unsnapped
    vertices, clamped to the triangle's depth range. The sign of the projected area tells entry
@@ -41,9 +42,9 @@ import numpy as np
 
 from xray_viz.errors import SceneError
 
-__all__ = ["fast_path_lengths", "trace_once", "clear_caches", "FRAC_BITS"]
+from xray_viz.tracing._raster import FRAC_BITS
 
-FRAC_BITS = 16
+__all__ = ["fast_path_lengths", "trace_once", "clear_caches", "FRAC_BITS"]
 
 _MESH_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
 _L_CACHE: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
