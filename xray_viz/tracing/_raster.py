@@ -444,8 +444,10 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
 
 
 @njit(cache=True, parallel=True)
-def finish(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
+def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
+
+    ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis.
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
     ``((H - 1 - j) W + i) n n + r n + c``. A point-source ray's length is its depth span times
@@ -459,7 +461,7 @@ def finish(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
         r = n - 1 - (Y - j * n)
         for X in range(nW):
             if single:
-                v = S[Y, X] + N[Y, X] * FL
+                v = S[Y, X]
                 if v == 0.0:
                     continue
             i = X // n
@@ -476,3 +478,152 @@ def finish(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
             else:
                 for q in range(nb):
                     L[ray, q] = Lf[Y, X, q] * scale
+
+
+@njit(cache=True, parallel=True)
+def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
+                  S, N, err):
+    """One body, in one pass over the triangles: cull, cover, depth and accumulate.
+
+    Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
+    own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
+    triangle that cannot be projected (straddling or too close to the source plane), else -1.
+    """
+    T = F.shape[0]
+    per = (T + n_chunks - 1) // n_chunks
+    for c in prange(n_chunks):
+        err[c] = -1
+        Sc = S[c]
+        Nc = N[c]
+        for t in range(c * per, min(T, (c + 1) * per)):
+            i0 = F[t, 0]
+            i1 = F[t, 1]
+            i2 = F[t, 2]
+            ax = XY[i0, 0]
+            ay = XY[i0, 1]
+            bx = XY[i1, 0]
+            by = XY[i1, 1]
+            cx = XY[i2, 0]
+            cy = XY[i2, 1]
+            xmin = min(ax, min(bx, cx))
+            xmax = max(ax, max(bx, cx))
+            ymin = min(ay, min(by, cy))
+            ymax = max(ay, max(by, cy))
+            X0 = max(-((-xmin) >> FRAC_BITS), 0)
+            X1 = min(xmax >> FRAC_BITS, nW - 1)
+            Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+            Y1 = min(ymax >> FRAC_BITS, nH - 1)
+            w0 = w[i0]
+            w1 = w[i1]
+            w2 = w[i2]
+            wmin = min(w0, min(w1, w2))
+            wmax = max(w0, max(w1, w2))
+            if wmax < 0.0 or wmin > FL:
+                continue
+            if perspective and wmax <= 0.0:
+                continue
+            if wmin < 0.0 or (perspective and wmin <= 0.0):
+                err[c] = t
+                continue
+            if X0 > X1 or Y0 > Y1:
+                continue
+            if huge[i0] or huge[i1] or huge[i2]:
+                err[c] = t
+                continue
+            ext = max(xmax - xmin, ymax - ymin)
+            small = ext < SAFE_EXTENT
+            if small:
+                area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+                o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
+            else:
+                o = np.int64(exact_cross_sign(bx - ax, cy - ay, by - ay, cx - ax))
+            if o == 0:
+                continue
+            entering = o > 0
+            sgn = -1.0 if entering else 1.0
+            dn = 1 if entering else -1
+            e0x = bx - ax
+            e0y = by - ay
+            e1x = cx - bx
+            e1y = cy - by
+            e2x = ax - cx
+            e2y = ay - cy
+            bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+            bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+            bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+            have_plane = False
+            c0 = 0.0
+            c1 = 0.0
+            c2 = 0.0
+            c3 = 0.0
+            c4 = 0.0
+            c5 = 0.0
+            for Y in range(Y0, Y1 + 1):
+                py = Y * ONE
+                E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax)) if small else 0
+                E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx)) if small else 0
+                E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx)) if small else 0
+                for X in range(X0, X1 + 1):
+                    if small:
+                        inside = E0 >= bias0 and E1 >= bias1 and E2 >= bias2
+                        E0 -= o * e0y * ONE
+                        E1 -= o * e1y * ONE
+                        E2 -= o * e2y * ONE
+                    else:
+                        px = X * ONE
+                        inside = (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
+                                  and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
+                                  and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
+                    if not inside:
+                        continue
+                    if not have_plane:
+                        have_plane = True
+                        f1x = V[i1, 0] - V[i0, 0]
+                        f1y = V[i1, 1] - V[i0, 1]
+                        f1z = V[i1, 2] - V[i0, 2]
+                        f2x = V[i2, 0] - V[i0, 0]
+                        f2y = V[i2, 1] - V[i0, 1]
+                        f2z = V[i2, 2] - V[i0, 2]
+                        nx = f1y * f2z - f1z * f2y
+                        ny = f1z * f2x - f1x * f2z
+                        nz = f1x * f2y - f1y * f2x
+                        qx = V[i0, 0] - r0[0]
+                        qy = V[i0, 1] - r0[1]
+                        qz = V[i0, 2] - r0[2]
+                        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
+                        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+                        if perspective:
+                            c0 = FL * (nx * qx + ny * qy + nz * qz)
+                            c3 = nx * P00[0] + ny * P00[1] + nz * P00[2]
+                            c4 = nEx
+                            c5 = nEy
+                        else:
+                            c0 = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
+                            c1 = -nEx
+                            c2 = -nEy
+                            c3 = nx * f[0] + ny * f[1] + nz * f[2]
+                    Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
+                    if Wd != Wd:
+                        Wd = 0.5 * (wmin + wmax)
+                    elif Wd < wmin:
+                        Wd = wmin
+                    elif Wd > wmax:
+                        Wd = wmax
+                    if Wd > FL:
+                        continue
+                    Sc[Y, X] += sgn * Wd
+                    Nc[Y, X] += dn
+
+
+@njit(cache=True, parallel=True)
+def reduce_chunks(S, N, FL, out):
+    """``out = sum_c S[c] + N[c] * FL`` (depth span of each sample, one body)."""
+    n_chunks, nH, nW = S.shape
+    for Y in prange(nH):
+        for X in range(nW):
+            s = 0.0
+            k = 0
+            for c in range(n_chunks):
+                s += S[c, Y, X]
+                k += N[c, Y, X]
+            out[Y, X] = s + k * FL

@@ -38,6 +38,7 @@ import math
 import os
 from collections import OrderedDict
 
+import numba
 import numpy as np
 
 from xray_viz.errors import SceneError
@@ -68,6 +69,26 @@ def _mesh_key(body):
     return (id(mesh), h)
 
 
+def _spatial_order(v, f):
+    """Vertices in Morton (Z-curve) order and faces sorted by their first vertex, so that the
+    per-call passes over triangles and vertices touch memory nearly in sequence. Projection
+    independent: done once per mesh."""
+    if len(v) < 4096:
+        return np.ascontiguousarray(v), f
+    lo, hi = v.min(0), v.max(0)
+    q = ((v - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64)
+    code = np.zeros(len(v), np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    order = np.argsort(code, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    f = rank[f]
+    f = f[np.argsort(f.min(axis=1), kind="stable")]
+    return np.ascontiguousarray(v[order]), np.ascontiguousarray(f)
+
+
 def _geometry(scene):
     """Concatenated vertices (V, 3) float64, faces (T, 3) int64 and triangle bodies (T,) int32,
     cached per tuple of meshes."""
@@ -79,8 +100,8 @@ def _geometry(scene):
     verts, faces, owner = [], [], []
     offset = 0
     for k, body in enumerate(scene.bodies):
-        v = np.ascontiguousarray(body.vertices, dtype=np.float64)
-        f = np.asarray(body.faces, dtype=np.int64)
+        v, f = _spatial_order(np.asarray(body.vertices, dtype=np.float64),
+                              np.asarray(body.faces, dtype=np.int64))
         verts.append(v)
         faces.append(f + offset)
         owner.append(np.full(len(f), k, np.int32))
@@ -136,6 +157,24 @@ def _workspace(n_vertices, n_triangles):
                            np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
                            np.empty((n_triangles, 4), np.int64))
     return _WORK["arrays"]
+
+
+#: Above this many (threads x samples), one body is traced by bands (memory) not per thread.
+_DIRECT_MAX_SAMPLES = 1 << 23
+
+
+def _refuse(scene, B, t, r0, w, F):
+    body = scene.bodies[int(B[t])].name
+    ws = w[F[t]]
+    perspective = scene.source.kind != "parallel"
+    if ws.min() < 0 or (perspective and ws.min() <= 0):
+        raise SceneError(
+            f"body {body!r} crosses the plane of the source (through {r0.tolist()}, across the "
+            "beam): the fast engine cannot project it; move the source back or use "
+            "engine='numpy'")
+    raise SceneError(
+        f"body {body!r} is too close to the plane of the source to project onto the detector; "
+        "move the source back or use engine='numpy'")
 
 
 def _band_order(n_bands):
@@ -239,18 +278,24 @@ def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndar
     else:
         R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge)
         P0 = P00
+    n_chunks = numba.get_num_threads()
+    if nb == 1 and n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
+        # One body: a single pass over the triangles, one accumulator per thread.
+        Sc = np.zeros((n_chunks, nH, nW))
+        Nc = np.zeros((n_chunks, nH, nW), np.int32)
+        err = np.empty(n_chunks, np.int64)
+        R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
+                        Sc, Nc, err)
+        if err.max() >= 0:
+            _refuse(scene, B, int(err.max()), r0, w, F)
+        S = np.empty((nH, nW))
+        R.reduce_chunks(Sc, Nc, FL, S)
+        L = np.zeros((n_rays, 1))
+        R.finish(S, np.zeros((1, 1, 1)), True, FL, perspective, P0, Ex, Ey, n, W, H, L)
+        return L
     R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box)
     if status.min() <= R.ERR_STRADDLE:
-        t = int(np.flatnonzero(status <= R.ERR_STRADDLE)[0])
-        body = scene.bodies[int(B[t])].name
-        if status[t] == R.ERR_STRADDLE:
-            raise SceneError(
-                f"body {body!r} crosses the plane of the source (through {r0.tolist()}, "
-                "across the beam): the fast engine cannot project it; move the source back "
-                "or use engine='numpy'")
-        raise SceneError(
-            f"body {body!r} is too close to the plane of the source to project onto the "
-            "detector; move the source back or use engine='numpy'")
+        _refuse(scene, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
     tri = np.flatnonzero(status).astype(np.int64)
     M = len(tri)
     kind = np.empty(M, np.int8)
@@ -267,17 +312,18 @@ def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndar
     order = _band_order(n_bands)
     L = np.zeros((n_rays, nb))
     if nb == 1:
-        S = np.zeros((nH, nW))
+        Sd = np.zeros((nH, nW))
         N = np.zeros((nH, nW), np.int32)
         R.raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                        cbox, orient, coef, wrange, B, FL, S, N)
+                        cbox, orient, coef, wrange, B, FL, Sd, N)
+        S = np.empty((nH, nW))
+        R.reduce_chunks(Sd[None], N[None], FL, S)
         Lf = np.zeros((1, 1, 1))
     else:
         S = np.zeros((1, 1))
-        N = np.zeros((1, 1), np.int32)
         Lf = np.zeros((nH, nW, nb))
         prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
         R.raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
                        cbox, orient, coef, wrange, B, FL, prec, Lf)
-    R.finish(S, N, Lf, nb == 1, FL, perspective, P0, Ex, Ey, n, W, H, L)
+    R.finish(S, Lf, nb == 1, FL, perspective, P0, Ex, Ey, n, W, H, L)
     return L
