@@ -587,8 +587,12 @@ def _scaling_plot(tri_rows, pix_rows, path):
         x = np.array([r[key] for r in rows], float)
         y = np.array([r["time_s"] * 1e3 for r in rows])
         ax.loglog(x, y, "o-", label="fast engine (median)")
-        # Linear reference through the last point.
-        ax.loglog(x, y[-1] * x / x[-1], "k--", lw=1, label="linear")
+        # Least-squares fit of a + b x: linear cost plus a fixed per-image part.
+        a, b = np.linalg.lstsq(np.column_stack([np.ones_like(x), x]), y, rcond=None)[0]
+        xs = np.geomspace(x.min(), x.max(), 50)
+        ax.loglog(xs, a + b * xs, "k--", lw=1,
+                  label=f"fit {a:.2f} ms + {b * 1e6:.3g} ms per million {key}")
+        ax.loglog(xs, b * xs, "k:", lw=1, label="its linear part")
         ax.set_xlabel(label)
         ax.set_ylabel("time per image (ms)")
         ax.grid(True, which="both", alpha=0.3)

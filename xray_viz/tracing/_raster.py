@@ -482,7 +482,7 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
 
 @njit(cache=True, parallel=True)
 def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
-                  S, N, err):
+                  depth_ok, S, N, err):
     """One body, in one pass over the triangles: cull, cover, depth and accumulate.
 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
@@ -513,23 +513,29 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
             X1 = min(xmax >> FRAC_BITS, nW - 1)
             Y0 = max(-((-ymin) >> FRAC_BITS), 0)
             Y1 = min(ymax >> FRAC_BITS, nH - 1)
-            w0 = w[i0]
-            w1 = w[i1]
-            w2 = w[i2]
-            wmin = min(w0, min(w1, w2))
-            wmax = max(w0, max(w1, w2))
-            if wmax < 0.0 or wmin > FL:
-                continue
-            if perspective and wmax <= 0.0:
-                continue
-            if wmin < 0.0 or (perspective and wmin <= 0.0):
-                err[c] = t
-                continue
-            if X0 > X1 or Y0 > Y1:
-                continue
-            if huge[i0] or huge[i1] or huge[i2]:
-                err[c] = t
-                continue
+            if depth_ok:
+                if X0 > X1 or Y0 > Y1:
+                    continue
+                wmin = 0.0
+                wmax = 0.0
+            else:
+                w0 = w[i0]
+                w1 = w[i1]
+                w2 = w[i2]
+                wmin = min(w0, min(w1, w2))
+                wmax = max(w0, max(w1, w2))
+                if wmax < 0.0 or wmin > FL:
+                    continue
+                if perspective and wmax <= 0.0:
+                    continue
+                if wmin < 0.0 or (perspective and wmin <= 0.0):
+                    err[c] = t
+                    continue
+                if X0 > X1 or Y0 > Y1:
+                    continue
+                if huge[i0] or huge[i1] or huge[i2]:
+                    err[c] = t
+                    continue
             ext = max(xmax - xmin, ymax - ymin)
             small = ext < SAFE_EXTENT
             if small:
@@ -578,6 +584,9 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
                         continue
                     if not have_plane:
                         have_plane = True
+                        if depth_ok:
+                            wmin = min(w[i0], min(w[i1], w[i2]))
+                            wmax = max(w[i0], max(w[i1], w[i2]))
                         f1x = V[i1, 0] - V[i0, 0]
                         f1y = V[i1, 1] - V[i0, 1]
                         f1z = V[i1, 2] - V[i0, 2]

@@ -107,7 +107,8 @@ def _geometry(scene):
         owner.append(np.full(len(f), k, np.int32))
         offset += len(v)
     V = np.ascontiguousarray(np.concatenate(verts)) if verts else np.zeros((0, 3))
-    F = np.ascontiguousarray(np.concatenate(faces)) if faces else np.zeros((0, 3), np.int64)
+    F = np.ascontiguousarray(np.concatenate(faces), dtype=np.int32 if offset < 2**31 else np.int64) \
+        if faces else np.zeros((0, 3), np.int32)
     B = np.concatenate(owner) if owner else np.zeros(0, np.int32)
     for a in (V, F, B):
         a.setflags(write=False)
@@ -151,7 +152,6 @@ _WORK: dict = {}
 def _workspace(n_vertices, n_triangles):
     """Scratch arrays reused between calls (fresh pages cost more than the projection)."""
     if _WORK.get("size") != (n_vertices, n_triangles):
-        _WORK.clear()
         _WORK["size"] = (n_vertices, n_triangles)
         _WORK["arrays"] = (np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
                            np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
@@ -175,6 +175,18 @@ def _refuse(scene, B, t, r0, w, F):
     raise SceneError(
         f"body {body!r} is too close to the plane of the source to project onto the detector; "
         "move the source back or use engine='numpy'")
+
+
+def _accumulators(n_chunks, nH, nW):
+    """Zeroed per-thread accumulators, reused between calls (no fresh pages to fault in)."""
+    key = (n_chunks, nH, nW)
+    if _WORK.get("acc_key") != key:
+        _WORK["acc_key"] = key
+        _WORK["acc"] = (np.zeros((n_chunks, nH, nW)), np.zeros((n_chunks, nH, nW), np.int32))
+    else:
+        for a in _WORK["acc"]:
+            a.fill(0)
+    return _WORK["acc"]
 
 
 def _band_order(n_bands):
@@ -281,11 +293,11 @@ def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndar
     n_chunks = numba.get_num_threads()
     if nb == 1 and n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
         # One body: a single pass over the triangles, one accumulator per thread.
-        Sc = np.zeros((n_chunks, nH, nW))
-        Nc = np.zeros((n_chunks, nH, nW), np.int32)
+        Sc, Nc = _accumulators(n_chunks, nH, nW)
         err = np.empty(n_chunks, np.int64)
+        depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
         R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                        Sc, Nc, err)
+                        depth_ok, Sc, Nc, err)
         if err.max() >= 0:
             _refuse(scene, B, int(err.max()), r0, w, F)
         S = np.empty((nH, nW))
