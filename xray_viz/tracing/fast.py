@@ -18,14 +18,23 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    vertices, clamped to the triangle's depth range. The sign of the projected area tells entry
    (counter-clockwise seen from the source) from exit.
 5. **Path lengths**: one body: ``L = sum(exit depths) - sum(entry depths)`` (+ the detector depth
-   when the ray is still inside there), accumulated per ray; no hit list. Several bodies: per
+   when the ray is still inside there), accumulated per ray in one parallel pass over the
+   triangles (one accumulator per thread; for very large detectors, per band of rows); no hit
+   list. Several bodies: per
    band of detector rows, the hits of each ray are counted, stored, sorted and swept with the
    reference semantics of :func:`xray_viz.attenuation.path_lengths` (highest precedence among
    the bodies containing a point wins). Memory is O(triangles + rays + hits of one band).
 
 The result is cached per (meshes, source, detector, supersampling): re-rendering the same
-geometry with other energies or materials costs nothing, and the per-mesh set-up (concatenated
-vertex and face arrays) is cached per mesh.
+geometry with other energies or materials costs nothing, and the per-mesh set-up (vertices in
+Morton order, faces sorted along them, concatenated over bodies) is cached per mesh.
+
+Limits: meshes must be closed and outward oriented (as for the NumPy engine); a body crossing
+the plane of the source is refused with a :class:`~xray_viz.errors.SceneError` (the NumPy engine
+traces it). Snapping moves projected vertices by at most ``2**-23`` of a grid step: the
+watertightness is exact, and the path length of a ray grazing a silhouette within that distance
+differs from the exact one by the chord there (below 1e-9 of the body size in the stress suite).
+Float64 throughout; there is no float32 path.
 
 Rays are the ideal grid of :func:`xray_viz.geometry.detector_rays`; the engine agrees with the
 NumPy reference engine to rounding (~1e-12 relative) except on rays lying *in* a face plane,
@@ -36,6 +45,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 from collections import OrderedDict
 
 import numba
@@ -147,6 +157,7 @@ def _frame(scene, n):
 
 
 _WORK: dict = {}
+_LOCK = threading.RLock()     # the scratch arrays are shared: one trace at a time
 
 
 def _workspace(n_vertices, n_triangles):
@@ -271,12 +282,17 @@ def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndar
         Effective path lengths (mm), rays in the order of
         :func:`~xray_viz.geometry.detector_rays`.
     """
+    with _LOCK:
+        return _trace(scene, supersample=supersample, geometry_arrays=_geometry_arrays)
+
+
+def _trace(scene, *, supersample, geometry_arrays):
     from xray_viz.tracing import _raster as R
 
     n = int(supersample)
     W, H = scene.detector.shape
     nb = len(scene.bodies)
-    V, F, B = _geometry(scene)[1] if _geometry_arrays is None else _geometry_arrays
+    V, F, B = _geometry(scene)[1] if geometry_arrays is None else geometry_arrays
     n_rays = W * H * n * n
     if nb == 0 or len(F) == 0:
         return np.zeros((n_rays, nb))
