@@ -399,7 +399,7 @@ def run_peers(out, *, repeat, subdivisions, shape):
         truth = sphere_chord(rays.origins, rays.directions)
         # Inscribed-mesh bound: every correct engine lies between the two spheres' chords.
         fast_engine(scene)
-        rep = repeat if len(mesh.faces) < 1e6 else max(3, repeat // 2)
+        rep = repeat
         for name in engines:
             if name == "numpy" and len(mesh.faces) > 400_000:
                 reps = 1
