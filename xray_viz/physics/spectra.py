@@ -191,7 +191,7 @@ def tube_spectrum(kvp: float, *, anode_angle: float = 12.0, filters=None, bin_wi
     --------
     >>> s = tube_spectrum(80.0, filters={"Al": 2.5})       # doctest: +SKIP
     >>> round(s.mean_energy, 1)                            # doctest: +SKIP
-    47.1
+    42.9
     """
     d = spectrum_from_dict({"kvp": kvp, "anode_angle": anode_angle, "filters": filters or {},
                             "bin": bin_width, "anode": anode})
