@@ -281,8 +281,8 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
     changes: list[str] = []
 
     def counts():
-        m = ms.current_mesh()
-        return m.vertex_number(), m.face_number()
+        m = ms.current_mesh()  # the matrices, not vertex_number(): those count deleted ones
+        return len(m.vertex_matrix()), len(m.face_matrix())
 
     def step(what, filter_name, **kwargs):
         v0, f0 = counts()
