@@ -145,7 +145,8 @@ def check_mesh(mesh) -> MeshReport:
     if len(faces):
         edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
         boundary = len(trimesh.grouping.group_rows(edges, require_count=1))
-        volume = float(mesh.volume)
+        with np.errstate(all="ignore"):  # a flat mesh: zero volume, NaN centre of mass
+            volume = float(mesh.volume)
         components = int(mesh.body_count)
     else:
         boundary, volume, components = 0, 0.0, 0
@@ -215,7 +216,9 @@ def _orient_outward(vertices, faces):
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
     parts = [np.flatnonzero(labels == k) for k in range(labels.max() + 1)] if len(faces) else []
     if len(parts) <= 1:
-        if len(faces) and mesh.volume < 0:
+        with np.errstate(all="ignore"):
+            negative = len(faces) and mesh.volume < 0
+        if negative:
             return faces[:, ::-1].copy()
         return faces
     tris = vertices[faces]
@@ -223,7 +226,9 @@ def _orient_outward(vertices, faces):
     faces = faces.copy()
     for k, part in enumerate(parts):
         sub = trimesh.Trimesh(vertices, faces[part], process=False)
-        if sub.volume >= 0:
+        with np.errstate(all="ignore"):
+            negative = sub.volume < 0
+        if not negative:
             continue
         lo, hi = boxes[k]
         inside_other = any(np.all(lo >= b[0]) and np.all(hi <= b[1]) and j != k
@@ -281,36 +286,38 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
     changes: list[str] = []
 
     def counts():
-        m = ms.current_mesh()  # the matrices, not vertex_number(): those count deleted ones
-        return len(m.vertex_matrix()), len(m.face_matrix())
+        m = ms.current_mesh()  # count referenced vertices: some filters leave unused ones
+        f = m.face_matrix()
+        return len(np.unique(f)), len(f)
 
-    def step(what, filter_name, **kwargs):
+    def delta(n, noun):
+        return f"{'+' if n > 0 else '-'}{abs(n)} {noun}" if n else ""
+
+    def step(label, filter_name, **kwargs):
         v0, f0 = counts()
         result = getattr(ms, filter_name)(**kwargs)
         v1, f1 = counts()
         if (v0, f0) != (v1, f1):
-            changes.append(what(v0 - v1, f0 - f1, result))
+            parts = ", ".join(p for p in (delta(v1 - v0, "vertices"), delta(f1 - f0, "faces")) if p)
+            changes.append(f"{label(result) if callable(label) else label} ({parts})")
         return result
 
-    step(lambda dv, df, r: f"removed {dv} duplicate vertices",
-         "meshing_remove_duplicate_vertices")
-    step(lambda dv, df, r: f"merged {dv} close vertices",
-         "meshing_merge_close_vertices", threshold=pymeshlab.PercentageValue(merge_distance))
-    step(lambda dv, df, r: f"removed {df} duplicate faces", "meshing_remove_duplicate_faces")
-    step(lambda dv, df, r: f"removed {df} zero-area faces", "meshing_remove_null_faces")
-    step(lambda dv, df, r: f"removed {dv} unreferenced vertices",
-         "meshing_remove_unreferenced_vertices")
-    step(lambda dv, df, r: f"split non-manifold edges (+{-dv} vertices)",
-         "meshing_repair_non_manifold_edges", method="Split Vertices")
+    step("removed duplicate vertices", "meshing_remove_duplicate_vertices")
+    step("merged close vertices", "meshing_merge_close_vertices",
+         threshold=pymeshlab.PercentageValue(merge_distance))
+    step("removed duplicate faces", "meshing_remove_duplicate_faces")
+    step("removed zero-area faces", "meshing_remove_null_faces")
+    ms.meshing_remove_unreferenced_vertices()
+    step("split non-manifold edges", "meshing_repair_non_manifold_edges", method="Split Vertices")
     largest = _largest_component_faces(ms)
     if largest >= min_component_faces:
-        step(lambda dv, df, r: f"removed {df} faces in small stray components",
+        step("removed small stray components",
              "meshing_remove_connected_component_by_face_number",
              mincomponentsize=min_component_faces, removeunref=True)
-    step(lambda dv, df, r: f"split non-manifold vertices (+{-dv} vertices)",
-         "meshing_repair_non_manifold_vertices")
-    step(lambda dv, df, r: f"closed {r.get('closed_holes', '?')} holes (+{-df} faces)",
-         "meshing_close_holes", maxholesize=int(max_hole_edges))
+    step("split non-manifold vertices", "meshing_repair_non_manifold_vertices")
+    ms.meshing_remove_unreferenced_vertices()
+    step(lambda r: f"closed {r.get('closed_holes', '?')} holes", "meshing_close_holes",
+         maxholesize=int(max_hole_edges))
     faces_before = ms.current_mesh().face_matrix().astype(np.int64)
     ms.meshing_re_orient_faces_coherently()
     m = ms.current_mesh()
