@@ -435,6 +435,9 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
             rotation = t.vector("rotation", 3)
     scale = t.scalar_or_vector("scale", 3, positive=True)
     units = t.string("units", default="mm", choices=tuple(LENGTH_UNITS))
+    repair = t.raw("repair", default=True)
+    if not isinstance(repair, bool):
+        t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
     path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
     where = f"{t.file}: " if t.file else ""
@@ -446,6 +449,17 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
     if not np.allclose(transform, np.eye(4)):
         mesh = mesh.copy()
         mesh.apply_transform(transform)
+    from xray_viz.meshes.repair import MeshRepairWarning, ensure_traceable
+
+    try:
+        mesh, changes = ensure_traceable(mesh, name=name, repair=repair)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}{path.name}: {exc}") from None
+    if changes:
+        import warnings
+
+        warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
+                      MeshRepairWarning, stacklevel=2)
     return Body(name=name, mesh=mesh, mu=mu, material=material, density=density, source_file=path)
 
 
