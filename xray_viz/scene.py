@@ -220,6 +220,7 @@ class Scene:
                 f"{self._where()}[detector] up {self.detector.up.tolist()} is parallel to the beam "
                 "(source -> detector centre); choose an up vector across the beam"
             )
+        object.__setattr__(self, "bodies", tuple(_traceable(b, self._where()) for b in self.bodies))
         from xray_viz.attenuation import check_source_outside
 
         check_source_outside(self)
@@ -265,6 +266,23 @@ class Scene:
         from xray_viz.attenuation import body_precedence
 
         return body_precedence(self)
+
+
+def _traceable(body: Body, where: str = "") -> Body:
+    """The body itself when its mesh is closed and outward; else repaired, with a warning."""
+    from xray_viz.meshes.repair import MeshRepairWarning, check_mesh, ensure_traceable
+
+    if check_mesh(body.mesh).traceable:
+        return body
+    try:
+        mesh, changes = ensure_traceable(body.mesh, name=body.name)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}{exc}") from None
+    import warnings
+
+    warnings.warn(f"{where}body {body.name!r}: mesh repaired: {'; '.join(changes)}",
+                  MeshRepairWarning, stacklevel=3)
+    return dataclasses.replace(body, mesh=mesh)
 
 
 # --------------------------------------------------------------------------------------------

@@ -54,7 +54,7 @@ def candidate_pairs(triangles, origins, directions, t_min, t_max, *, axis=None,
         return
     same_origin = bool(np.all(origins == origins[0]))
     same_direction = bool(np.all(directions == directions[0]))
-    if n >= 32 and (same_origin or same_direction):
+    if same_origin or same_direction:
         if axis is None:
             axis = directions.mean(axis=0) if not same_direction else directions[0]
         if np.linalg.norm(axis) > 0:
