@@ -335,7 +335,7 @@ class SceneView:
                   line_width=1, lighting=False, opacity=0.7 if len(ii) > 12 else 1.0)
         if len(ii) < w or len(jj) < h:
             self.grid_label = (f"pixel grid: {len(ii)} x {len(jj)} of {w} x {h} rays drawn "
-                               f"(every {max(1, ii[1] - ii[0]) if len(ii) > 1 else 1}th)")
+                               f"(step {max(1, ii[1] - ii[0]) if len(ii) > 1 else 1})")
         else:
             self.grid_label = f"pixel grid: all {w} x {h} rays"
         self.plotter.subplot(*self.subplot_3d)
