@@ -220,6 +220,10 @@ class Scene:
                 f"{self._where()}[detector] up {self.detector.up.tolist()} is parallel to the beam "
                 "(source -> detector centre); choose an up vector across the beam"
             )
+        object.__setattr__(self, "bodies", tuple(_traceable(b, self._where()) for b in self.bodies))
+        from xray_viz.attenuation import check_source_outside
+
+        check_source_outside(self)
 
     def _where(self) -> str:
         return f"{self.path}: " if self.path else ""
@@ -262,6 +266,23 @@ class Scene:
         from xray_viz.attenuation import body_precedence
 
         return body_precedence(self)
+
+
+def _traceable(body: Body, where: str = "") -> Body:
+    """The body itself when its mesh is closed and outward; else repaired, with a warning."""
+    from xray_viz.meshes.repair import MeshRepairWarning, check_mesh, ensure_traceable
+
+    if check_mesh(body.mesh).traceable:
+        return body
+    try:
+        mesh, changes = ensure_traceable(body.mesh, name=body.name)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}{exc}") from None
+    import warnings
+
+    warnings.warn(f"{where}body {body.name!r}: mesh repaired: {'; '.join(changes)}",
+                  MeshRepairWarning, stacklevel=3)
+    return dataclasses.replace(body, mesh=mesh)
 
 
 # --------------------------------------------------------------------------------------------
@@ -351,6 +372,12 @@ class _Table:
         return _Table(value, f"{self.where[:-1]}.{key}]" if self.where.endswith("]") else key,
                       self.file)
 
+    def expect(self, keys):
+        """Fail now on keys outside ``keys`` (a typo is reported before the key it misspelt)."""
+        self.used.update(keys)
+        self.done()
+        self.used.difference_update(keys)
+
     def done(self):
         unknown = sorted(set(self.data) - self.used)
         if unknown:
@@ -426,6 +453,9 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
             rotation = t.vector("rotation", 3)
     scale = t.scalar_or_vector("scale", 3, positive=True)
     units = t.string("units", default="mm", choices=tuple(LENGTH_UNITS))
+    repair = t.raw("repair", default=True)
+    if not isinstance(repair, bool):
+        t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
     path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
     where = f"{t.file}: " if t.file else ""
@@ -437,6 +467,17 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
     if not np.allclose(transform, np.eye(4)):
         mesh = mesh.copy()
         mesh.apply_transform(transform)
+    from xray_viz.meshes.repair import MeshRepairWarning, ensure_traceable
+
+    try:
+        mesh, changes = ensure_traceable(mesh, name=name, repair=repair)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}{path.name}: {exc}") from None
+    if changes:
+        import warnings
+
+        warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
+                      MeshRepairWarning, stacklevel=2)
     return Body(name=name, mesh=mesh, mu=mu, material=material, density=density, source_file=path)
 
 
@@ -454,6 +495,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     """
     base_dir = Path(base_dir)
     top = _Table(doc, "scene", file)
+    top.expect(("source", "detector", "body"))
     src = top.table("source", required=True)
     src.where = "[source]"
     position = src.vector("position", 3, required=True)
@@ -504,9 +546,6 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         if file and not msg.startswith(str(file)):
             msg = f"{file}: {msg}"
         raise SceneError(msg) from None
-    from xray_viz.attenuation import check_source_outside
-
-    check_source_outside(scene)
     return scene
 
 

@@ -82,8 +82,8 @@ def moller_trumbore(origins, directions, v0, v1, v2, *, t_min=0.0, t_max=np.inf,
         q = np.cross(tvec, e1)
         gamma = _dot(d, q) * inv                         # Eq. 1.16
         t = _dot(e2, q) * inv                            # Eq. 1.17
-    hit = (~parallel & (beta >= 0) & (beta <= 1) & (gamma >= 0) & (beta + gamma <= 1)
-           & (t >= t_min) & (t <= t_max))
+        hit = (~parallel & (beta >= 0) & (beta <= 1) & (gamma >= 0) & (beta + gamma <= 1)
+               & (t >= t_min) & (t <= t_max))
     return hit, np.where(hit, t, np.nan), beta, gamma
 
 
