@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from xray_viz.geometry import detector_rays, viewport
+from xray_viz.geometry import detector_rays
 from xray_viz.tracing import Hits, trace_rays
 
 __all__ = [
@@ -182,8 +182,9 @@ def trace_selection(scene, rays) -> RaySelection:
     origins = all_rays.origins[k]
     directions = all_rays.directions[k]
     t_max = all_rays.t_max[k]
-    vp = viewport(scene.source.position, scene.detector)
-    hits = trace_rays(scene, origins, directions, t_min=0.0, t_max=t_max, axis=vp.forward)
+    # No culling axis hint: a few rays need none (and main's binned culling at cec552b lost
+    # the hits of some single rays with it).
+    hits = trace_rays(scene, origins, directions, t_min=0.0, t_max=t_max)
     return RaySelection(i=i, j=j, index=k, origins=origins, directions=directions, t_max=t_max,
                         hits=hits)
 
