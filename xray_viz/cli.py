@@ -29,6 +29,8 @@ examples:
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz phantoms                                 list the bundled phantoms
+  xray-viz show frog                                the interactive 3D viewer beside the radiograph
+  xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
   xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
 
 Run `xray-viz COMMAND --help` for the options of each command.
@@ -103,7 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_render_command)
 
     from xray_viz.meshes.command import add_mesh_parser
+    from xray_viz.viz.command import add_show_parser
 
+    add_show_parser(sub)
     add_mesh_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
