@@ -29,6 +29,9 @@ examples:
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz phantoms                                 list the bundled phantoms
+  xray-viz show frog                                the interactive 3D viewer beside the radiograph
+  xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
+  xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
 
 Run `xray-viz COMMAND --help` for the options of each command.
 """
@@ -45,12 +48,15 @@ def _render_command(args) -> int:
 
         raise OutputError(f"{out}: unknown output format {out.suffix or '(none)'!r}; "
                           f"use one of {', '.join(FORMATS)}")
+    if args.supersample is not None and args.supersample < 1:
+        raise XrayVizError(f"--supersample must be >= 1, got {args.supersample}")
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
     scene = xray_viz.load_scene(args.scene)
-    image = xray_viz.render(scene, engine=args.engine)
+    image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
     data = image.quantity(args.quantity)
-    save_image(out, data, bright="low" if args.quantity == "intensity" else "high")
+    save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
+               quantity=args.quantity)
     w, h = scene.detector.shape
     print(f"wrote {out} ({args.quantity}, {w}x{h}, {len(scene.bodies)} bodies, "
           f"engine {image.engine}, {image.timing['total'] * 1000:.0f} ms)")
@@ -87,13 +93,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", metavar="SCENE",
                    help="a scene .toml file, or a bundled phantom name (`xray-viz phantoms`)")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="output file: .npy, .tiff or .png")
+                   help="output file: .npy, .tiff, .png or .dcm (DICOM with the geometry)")
     p.add_argument("--quantity", choices=QUANTITIES, default="intensity",
                    help="what to write: intensity I = I0 exp(-line integral) (default), the "
                         "line integral sum(mu L), or the total path length in mm")
+    p.add_argument("--supersample", type=int, default=None, metavar="N",
+                   help="trace N x N rays per pixel and average them (anti-aliasing); default: "
+                        "the scene's [detector] supersample, else 1")
     p.add_argument("--engine", default="fast", choices=sorted(ENGINES),
                    help="tracing engine (default: %(default)s)")
     p.set_defaults(func=_render_command)
+
+    from xray_viz.meshes.command import add_mesh_parser
+    from xray_viz.viz.command import add_show_parser
+
+    add_show_parser(sub)
+    add_mesh_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "
@@ -102,7 +117,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings (a mesh repaired at load time, ...) as one visible line on stderr."""
+    print(f"xray-viz: warning: {message}", file=sys.stderr)
+
+
 def main(argv=None) -> int:
+    import warnings
+
+    warnings.showwarning = _show_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
