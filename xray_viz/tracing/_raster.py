@@ -10,8 +10,16 @@ covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracin
 
 from __future__ import annotations
 
+import os
+
+import numba
 import numpy as np
 from numba import njit, prange
+
+# An old TBB (Open3D brings one) makes numba warn when it tries its TBB threading layer first;
+# OpenMP or numba's own work queue serve these kernels equally well. A user's choice wins.
+if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & set(os.environ):
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
 
 #: Fixed-point fraction bits of a projected vertex (units of a fine-grid step). The snapped
 #: geometry is watertight whatever this is; it moves vertices by at most 2**-(FRAC_BITS+1)
