@@ -342,9 +342,12 @@ def _pareto_plot(rows, path, shape):
                        and r["mesh"].startswith("decimated") == deci]
                 if not sel:
                     continue
+                color = {1: "C0", 2: "C1", 4: "C2"}.get(n, "C3")
                 ax.scatter([r["time_s"] * 1e3 for r in sel], [r[key] for r in sel],
-                           marker=markers.get(n, "x"), facecolors="none" if deci else None,
-                           label=f"{n}x{n} rays/pixel" + (", decimated" if deci else ""))
+                           marker=markers.get(n, "x"), edgecolors=color,
+                           facecolors="none" if deci else color,
+                           label=f"{n}x{n} rays/pixel" + (", pymeshlab decimated" if deci
+                                                          else ", icosphere"))
         front = _pareto_front(rows, key)
         ax.plot([r["time_s"] * 1e3 for r in front], [r[key] for r in front], "k--", lw=1,
                 label="Pareto front")
