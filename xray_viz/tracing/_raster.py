@@ -337,6 +337,9 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
 @njit(cache=True, inline="always")
 def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
             buf_w, buf_b):
+    if mode == 1 and wrange[m, 1] <= FL:
+        cnt[(Y - row0) * nW + X] += 1      # counting pass: the hit is before the detector
+        return
     W = _depth(coef, wrange, m, X, Y)
     if W > FL:
         return
@@ -374,12 +377,13 @@ def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY,
 
 @njit(cache=True, parallel=True)
 def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-                 orient, coef, wrange, tri_body, FL, precedence, Lf):
+                 orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
+                 H, L):
     """Several bodies: per band, count then store every hit, then sort and sweep each sample.
 
-    ``Lf[Y, X, b]`` receives the length (in depth units, along the beam axis) of the ray of
-    sample (X, Y) whose material is body ``b``: the body of highest ``precedence`` among those
-    the ray is inside (entries minus exits > 0), up to the detector (depth FL).
+    ``L[ray, b]`` receives the length (mm) of the ray of sample (X, Y) whose material is body
+    ``b``: the body of highest ``precedence`` among those the ray is inside (entries minus exits
+    > 0), up to the detector (depth FL). Rays are in image order (see :func:`finish`).
     """
     nb = precedence.shape[0]
     for k in prange(order.shape[0]):
@@ -432,6 +436,15 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
                 inside[q] = 0
             Y = r0 + p // nW
             X = p % nW
+            j = Y // n
+            i = X // n
+            ray = ((H - 1 - j) * W + i) * n * n + (n - 1 - (Y - j * n)) * n + (X - i * n)
+            scale = 1.0
+            if perspective:
+                dx = P00[0] + X * Ex[0] + Y * Ey[0]
+                dy = P00[1] + X * Ex[1] + Y * Ey[1]
+                dz = P00[2] + X * Ex[2] + Y * Ey[2]
+                scale = np.sqrt(dx * dx + dy * dy + dz * dz) / FL
             for i in range(lo, hi):
                 code = bb[i]
                 if code & 1:
@@ -448,7 +461,7 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
                     nxt = bw[i + 1] if i + 1 < hi else FL
                     seg = nxt - bw[i]
                     if seg > 0.0:
-                        Lf[Y, X, win] += seg
+                        L[ray, win] += seg * scale
 
 
 @njit(cache=True, parallel=True)

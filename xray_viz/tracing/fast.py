@@ -347,11 +347,10 @@ def _trace(scene, *, supersample, geometry_arrays):
         S = np.empty((nH, nW))
         R.reduce_chunks(Sd[None], N[None], FL, S)
         Lf = np.zeros((1, 1, 1))
+        R.finish(S, Lf, True, FL, perspective, P0, Ex, Ey, n, W, H, L)
     else:
-        S = np.zeros((1, 1))
-        Lf = np.zeros((nH, nW, nb))
         prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
         R.raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                       cbox, orient, coef, wrange, B, FL, prec, Lf)
-    R.finish(S, Lf, nb == 1, FL, perspective, P0, Ex, Ey, n, W, H, L)
+                       cbox, orient, coef, wrange, B, FL, prec, perspective, P0, Ex, Ey, n, W,
+                       H, L)
     return L
