@@ -32,12 +32,6 @@ pytestmark = pytest.mark.stress
 ENGINES = ("fast", "numpy")
 
 
-@pytest.fixture
-def slow_only(request):
-    if "slow" not in (request.config.getoption("-m") or ""):
-        pytest.skip("long stress case: run with -m slow")
-
-
 # --------------------------------------------------------------------------------------------
 # Exact references
 
@@ -307,7 +301,7 @@ def test_lattice_polyhedra_sample(name, engine):
 @pytest.mark.slow
 @pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_lattice_polyhedra_many_seeds(name, engine, slow_only):
+def test_lattice_polyhedra_many_seeds(name, engine):
     for seed in range(2, 12):
         _run_case(name, seed, engine)
 

@@ -31,6 +31,7 @@ examples:
   xray-viz phantoms                                 list the bundled phantoms
   xray-viz show frog                                the interactive 3D viewer beside the radiograph
   xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
+  xray-viz bench --suite peers                      time and error against Open3D, embree, gVXR
   xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
 
 Run `xray-viz COMMAND --help` for the options of each command.
@@ -109,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_show_parser(sub)
     add_mesh_parser(sub)
+    from xray_viz.bench import add_bench_parser
+
+    add_bench_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "
