@@ -38,6 +38,14 @@ Run `xray-viz COMMAND --help` for the options of each command.
 """
 
 
+def _numba_cache_warm() -> bool:
+    """Whether numba has cached compiled kernels of the fast engine beside its module."""
+    from xray_viz.tracing import _raster
+
+    cache = Path(_raster.__file__).parent / "__pycache__"
+    return any(cache.glob("_raster.*.nbi"))
+
+
 def _render_command(args) -> int:
     import xray_viz
     from xray_viz.output import FORMATS, save_image
@@ -54,6 +62,9 @@ def _render_command(args) -> int:
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
     scene = xray_viz.load_scene(args.scene)
+    if args.engine == "fast" and not _numba_cache_warm():
+        print("xray-viz: compiling the fast engine on first use (10-30 s, cached afterwards)...",
+              file=sys.stderr, flush=True)
     image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
     data = image.quantity(args.quantity)
     save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
