@@ -501,6 +501,43 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
                     L[ray, q] = Lf[Y, X, q] * scale
 
 
+@njit(cache=True, inline="always")
+def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
+    """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
+    ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`)."""
+    f1x = V[i1, 0] - V[i0, 0]
+    f1y = V[i1, 1] - V[i0, 1]
+    f1z = V[i1, 2] - V[i0, 2]
+    f2x = V[i2, 0] - V[i0, 0]
+    f2y = V[i2, 1] - V[i0, 1]
+    f2z = V[i2, 2] - V[i0, 2]
+    nx = f1y * f2z - f1z * f2y
+    ny = f1z * f2x - f1x * f2z
+    nz = f1x * f2y - f1y * f2x
+    qx = V[i0, 0] - r0[0]
+    qy = V[i0, 1] - r0[1]
+    qz = V[i0, 2] - r0[2]
+    nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
+    nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+    if perspective:
+        return (FL * (nx * qx + ny * qy + nz * qz), 0.0, 0.0,
+                nx * P00[0] + ny * P00[1] + nz * P00[2], nEx, nEy)
+    return (nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2]), -nEx, -nEy,
+            nx * f[0] + ny * f[1] + nz * f[2], 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
+    Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
+    if Wd != Wd:
+        return 0.5 * (wmin + wmax)
+    if Wd < wmin:
+        return wmin
+    if Wd > wmax:
+        return wmax
+    return Wd
+
+
 @njit(cache=True, parallel=True)
 def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
                   depth_ok, S, N, err):
@@ -509,6 +546,11 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
     own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
     triangle that cannot be projected (straddling or too close to the source plane), else -1.
+
+    Fast path: a triangle whose sample box holds a single sample (most triangles of a fine mesh)
+    evaluates its three edge functions there once; when none is zero, the sample is inside
+    exactly when all three have the same sign (which is then the orientation), and no tie rule
+    is needed. Otherwise, the general path below (same decisions, same depths).
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -559,22 +601,53 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
                     continue
             ext = max(xmax - xmin, ymax - ymin)
             small = ext < SAFE_EXTENT
-            if small:
-                area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-                o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
-            else:
-                o = np.int64(exact_cross_sign(bx - ax, cy - ay, by - ay, cx - ax))
-            if o == 0:
-                continue
-            entering = o > 0
-            sgn = -1.0 if entering else 1.0
-            dn = 1 if entering else -1
             e0x = bx - ax
             e0y = by - ay
             e1x = cx - bx
             e1y = cy - by
             e2x = ax - cx
             e2y = ay - cy
+            if small and X0 == X1 and Y0 == Y1:
+                # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0).
+                px = X0 * ONE
+                py = Y0 * ONE
+                E0 = e0x * (py - ay) - e0y * (px - ax)
+                E1 = e1x * (py - by) - e1y * (px - bx)
+                E2 = e2x * (py - cy) - e2y * (px - cx)
+                if E0 != 0 and E1 != 0 and E2 != 0:
+                    # E0 + E1 + E2 is the projected area: all one sign -> inside, and that
+                    # sign is the orientation; mixed signs -> outside (or zero area).
+                    if E0 > 0:
+                        if E1 < 0 or E2 < 0:
+                            continue
+                        sgn = -1.0
+                        dn = 1
+                    else:
+                        if E1 > 0 or E2 > 0:
+                            continue
+                        sgn = 1.0
+                        dn = -1
+                    if depth_ok:
+                        wmin = min(w[i0], min(w[i1], w[i2]))
+                        wmax = max(w[i0], max(w[i1], w[i2]))
+                    c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00, Ex,
+                                                    Ey, f, FL)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
+                    if Wd > FL:
+                        continue
+                    Sc[Y0, X0] += sgn * Wd
+                    Nc[Y0, X0] += dn
+                    continue
+            if small:
+                area = e0x * (cy - ay) - e0y * (cx - ax)
+                o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
+            else:
+                o = np.int64(exact_cross_sign(e0x, cy - ay, e0y, cx - ax))
+            if o == 0:
+                continue
+            entering = o > 0
+            sgn = -1.0 if entering else 1.0
+            dn = 1 if entering else -1
             bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
             bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
             bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
@@ -608,37 +681,9 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
                         if depth_ok:
                             wmin = min(w[i0], min(w[i1], w[i2]))
                             wmax = max(w[i0], max(w[i1], w[i2]))
-                        f1x = V[i1, 0] - V[i0, 0]
-                        f1y = V[i1, 1] - V[i0, 1]
-                        f1z = V[i1, 2] - V[i0, 2]
-                        f2x = V[i2, 0] - V[i0, 0]
-                        f2y = V[i2, 1] - V[i0, 1]
-                        f2z = V[i2, 2] - V[i0, 2]
-                        nx = f1y * f2z - f1z * f2y
-                        ny = f1z * f2x - f1x * f2z
-                        nz = f1x * f2y - f1y * f2x
-                        qx = V[i0, 0] - r0[0]
-                        qy = V[i0, 1] - r0[1]
-                        qz = V[i0, 2] - r0[2]
-                        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
-                        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
-                        if perspective:
-                            c0 = FL * (nx * qx + ny * qy + nz * qz)
-                            c3 = nx * P00[0] + ny * P00[1] + nz * P00[2]
-                            c4 = nEx
-                            c5 = nEy
-                        else:
-                            c0 = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
-                            c1 = -nEx
-                            c2 = -nEy
-                            c3 = nx * f[0] + ny * f[1] + nz * f[2]
-                    Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
-                    if Wd != Wd:
-                        Wd = 0.5 * (wmin + wmax)
-                    elif Wd < wmin:
-                        Wd = wmin
-                    elif Wd > wmax:
-                        Wd = wmax
+                        c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00,
+                                                        Ex, Ey, f, FL)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                     if Wd > FL:
                         continue
                     Sc[Y, X] += sgn * Wd
