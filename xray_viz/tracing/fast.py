@@ -166,7 +166,7 @@ def _workspace(n_vertices, n_triangles):
         _WORK["size"] = (n_vertices, n_triangles)
         _WORK["arrays"] = (np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
                            np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
-                           np.empty((n_triangles, 4), np.int64))
+                           np.empty((n_triangles, 4), np.int64), np.empty(n_vertices, np.int32))
     return _WORK["arrays"]
 
 
@@ -299,12 +299,13 @@ def _trace(scene, *, supersample, geometry_arrays):
     perspective = scene.source.kind != "parallel"
     r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = _frame(scene, n)
     nW, nH = W * n, H * n
-    XY, w, huge, status, box = _workspace(len(V), len(F))
+    XY, w, huge, status, box, K = _workspace(len(V), len(F))
     if perspective:
-        R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge)
+        R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge,
+                           nW, nH, K)
         P0 = (center + P00) - r0
     else:
-        R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge)
+        R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
         P0 = P00
     n_chunks = numba.get_num_threads()
     if nb == 1 and n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
@@ -313,7 +314,7 @@ def _trace(scene, *, supersample, geometry_arrays):
         err = np.empty(n_chunks, np.int64)
         depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
         R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                        depth_ok, Sc, Nc, err)
+                        depth_ok, Sc, Nc, err, K)
         if err.max() >= 0:
             _refuse(scene, B, int(err.max()), r0, w, F)
         S = np.empty((nH, nW))
