@@ -60,6 +60,23 @@ def _axis_code(x, n):
     return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
 
 
+@njit(cache=True)
+def first_use_rank(flat_faces, n_vertices):
+    """New number of each vertex: its rank in order of first appearance in ``flat_faces``
+    (vertices used by no face follow, in their previous order)."""
+    rank = np.full(n_vertices, -1, np.int64)
+    k = 0
+    for v in flat_faces:
+        if rank[v] < 0:
+            rank[v] = k
+            k += 1
+    for v in range(n_vertices):
+        if rank[v] < 0:
+            rank[v] = k
+            k += 1
+    return rank
+
+
 @njit(cache=True, parallel=True)
 def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
     """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
