@@ -589,7 +589,11 @@ _BLOCK = 1024
 @njit(cache=True, parallel=True)
 def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
                   depth_ok, S, N, err, K):
-    """One body, in one pass over the triangles: cull, cover, depth and accumulate.
+    """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
+
+    By blocks of ``_BLOCK`` triangles: when ``depth_ok``, a branch-free first pass drops the
+    triangles whose three vertices share an even cell code on an axis (``K``, see
+    :func:`project_vertices`: strictly between two sample columns or rows, or off the grid).
 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
     own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a

@@ -26,8 +26,9 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    the bodies containing a point wins). Memory is O(triangles + rays + hits of one band).
 
 The result is cached per (meshes, source, detector, supersampling): re-rendering the same
-geometry with other energies or materials costs nothing, and the per-mesh set-up (vertices in
-Morton order, faces sorted along them, concatenated over bodies) is cached per mesh.
+geometry with other energies or materials costs nothing, and the per-mesh set-up (faces sorted
+along the Morton order of their vertices, vertices numbered in order of first use by those faces,
+concatenated over bodies) is cached per mesh.
 
 Limits: meshes must be closed and outward oriented (as for the NumPy engine); a body crossing
 the plane of the source is refused with a :class:`~xray_viz.errors.SceneError` (the NumPy engine
