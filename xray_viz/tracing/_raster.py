@@ -42,10 +42,51 @@ ERR_STRADDLE = -100
 ERR_TOO_CLOSE = -101
 
 
+#: Cell code of a vertex that never lets a triangle be culled by its cell codes.
+NO_CODE = 1 | (1 << 16)
+#: Largest fine-grid width or height for which cell codes are written (15 bits per axis).
+CODE_MAX_SAMPLES = 16382
+
+
+@njit(cache=True, inline="always")
+def _axis_code(x, n):
+    """Cell code of a snapped coordinate on an axis of ``n`` samples (0 .. n - 1): 0 left of
+    sample 0, ``2 n + 2`` right of sample ``n - 1``, ``2 k + 2`` strictly between samples k and
+    k + 1, ``2 k + 3`` exactly on sample k. Three equal even codes: no sample in between."""
+    if x < 0:
+        return 0
+    if x > (n - 1) * ONE:
+        return 2 * n + 2
+    return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
+
+
+@njit(cache=True)
+def first_use_rank(flat_faces, n_vertices):
+    """New number of each vertex: its rank in order of first appearance in ``flat_faces``
+    (vertices used by no face follow, in their previous order)."""
+    rank = np.full(n_vertices, -1, np.int64)
+    k = 0
+    for v in flat_faces:
+        if rank[v] < 0:
+            rank[v] = k
+            k += 1
+    for v in range(n_vertices):
+        if rank[v] < 0:
+            rank[v] = k
+            k += 1
+    return rank
+
+
 @njit(cache=True, parallel=True)
-def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge):
-    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``."""
+def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
+    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
+
+    ``K`` receives each vertex's cell code (x code in bits 0-15, y code in bits 16-31, see
+    :func:`_axis_code`): a triangle whose three vertices have the same even x (or y) code lies
+    strictly between two columns (rows) of samples, or outside the grid, and covers no sample.
+    """
     n = V.shape[0]
+    codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
     for i in prange(n):
         r0x = V[i, 0] - r0[0]
         r1 = V[i, 1] - r0[1]
@@ -73,6 +114,10 @@ def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge)
             XY[i, 0] = np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE) if x == x else 0
             XY[i, 1] = np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE) if y == y else 0
             huge[i] = True
+        if codes and not huge[i]:
+            K[i] = np.int32(_axis_code(XY[i, 0], nW) | (_axis_code(XY[i, 1], nH) << 16))
+        else:
+            K[i] = NO_CODE
 
 
 @njit(cache=True, inline="always")
@@ -501,14 +546,63 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
                     L[ray, q] = Lf[Y, X, q] * scale
 
 
+@njit(cache=True, inline="always")
+def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
+    """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
+    ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`)."""
+    f1x = V[i1, 0] - V[i0, 0]
+    f1y = V[i1, 1] - V[i0, 1]
+    f1z = V[i1, 2] - V[i0, 2]
+    f2x = V[i2, 0] - V[i0, 0]
+    f2y = V[i2, 1] - V[i0, 1]
+    f2z = V[i2, 2] - V[i0, 2]
+    nx = f1y * f2z - f1z * f2y
+    ny = f1z * f2x - f1x * f2z
+    nz = f1x * f2y - f1y * f2x
+    qx = V[i0, 0] - r0[0]
+    qy = V[i0, 1] - r0[1]
+    qz = V[i0, 2] - r0[2]
+    nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
+    nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+    if perspective:
+        return (FL * (nx * qx + ny * qy + nz * qz), 0.0, 0.0,
+                nx * P00[0] + ny * P00[1] + nz * P00[2], nEx, nEy)
+    return (nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2]), -nEx, -nEy,
+            nx * f[0] + ny * f[1] + nz * f[2], 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
+    Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
+    if Wd != Wd:
+        return 0.5 * (wmin + wmax)
+    if Wd < wmin:
+        return wmin
+    if Wd > wmax:
+        return wmax
+    return Wd
+
+
+_BLOCK = 1024
+
+
 @njit(cache=True, parallel=True)
 def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
-                  depth_ok, S, N, err):
-    """One body, in one pass over the triangles: cull, cover, depth and accumulate.
+                  depth_ok, S, N, err, K):
+    """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
+
+    By blocks of ``_BLOCK`` triangles: when ``depth_ok``, a branch-free first pass drops the
+    triangles whose three vertices share an even cell code on an axis (``K``, see
+    :func:`project_vertices`: strictly between two sample columns or rows, or off the grid).
 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
     own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
     triangle that cannot be projected (straddling or too close to the source plane), else -1.
+
+    Fast path: a triangle whose sample box holds a single sample (most triangles of a fine mesh)
+    evaluates its three edge functions there once; when none is zero, the sample is inside
+    exactly when all three have the same sign (which is then the orientation), and no tie rule
+    is needed. Otherwise, the general path below (same decisions, same depths).
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -516,133 +610,152 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
         err[c] = -1
         Sc = S[c]
         Nc = N[c]
-        for t in range(c * per, min(T, (c + 1) * per)):
-            i0 = F[t, 0]
-            i1 = F[t, 1]
-            i2 = F[t, 2]
-            ax = XY[i0, 0]
-            ay = XY[i0, 1]
-            bx = XY[i1, 0]
-            by = XY[i1, 1]
-            cx = XY[i2, 0]
-            cy = XY[i2, 1]
-            xmin = min(ax, min(bx, cx))
-            xmax = max(ax, max(bx, cx))
-            ymin = min(ay, min(by, cy))
-            ymax = max(ay, max(by, cy))
-            X0 = max(-((-xmin) >> FRAC_BITS), 0)
-            X1 = min(xmax >> FRAC_BITS, nW - 1)
-            Y0 = max(-((-ymin) >> FRAC_BITS), 0)
-            Y1 = min(ymax >> FRAC_BITS, nH - 1)
-            if depth_ok:
-                if X0 > X1 or Y0 > Y1:
-                    continue
-                wmin = 0.0
-                wmax = 0.0
-            else:
-                w0 = w[i0]
-                w1 = w[i1]
-                w2 = w[i2]
-                wmin = min(w0, min(w1, w2))
-                wmax = max(w0, max(w1, w2))
-                if wmax < 0.0 or wmin > FL:
-                    continue
-                if perspective and wmax <= 0.0:
-                    continue
-                if wmin < 0.0 or (perspective and wmin <= 0.0):
-                    err[c] = t
-                    continue
-                if X0 > X1 or Y0 > Y1:
-                    continue
-                if huge[i0] or huge[i1] or huge[i2]:
-                    err[c] = t
-                    continue
-            ext = max(xmax - xmin, ymax - ymin)
-            small = ext < SAFE_EXTENT
-            if small:
-                area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-                o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
-            else:
-                o = np.int64(exact_cross_sign(bx - ax, cy - ay, by - ay, cx - ax))
-            if o == 0:
-                continue
-            entering = o > 0
-            sgn = -1.0 if entering else 1.0
-            dn = 1 if entering else -1
-            e0x = bx - ax
-            e0y = by - ay
-            e1x = cx - bx
-            e1y = cy - by
-            e2x = ax - cx
-            e2y = ay - cy
-            bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-            bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-            bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-            have_plane = False
-            c0 = 0.0
-            c1 = 0.0
-            c2 = 0.0
-            c3 = 0.0
-            c4 = 0.0
-            c5 = 0.0
-            for Y in range(Y0, Y1 + 1):
-                py = Y * ONE
-                E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax)) if small else 0
-                E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx)) if small else 0
-                E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx)) if small else 0
-                for X in range(X0, X1 + 1):
-                    if small:
-                        inside = E0 >= bias0 and E1 >= bias1 and E2 >= bias2
-                        E0 -= o * e0y * ONE
-                        E1 -= o * e1y * ONE
-                        E2 -= o * e2y * ONE
-                    else:
-                        px = X * ONE
-                        inside = (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
-                                  and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
-                                  and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
-                    if not inside:
+        cand = np.empty(_BLOCK, np.int64)
+        hi = min(T, (c + 1) * per)
+        for b0 in range(c * per, hi, _BLOCK):
+            # Pass 1 (branch free): drop the triangles whose three vertices share an even cell
+            # code on an axis (strictly between two sample columns or rows: no sample covered).
+            m = 0
+            for t in range(b0, min(hi, b0 + _BLOCK)):
+                ka = K[F[t, 0]]
+                kb = K[F[t, 1]]
+                kc = K[F[t, 2]]
+                d = (ka ^ kb) | (ka ^ kc)
+                gone = (((d & 0xFFFF) | (ka & 1)) == 0) | (((d >> 16) | ((ka >> 16) & 1)) == 0)
+                cand[m] = t
+                m += 0 if (gone and depth_ok) else 1
+            # Pass 2: the remaining triangles.
+            for j in range(m):
+                t = cand[j]
+                i0 = F[t, 0]
+                i1 = F[t, 1]
+                i2 = F[t, 2]
+                ax = XY[i0, 0]
+                ay = XY[i0, 1]
+                bx = XY[i1, 0]
+                by = XY[i1, 1]
+                cx = XY[i2, 0]
+                cy = XY[i2, 1]
+                xmin = min(ax, min(bx, cx))
+                xmax = max(ax, max(bx, cx))
+                ymin = min(ay, min(by, cy))
+                ymax = max(ay, max(by, cy))
+                X0 = max(-((-xmin) >> FRAC_BITS), 0)
+                X1 = min(xmax >> FRAC_BITS, nW - 1)
+                Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+                Y1 = min(ymax >> FRAC_BITS, nH - 1)
+                if depth_ok:
+                    if X0 > X1 or Y0 > Y1:
                         continue
-                    if not have_plane:
-                        have_plane = True
+                    wmin = 0.0
+                    wmax = 0.0
+                else:
+                    w0 = w[i0]
+                    w1 = w[i1]
+                    w2 = w[i2]
+                    wmin = min(w0, min(w1, w2))
+                    wmax = max(w0, max(w1, w2))
+                    if wmax < 0.0 or wmin > FL:
+                        continue
+                    if perspective and wmax <= 0.0:
+                        continue
+                    if wmin < 0.0 or (perspective and wmin <= 0.0):
+                        err[c] = t
+                        continue
+                    if X0 > X1 or Y0 > Y1:
+                        continue
+                    if huge[i0] or huge[i1] or huge[i2]:
+                        err[c] = t
+                        continue
+                ext = max(xmax - xmin, ymax - ymin)
+                small = ext < SAFE_EXTENT
+                e0x = bx - ax
+                e0y = by - ay
+                e1x = cx - bx
+                e1y = cy - by
+                e2x = ax - cx
+                e2y = ay - cy
+                if small and X0 == X1 and Y0 == Y1:
+                    # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0).
+                    px = X0 * ONE
+                    py = Y0 * ONE
+                    E0 = e0x * (py - ay) - e0y * (px - ax)
+                    E1 = e1x * (py - by) - e1y * (px - bx)
+                    E2 = e2x * (py - cy) - e2y * (px - cx)
+                    if E0 != 0 and E1 != 0 and E2 != 0:
+                        # E0 + E1 + E2 is the projected area: all one sign -> inside, and that
+                        # sign is the orientation; mixed signs -> outside (or zero area).
+                        if E0 > 0:
+                            if E1 < 0 or E2 < 0:
+                                continue
+                            sgn = -1.0
+                            dn = 1
+                        else:
+                            if E1 > 0 or E2 > 0:
+                                continue
+                            sgn = 1.0
+                            dn = -1
                         if depth_ok:
                             wmin = min(w[i0], min(w[i1], w[i2]))
                             wmax = max(w[i0], max(w[i1], w[i2]))
-                        f1x = V[i1, 0] - V[i0, 0]
-                        f1y = V[i1, 1] - V[i0, 1]
-                        f1z = V[i1, 2] - V[i0, 2]
-                        f2x = V[i2, 0] - V[i0, 0]
-                        f2y = V[i2, 1] - V[i0, 1]
-                        f2z = V[i2, 2] - V[i0, 2]
-                        nx = f1y * f2z - f1z * f2y
-                        ny = f1z * f2x - f1x * f2z
-                        nz = f1x * f2y - f1y * f2x
-                        qx = V[i0, 0] - r0[0]
-                        qy = V[i0, 1] - r0[1]
-                        qz = V[i0, 2] - r0[2]
-                        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
-                        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
-                        if perspective:
-                            c0 = FL * (nx * qx + ny * qy + nz * qz)
-                            c3 = nx * P00[0] + ny * P00[1] + nz * P00[2]
-                            c4 = nEx
-                            c5 = nEy
-                        else:
-                            c0 = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
-                            c1 = -nEx
-                            c2 = -nEy
-                            c3 = nx * f[0] + ny * f[1] + nz * f[2]
-                    Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
-                    if Wd != Wd:
-                        Wd = 0.5 * (wmin + wmax)
-                    elif Wd < wmin:
-                        Wd = wmin
-                    elif Wd > wmax:
-                        Wd = wmax
-                    if Wd > FL:
+                        c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00, Ex,
+                                                        Ey, f, FL)
+                        Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
+                        if Wd > FL:
+                            continue
+                        Sc[Y0, X0] += sgn * Wd
+                        Nc[Y0, X0] += dn
                         continue
-                    Sc[Y, X] += sgn * Wd
-                    Nc[Y, X] += dn
+                if small:
+                    area = e0x * (cy - ay) - e0y * (cx - ax)
+                    o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
+                else:
+                    o = np.int64(exact_cross_sign(e0x, cy - ay, e0y, cx - ax))
+                if o == 0:
+                    continue
+                entering = o > 0
+                sgn = -1.0 if entering else 1.0
+                dn = 1 if entering else -1
+                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                have_plane = False
+                c0 = 0.0
+                c1 = 0.0
+                c2 = 0.0
+                c3 = 0.0
+                c4 = 0.0
+                c5 = 0.0
+                for Y in range(Y0, Y1 + 1):
+                    py = Y * ONE
+                    E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax)) if small else 0
+                    E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx)) if small else 0
+                    E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx)) if small else 0
+                    for X in range(X0, X1 + 1):
+                        if small:
+                            inside = E0 >= bias0 and E1 >= bias1 and E2 >= bias2
+                            E0 -= o * e0y * ONE
+                            E1 -= o * e1y * ONE
+                            E2 -= o * e2y * ONE
+                        else:
+                            px = X * ONE
+                            inside = (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
+                                      and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
+                                      and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
+                        if not inside:
+                            continue
+                        if not have_plane:
+                            have_plane = True
+                            if depth_ok:
+                                wmin = min(w[i0], min(w[i1], w[i2]))
+                                wmax = max(w[i0], max(w[i1], w[i2]))
+                            c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00,
+                                                            Ex, Ey, f, FL)
+                        Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                        if Wd > FL:
+                            continue
+                        Sc[Y, X] += sgn * Wd
+                        Nc[Y, X] += dn
 
 
 @njit(cache=True, parallel=True)

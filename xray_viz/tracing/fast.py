@@ -26,8 +26,9 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    the bodies containing a point wins). Memory is O(triangles + rays + hits of one band).
 
 The result is cached per (meshes, source, detector, supersampling): re-rendering the same
-geometry with other energies or materials costs nothing, and the per-mesh set-up (vertices in
-Morton order, faces sorted along them, concatenated over bodies) is cached per mesh.
+geometry with other energies or materials costs nothing, and the per-mesh set-up (faces sorted
+along the Morton order of their vertices, vertices numbered in order of first use by those faces,
+concatenated over bodies) is cached per mesh.
 
 Limits: meshes must be closed and outward oriented (as for the NumPy engine); a body crossing
 the plane of the source is refused with a :class:`~xray_viz.errors.SceneError` (the NumPy engine
@@ -80,9 +81,9 @@ def _mesh_key(body):
 
 
 def _spatial_order(v, f):
-    """Vertices in Morton (Z-curve) order and faces sorted by their first vertex, so that the
-    per-call passes over triangles and vertices touch memory nearly in sequence. Projection
-    independent: done once per mesh."""
+    """Faces sorted along the Morton (Z-curve) order of their first vertex, and vertices
+    numbered in order of first use by those faces, so that the per-call passes over triangles
+    and vertices touch memory nearly in sequence. Projection independent: done once per mesh."""
     if len(v) < 4096:
         return np.ascontiguousarray(v), f
     lo, hi = v.min(0), v.max(0)
@@ -96,7 +97,15 @@ def _spatial_order(v, f):
     rank[order] = np.arange(len(order))
     f = rank[f]
     f = f[np.argsort(f.min(axis=1), kind="stable")]
-    return np.ascontiguousarray(v[order]), np.ascontiguousarray(f)
+    v = v[order]
+    # Renumber the vertices in order of first use by the sorted faces: the per-call gathers
+    # through the faces then walk the vertex arrays nearly in sequence (1.3M faces: -25 % time).
+    from xray_viz.tracing._raster import first_use_rank
+
+    rank = first_use_rank(np.ascontiguousarray(f).ravel(), len(v))
+    order = np.empty_like(rank)
+    order[rank] = np.arange(len(rank))
+    return np.ascontiguousarray(v[order]), np.ascontiguousarray(rank[f])
 
 
 def _geometry(scene):
@@ -166,7 +175,7 @@ def _workspace(n_vertices, n_triangles):
         _WORK["size"] = (n_vertices, n_triangles)
         _WORK["arrays"] = (np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
                            np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
-                           np.empty((n_triangles, 4), np.int64))
+                           np.empty((n_triangles, 4), np.int64), np.empty(n_vertices, np.int32))
     return _WORK["arrays"]
 
 
@@ -299,12 +308,13 @@ def _trace(scene, *, supersample, geometry_arrays):
     perspective = scene.source.kind != "parallel"
     r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = _frame(scene, n)
     nW, nH = W * n, H * n
-    XY, w, huge, status, box = _workspace(len(V), len(F))
+    XY, w, huge, status, box, K = _workspace(len(V), len(F))
     if perspective:
-        R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge)
+        R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge,
+                           nW, nH, K)
         P0 = (center + P00) - r0
     else:
-        R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge)
+        R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
         P0 = P00
     n_chunks = numba.get_num_threads()
     if nb == 1 and n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
@@ -313,7 +323,7 @@ def _trace(scene, *, supersample, geometry_arrays):
         err = np.empty(n_chunks, np.int64)
         depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
         R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                        depth_ok, Sc, Nc, err)
+                        depth_ok, Sc, Nc, err, K)
         if err.max() >= 0:
             _refuse(scene, B, int(err.max()), r0, w, F)
         S = np.empty((nH, nW))
