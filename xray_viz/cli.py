@@ -29,6 +29,7 @@ examples:
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz phantoms                                 list the bundled phantoms
+  xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
 
 Run `xray-viz COMMAND --help` for the options of each command.
 """
@@ -95,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="tracing engine (default: %(default)s)")
     p.set_defaults(func=_render_command)
 
+    from xray_viz.meshes.command import add_mesh_parser
+
+    add_mesh_parser(sub)
+
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "
                                    "can be used wherever a scene file is expected.")
@@ -102,7 +107,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Warnings (a mesh repaired at load time, ...) as one visible line on stderr."""
+    print(f"xray-viz: warning: {message}", file=sys.stderr)
+
+
 def main(argv=None) -> int:
+    import warnings
+
+    warnings.showwarning = _show_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

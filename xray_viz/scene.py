@@ -46,6 +46,9 @@ from xray_viz.errors import SceneError, SceneFileNotFoundError, XrayVizError
 
 __all__ = ["Source", "Detector", "Body", "Scene", "load_scene", "scene_from_dict"]
 
+#: Values of ``[detector] response``.
+DETECTOR_RESPONSES = ("energy", "counting")
+
 #: Length units accepted by a body's ``units`` key, in millimetres.
 LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
 
@@ -71,8 +74,10 @@ class Source:
         along ``position -> detector centre``, one ray per pixel).
     energy : float or None
         Photon energy in keV of a monochromatic beam.
-    spectrum : dict or None
-        Tube spectrum description (see :mod:`xray_viz.physics`); when set it replaces ``energy``.
+    spectrum : dict, Spectrum or None
+        Tube or CSV spectrum (see :mod:`xray_viz.physics.spectra`; the parser stores the
+        validated table of :func:`~xray_viz.physics.spectra.spectrum_from_dict`); when set it
+        replaces ``energy``.
     """
 
     position: np.ndarray
@@ -102,12 +107,36 @@ class Detector:
         ``(W, H)``: W rays along ``HO`` (image columns), H rays along ``VE`` (image rows).
     pitch : (float, float)
         Distance in mm between neighbouring rays along HO and VE. ``|HO| = (W - 1) * pitch[0]``.
+    response : {"energy", "counting"}
+        Energy-integrating (signal ~ sum fluence * E * transmission) or photon counting.
+    i0 : float
+        Unattenuated photons per pixel (at the detector centre). With noise off the image is just
+        ``i0 * I / I0``; with noise on it sets the photon statistics.
+    noise : bool
+        Poisson noise.
+    seed : int or None
+        Seed of the noise (None: fresh randomness each render).
+    falloff : bool
+        Inverse-square and obliquity fall-off (``cos^3``) of a point source.
+    supersample : int
+        ``n x n`` rays per pixel, averaged in intensity.
+    focal_spot : float
+        Focal spot size in mm (FWHM of a Gaussian); 0 for an ideal point.
+
+    See :mod:`xray_viz.physics` for what these model and what they do not.
     """
 
     center: np.ndarray
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 1.0, 0.0]))
     shape: tuple[int, int] = (256, 256)
     pitch: tuple[float, float] = (1.0, 1.0)
+    response: str = "energy"
+    i0: float = 1.0
+    noise: bool = False
+    seed: int | None = None
+    falloff: bool = False
+    supersample: int = 1
+    focal_spot: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "center", _vec3(self.center, name="detector center"))
@@ -122,6 +151,25 @@ class Detector:
             raise SceneError("[detector] up must be a non-zero vector")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "pitch", pitch)
+        if self.response not in DETECTOR_RESPONSES:
+            raise SceneError(f"[detector] response must be 'energy' or 'counting', "
+                             f"got {self.response!r}")
+        if not (math.isfinite(self.i0) and self.i0 > 0):
+            raise SceneError(f"[detector] I0 must be > 0 photons per pixel, got {self.i0}")
+        if isinstance(self.supersample, bool) or int(self.supersample) != self.supersample \
+                or self.supersample < 1:
+            raise SceneError(f"[detector] supersample must be an integer >= 1, "
+                             f"got {self.supersample!r}")
+        if not (math.isfinite(self.focal_spot) and self.focal_spot >= 0):
+            raise SceneError(f"[detector] focal_spot must be >= 0 mm, got {self.focal_spot}")
+        if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)
+                                      or self.seed < 0):
+            raise SceneError(f"[detector] seed must be an integer >= 0, got {self.seed!r}")
+        object.__setattr__(self, "i0", float(self.i0))
+        object.__setattr__(self, "supersample", int(self.supersample))
+        object.__setattr__(self, "focal_spot", float(self.focal_spot))
+        object.__setattr__(self, "noise", bool(self.noise))
+        object.__setattr__(self, "falloff", bool(self.falloff))
 
     @property
     def size(self) -> tuple[float, float]:
@@ -130,14 +178,17 @@ class Detector:
         return (max(w - 1, 0) * px, max(h - 1, 0) * py)
 
     @classmethod
-    def from_size(cls, center, up, shape, size) -> "Detector":
-        """Make a detector from its size ``[|HO|, |VE|]`` in mm instead of its pitch."""
+    def from_size(cls, center, up, shape, size, **options) -> "Detector":
+        """Make a detector from its size ``[|HO|, |VE|]`` in mm instead of its pitch.
+
+        ``options`` are the other fields (``response``, ``i0``, ``noise``, ...).
+        """
         shape = tuple(int(s) for s in np.broadcast_to(shape, (2,)))
         size = np.broadcast_to(np.asarray(size, float), (2,))
         if not np.all(np.isfinite(size)) or np.any(size <= 0):
             raise SceneError(f"[detector] size must be > 0 mm, got {size.tolist()}")
         pitch = tuple(float(s / max(n - 1, 1)) for s, n in zip(size, shape))
-        return cls(center=center, up=up, shape=shape, pitch=pitch)
+        return cls(center=center, up=up, shape=shape, pitch=pitch, **options)
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,9 +203,9 @@ class Body:
         Closed, outward-oriented surface, in scene coordinates (mm), transforms applied.
     mu : float or None
         Linear attenuation coefficient in 1/cm (energy independent).
-    material : str or None
-        A material name, chemical formula or element (see :mod:`xray_viz.physics.materials`);
-        used instead of ``mu`` when set.
+    material : str, dict or None
+        A NIST compound name, chemical formula or element, or a dict of mass fractions (see
+        :mod:`xray_viz.physics.materials`); used instead of ``mu`` when set.
     density : float or None
         Density in g/cm^3 for ``material``.
     source_file : Path or None
@@ -220,6 +271,7 @@ class Scene:
                 f"{self._where()}[detector] up {self.detector.up.tolist()} is parallel to the beam "
                 "(source -> detector centre); choose an up vector across the beam"
             )
+        object.__setattr__(self, "bodies", tuple(_traceable(b, self._where()) for b in self.bodies))
         from xray_viz.attenuation import check_source_outside
 
         check_source_outside(self)
@@ -265,6 +317,23 @@ class Scene:
         from xray_viz.attenuation import body_precedence
 
         return body_precedence(self)
+
+
+def _traceable(body: Body, where: str = "") -> Body:
+    """The body itself when its mesh is closed and outward; else repaired, with a warning."""
+    from xray_viz.meshes.repair import MeshRepairWarning, check_mesh, ensure_traceable
+
+    if check_mesh(body.mesh).traceable:
+        return body
+    try:
+        mesh, changes = ensure_traceable(body.mesh, name=body.name)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}{exc}") from None
+    import warnings
+
+    warnings.warn(f"{where}body {body.name!r}: mesh repaired: {'; '.join(changes)}",
+                  MeshRepairWarning, stacklevel=3)
+    return dataclasses.replace(body, mesh=mesh)
 
 
 # --------------------------------------------------------------------------------------------
@@ -408,18 +477,47 @@ def body_transform(*, position=None, rotation=None, scale=None, units="mm") -> n
     return m
 
 
+def _boolean(t: _Table, key: str, default: bool = False) -> bool:
+    value = t.raw(key, default=default)
+    if not isinstance(value, bool):
+        t.fail(f"{key} must be true or false, got {value!r}")
+    return value
+
+
+def _integer(t: _Table, key: str, *, minimum: int, default=None):
+    value = t.raw(key, default=default)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        t.fail(f"{key} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
 def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
     from xray_viz.meshes.io import load_mesh
 
     name = t.string("name", default=f"body{index}")
     mesh_name = t.string("mesh", required=True)
     mu = t.number("mu", nonnegative=True)
-    material = t.string("material")
+    material = t.raw("material")
+    if material is not None and not isinstance(material, (str, dict)):
+        t.fail(f"material must be a name or formula string, or a table of mass fractions such as "
+               f"{{ H2O = 0.9, NaCl = 0.1 }}; got {material!r}")
     density = t.number("density", positive=True)
     if mu is not None and material is not None:
         t.fail("gives both 'mu' and 'material'; use one")
     if mu is None and material is None:
         t.fail("needs 'mu' (linear attenuation coefficient, 1/cm) or 'material'")
+    if mu is not None and density is not None:
+        t.fail("gives 'density' with 'mu'; density goes with 'material'")
+    if material is not None:
+        from xray_viz.errors import MaterialError
+        from xray_viz.physics.materials import check_material
+
+        try:
+            check_material(material, density=density)
+        except MaterialError as exc:
+            t.fail(f"(name {name!r}): {exc}")
     position = t.vector("position", 3)
     rotation = None
     if t.has("rotation"):
@@ -435,6 +533,9 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
             rotation = t.vector("rotation", 3)
     scale = t.scalar_or_vector("scale", 3, positive=True)
     units = t.string("units", default="mm", choices=tuple(LENGTH_UNITS))
+    repair = t.raw("repair", default=True)
+    if not isinstance(repair, bool):
+        t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
     path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
     where = f"{t.file}: " if t.file else ""
@@ -446,6 +547,17 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
     if not np.allclose(transform, np.eye(4)):
         mesh = mesh.copy()
         mesh.apply_transform(transform)
+    from xray_viz.meshes.repair import MeshRepairWarning, ensure_traceable
+
+    try:
+        mesh, changes = ensure_traceable(mesh, name=name, repair=repair)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}{path.name}: {exc}") from None
+    if changes:
+        import warnings
+
+        warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
+                      MeshRepairWarning, stacklevel=2)
     return Body(name=name, mesh=mesh, mu=mu, material=material, density=density, source_file=path)
 
 
@@ -473,6 +585,17 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     if spectrum is not None and src.has("energy"):
         src.fail("gives both 'energy' and 'spectrum'; use one")
     src.done()
+    if spectrum is not None:
+        from xray_viz.errors import SpectrumError
+        from xray_viz.physics.spectra import spectrum_from_dict
+
+        try:
+            spectrum = spectrum_from_dict(spectrum, base_dir=base_dir)
+        except SceneFileNotFoundError as exc:
+            raise SceneFileNotFoundError(f"{src.file}: [source] {exc}" if src.file
+                                         else f"[source] {exc}") from None
+        except SpectrumError as exc:
+            src.fail(str(exc))
 
     det = top.table("detector", required=True)
     det.where = "[detector]"
@@ -492,6 +615,18 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         pitch = size / np.maximum(shape - 1, 1)
     else:
         pitch = det.scalar_or_vector("pitch", 2, positive=True)
+    options = {
+        "response": det.string("response", default="energy", choices=DETECTOR_RESPONSES),
+        "noise": _boolean(det, "noise"),
+        "falloff": _boolean(det, "falloff"),
+        "seed": _integer(det, "seed", minimum=0),
+        "supersample": _integer(det, "supersample", minimum=1, default=1),
+        "focal_spot": det.number("focal_spot", default=0.0, nonnegative=True),
+    }
+    if options["noise"] and not det.has("I0"):
+        det.fail("sets noise = true without 'I0': give the unattenuated photons per pixel, "
+                 "e.g. I0 = 10000.0")
+    options["i0"] = det.number("I0", default=1.0, positive=True)
     det.done()
 
     raw_bodies = top.raw("body", default=[])
@@ -505,7 +640,8 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     try:
         scene = Scene(
             source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum),
-            detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch)),
+            detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch),
+                              **options),
             bodies=tuple(bodies),
             path=file,
         )

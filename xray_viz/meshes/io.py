@@ -10,8 +10,39 @@ from xray_viz.errors import MeshError, SceneFileNotFoundError
 
 __all__ = ["load_mesh", "MESH_SUFFIXES"]
 
-#: File suffixes read by :func:`load_mesh` (through trimesh).
-MESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
+#: File suffixes read by :func:`load_mesh` through trimesh.
+TRIMESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
+#: File suffixes read through pyvista (VTK XML PolyData and legacy VTK).
+VTK_SUFFIXES = (".vtp", ".vtk")
+#: Every file suffix read by :func:`load_mesh`.
+MESH_SUFFIXES = TRIMESH_SUFFIXES + VTK_SUFFIXES
+
+
+def _read_vtk(path: Path):
+    """(vertices, faces) of a .vtp/.vtk file, triangulated; pyvista imported only here."""
+    try:
+        import pyvista as pv
+    except ImportError:  # pragma: no cover - pyvista is a dependency
+        raise MeshError(f"{path}: reading {path.suffix} files needs pyvista "
+                        "(pip install pyvista)") from None
+    try:
+        data = pv.read(path)
+    except Exception as exc:  # VTK readers raise many types on corrupt files
+        raise MeshError(f"{path}: cannot read mesh: {exc}") from None
+    if not isinstance(data, pv.PolyData):
+        try:
+            data = data.extract_surface(algorithm="dataset_surface")
+        except TypeError:  # older pyvista: no algorithm keyword
+            data = data.extract_surface()
+        except Exception as exc:
+            raise MeshError(f"{path}: not a surface mesh and no surface could be extracted "
+                            f"({type(data).__name__}): {exc}") from None
+    if data.n_cells and not data.is_all_triangles:
+        data = data.triangulate()
+    if data.faces.size == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    faces = np.asarray(data.regular_faces, dtype=np.int64)
+    return np.asarray(data.points, dtype=np.float64), faces
 
 
 def load_mesh(path: str | Path):
@@ -20,7 +51,9 @@ def load_mesh(path: str | Path):
     Parameters
     ----------
     path : str or Path
-        An STL (ASCII or binary), OBJ, PLY, OFF or GLB/GLTF file.
+        An STL (ASCII or binary), OBJ, PLY, OFF or GLB/GLTF file (read with trimesh), or a
+        VTK ``.vtp`` / ``.vtk`` file (read with pyvista, imported only for these; polygons
+        are triangulated, and a volume mesh is reduced to its outer surface).
 
     Returns
     -------
@@ -33,6 +66,15 @@ def load_mesh(path: str | Path):
         The file does not exist.
     MeshError
         The file cannot be read, holds no triangles, or has NaN or infinite vertices.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, trimesh
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "box.stl"
+    >>> _ = trimesh.creation.box(extents=[10, 10, 10]).export(path)
+    >>> mesh = load_mesh(path)
+    >>> len(mesh.faces), len(mesh.vertices), mesh.is_watertight
+    (12, 8, True)
     """
     import trimesh
 
@@ -42,12 +84,15 @@ def load_mesh(path: str | Path):
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} "
                         f"(use one of {', '.join(MESH_SUFFIXES)})")
-    try:
-        loaded = trimesh.load(path, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types on corrupt files
-        raise MeshError(f"{path}: cannot read mesh: {exc}") from None
-    vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
-    faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
+    if path.suffix.lower() in VTK_SUFFIXES:
+        vertices, faces = _read_vtk(path)
+    else:
+        try:
+            loaded = trimesh.load(path, force="mesh", process=False)
+        except Exception as exc:  # trimesh raises many types on corrupt files
+            raise MeshError(f"{path}: cannot read mesh: {exc}") from None
+        vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
+        faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshError(f"{path}: mesh is empty (no triangles)")
     if not np.all(np.isfinite(vertices)):

@@ -1,29 +1,55 @@
-"""Beer-Lambert image formation: from path lengths to line integrals and intensities.
+"""Image formation: from path lengths to detected intensities and line integrals.
 
-For a monochromatic beam of energy E, Beer-Lambert's law gives the intensity behind the object
+For photons of energy E, Beer-Lambert's law gives the fraction transmitted along a ray
 
-    I = I0 * exp(-sum_b mu_b(E) * L_b)
+    T(E) = exp(-sum_b mu_b(E) * L_b)
 
 where ``L_b`` is the effective path length (mm) of the ray in body b's material and ``mu_b`` its
-linear attenuation coefficient (1/cm; hence the factor 1/10 below). The *line integral* is the
-exponent, ``-ln(I / I0)``.
+linear attenuation coefficient (1/cm; hence the factor 1/10). A spectrum of photon-fluence
+weights ``phi_k`` at energies ``E_k`` is detected as
+
+    counting detector:           T = sum_k phi_k T(E_k)
+    energy-integrating detector: T = sum_k phi_k E_k T(E_k) / sum_k phi_k E_k
+
+(:func:`transmission`; one matrix product over (rays x bodies) per chunk of rays gives every
+energy bin at once, so the geometry is traced once whatever the number of bins). The detector
+then reads ``I = I0 * F * T`` (:func:`detect`), with ``F`` the optional inverse-square and
+obliquity fall-off, blurred by the focal spot and, if asked, with Poisson noise. The *line
+integral* is the flat-field corrected ``-ln(I / (I0 F))``; for a polychromatic beam it is no
+longer proportional to path length (beam hardening).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["body_mu", "transmission", "detect"]
+__all__ = ["body_mu", "transmission", "detect", "detector_weights", "falloff_factor",
+           "source_object_distance", "source_detector_distance", "magnification",
+           "focal_spot_blur_mm", "MM_PER_CM"]
 
 MM_PER_CM = 10.0
+
+#: Bytes of the (rays x energy bins) work array of one chunk in :func:`transmission`.
+CHUNK_BYTES = 32 * 2**20
 
 
 def body_mu(scene, energies_kev) -> np.ndarray:
     """Linear attenuation coefficients of every body at the given energies, in 1/cm.
 
+    A body with a constant ``mu`` has it at every energy; a body with a ``material`` gets
+    ``mu(E)`` from :func:`xray_viz.physics.materials.linear_attenuation`.
+
     Returns
     -------
     (n_energies, n_bodies) float
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> body_mu(xray_viz.load_scene("sphere"), [40.0, 60.0]).tolist()
+    [[0.2], [0.2]]
     """
     energies = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
     mu = np.empty((len(energies), len(scene.bodies)))
@@ -37,15 +63,38 @@ def body_mu(scene, energies_kev) -> np.ndarray:
     return mu
 
 
+def _response(scene) -> str:
+    return getattr(scene.detector, "response", "energy")
+
+
+def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
+    """Weight of each energy bin in the detector signal, summing to 1.
+
+    ``"counting"``: the photon fluence ``phi_k``; ``"energy"``: ``phi_k E_k / sum phi E``.
+
+    Examples
+    --------
+    >>> from xray_viz.physics.spectra import Spectrum
+    >>> detector_weights(Spectrum([20.0, 60.0], [1.0, 1.0]), "energy").tolist()
+    [0.25, 0.75]
+    """
+    w = np.asarray(spectrum.weights, dtype=np.float64)
+    if response == "energy":
+        w = w * spectrum.energies
+    elif response != "counting":
+        raise ValueError(f"detector response must be 'energy' or 'counting', got {response!r}")
+    return w / w.sum()
+
+
 def transmission(path_length, scene) -> np.ndarray:
-    """Fraction of the beam transmitted along each ray, ``I / I0 = exp(-sum_b mu_b L_b)``.
+    """Detected fraction of the beam along each ray, ``I / I0`` (see the module docstring).
 
     Parameters
     ----------
     path_length : (n_rays, n_bodies) float
         Millimetres of each ray in each body's material.
     scene : Scene
-        Gives the bodies' materials and the source energy.
+        Gives the bodies' materials, the source spectrum and the detector response.
 
     Returns
     -------
@@ -58,30 +107,168 @@ def transmission(path_length, scene) -> np.ndarray:
     >>> float(transmission(np.array([[50.0]]), scene)[0]) == float(np.exp(-1.0))
     True
     """
-    energy = scene.source.energy if scene.source.energy is not None else 60.0
-    mu = body_mu(scene, [energy])[0]
-    return np.exp(-(np.asarray(path_length) @ (mu / MM_PER_CM)))
+    from xray_viz.physics.spectra import source_spectrum
+
+    L = np.asarray(path_length, dtype=np.float64)
+    spectrum = source_spectrum(scene.source)
+    mu = body_mu(scene, spectrum.energies) / MM_PER_CM          # (K, B) 1/mm
+    if len(spectrum) == 1:
+        return np.exp(-(L @ mu[0]))
+    weights = detector_weights(spectrum, _response(scene))
+    out = np.ones(len(L))
+    inside = np.flatnonzero(np.any(L != 0, axis=1)) if L.shape[1] else np.zeros(0, np.int64)
+    chunk = max(1, CHUNK_BYTES // (8 * len(spectrum)))
+    mu_t = np.ascontiguousarray(mu.T)
+    for start in range(0, len(inside), chunk):
+        rows = inside[start:start + chunk]
+        out[rows] = np.exp(-(L[rows] @ mu_t)) @ weights
+    return out
 
 
-def detect(transmitted, scene, *, i0: float = 1.0):
+# --------------------------------------------------------------------------------------------
+# geometry of the source and detector
+
+
+def source_detector_distance(scene) -> float:
+    """SID in mm: from the source to the detector plane, along the beam axis."""
+    return float(np.linalg.norm(np.asarray(scene.source.position) - scene.detector.center))
+
+
+def source_object_distance(scene) -> float:
+    """SOD in mm: from the source to the *object plane*, along the beam axis.
+
+    The object plane is perpendicular to the beam and passes through the centre of the
+    bounding box of all bodies (the detector plane if there are none). It is the plane where
+    :func:`magnification` and :func:`focal_spot_blur_mm` are evaluated and where the DICOM
+    ``PixelSpacing`` is calibrated (``DistanceSourceToPatient``).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> source_object_distance(xray_viz.load_scene("sphere"))      # ball at the origin
+    1000.0
+    """
+    from xray_viz.geometry import beam_direction
+
+    r0 = np.asarray(scene.source.position, dtype=np.float64)
+    sid = source_detector_distance(scene)
+    if not scene.bodies:
+        return sid
+    tris = scene.triangles.reshape(-1, 3)
+    centre = (tris.min(axis=0) + tris.max(axis=0)) / 2
+    sod = float((centre - r0) @ beam_direction(r0, scene.detector.center))
+    return sod if 0 < sod else sid
+
+
+def magnification(scene) -> float:
+    """Geometric magnification ``SID / SOD`` of the object plane (1 for a parallel beam)."""
+    if scene.source.kind == "parallel":
+        return 1.0
+    return source_detector_distance(scene) / source_object_distance(scene)
+
+
+def focal_spot_blur_mm(scene) -> float:
+    """Width (FWHM, mm at the detector) of the focal-spot penumbra of the object plane.
+
+    ``focal_spot * (SID - SOD) / SOD = focal_spot * (M - 1)``, the geometric unsharpness of an
+    edge in the object plane; 0 for a parallel beam or no focal spot.
+    """
+    f = float(getattr(scene.detector, "focal_spot", 0.0) or 0.0)
+    if f <= 0 or scene.source.kind == "parallel":
+        return 0.0
+    return f * abs(magnification(scene) - 1.0)
+
+
+def falloff_factor(scene) -> np.ndarray:
+    """(H, W) inverse-square and obliquity fall-off of a point source, 1 at the detector centre.
+
+    The photons per pixel fall as ``1 / r^2`` (distance source -> pixel) times ``cos(theta)``
+    (the pixel seen obliquely), so with ``r = SID / cos(theta)`` the factor is ``cos^3(theta)``.
+    1 everywhere for a parallel beam.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> f = falloff_factor(xray_viz.load_scene("sphere"))
+    >>> float(f.max()) <= 1.0
+    True
+    """
+    from xray_viz.geometry import pixel_coordinates, viewport
+
+    w, h = scene.detector.shape
+    if scene.source.kind == "parallel":
+        return np.ones((h, w))
+    vp = viewport(scene.source.position, scene.detector)
+    u, v = pixel_coordinates(vp.shape)
+    r = np.linalg.norm(vp.point(u, v) - vp.r0, axis=-1)
+    return (np.linalg.norm(vp.FL) / r) ** 3
+
+
+def _blur(image, scene) -> np.ndarray:
+    fwhm = focal_spot_blur_mm(scene)
+    if fwhm <= 0:
+        return image
+    from scipy.ndimage import gaussian_filter
+
+    sigma_mm = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    px, py = scene.detector.pitch
+    return gaussian_filter(image, sigma=(sigma_mm / py, sigma_mm / px), mode="nearest",
+                           truncate=4.0)
+
+
+def detect(transmitted, scene, *, i0: float | None = None, rng=None):
     """The detector's reading of the transmitted beam.
 
     Parameters
     ----------
     transmitted : (H, W) float
-        ``I / I0`` per pixel.
+        ``I / I0`` per pixel, from :func:`transmission` averaged over each pixel's rays.
     scene : Scene
-    i0 : float
-        Unattenuated intensity.
+        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise`` and ``seed``.
+    i0 : float, optional
+        Unattenuated photons per pixel at the detector centre; default ``scene.detector.i0``.
+    rng : numpy.random.Generator, optional
+        Random numbers for the noise; default ``numpy.random.default_rng(scene.detector.seed)``.
 
     Returns
     -------
     intensity : (H, W) float
-        ``I0 * transmitted``.
+        ``I0 * F * T`` (photons, or photon-equivalents of mean energy for an
+        energy-integrating detector), blurred by the focal spot, with Poisson noise if asked.
     line_integral : (H, W) float
-        ``-ln(I / I0)``.
+        ``-ln(intensity / (I0 * F))``. With noise, pixels that received no photon count as half
+        a photon so the line integral stays finite.
+
+    Notes
+    -----
+    Noise: a counting detector gets ``Poisson(I)``. An energy-integrating detector's signal is a
+    compound Poisson sum of photon energies; it is modelled as ``Poisson(s I) / s`` with ``s`` the
+    Swank factor ``<E>^2 / <E^2>`` of the *unattenuated* spectrum, which gives the exact mean and
+    variance of a flat field (and of any pixel to the extent hardening leaves ``s`` unchanged).
+
+    Examples
+    --------
+    >>> import numpy as np, xray_viz
+    >>> intensity, li = detect(np.full((2, 2), np.exp(-1.0)), xray_viz.load_scene("sphere"))
+    >>> np.allclose(li, 1.0)
+    True
     """
+    det = scene.detector
     transmitted = np.asarray(transmitted, dtype=np.float64)
+    i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
+    flat = i0 * falloff_factor(scene) if getattr(det, "falloff", False) else np.full(
+        transmitted.shape, i0)
+    signal = _blur(flat * transmitted, scene)
+    floor = 0.0
+    if getattr(det, "noise", False):
+        from xray_viz.physics.spectra import source_spectrum
+
+        if rng is None:
+            rng = np.random.default_rng(getattr(det, "seed", None))
+        spectrum = source_spectrum(scene.source)
+        s = spectrum.swank_factor if _response(scene) == "energy" else 1.0
+        signal = rng.poisson(np.clip(signal, 0, None) * s) / s
+        floor = 0.5 / s
     with np.errstate(divide="ignore"):
-        line_integral = -np.log(transmitted)
-    return i0 * transmitted, line_integral
+        line_integral = -np.log(np.maximum(signal, floor) / flat)
+    return signal, line_integral

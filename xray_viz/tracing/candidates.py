@@ -33,7 +33,7 @@ def _frame(axis):
 
 
 def candidate_pairs(triangles, origins, directions, t_min, t_max, *, axis=None,
-                    block=PAIRS_PER_BLOCK) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+                    block=PAIRS_PER_BLOCK, progress=None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Yield blocks of ``(ray_index, triangle_index)`` pairs that may intersect.
 
     Parameters
@@ -45,13 +45,16 @@ def candidate_pairs(triangles, origins, directions, t_min, t_max, *, axis=None,
         Beam axis used for the projection; defaults to the mean ray direction.
     block : int
         Approximate number of pairs per yielded block.
+    progress : bool or None
+        Show a progress bar over the blocks; None shows one only on a terminal and only for
+        work of more than a few blocks.
     """
     n = len(directions)
     if n == 0 or len(triangles) == 0:
         return
     same_origin = bool(np.all(origins == origins[0]))
     same_direction = bool(np.all(directions == directions[0]))
-    if n >= 32 and (same_origin or same_direction):
+    if same_origin or same_direction:
         if axis is None:
             axis = directions.mean(axis=0) if not same_direction else directions[0]
         if np.linalg.norm(axis) > 0:
@@ -60,7 +63,8 @@ def candidate_pairs(triangles, origins, directions, t_min, t_max, *, axis=None,
             cos = unit @ f
             if same_direction or np.min(cos) > 0.05:
                 yield from _binned(triangles, origins, directions, t_min, t_max, f, e1, e2,
-                                   perspective=not same_direction, block=block)
+                                   perspective=not same_direction, block=block,
+                                   progress=progress)
                 return
     yield from _brute_force(triangles, origins, directions, t_min, t_max, block=block)
 
@@ -92,7 +96,8 @@ def _brute_force(triangles, origins, directions, t_min, t_max, *, block):
             yield r + start, t
 
 
-def _binned(triangles, origins, directions, t_min, t_max, f, e1, e2, *, perspective, block):
+def _binned(triangles, origins, directions, t_min, t_max, f, e1, e2, *, perspective, block,
+            progress=None):
     n = len(directions)
     T = len(triangles)
     o0 = origins[0]
@@ -171,9 +176,15 @@ def _binned(triangles, origins, directions, t_min, t_max, f, e1, e2, *, perspect
     cum = np.cumsum(pairs_per_tri[tri_ids])
     # Split the triangles into blocks of about `block` pairs.
     cuts = np.searchsorted(cum, np.arange(block, cum[-1], block), side="right")
-    for chunk in np.split(tri_ids, np.unique(cuts)):
-        if len(chunk) == 0:
-            continue
+    chunks = [c for c in np.split(tri_ids, np.unique(cuts)) if len(c)]
+    if progress is None:
+        # tqdm's disable=None shows a bar on a terminal only; short work shows none.
+        disable = None if len(chunks) > 8 else True
+    else:
+        disable = not progress
+    from tqdm.auto import tqdm
+
+    for chunk in tqdm(chunks, desc="tracing", unit="block", leave=False, disable=disable):
         nb = nbx[chunk] * nby[chunk]
         tri_rep = np.repeat(chunk, nb)
         first = np.repeat(np.cumsum(nb) - nb, nb)

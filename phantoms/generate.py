@@ -1,0 +1,423 @@
+"""Generate the bundled phantom library: ``python phantoms/generate.py [NAME ...]``.
+
+Writes, next to this file, one scene file per phantom (``NAME.toml``) and its meshes
+(``NAME/*.stl``, binary STL). Deterministic and offline: the geometric phantoms are built from
+trimesh primitives, and the frog from ``frog_tissues.vti``, which ships inside pyvista's wheel
+(``pyvista.examples.load_frog_tissues``, no download).
+
+Every body is checked closed (watertight), consistently wound and outward (positive volume)
+before it is written. Body materials are NIST compound names as xraylib knows them, except the
+plain ``sphere`` (``mu = 0.2`` 1/cm, so the core renders it without the physics module).
+Nested bodies rely on the renderer's rule "innermost wins".
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+HERE = Path(__file__).resolve().parent
+
+BONE = "Bone, Cortical (ICRP)"
+BRAIN = "Brain (ICRP)"
+BLOOD = "Blood (ICRP)"
+SOFT = "Tissue, Soft (ICRP)"
+FAT = "Adipose Tissue (ICRP)"
+WATER = "Water, Liquid"
+AIR = "Air, Dry (near sea level)"
+MUSCLE = "Muscle, Skeletal"
+LUNG = "Lung (ICRP)"
+EYE = "Eye Lens (ICRP)"
+
+
+# ------------------------------------------------------------------------------------------
+# helpers
+
+
+def check(mesh: trimesh.Trimesh, what: str) -> trimesh.Trimesh:
+    """Refuse to write a body that is not closed, consistently wound and outward."""
+    if not (mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
+        raise SystemExit(f"{what}: generated mesh is not closed and outward "
+                         f"(watertight={mesh.is_watertight}, "
+                         f"winding={mesh.is_winding_consistent}, volume={mesh.volume:.4g})")
+    return mesh
+
+
+def ellipsoid(center, axes, *, angle_deg=0.0, subdivisions=4, rotation=None):
+    """An icosphere scaled to semi-axes ``axes``, turned ``angle_deg`` about z, then moved."""
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    v = m.vertices * np.asarray(axes, float)
+    a = np.radians(angle_deg)
+    rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    v = v @ rz.T + np.asarray(center, float)
+    if rotation is not None:
+        v = v @ np.asarray(rotation, float).T
+    return trimesh.Trimesh(v, m.faces, process=False)
+
+
+def capsule_y(radius, length, center=(0.0, 0.0, 0.0), *, scale_xz=(1.0, 1.0), count=(48, 48)):
+    """A capsule along y (cylinder ``length`` long plus hemispherical caps)."""
+    m = trimesh.creation.capsule(height=length, radius=radius, count=list(count))
+    v = m.vertices - [0, 0, 0]  # trimesh capsule runs along z, centred
+    v = np.column_stack([v[:, 0] * scale_xz[0], v[:, 2], v[:, 1] * scale_xz[1]])
+    # (x, y, z) -> (x, z, y) is a reflection: reverse the faces to stay outward
+    out = trimesh.Trimesh(v + np.asarray(center, float), m.faces[:, ::-1], process=False)
+    return out
+
+
+def box(lo, hi):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    m = trimesh.creation.box(extents=hi - lo)
+    m.apply_translation((lo + hi) / 2)
+    return m
+
+
+def staircase(widths, heights, depth):
+    """One closed solid: columns of ``widths`` (x) and ``heights`` (z), ``depth`` along y.
+
+    Each column's side profile is triangulated together with the step corner of its left
+    neighbour, so there is no T-junction: a single watertight staircase, not touching boxes.
+    """
+    x = np.concatenate([[0.0], np.cumsum(widths)]) - np.sum(widths) / 2
+    pts, tris = [], []
+    bottom = [len(pts) + k for k in range(len(x))]
+    pts += [(xi, 0.0) for xi in x]
+    tops = []  # (left top index, right top index) of each column
+    for i, h in enumerate(heights):
+        tl, tr = len(pts), len(pts) + 1
+        pts += [(x[i], h), (x[i + 1], h)]
+        tops.append((tl, tr))
+    for i in range(len(heights)):
+        b0, b1 = bottom[i], bottom[i + 1]
+        tl, tr = tops[i]
+        if i == 0:
+            tris += [(b0, b1, tr), (b0, tr, tl)]
+        else:
+            step = tops[i - 1][1]  # previous column's top-right corner, on this column's left
+            tris += [(b1, tr, tl), (b1, tl, step), (b1, step, b0)]
+    pts = np.array(pts)
+    tris = np.array(tris)
+    m = trimesh.creation.extrude_triangulation(pts, tris, height=depth)
+    # extruded along z: map (x, profile-z, extrusion) -> scene (x, y, z) with thickness along z
+    v = m.vertices
+    v = np.column_stack([v[:, 0], v[:, 2] - depth / 2, v[:, 1]])
+    faces = m.faces[:, ::-1]  # the axis swap (y <-> z) is a reflection
+    out = trimesh.Trimesh(v, faces, process=True)
+    if out.volume < 0:
+        out.invert()
+    return out
+
+
+def write_stl(mesh, path: Path, what: str):
+    check(mesh, what)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = trimesh.exchange.stl.export_stl(mesh)  # binary
+    path.write_bytes(data)
+
+
+def fmt(v):
+    if isinstance(v, str):
+        return '"' + v + '"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(fmt(x) for x in v) + "]"
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    return repr(round(float(v), 6))
+
+
+def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0,
+                shape=(256, 256), pitch=None, fit=None, energy=60.0):
+    """Write ``NAME.toml``. ``fit`` = (half width mm, half height mm, object z): pick the pitch
+    so the object, magnified onto the detector, fills ~90 % of it."""
+    if pitch is None:
+        half_w, half_h, z_obj = fit
+        mag = (source_z - detector_z) / (source_z - z_obj)
+        pitch = max(2 * half_w * mag / (shape[0] - 1), 2 * half_h * mag / (shape[1] - 1)) / 0.9
+        pitch = float(np.ceil(pitch * 1000) / 1000)
+    lines = [f"# {line}" if line else "#" for line in description]
+    lines += ["", "[source]", f"position = [0.0, 0.0, {fmt(source_z)}]", 'kind = "point"',
+              f"energy = {fmt(energy)}", "", "[detector]",
+              f"center = [0.0, 0.0, {fmt(detector_z)}]", "up = [0.0, 1.0, 0.0]",
+              f"shape = {fmt(list(shape))}", f"pitch = {fmt(pitch)}"]
+    for body in bodies:
+        lines += ["", "[[body]]"]
+        for key, value in body.items():
+            lines.append(f"{key} = {fmt(value)}")
+    (HERE / f"{name}.toml").write_text("\n".join(lines) + "\n")
+
+
+# ------------------------------------------------------------------------------------------
+# phantoms
+
+
+def make_sphere():
+    ball = trimesh.creation.icosphere(subdivisions=5, radius=40.0)
+    write_stl(ball, HERE / "sphere" / "ball.stl", "sphere/ball")
+    write_scene("sphere", [
+        "sphere: a uniform ball of radius 40 mm (icosphere, 20480 faces), mu = 0.2 1/cm.",
+        "The simplest check: the line integral through a sphere is known exactly.",
+    ], [dict(name="ball", mesh="sphere/ball.stl", mu=0.2)], shape=(256, 256), pitch=0.5)
+
+
+def make_nested_spheres():
+    layers = [("water", 40.0, WATER), ("bone", 25.0, BONE), ("air", 10.0, AIR)]
+    bodies = []
+    for name, r, material in layers:
+        write_stl(trimesh.creation.icosphere(subdivisions=4, radius=r),
+                  HERE / "nested_spheres" / f"{name}.stl", f"nested_spheres/{name}")
+        bodies.append(dict(name=name, mesh=f"nested_spheres/{name}.stl", material=material))
+    write_scene("nested_spheres", [
+        "nested_spheres: three concentric balls, innermost wins: water (r = 40 mm) around",
+        "cortical bone (r = 25 mm) around an air bubble (r = 10 mm).",
+        "Shows nesting: each shell's material replaces its parent's inside it.",
+    ], bodies, fit=(40, 40, 0))
+
+
+STEP_WIDTHS = [8.0] * 10
+STEP_HEIGHTS = [2.0 * (k + 1) for k in range(10)]  # 2 .. 20 mm of aluminium along the beam
+STEP_DEPTH = 40.0
+
+
+def make_step_wedge():
+    wedge = staircase(STEP_WIDTHS, STEP_HEIGHTS, STEP_DEPTH)
+    # centre the thickness on z = 0
+    wedge.apply_translation([0, 0, -max(STEP_HEIGHTS) / 2])
+    write_stl(wedge, HERE / "step_wedge" / "wedge.stl", "step_wedge/wedge")
+    write_scene("step_wedge", [
+        "step_wedge: an aluminium step wedge, 10 steps 8 mm wide and 2, 4, ... 20 mm thick",
+        "along the beam, 40 mm tall: one closed staircase solid (Al, 2.699 g/cm3).",
+        "Ten grey levels: transmission falls as exp(-mu t) step by step.",
+    ], [dict(name="wedge", mesh="step_wedge/wedge.stl", material="Al", density=2.699)],
+        fit=(sum(STEP_WIDTHS) / 2, STEP_DEPTH / 2, 0), shape=(320, 192))
+
+
+#: The 3D Shepp-Logan head phantom (Kak and Slaney 1988, p. 102, with the published errata):
+#: semi-axes (a, b, c), centre (x, y, z), rotation about z in degrees, K&S refractive index,
+#: in units of the head size; and the material each ellipsoid is given here.
+SHEPP_LOGAN = [
+    # name          a       b      c       x0      y0      z0     theta  K&S    material
+    ("skull",      0.6900, 0.920, 0.900, 0.000, 0.000, 0.000, 0,    2.00, BONE),
+    ("brain",      0.6624, 0.874, 0.880, 0.000, 0.000, 0.000, 0,    -0.98, BRAIN),
+    ("ventricle_r", 0.4100, 0.160, 0.210, -0.220, 0.000, -0.250, 108, -0.02, WATER),
+    ("ventricle_l", 0.3100, 0.110, 0.220, 0.220, 0.000, -0.250, 72,  -0.02, WATER),
+    ("tumour",     0.2100, 0.250, 0.500, 0.000, 0.350, -0.250, 0,    0.02, BLOOD),
+    ("spot",       0.0460, 0.046, 0.046, 0.000, 0.100, -0.250, 0,    0.02, BLOOD),
+    ("nodule_1",   0.0460, 0.023, 0.020, -0.080, -0.650, -0.250, 0,   0.01, SOFT),
+    ("nodule_2",   0.0460, 0.023, 0.020, 0.060, -0.650, -0.250, 90,  0.01, SOFT),
+    ("vessel",     0.0560, 0.040, 0.100, 0.060, -0.105, 0.625, 90,   0.02, BLOOD),
+    ("cyst",       0.0560, 0.056, 0.100, 0.000, 0.100, 0.625, 0,    -0.02, WATER),
+]
+#: Size of the head: 1 phantom unit = 100 mm (skull 138 x 184 x 180 mm).
+SHEPP_LOGAN_SCALE = 100.0
+#: Phantom axes to scene axes for a lateral view: scene x = K&S y (front-back),
+#: scene y = K&S z (feet-head, the detector's up), scene z = K&S x (the beam, ear to ear).
+SHEPP_LOGAN_ROTATION = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+
+
+def make_shepp_logan():
+    bodies = []
+    for name, a, b, c, x0, y0, z0, theta, _, material in SHEPP_LOGAN:
+        sub = 5 if name in ("skull", "brain") else 3
+        m = ellipsoid(np.array([x0, y0, z0]) * SHEPP_LOGAN_SCALE,
+                      np.array([a, b, c]) * SHEPP_LOGAN_SCALE, angle_deg=theta,
+                      subdivisions=sub, rotation=SHEPP_LOGAN_ROTATION)
+        write_stl(m, HERE / "shepp_logan" / f"{name}.stl", f"shepp_logan/{name}")
+        bodies.append(dict(name=name, mesh=f"shepp_logan/{name}.stl", material=material))
+    write_scene("shepp_logan", [
+        "shepp_logan: the 3D Shepp-Logan head phantom (Kak and Slaney 1988, p. 102, with the",
+        "errata), ten ellipsoids scaled to a 138 x 184 x 180 mm head, seen from the side",
+        "(beam ear to ear, the top of the head up). Materials for a realistic skull radiograph:",
+        "cortical bone skull, brain (ICRP), water ventricles and cyst, blood tumour, spot and",
+        "vessel, soft-tissue nodules. Inner ellipsoids are nested: innermost wins.",
+    ], bodies, fit=(92, 90, 0), source_z=1000.0, detector_z=-300.0)
+
+
+def make_limb():
+    parts = [
+        # name, radius, length, centre (x, y, z), (sx, sz), material
+        ("skin_fat", 45.0, 220.0, (0, 0, 0), (1.0, 0.85), FAT),
+        ("muscle", 41.0, 214.0, (0, 0, 0), (1.0, 0.85), MUSCLE),
+        ("radius_bone", 9.0, 230.0 - 40.0, (-16.0, 0, 0), (1.0, 1.0), BONE),
+        ("radius_marrow", 5.5, 230.0 - 52.0, (-16.0, 0, 0), (1.0, 1.0), FAT),
+        ("ulna_bone", 7.5, 230.0 - 44.0, (15.0, 4.0, 3.0), (1.0, 1.0), BONE),
+        ("ulna_marrow", 4.0, 230.0 - 56.0, (15.0, 4.0, 3.0), (1.0, 1.0), FAT),
+    ]
+    bodies = []
+    for name, r, length, c, sxz, material in parts:
+        m = capsule_y(r, length, c, scale_xz=sxz)
+        write_stl(m, HERE / "limb" / f"{name}.stl", f"limb/{name}")
+        bodies.append(dict(name=name, mesh=f"limb/{name}.stl", material=material))
+    write_scene("limb", [
+        "limb: a forearm-like phantom. A fat/skin layer around muscle, and inside it two long",
+        "bones (radius and ulna, cortical bone, ICRP) each with a fatty marrow cavity",
+        "(adipose tissue). Closed capsules nested so that innermost wins.",
+    ], bodies, fit=(45, 155, 0), shape=(192, 384), source_z=1000.0, detector_z=-200.0)
+
+
+#: Bar groups of the resolution phantom: line pairs per mm; three lead bars per group.
+RESOLUTION_LP_PER_MM = [0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0]
+RESOLUTION_BAR_LENGTH = 12.0
+RESOLUTION_THICKNESS = 0.1  # mm of lead along the beam
+
+
+def make_resolution():
+    bars = []
+    x = 0.0
+    for f in RESOLUTION_LP_PER_MM:
+        w = 1.0 / (2.0 * f)  # bar width = gap width
+        for k in range(3):
+            x0 = x + 2 * k * w
+            bars.append(box([x0, -RESOLUTION_BAR_LENGTH / 2, -RESOLUTION_THICKNESS / 2],
+                            [x0 + w, RESOLUTION_BAR_LENGTH / 2, RESOLUTION_THICKNESS / 2]))
+        x += 5 * w + 3.0  # three bars, two gaps, then a 3 mm space before the next group
+    total = x - 3.0
+    mesh = trimesh.util.concatenate(bars)
+    mesh.apply_translation([-total / 2, 0, 0])
+    write_stl(mesh, HERE / "resolution" / "bars.stl", "resolution/bars")
+    groups = ", ".join(f"{f:g}" for f in RESOLUTION_LP_PER_MM)
+    write_scene("resolution", [
+        "resolution: a bar pattern of 0.1 mm lead (Pb, 11.35 g/cm3), seven groups of three",
+        f"bars at {groups} line pairs per mm (bar width = gap = 1 / (2 f)).",
+        "Shows the detector's resolution limit: a group blurs once a bar is below one pixel.",
+    ], [dict(name="bars", mesh="resolution/bars.stl", material="Pb", density=11.35)],
+        fit=(total / 2, RESOLUTION_BAR_LENGTH / 2, 0), shape=(512, 128), source_z=1000.0,
+        detector_z=-50.0)
+
+
+#: Tissues of pyvista's frog_tissues.vti (label -> name, material, target faces).
+#: Labels above 15 hold a few hundred voxels of segmentation debris and are left out.
+FROG_TISSUES = {
+    1: ("blood", BLOOD, 12000),
+    2: ("brain", BRAIN, 4000),
+    3: ("duodenum", SOFT, 4000),
+    4: ("eye_retina", SOFT, 4000),
+    5: ("eye_white", EYE, 4000),
+    6: ("heart", MUSCLE, 4000),
+    7: ("ileum", SOFT, 4000),
+    8: ("kidney", SOFT, 4000),
+    9: ("l_intestine", SOFT, 4000),
+    10: ("liver", SOFT, 12000),
+    11: ("lung", LUNG, 6000),
+    12: ("nerve", BRAIN, 10000),
+    13: ("skeleton", BONE, 70000),
+    14: ("spleen", SOFT, 1500),
+    15: ("stomach", SOFT, 10000),
+}
+#: Millimetres per voxel unit of frog_tissues.vti (spacing 1 x 1 x 1.5 units): an assumption
+#: that makes the frog, legs spread, about 115 mm across, a large leopard frog.
+FROG_MM_PER_UNIT = 0.25
+FROG_BODY_FACES = 20000
+LUNG_DENSITY = 0.26  # inflated lung, g/cm3 (the NIST compound's own density is 1.05)
+
+
+def _surface(mask, spacing, origin, *, sigma=1.0, step=1):
+    """Closed iso-surface (0.5) of a Gaussian-smoothed binary mask, via VTK flying edges."""
+    import pyvista as pv
+    from scipy import ndimage
+
+    idx = np.nonzero(mask)
+    lo = np.maximum([i.min() - 4 for i in idx], 0)
+    hi = np.array([i.max() + 5 for i in idx])
+    sub = mask[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].astype(np.float32)
+    sub = ndimage.gaussian_filter(np.pad(sub, 3), sigma)[::step, ::step, ::step]
+    sp = np.asarray(spacing, float) * step
+    img = pv.ImageData(dimensions=sub.shape[::-1], spacing=sp,
+                       origin=np.asarray(origin) + (lo[::-1] - 3) * np.asarray(spacing))
+    img.point_data["m"] = np.ascontiguousarray(sub).ravel()
+    surf = img.contour([0.5], scalars="m", method="flying_edges").triangulate().clean()
+    return trimesh.Trimesh(np.asarray(surf.points, float), np.asarray(surf.regular_faces),
+                           process=False)
+
+
+def _finish(mesh, faces, what):
+    from xray_viz.meshes import check_mesh, decimate, repair_mesh
+
+    if not check_mesh(mesh).traceable:
+        mesh, report = repair_mesh(mesh)
+        print(f"  {what}: repaired: {'; '.join(report.changes)}")
+    # keep only pieces of some size (segmentation specks)
+    parts = mesh.split(only_watertight=True)
+    parts = [p for p in parts if len(p.faces) >= 60 and p.volume > 0]
+    mesh = trimesh.util.concatenate(parts)
+    if len(mesh.faces) > faces:
+        mesh, err = decimate(mesh, target_faces=faces, samples=5000)
+        print(f"  {what}: {len(mesh.faces)} faces, Hausdorff {err:.3f} mm")
+    return mesh
+
+
+def make_frog():
+    from pyvista import examples
+    from scipy import ndimage
+
+    data = examples.load_frog_tissues()
+    labels = np.asarray(data.point_data["MetaImage"]).reshape(data.dimensions[::-1])  # z, y, x
+    spacing = np.asarray(data.spacing) * FROG_MM_PER_UNIT
+    origin = np.asarray(data.origin) * FROG_MM_PER_UNIT
+    # centre the frog on the origin
+    idx = np.argwhere(labels > 0)
+    centre_vox = (idx.min(0) + idx.max(0))[::-1] / 2.0  # x, y, z voxel index
+    shift = -(origin + centre_vox * spacing)
+    # the whole frog: every labelled voxel, closed over gaps, as the soft-tissue body
+    small = labels[::2, ::2, ::2] > 0
+    small = np.pad(small, 8)
+    small = ndimage.binary_closing(small, structure=ndimage.generate_binary_structure(3, 1),
+                                   iterations=5)
+    small = ndimage.binary_fill_holes(ndimage.binary_dilation(small, iterations=1))[8:-8, 8:-8, 8:-8]
+    bodies = []
+    body = _surface(small, spacing * 2, origin, sigma=1.0)
+    body.apply_translation(shift)
+    body = _finish(body, FROG_BODY_FACES, "body")
+    write_stl(body, HERE / "frog" / "body.stl", "frog/body")
+    bodies.append(dict(name="body", mesh="frog/body.stl", material=MUSCLE))
+    for label, (name, material, faces) in FROG_TISSUES.items():
+        mesh = _surface(labels == label, spacing, origin, sigma=1.0)
+        mesh.apply_translation(shift)
+        mesh = _finish(mesh, faces, name)
+        write_stl(mesh, HERE / "frog" / f"{name}.stl", f"frog/{name}")
+        entry = dict(name=name, mesh=f"frog/{name}.stl", material=material)
+        if material == LUNG:
+            entry["density"] = LUNG_DENSITY
+        bodies.append(entry)
+    ext = np.ptp(np.vstack([trimesh.load(HERE / "frog" / "body.stl").bounds]), axis=0)
+    # the frog lies in the x-y plane of the volume; the beam (-z) looks down on its back
+    write_scene("frog", [
+        "frog: a real anatomical phantom, the segmented frog of pyvista's frog_tissues.vti",
+        "(15 labelled tissues, surfaced by marching cubes, decimated), seen from above.",
+        "Skeleton in cortical bone, brain and nerves as brain tissue, blood, inflated lung",
+        f"({LUNG_DENSITY} g/cm3), organs as soft tissue, the whole body as skeletal muscle.",
+        f"Scaled at {FROG_MM_PER_UNIT} mm per voxel unit (an assumption): about "
+        f"{ext[0]:.0f} x {ext[1]:.0f} x {ext[2]:.0f} mm.",
+    ], bodies, fit=(ext[0] / 2, ext[1] / 2, 0), shape=(512, 512), source_z=1000.0,
+        detector_z=-100.0)
+
+
+PHANTOMS = {
+    "sphere": make_sphere,
+    "nested_spheres": make_nested_spheres,
+    "step_wedge": make_step_wedge,
+    "shepp_logan": make_shepp_logan,
+    "limb": make_limb,
+    "resolution": make_resolution,
+    "frog": make_frog,
+}
+
+
+def main(argv=None) -> int:
+    names = list(argv if argv is not None else sys.argv[1:]) or list(PHANTOMS)
+    unknown = [n for n in names if n not in PHANTOMS]
+    if unknown:
+        print(f"unknown phantom(s) {unknown}; choose from {list(PHANTOMS)}", file=sys.stderr)
+        return 2
+    for name in names:
+        print(f"{name} ...", flush=True)
+        PHANTOMS[name]()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

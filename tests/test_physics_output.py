@@ -1,0 +1,94 @@
+"""Round trips of every output format, and the DICOM geometry."""
+
+import numpy as np
+import pydicom
+import pytest
+
+import xray_viz
+from physics_scenes import box, load, parallel_detector
+from xray_viz.errors import OutputError
+from xray_viz.output import load_image, save_image, to_uint16
+
+
+@pytest.fixture
+def image():
+    rng = np.random.default_rng(1)
+    return rng.uniform(0.1, 3.0, (17, 23))
+
+
+def test_npy_exact(tmp_path, image):
+    save_image(tmp_path / "a.npy", image)
+    assert np.array_equal(load_image(tmp_path / "a.npy"), image)
+
+
+@pytest.mark.parametrize("suffix", [".tiff", ".tif"])
+def test_tiff_float32_exact(tmp_path, image, suffix):
+    save_image(tmp_path / f"a{suffix}", image)
+    back = load_image(tmp_path / f"a{suffix}")
+    assert back.dtype == np.float32 and np.array_equal(back, image.astype(np.float32))
+
+
+@pytest.mark.parametrize("bright", ["high", "low"])
+def test_png_16bit_quantisation(tmp_path, image, bright):
+    save_image(tmp_path / "a.png", image, bright=bright)
+    back = load_image(tmp_path / "a.png").astype(np.uint16)
+    assert np.array_equal(back, to_uint16(image, bright=bright))
+    lo, hi = image.min(), image.max()
+    scaled = back / 65535.0 if bright == "high" else 1 - back / 65535.0
+    assert np.abs(lo + scaled * (hi - lo) - image).max() <= (hi - lo) / 65535 / 2 + 1e-12
+
+
+def _scene(tmp_path, **source):
+    return load(tmp_path, source={"position": [0.0, 0.0, 1000.0], **source},
+                detector=parallel_detector(shape=(23, 17), pitch=[0.4, 0.6], focal_spot=0.6),
+                bodies=[("cube", box([10, 10, 10], center=[0, 0, 100]), {"mu": 0.3})])
+
+
+def test_dicom_values_and_geometry(tmp_path, image):
+    scene = _scene(tmp_path, energy=70.0)
+    save_image(tmp_path / "a.dcm", image, scene=scene, bright="low", quantity="intensity")
+    back = load_image(tmp_path / "a.dcm")
+    step = (image.max() - image.min()) / 65535
+    assert np.abs(back - image).max() <= step / 2 * (1 + 1e-6)
+    ds = pydicom.dcmread(tmp_path / "a.dcm")
+    assert ds.Modality == "DX" and ds.PhotometricInterpretation == "MONOCHROME1"
+    assert (ds.Rows, ds.Columns, ds.BitsStored) == (17, 23, 16)
+    # cube centre at z = 100: SOD = 900 mm, SID = 1500 mm, magnification 5/3
+    assert float(ds.DistanceSourceToDetector) == pytest.approx(1500.0)
+    assert float(ds.DistanceSourceToPatient) == pytest.approx(900.0)
+    assert float(ds.EstimatedRadiographicMagnificationFactor) == pytest.approx(1500 / 900)
+    assert [float(v) for v in ds.ImagerPixelSpacing] == pytest.approx([0.6, 0.4])  # row, column
+    assert [float(v) for v in ds.PixelSpacing] == pytest.approx([0.6 * 0.6, 0.4 * 0.6])
+    assert float(ds.KVP) == pytest.approx(70.0)
+    assert float(ds.FocalSpots) == pytest.approx(0.6)
+    assert np.array_equal(ds.pixel_array.astype(np.float64) * float(ds.RescaleSlope)
+                          + float(ds.RescaleIntercept), back)
+
+
+def test_dicom_tube_spectrum_kvp_and_rendered_line_integral(tmp_path):
+    scene = _scene(tmp_path, spectrum={"kvp": 90.0, "filters": {"Al": 2.0}})
+    li = xray_viz.render(scene).line_integral
+    save_image(tmp_path / "li.dcm", li, scene=scene, quantity="line-integral")
+    ds = pydicom.dcmread(tmp_path / "li.dcm")
+    assert float(ds.KVP) == 90.0 and ds.PhotometricInterpretation == "MONOCHROME2"
+    assert "90 kV" in ds.ImageComments
+    np.testing.assert_allclose(load_image(tmp_path / "li.dcm"), li,
+                               atol=(li.max() - li.min()) / 65535)
+
+
+def test_dicom_handles_infinite_and_flat(tmp_path):
+    scene = _scene(tmp_path, energy=60.0)
+    a = np.ones((17, 23))
+    save_image(tmp_path / "flat.dcm", a, scene=scene)
+    assert np.allclose(load_image(tmp_path / "flat.dcm"), 1.0)
+    a[0, 0] = np.inf
+    a[1, 1] = 3.0
+    save_image(tmp_path / "inf.dcm", a, scene=scene)
+    back = load_image(tmp_path / "inf.dcm")
+    assert back[0, 0] == pytest.approx(3.0) and back[1, 1] == pytest.approx(3.0)
+
+
+def test_dicom_needs_scene(tmp_path, image):
+    with pytest.raises(OutputError, match="scene"):
+        save_image(tmp_path / "a.dcm", image)
+    assert not (tmp_path / "a.dcm").exists()

@@ -1,0 +1,167 @@
+"""``xray-viz mesh IN -o OUT [--decimate FACES | --max-error MM]``: repair and decimate a mesh file.
+
+The command line (:mod:`xray_viz.cli`) registers it with :func:`add_mesh_parser`; the work is
+done by :func:`mesh_command`, which returns the exit status.
+
+Examples
+--------
+>>> import argparse
+>>> parser = argparse.ArgumentParser(prog="xray-viz")
+>>> sub = parser.add_subparsers(dest="command")
+>>> add_mesh_parser(sub)  # doctest: +ELLIPSIS
+ArgumentParser(prog='xray-viz mesh', ...)
+>>> args = parser.parse_args(["mesh", "in.stl", "-o", "out.ply", "--decimate", "5000"])
+>>> args.func is mesh_command, args.decimate
+(True, 5000)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from xray_viz.errors import MeshError, SceneFileNotFoundError
+
+__all__ = ["mesh_command", "add_mesh_parser", "WRITE_SUFFIXES"]
+
+#: Output formats written by ``xray-viz mesh`` (binary STL, binary PLY, OBJ, OFF).
+WRITE_SUFFIXES = (".stl", ".ply", ".obj", ".off")
+
+_DESCRIPTION = """\
+Repair a triangle mesh so that it can be traced, optionally decimate it, and write it.
+
+Repair always runs (pymeshlab): duplicate and close vertices are merged, duplicate and
+zero-area faces and unreferenced vertices removed, non-manifold edges and vertices split,
+small stray pieces removed, holes closed, faces oriented coherently and outward.
+
+Decimation (quadric edge collapse, keeping the mesh closed) is either to a face count
+(--decimate FACES) or to an error budget (--max-error MM: the fewest faces whose Hausdorff
+distance to the repaired mesh stays within MM millimetres).
+
+A report of the mesh before and after is printed. OUT is written atomically (a temporary
+file in the same folder, then renamed), in the format given by its extension.
+"""
+
+_EPILOG = """\
+input formats: .stl .obj .ply .off .glb .gltf .vtp .vtk
+output formats: .stl (binary) .ply (binary) .obj .off
+
+examples:
+  xray-viz mesh scan.stl -o scan_fixed.stl
+  xray-viz mesh skull.ply -o skull_50k.ply --decimate 50000
+  xray-viz mesh frog.vtp -o frog.stl --max-error 0.2
+"""
+
+
+def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
+    """Register the ``mesh`` subcommand on an ``argparse`` subparsers object.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        What ``ArgumentParser.add_subparsers()`` returned.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The subcommand's parser, with ``func=mesh_command`` set as a default.
+    """
+    p = subparsers.add_parser(
+        "mesh", help="repair (and optionally decimate) a mesh file",
+        description=_DESCRIPTION, epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("input", metavar="IN", help="mesh file to read")
+    p.add_argument("-o", "--output", metavar="OUT", required=True,
+                   help="mesh file to write (.stl, .ply, .obj or .off)")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--decimate", metavar="FACES", type=int, default=None,
+                       help="decimate to this many triangles")
+    group.add_argument("--max-error", metavar="MM", type=float, default=None,
+                       help="decimate as far as the Hausdorff distance stays within MM mm")
+    p.set_defaults(func=mesh_command)
+    return p
+
+
+def _write_atomic(mesh, out: Path) -> None:
+    suffix = out.suffix.lower()
+    if suffix not in WRITE_SUFFIXES:
+        raise MeshError(f"{out}: cannot write {out.suffix or 'files without an extension'!r}; "
+                        f"use one of {', '.join(WRITE_SUFFIXES)}")
+    folder = out.parent if str(out.parent) else Path(".")
+    if not folder.is_dir():
+        raise SceneFileNotFoundError(f"{out}: folder {folder} does not exist; create it first")
+    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=suffix, dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            mesh.export(fh, file_type=suffix[1:])
+        os.replace(tmp, out)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def mesh_command(args, *, stdout=None) -> int:
+    """Run ``xray-viz mesh``: repair, optionally decimate, report, write.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``input``, ``output``, ``decimate`` (int or None), ``max_error`` (float or None).
+    stdout : file, optional
+        Where the report goes (default ``sys.stdout``).
+
+    Returns
+    -------
+    int
+        0 on success.
+
+    Raises
+    ------
+    SceneFileNotFoundError
+        IN does not exist, or OUT's folder does not.
+    MeshError
+        IN cannot be read, repair fails, decimation opens the mesh, or OUT's format is not
+        supported.
+    """
+    from xray_viz.meshes.decimate import decimate
+    from xray_viz.meshes.io import load_mesh
+    from xray_viz.meshes.repair import check_mesh, format_reports, repair_mesh
+
+    out = sys.stdout if stdout is None else stdout
+    src, dst = Path(args.input), Path(args.output)
+    target = getattr(args, "decimate", None)
+    max_error = getattr(args, "max_error", None)
+    if target is not None and max_error is not None:
+        raise MeshError("give --decimate or --max-error, not both")
+    if target is not None and target < 4:
+        raise MeshError(f"--decimate must be at least 4 faces, got {target}")
+    if max_error is not None and not max_error > 0:
+        raise MeshError(f"--max-error must be > 0 mm, got {max_error}")
+    if dst.suffix.lower() not in WRITE_SUFFIXES:
+        raise MeshError(f"{dst}: cannot write {dst.suffix or 'files without an extension'!r}; "
+                        f"use one of {', '.join(WRITE_SUFFIXES)}")
+
+    mesh = load_mesh(src)
+    repaired, report = repair_mesh(mesh)
+    if not report.after.traceable:
+        print(report.table(), file=out)
+        raise MeshError(f"{src}: repair failed: the mesh is still "
+                        f"{'; '.join(report.after.problems())}; close it in a mesh editor")
+    columns = [("input", report.before), ("repaired", report.after)]
+    changes = list(report.changes)
+    result = repaired
+    if target is not None or max_error is not None:
+        result, error = decimate(repaired, target_faces=target, max_error=max_error)
+        columns.append(("decimated", check_mesh(result)))
+        changes.append(f"decimated {len(repaired.faces)} -> {len(result.faces)} faces, "
+                       f"Hausdorff distance {error:.4g} mm")
+    print(f"{src} -> {dst}", file=out)
+    print(format_reports(columns, changes=changes), file=out)
+    _write_atomic(result, dst)
+    return 0
