@@ -253,3 +253,26 @@ def test_culling_matches_brute_force_for_a_detector_grid():
                                       tris[j, 1], tris[j, 2], t_max=rays.t_max[k])
     assert hit.sum() == len(hits) > 0
     np.testing.assert_allclose(np.sort(t[hit]), np.sort(hits.t))
+
+
+@pytest.mark.parametrize("axis", [None, (0.0, 0.0, -1.0), (0.1, -0.2, -1.0)])
+def test_single_rays_and_axis_hints_find_the_same_hits(axis):
+    """A single ray shares its origin and its direction with itself; any axis hint is valid."""
+    scene = make_scene(trimesh.creation.icosphere(subdivisions=3, radius=30.0))
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        target = rng.uniform(-25, 25, size=3)
+        o = np.array([[0.0, 0.0, 1000.0]])
+        d = (target - o) / np.linalg.norm(target - o)
+        hits = trace_rays(scene, o, d, axis=axis)
+        k = np.zeros(len(scene.triangles), int)
+        tris = scene.triangles
+        ref, *_ = watertight_intersect(o[k], d[k], tris[:, 0], tris[:, 1], tris[:, 2])
+        assert len(hits) == ref.sum()
+    # A parallel bundle given a misleading axis hint still finds its hits.
+    origins = np.stack([rng.uniform(-20, 20, 50), rng.uniform(-20, 20, 50), np.full(50, 100.0)], 1)
+    d = np.tile([0.05, 0.02, -1.0], (50, 1))
+    a = trace_rays(scene, origins, d, axis=axis)
+    b = trace_rays(scene, origins, d)
+    np.testing.assert_array_equal(a.ray, b.ray)
+    assert len(a) > 0

@@ -46,12 +46,15 @@ def _render_command(args) -> int:
 
         raise OutputError(f"{out}: unknown output format {out.suffix or '(none)'!r}; "
                           f"use one of {', '.join(FORMATS)}")
+    if args.supersample is not None and args.supersample < 1:
+        raise XrayVizError(f"--supersample must be >= 1, got {args.supersample}")
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
     scene = xray_viz.load_scene(args.scene)
-    image = xray_viz.render(scene, engine=args.engine)
+    image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
     data = image.quantity(args.quantity)
-    save_image(out, data, bright="low" if args.quantity == "intensity" else "high")
+    save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
+               quantity=args.quantity)
     w, h = scene.detector.shape
     print(f"wrote {out} ({args.quantity}, {w}x{h}, {len(scene.bodies)} bodies, "
           f"engine {image.engine}, {image.timing['total'] * 1000:.0f} ms)")
@@ -88,10 +91,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", metavar="SCENE",
                    help="a scene .toml file, or a bundled phantom name (`xray-viz phantoms`)")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="output file: .npy, .tiff or .png")
+                   help="output file: .npy, .tiff, .png or .dcm (DICOM with the geometry)")
     p.add_argument("--quantity", choices=QUANTITIES, default="intensity",
                    help="what to write: intensity I = I0 exp(-line integral) (default), the "
                         "line integral sum(mu L), or the total path length in mm")
+    p.add_argument("--supersample", type=int, default=None, metavar="N",
+                   help="trace N x N rays per pixel and average them (anti-aliasing); default: "
+                        "the scene's [detector] supersample, else 1")
     p.add_argument("--engine", default="numpy", choices=sorted(ENGINES),
                    help="tracing engine (default: %(default)s)")
     p.set_defaults(func=_render_command)

@@ -85,7 +85,7 @@ def _numpy_path_lengths(scene, *, supersample=1, keep_hits=False):
 ENGINES = {"numpy": _numpy_path_lengths}
 
 
-def render(scene, *, engine: str = "numpy", supersample: int = 1,
+def render(scene, *, engine: str = "numpy", supersample: int | None = None,
            keep_hits: bool = False) -> Radiograph:
     """Render the radiograph of a scene.
 
@@ -96,8 +96,9 @@ def render(scene, *, engine: str = "numpy", supersample: int = 1,
     engine : str
         ``"numpy"``: the pure-NumPy reference engine (watertight Moller-Trumbore on culled
         ray-triangle pairs).
-    supersample : int
+    supersample : int, optional
         ``n`` traces ``n x n`` rays per pixel and averages their intensities (anti-aliasing).
+        Defaults to the scene's ``[detector] supersample`` (1 unless set).
     keep_hits : bool
         Keep every hit of every ray in :attr:`Radiograph.hits` (numpy engine).
 
@@ -118,7 +119,7 @@ def render(scene, *, engine: str = "numpy", supersample: int = 1,
         raise ValueError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
     from xray_viz.physics.imaging import detect, transmission
 
-    n = int(supersample)
+    n = int(scene.detector.supersample if supersample is None else supersample)
     if n < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
     w, h = scene.detector.shape

@@ -55,16 +55,17 @@ def candidate_pairs(triangles, origins, directions, t_min, t_max, *, axis=None,
     same_origin = bool(np.all(origins == origins[0]))
     same_direction = bool(np.all(directions == directions[0]))
     if same_origin or same_direction:
-        if axis is None:
-            axis = directions.mean(axis=0) if not same_direction else directions[0]
+        perspective = same_origin
+        if not perspective:
+            axis = directions[0]              # orthographic: project along the rays themselves
+        elif axis is None:
+            axis = directions.mean(axis=0)
         if np.linalg.norm(axis) > 0:
             f, e1, e2 = _frame(axis)
-            unit = directions / np.linalg.norm(directions, axis=1)[:, None]
-            cos = unit @ f
-            if same_direction or np.min(cos) > 0.05:
+            cos = (directions / np.linalg.norm(directions, axis=1)[:, None]) @ f
+            if np.min(cos) > 0.05:
                 yield from _binned(triangles, origins, directions, t_min, t_max, f, e1, e2,
-                                   perspective=not same_direction, block=block,
-                                   progress=progress)
+                                   perspective=perspective, block=block, progress=progress)
                 return
     yield from _brute_force(triangles, origins, directions, t_min, t_max, block=block)
 

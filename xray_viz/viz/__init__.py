@@ -1,0 +1,24 @@
+"""Visualisation: the scene in 3D beside its radiograph, and the interactive viewer.
+
+Viz only *reads* scenes, rays, hits and radiographs; nothing in tracing or physics imports it.
+
+* :func:`plot_scene` / :class:`SceneView` - source, detector grid, HO/VE/FL/LHC, rays and hits.
+* :class:`Viewer` - sliders, live re-render, pixel picking with a mu(t) chart.
+* :mod:`~xray_viz.viz.rays` - the arrays drawn (chosen pixels, traced rays, mu profiles).
+"""
+
+from xray_viz.viz.rays import (AttenuationProfile, RaySelection, attenuation_profile,
+                               inside_segments, pixel_ray_index, select_pixels, trace_selection)
+from xray_viz.viz.scene_view import SceneView, plot_scene
+
+__all__ = ["plot_scene", "SceneView", "Viewer", "RaySelection", "AttenuationProfile",
+           "select_pixels", "pixel_ray_index", "trace_selection", "inside_segments",
+           "attenuation_profile"]
+
+
+def __getattr__(name):
+    if name == "Viewer":
+        from xray_viz.viz.viewer import Viewer
+
+        return Viewer
+    raise AttributeError(name)

@@ -1,0 +1,199 @@
+"""What the viewer draws is what the geometry and the tracer computed; widgets update it."""
+
+import argparse
+import dataclasses
+
+import numpy as np
+import pytest
+import trimesh
+
+pv = pytest.importorskip("pyvista")
+pv.OFF_SCREEN = True
+
+import xray_viz  # noqa: E402
+from xray_viz.errors import OutputError, SceneFileNotFoundError, XrayVizError  # noqa: E402
+from xray_viz.geometry import detector_rays, viewport  # noqa: E402
+from xray_viz.scene import Body, Detector, Scene, Source  # noqa: E402
+from xray_viz.tracing import trace_rays  # noqa: E402
+from xray_viz.viz import Viewer, plot_scene, select_pixels  # noqa: E402
+from xray_viz.viz.command import add_show_parser  # noqa: E402
+from xray_viz.viz.rays import attenuation_profile, inside_segments, pixel_ray_index  # noqa: E402
+
+SIZE = (1200, 600)
+
+
+def small_scene(*, shape=(48, 40), mesh=None, position=(0.0, 0.0, 1000.0)):
+    """The sphere phantom's ball on a small detector (fast)."""
+    base = xray_viz.load_scene("sphere")
+    ball = base.bodies[0] if mesh is None else Body(name="thing", mesh=mesh, mu=0.2)
+    det = Detector.from_size([0, 0, -500], [0, 1, 0], shape, base.detector.size)
+    return Scene(source=Source(position=position, energy=60.0), detector=det, bodies=(ball,))
+
+
+@pytest.fixture
+def view():
+    v = plot_scene(small_scene(), rays="every 8", radiograph=True, window_size=SIZE)
+    yield v
+    v.plotter.close()
+
+
+def test_ray_segments_end_at_the_tracers_hit_points(view):
+    scene = view.scene
+    i, j = select_pixels(scene.detector.shape, "every 8")
+    rays = detector_rays(scene)
+    k = (scene.detector.shape[1] - 1 - j) * scene.detector.shape[0] + i
+    hits = trace_rays(scene, rays.origins[k], rays.directions[k], t_min=0.0, t_max=rays.t_max[k])
+    assert len(hits) > 0 and hits.entering.sum() == (~hits.entering).sum()
+    inside = view.datasets["rays-inside"].points.reshape(-1, 2, 3)
+    starts, ends, _ = inside_segments(hits)
+    np.testing.assert_allclose(inside[:, 0], starts, atol=1e-4)     # float32 points
+    np.testing.assert_allclose(inside[:, 1], ends, atol=1e-4)
+    np.testing.assert_allclose(view.datasets["hits-entry"].bounds,
+                               pv.PolyData(hits.point[hits.entering]).bounds, atol=0.1 * view.size_scale + 1e-3)
+    # the full rays run from the source to their pixels on the detector
+    full = view.datasets["rays"].points.reshape(-1, 2, 3)
+    np.testing.assert_allclose(full[:, 0], np.broadcast_to(scene.source.position, full[:, 0].shape),
+                               atol=1e-3)
+    np.testing.assert_allclose(full[:, 1], rays.ends[k], atol=1e-3)
+
+
+def test_grid_points_are_the_pixel_positions(view):
+    scene = view.scene
+    vp = viewport(scene.source.position, scene.detector)
+    w, h = scene.detector.shape
+    ii, jj = view.grid_ij
+    assert ii[0] == 0 and ii[-1] == w - 1 and jj[0] == 0 and jj[-1] == h - 1
+    expected = (vp.LHC + (ii[:, None, None] / (w - 1)) * vp.HO
+                + (jj[None, :, None] / (h - 1)) * vp.VE)
+    pts = view.datasets["grid"].points
+    np.testing.assert_allclose(pts, expected.reshape(-1, 3, order="F"), atol=1e-3)
+
+
+def test_large_detector_grid_is_subsampled_and_says_so():
+    v = plot_scene(xray_viz.load_scene("sphere"), rays=None, window_size=SIZE)
+    assert len(v.grid_ij[0]) <= 33 and "of 256 x 256" in v.grid_label
+    v.plotter.close()
+
+
+def test_radiograph_subplot_has_row_0_at_the_top():
+    # a ball moved right (+HO) and up (+VE): its shadow is in the right columns, top rows
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=15.0)
+    mesh.apply_translation([25.0, 25.0, 0.0])
+    scene = small_scene(mesh=mesh)
+    v = plot_scene(scene, rays=None, radiograph=True, quantity="path-length", window_size=SIZE)
+    img = v.radiograph.total_path_length
+    h, w = img.shape
+    rows, cols = np.nonzero(img > 0)
+    assert cols.mean() > w / 2 and rows.mean() < h / 2
+    grid = v.datasets["radiograph"]
+    values = grid.cell_data[grid.cell_data.keys()[0]].reshape(h, w)   # y (= j) then x (= i)
+    np.testing.assert_array_equal(values, img[::-1])                   # cell (i, j) = img[H-1-j, i]
+    v.plotter.close()
+
+
+@pytest.fixture
+def viewer():
+    vw = Viewer(small_scene(), resolution=48, window_size=SIZE)
+    yield vw
+    vw.close()
+
+
+def test_picking_pixel_selects_its_ray(viewer):
+    w, h = viewer.scene.detector.shape
+    viewer.on_pick((30.2, 10.9, 0.0))                 # a click in the radiograph subplot
+    assert viewer.picked_pixel == (30, 11)
+    sel = viewer.view.picked
+    assert sel.index[0] == pixel_ray_index((w, h), 30, 11) == (h - 1 - 11) * w + 30
+    vp = viewport(viewer.scene.source.position, viewer.scene.detector)
+    np.testing.assert_allclose(sel.ends[0], vp.point(30 / (w - 1), 11 / (h - 1)), atol=1e-9)
+    line = viewer.view.datasets["picked-ray"].points
+    np.testing.assert_allclose(line[1], sel.ends[0], atol=1e-3)
+    # the chart's line integral is the image's
+    assert viewer.profile.line_integral == pytest.approx(
+        viewer.radiograph.line_integral[h - 1 - 11, 30], rel=1e-9, abs=1e-12)
+
+
+def test_profile_steps_match_the_path_length(viewer):
+    w, h = viewer.scene.detector.shape
+    prof = viewer.pick_pixel(w // 2, h // 2)
+    x, y = prof.steps()
+    assert len(x) == len(y) and np.all(np.diff(x) >= 0)
+    inside = np.sum(np.diff(prof.t)[prof.body >= 0])
+    assert inside == pytest.approx(viewer.radiograph.path_length[h - 1 - h // 2, w // 2, 0])
+
+
+def test_source_slider_changes_magnification_as_predicted(viewer):
+    r, pitch = 40.0, viewer.scene.detector.pitch[0]
+    for distance in (1500.0, 900.0):
+        viewer.set_source_distance(distance)
+        np.testing.assert_allclose(viewer.scene.source.position, [0, 0, distance - 500])
+        sod = distance - 500.0                          # source to the ball's centre
+        predicted = 2 * distance * r / np.sqrt(sod**2 - r**2)   # tangent cone on the detector
+        L = viewer.radiograph.path_length[:, :, 0]
+        h = L.shape[0]
+        width = np.count_nonzero(L[h // 2] > 0) * pitch
+        if predicted < viewer.scene.detector.size[0]:
+            assert abs(width - predicted) <= 2 * pitch
+        # the source marker moved with it
+        src = viewer.view.datasets["source"]
+        np.testing.assert_allclose(src.center, viewer.scene.source.position, atol=1e-3)
+
+
+def test_rotation_energy_resolution_and_toggles():
+    box = trimesh.creation.box(extents=(60.0, 20.0, 20.0))
+    vw = Viewer(small_scene(mesh=box), resolution=48, window_size=SIZE)
+    pitch = vw.scene.detector.pitch[0]
+    L = vw.radiograph.path_length[:, :, 0]
+    wide = np.count_nonzero(L[L.shape[0] // 2] > 0) * pitch
+    vw.set_body_rotation(90)
+    L = vw.radiograph.path_length[:, :, 0]
+    narrow = np.count_nonzero(L[L.shape[0] // 2] > 0) * pitch
+    assert wide == pytest.approx(60 * 1.5, abs=3 * pitch)
+    assert narrow == pytest.approx(20 * 1.5, abs=3 * pitch)
+    vw.set_energy(80)
+    assert vw.scene.source.energy == 80
+    vw.set_resolution(24)
+    assert max(vw.scene.detector.shape) == 24 and vw.radiograph.intensity.shape[1] == 24
+    assert vw.scene.detector.size == pytest.approx(vw.base_scene.detector.size)
+    for group in ("rays", "grid", "hits", "vectors"):
+        vw.toggle(group)
+        names = {"rays": "rays", "grid": "grid", "hits": "hits-entry", "vectors": "vec:HO"}
+        assert not vw.plotter.actors[names[group]].GetVisibility()
+        vw.toggle(group)
+        assert vw.plotter.actors[names[group]].GetVisibility()
+    vw.close()
+
+
+def test_show_command_screenshot(tmp_path, capsys):
+    parser = argparse.ArgumentParser(prog="xray-viz")
+    add_show_parser(parser.add_subparsers())
+    out = tmp_path / "view.png"
+    args = parser.parse_args(["show", "sphere", "--screenshot", str(out), "--size", "1200", "600",
+                              "--resolution", "64"])
+    assert args.func(args) == 0
+    from PIL import Image
+
+    with Image.open(out) as im:
+        assert im.size == (1200, 600)
+    assert "wrote" in capsys.readouterr().out
+    for argv, err in ((["show", "sphere", "--screenshot", str(tmp_path / "a.gif")], OutputError),
+                      (["show", "nosuch", "--screenshot", str(out)], SceneFileNotFoundError),
+                      (["show", "sphere", "--screenshot", str(out), "--size", "10", "10"],
+                       OutputError),
+                      (["show", "sphere", "--screenshot", str(out), "--rays", "most"],
+                       XrayVizError)):
+        args = parser.parse_args(argv)
+        with pytest.raises(err):
+            args.func(args)
+
+
+def test_attenuation_profile_of_nested_bodies_uses_the_inner_material():
+    outer = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    inner = trimesh.creation.icosphere(subdivisions=2, radius=10.0)
+    scene = Scene(source=Source(position=[0, 0, 1000.0]),
+                  detector=Detector(center=[0, 0, -500], shape=(5, 5), pitch=1.0),
+                  bodies=(Body("outer", outer, mu=0.1), Body("inner", inner, mu=1.0)))
+    hits = trace_rays(scene, [0, 0, 1000.0], [[0, 0, -1.0]])
+    prof = attenuation_profile(scene, hits, 1500.0)
+    assert prof.mu.tolist() == [0.0, 0.1, 1.0, 0.1, 0.0]
+    assert prof.body.tolist() == [-1, 0, 1, 0, -1]

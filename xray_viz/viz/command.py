@@ -1,0 +1,121 @@
+"""``xray-viz show SCENE [--screenshot OUT.png] [--size W H]``: the viewer from the command line.
+
+The lead's :mod:`xray_viz.cli` wires it in with :func:`add_show_parser`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from xray_viz.errors import OutputError, XrayVizError
+
+__all__ = ["add_show_parser", "show_command", "SCREENSHOT_FORMATS"]
+
+#: File suffixes ``--screenshot`` can write.
+SCREENSHOT_FORMATS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+#: Smallest window ``--size`` accepts.
+MIN_SIZE = (400, 200)
+
+
+def _use_egl_if_headless() -> None:
+    """Off-screen without an X server: let VTK pick EGL (Mesa llvmpipe) instead of X."""
+    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
+            and not os.environ.get("WAYLAND_DISPLAY"):
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+
+def add_show_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``show`` sub-command to ``xray-viz``'s sub-parsers.
+
+    Examples
+    --------
+    >>> import argparse
+    >>> parser = argparse.ArgumentParser(prog="xray-viz")
+    >>> _ = add_show_parser(parser.add_subparsers())
+    >>> args = parser.parse_args(["show", "sphere", "--screenshot", "out.png"])
+    >>> args.size
+    [1400, 700]
+    """
+    p = subparsers.add_parser(
+        "show", help="open the interactive 3D viewer (or save a screenshot of it)",
+        description="Show a scene in 3D - the source r0, the detector's pixel grid, the "
+                    "vectors HO, VE, FL and LHC, a few rays with their entry and exit points - "
+                    "beside its radiograph. Sliders move the source, turn the bodies and change "
+                    "the energy and preview resolution; clicking a pixel of the radiograph "
+                    "shows its ray and mu along it. With --screenshot the same view is "
+                    "rendered off-screen (no display needed) and saved.")
+    p.add_argument("scene", metavar="SCENE",
+                   help="a scene .toml file, or a bundled phantom name (`xray-viz phantoms`)")
+    p.add_argument("--screenshot", metavar="OUT", default=None,
+                   help="render off-screen, save the window to OUT (.png, .jpg, .bmp, .tiff) "
+                        "and exit")
+    p.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), default=[1400, 700],
+                   help="window size in pixels (default: 1400 700)")
+    p.add_argument("--rays", default="grid 7",
+                   help="rays drawn in 3D: 'grid N', 'every K', 'row J', 'column I', 'center' "
+                        "or 'none' (default: %(default)s)")
+    p.add_argument("--resolution", type=int, default=None, metavar="N",
+                   help="preview resolution: pixels along the detector's longer side "
+                        "(default: the scene's)")
+    p.add_argument("--texture", action="store_true",
+                   help="also drape the radiograph on the detector plane")
+    p.set_defaults(func=show_command)
+    return p
+
+
+def show_command(args) -> int:
+    """Run ``xray-viz show``: open the viewer, or save a screenshot of it off-screen.
+
+    Raises
+    ------
+    OutputError
+        Unsupported screenshot format, or a window smaller than 400 x 200.
+    XrayVizError
+        No display to open a window on (use ``--screenshot``), a bad ``--rays``.
+    SceneError, SceneFileNotFoundError
+        From :func:`xray_viz.load_scene`.
+    """
+    import xray_viz
+
+    out = Path(args.screenshot) if args.screenshot else None
+    if out is not None and out.suffix.lower() not in SCREENSHOT_FORMATS:
+        raise OutputError(f"{out}: unknown screenshot format {out.suffix or '(none)'!r}; use "
+                          f"one of {', '.join(SCREENSHOT_FORMATS)}")
+    if out is not None and not out.parent.is_dir():
+        raise OutputError(f"{out}: the directory {out.parent} does not exist")
+    w, h = (int(s) for s in args.size)
+    if w < MIN_SIZE[0] or h < MIN_SIZE[1]:
+        raise OutputError(f"--size {w} {h}: the window must be at least "
+                          f"{MIN_SIZE[0]} x {MIN_SIZE[1]} pixels")
+    if args.resolution is not None and args.resolution < 2:
+        raise XrayVizError(f"--resolution must be >= 2 pixels, got {args.resolution}")
+    from xray_viz.viz.rays import select_pixels
+
+    scene = xray_viz.load_scene(args.scene)
+    try:
+        select_pixels(scene.detector.shape, args.rays)
+    except ValueError as exc:
+        raise XrayVizError(f"--rays: {exc}") from None
+    if out is None and sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
+            and not os.environ.get("WAYLAND_DISPLAY"):
+        raise XrayVizError("no display to open a window on (DISPLAY is not set); use "
+                           "--screenshot OUT.png to render the view off-screen")
+    if out is not None:
+        _use_egl_if_headless()
+    from xray_viz.viz.viewer import Viewer
+
+    viewer = Viewer(scene, rays=args.rays, resolution=args.resolution, texture=args.texture,
+                    window_size=(w, h), off_screen=out is not None)
+    if out is None:
+        viewer.show()
+        return 0
+    viewer.screenshot(out)
+    viewer.close()
+    sw, sh = scene.detector.shape
+    print(f"wrote {out} ({w}x{h} window: 3D scene left, {sw}x{sh} radiograph right, render "
+          f"{viewer.radiograph.timing['total'] * 1000:.0f} ms)")
+    return 0

@@ -1,0 +1,303 @@
+"""The interactive viewer: move the source, turn the bodies, change the energy, pick pixels.
+
+Every widget calls a plain method (:meth:`Viewer.set_source_distance`,
+:meth:`Viewer.set_body_rotation`, :meth:`Viewer.set_energy`, :meth:`Viewer.set_resolution`,
+:meth:`Viewer.pick_pixel`, :meth:`Viewer.toggle`), so scripts and tests drive the viewer exactly
+as the mouse does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pyvista as pv
+
+from xray_viz.geometry import viewport
+from xray_viz.viz.rays import attenuation_profile, pixel_ray_index
+from xray_viz.viz.scene_view import plot_scene
+
+__all__ = ["Viewer", "KEYS"]
+
+#: Key shortcuts (key -> (action, description)), shown on screen.
+KEYS = {
+    "y": ("rays", "toggle rays"),
+    "g": ("grid", "toggle pixel grid"),
+    "h": ("hits", "toggle hit points"),
+    "o": ("vectors", "toggle HO/VE/FL/LHC arrows"),
+    "m": ("frustum", "toggle beam frustum"),
+    "i": ("screenshot", "save a screenshot"),
+}
+
+
+def _rotation_about(axis, angle_deg, point) -> np.ndarray:
+    import trimesh
+
+    return trimesh.transformations.rotation_matrix(math.radians(angle_deg), axis, point)
+
+
+class Viewer:
+    """The scene in 3D, its radiograph live beside it, and the controls.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene as loaded; the controls derive new scenes from it (it is never modified).
+    rays : str, int or sequence of (i, j)
+        Rays drawn in 3D (see :func:`~xray_viz.viz.rays.select_pixels`).
+    resolution : int, optional
+        Preview resolution: pixels along the detector's longer side (the physical size is
+        kept). Default: the scene's own.
+    texture : bool
+        Drape the radiograph on the detector plane.
+    window_size : (int, int)
+    off_screen : bool, optional
+        Default ``pyvista.OFF_SCREEN``.
+    widgets : bool
+        Add the sliders, check boxes and key bindings.
+
+    Examples
+    --------
+    >>> import pyvista as pv, xray_viz
+    >>> from xray_viz.viz import Viewer
+    >>> viewer = Viewer(xray_viz.load_scene("sphere"), resolution=64, off_screen=True)
+    >>> viewer.set_source_distance(1200.0)
+    >>> profile = viewer.pick_pixel(32, 32)
+    >>> round(profile.line_integral, 2) == round(float(viewer.radiograph.line_integral[31, 32]), 2)
+    True
+    >>> viewer.close()
+    """
+
+    def __init__(self, scene, *, rays="grid 7", resolution=None, texture=False,
+                 window_size=(1400, 700), off_screen=None, widgets=True):
+        self.base_scene = scene
+        vp = viewport(scene.source.position, scene.detector)
+        self.axis = -vp.forward                          # unit(FL): detector centre -> source
+        self.source_distance = float(np.linalg.norm(vp.FL))
+        self.rotation = 0.0
+        self.energy = float(scene.source.energy) if scene.source.energy is not None else 60.0
+        self.kvp = None
+        if scene.source.spectrum is not None and "kvp" in scene.source.spectrum:
+            self.kvp = float(scene.source.spectrum["kvp"])
+        self.resolution = int(resolution or max(scene.detector.shape))
+        self.profile = None
+        self._shots = itertools.count()
+        self.scene = self._build_scene()
+        from xray_viz.render import render
+
+        self._render = render
+        self.radiograph = render(self.scene)
+        self.view = plot_scene(self.scene, rays=rays, radiograph=self.radiograph,
+                               texture=texture, window_size=window_size, off_screen=off_screen)
+        self.plotter = self.view.plotter
+        self.chart = pv.Chart2D(size=(0.46, 0.3), loc=(0.52, 0.04), x_label="t (mm)",
+                                y_label="mu (1/cm)")
+        self.chart.visible = False
+        self.plotter.subplot(0, 0)
+        self.plotter.add_chart(self.chart)
+        if widgets:
+            self._add_widgets()
+
+    # ------------------------------------------------------------------ scene from controls
+    def _build_scene(self):
+        base = self.base_scene
+        det = base.detector
+        center = np.asarray(det.center, float)
+        source = dataclasses.replace(base.source,
+                                     position=center + self.source_distance * self.axis)
+        if self.kvp is not None:
+            source = dataclasses.replace(source, spectrum={**base.source.spectrum,
+                                                           "kvp": self.kvp})
+        elif base.source.spectrum is None:
+            source = dataclasses.replace(source, energy=self.energy)
+        w, h = det.shape
+        n = max(2, int(self.resolution))
+        scale = n / max(w, h)
+        shape = (max(2, round(w * scale)), max(2, round(h * scale)))
+        detector = det.from_size(det.center, det.up, shape, det.size) if shape != det.shape \
+            else det
+        bodies = base.bodies
+        if self.rotation % 360 != 0 and bodies:
+            lo = np.min([b.vertices.min(axis=0) for b in bodies], axis=0)
+            hi = np.max([b.vertices.max(axis=0) for b in bodies], axis=0)
+            m = _rotation_about(det.up, self.rotation, (lo + hi) / 2)
+            rotated = []
+            for b in bodies:
+                mesh = b.mesh.copy()
+                mesh.apply_transform(m)
+                rotated.append(dataclasses.replace(b, mesh=mesh))
+            bodies = tuple(rotated)
+        return base.replace(source=source, detector=detector, bodies=bodies)
+
+    def update(self) -> None:
+        """Rebuild the scene from the controls, re-render and redraw (keeps a picked pixel)."""
+        self.scene = self._build_scene()
+        self.radiograph = self._render(self.scene)
+        picked = self.view.picked
+        self.view.picked = None
+        self.view.set_scene(self.scene, radiograph=self.radiograph)
+        if picked is not None:
+            w, h = self.scene.detector.shape
+            self.pick_pixel(min(int(picked.i[0]), w - 1), min(int(picked.j[0]), h - 1))
+        self._update_status()
+
+    # ------------------------------------------------------------------ callbacks
+    def set_source_distance(self, distance: float) -> None:
+        """Move the source along the beam axis to ``distance`` mm from the detector centre."""
+        distance = float(distance)
+        if not distance > 0:
+            raise ValueError(f"source distance must be > 0 mm, got {distance}")
+        if distance == self.source_distance:
+            return
+        self.source_distance = distance
+        self.update()
+
+    def set_body_rotation(self, degrees: float) -> None:
+        """Turn every body by ``degrees`` about the detector's up axis through their centre."""
+        if float(degrees) == self.rotation:
+            return
+        self.rotation = float(degrees)
+        self.update()
+
+    def set_energy(self, kev: float) -> None:
+        """Set the photon energy of a monochromatic source (keV)."""
+        if float(kev) == self.energy:
+            return
+        self.energy = float(kev)
+        self.update()
+
+    def set_kvp(self, kvp: float) -> None:
+        """Set the tube voltage of a source with a spectrum (kVp)."""
+        if float(kvp) == self.kvp:
+            return
+        self.kvp = float(kvp)
+        self.update()
+
+    def set_resolution(self, pixels: float) -> None:
+        """Preview resolution: pixels along the detector's longer side (same physical size)."""
+        if int(round(pixels)) == self.resolution:
+            return
+        self.resolution = int(round(pixels))
+        self.update()
+
+    def pick_pixel(self, i: int, j: int):
+        """Show pixel (i, j)'s ray in 3D and mu along it in the chart.
+
+        Parameters
+        ----------
+        i, j : int
+            Column from the left, row from the bottom (``image[H - 1 - j, i]``).
+
+        Returns
+        -------
+        AttenuationProfile
+        """
+        w, h = self.scene.detector.shape
+        pixel_ray_index((w, h), i, j)                    # range check
+        sel = self.view.show_pixel(i, j)
+        profile = attenuation_profile(self.scene, sel.hits, float(sel.t_max[0]),
+                                      energy=self.energy)
+        self.profile = profile
+        self.picked_pixel = (int(i), int(j))
+        x, y = profile.steps()
+        self.chart.clear()
+        self.chart.line(x, y, color="tab:red", width=2.0)
+        rg_li = float(self.radiograph.line_integral[h - 1 - j, i])
+        self.chart.title = (f"pixel (i, j) = ({i}, {j}):  integral mu dt = "
+                            f"{profile.line_integral:.4g}  (image: {rg_li:.4g})")
+        self.chart.x_range = [float(profile.t[0]), float(profile.t[-1])]
+        top = float(max(profile.mu.max(), 1e-3)) * 1.15
+        self.chart.y_range = [0.0, top]
+        self.chart.visible = True
+        return profile
+
+    def on_pick(self, point) -> None:
+        """Callback of the picker: a point in the radiograph's subplot -> :meth:`pick_pixel`."""
+        if point is None:
+            return
+        w, h = self.scene.detector.shape
+        i, j = int(round(point[0])), int(round(point[1]))
+        if 0 <= i < w and 0 <= j < h and abs(point[2]) < 0.5:
+            self.pick_pixel(i, j)
+
+    def toggle(self, group: str, visible: bool | None = None) -> None:
+        """Show/hide ``"rays"``, ``"grid"``, ``"hits"``, ``"vectors"`` or ``"frustum"``."""
+        if visible is None:
+            visible = not self.view.is_visible(group)
+        self.view.set_visible(group, visible)
+
+    def screenshot(self, path=None) -> Path:
+        """Save the window as an image (``xray-viz-N.png`` in the working directory)."""
+        path = Path(path) if path else Path(f"xray-viz-{next(self._shots)}.png")
+        self.plotter.screenshot(str(path))
+        return path
+
+    def show(self) -> None:
+        """Open the window (blocks until it is closed)."""
+        self.plotter.show()
+
+    def close(self) -> None:
+        self.plotter.close()
+
+    # ------------------------------------------------------------------ widgets
+    def _update_status(self) -> None:
+        beam = f"{self.kvp:g} kVp" if self.kvp is not None else f"{self.energy:g} keV"
+        self.view.status = (f"source {self.source_distance:.0f} mm from the detector, bodies "
+                            f"turned {self.rotation:.0f} deg, {beam}")
+        self.view.set_radiograph(self.radiograph, window=self.view.window,
+                                 level=self.view.level)
+        if self.view.picked is not None:
+            self.view.show_pixel(int(self.view.picked.i[0]), int(self.view.picked.j[0]))
+        values = {"source_distance": self.source_distance, "rotation": self.rotation,
+                  "kvp": self.kvp, "energy": self.energy, "resolution": self.resolution}
+        for key, widget in getattr(self, "sliders", {}).items():
+            widget.GetRepresentation().SetValue(values[key])
+
+    def _add_widgets(self) -> None:
+        pl = self.plotter
+        fl0 = self.source_distance
+        pl.subplot(0, 1)
+        style = dict(title_height=0.022, tube_width=0.004, slider_width=0.015,
+                     color="black", title_color="black", interaction_event="end")
+        self.sliders = {}
+        self.sliders["source_distance"] = pl.add_slider_widget(self.set_source_distance, (0.3 * fl0, 3.0 * fl0), value=fl0,
+                             title="source distance (mm)", pointa=(0.05, 0.2),
+                             pointb=(0.45, 0.2), fmt="%.0f", **style)
+        self.sliders["rotation"] = pl.add_slider_widget(self.set_body_rotation, (-180.0, 180.0), value=0.0,
+                             title="body rotation (deg)", pointa=(0.55, 0.2),
+                             pointb=(0.95, 0.2), fmt="%.0f", **style)
+        if self.kvp is not None:
+            self.sliders["kvp"] = pl.add_slider_widget(self.set_kvp, (20.0, 150.0), value=self.kvp, title="kVp",
+                                 pointa=(0.05, 0.07), pointb=(0.45, 0.07), fmt="%.0f", **style)
+        else:
+            self.sliders["energy"] = pl.add_slider_widget(self.set_energy, (10.0, 150.0), value=self.energy,
+                                 title="energy (keV)", pointa=(0.05, 0.07),
+                                 pointb=(0.45, 0.07), fmt="%.0f", **style)
+        self.sliders["resolution"] = pl.add_slider_widget(self.set_resolution, (16, max(512, self.resolution)),
+                             value=self.resolution, title="preview resolution (px)",
+                             pointa=(0.55, 0.07), pointb=(0.95, 0.07), fmt="%.0f", **style)
+        pl.subplot(0, 0)
+        for k, group in enumerate(("rays", "grid", "hits", "vectors")):
+            y = 40 + 34 * k
+            pl.add_checkbox_button_widget(lambda on, g=group: self.toggle(g, on),
+                                          value=self.view.is_visible(group), position=(10, y),
+                                          size=26, border_size=2, color_on="#1f77b4")
+            pl.add_text(group, position=(42, y + 4), font_size=9, color="black",
+                        name=f"check-{group}")
+        for key, (action, _) in KEYS.items():
+            if action == "screenshot":
+                pl.add_key_event(key, lambda: print(f"saved {self.screenshot()}"))
+            else:
+                pl.add_key_event(key, lambda a=action: self.toggle(a))
+        help_text = "\n".join(f"{k}: {d}" for k, (_, d) in KEYS.items())
+        help_text += "\nclick the radiograph: ray + mu(t)\nq: quit"
+        pl.add_text(help_text, position="upper_right", font_size=8, color="black", name="help")
+        pl.enable_point_picking(self.on_pick, left_clicking=True, picker="cell",
+                                show_message=False, show_point=False, tolerance=0.0)
+        for actor in self.plotter.renderers[0].actors.values():
+            if hasattr(actor, "SetPickable"):
+                actor.SetPickable(False)
+        self._update_status()
