@@ -27,9 +27,9 @@ test: setup
 test-all: setup
 	$(PY) -m pytest -q -m "slow or not slow"
 
+## Benchmarks against the peers (installs the bench extra and the peers' Debian packages).
 bench: setup
-	$(PY) -m pip install --quiet -e '.[bench]'
-	$(VENV)/bin/xray-viz bench
+	bash benchmarks/run.sh
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

@@ -29,10 +29,21 @@ examples:
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz phantoms                                 list the bundled phantoms
+  xray-viz show frog                                the interactive 3D viewer beside the radiograph
+  xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
+  xray-viz bench --suite peers                      time and error against Open3D, embree, gVXR
   xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
 
 Run `xray-viz COMMAND --help` for the options of each command.
 """
+
+
+def _numba_cache_warm() -> bool:
+    """Whether numba has cached compiled kernels of the fast engine beside its module."""
+    from xray_viz.tracing import _raster
+
+    cache = Path(_raster.__file__).parent / "__pycache__"
+    return any(cache.glob("_raster.*.nbi"))
 
 
 def _render_command(args) -> int:
@@ -51,6 +62,9 @@ def _render_command(args) -> int:
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
     scene = xray_viz.load_scene(args.scene)
+    if args.engine == "fast" and not _numba_cache_warm():
+        print("xray-viz: compiling the fast engine on first use (10-30 s, cached afterwards)...",
+              file=sys.stderr, flush=True)
     image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
     data = image.quantity(args.quantity)
     save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
@@ -98,13 +112,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--supersample", type=int, default=None, metavar="N",
                    help="trace N x N rays per pixel and average them (anti-aliasing); default: "
                         "the scene's [detector] supersample, else 1")
-    p.add_argument("--engine", default="numpy", choices=sorted(ENGINES),
+    p.add_argument("--engine", default="fast", choices=sorted(ENGINES),
                    help="tracing engine (default: %(default)s)")
     p.set_defaults(func=_render_command)
 
     from xray_viz.meshes.command import add_mesh_parser
+    from xray_viz.viz.command import add_show_parser
 
+    add_show_parser(sub)
     add_mesh_parser(sub)
+    from xray_viz.bench import add_bench_parser
+
+    add_bench_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "

@@ -19,7 +19,7 @@ from pathlib import Path
 __all__ = ["names", "scene_path", "describe", "DEFAULT"]
 
 #: The phantom rendered by ``xray-viz render default``.
-DEFAULT = "sphere"
+DEFAULT = "frog"
 
 
 def _root() -> Path:

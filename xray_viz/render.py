@@ -79,13 +79,19 @@ def _numpy_path_lengths(scene, *, supersample=1, keep_hits=False):
     return L, (hits if keep_hits else None)
 
 
+def _fast_path_lengths(scene, *, supersample=1, keep_hits=False):
+    from xray_viz.tracing.fast import fast_path_lengths
+
+    return fast_path_lengths(scene, supersample=supersample, keep_hits=keep_hits)
+
+
 #: Rendering engines by name. ``fn(scene, *, supersample, keep_hits) -> (L, hits or None)`` where
 #: ``L`` is ``(W * H * supersample**2, n_bodies)``: effective path lengths (mm) of the rays of
 #: :func:`~xray_viz.geometry.detector_rays` ``(scene, supersample=supersample)``, in that order.
-ENGINES = {"numpy": _numpy_path_lengths}
+ENGINES = {"fast": _fast_path_lengths, "numpy": _numpy_path_lengths}
 
 
-def render(scene, *, engine: str = "numpy", supersample: int | None = None,
+def render(scene, *, engine: str = "fast", supersample: int | None = None,
            keep_hits: bool = False) -> Radiograph:
     """Render the radiograph of a scene.
 
@@ -94,8 +100,9 @@ def render(scene, *, engine: str = "numpy", supersample: int | None = None,
     scene : Scene
         From :func:`xray_viz.load_scene`.
     engine : str
-        ``"numpy"``: the pure-NumPy reference engine (watertight Moller-Trumbore on culled
-        ray-triangle pairs).
+        ``"fast"`` (default): the watertight fixed-point footprint rasteriser of
+        :mod:`xray_viz.tracing.fast` (numba). ``"numpy"``: the pure-NumPy reference engine
+        (watertight Moller-Trumbore on culled ray-triangle pairs).
     supersample : int, optional
         ``n`` traces ``n x n`` rays per pixel and averages their intensities (anti-aliasing).
         Defaults to the scene's ``[detector] supersample`` (1 unless set).

@@ -1,0 +1,36 @@
+"""First-call (compile) and cached (new process) cost of the fast engine.
+
+Usage: python benchmarks/compile_cost.py [--cold]   (--cold deletes numba's cache first)
+"""
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CHILD = r"""
+import time
+t0 = time.perf_counter()
+import xray_viz
+from xray_viz.tracing.fast import trace_once
+t1 = time.perf_counter()
+scene = xray_viz.load_scene("sphere")
+t2 = time.perf_counter()
+trace_once(scene)
+t3 = time.perf_counter()
+trace_once(scene)
+t4 = time.perf_counter()
+print(f"import {t1 - t0:.2f} s, first trace (compile or cache load) {t3 - t2:.2f} s, "
+      f"second trace {1e3 * (t4 - t3):.1f} ms")
+"""
+
+if __name__ == "__main__":
+    if "--cold" in sys.argv:
+        import xray_viz.tracing as tr
+        cache = Path(tr.__file__).parent / "__pycache__"
+        for f in list(cache.glob("_raster*.nbi")) + list(cache.glob("_raster*.nbc")):
+            f.unlink()
+        print("numba cache cleared")
+    for label in ("process 1", "process 2 (cached)"):
+        t = time.perf_counter()
+        out = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True)
+        print(f"{label}: {out.stdout.strip()} {out.stderr.strip()[-300:]}")

@@ -1,0 +1,659 @@
+"""Compiled kernels of the fast engine (numba): projection, triangle set-up, footprint raster.
+
+Everything here works on a *fine grid*: the detector's rays (with ``n x n`` supersampling, the
+sub-rays) sit at the integer points ``(X, Y)``, ``0 <= X < n W``, ``0 <= Y < n H``, X along
+``HO`` and Y along ``VE``. Projected vertices are snapped to fixed point, ``2**-FRAC_BITS`` of a
+fine-grid step, and every coverage decision is an exact integer edge function with a tie rule
+(a symbolic perturbation of the sample point), so a ray through a shared edge or vertex is
+covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracing.fast`.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+# An old TBB (Open3D brings one) makes numba warn when it tries its TBB threading layer first;
+# OpenMP or numba's own work queue serve these kernels equally well. A user's choice wins.
+if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & set(os.environ):
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+
+#: Fixed-point fraction bits of a projected vertex (units of a fine-grid step). The snapped
+#: geometry is watertight whatever this is; it moves vertices by at most 2**-(FRAC_BITS+1)
+#: of a grid step, which bounds the path-length error of rays grazing a silhouette.
+FRAC_BITS = 22
+ONE = 1 << FRAC_BITS
+#: Projected coordinates (fine-grid steps) beyond this cannot be snapped safely (2**57 units).
+COORD_LIMIT = float(2 ** (57 - FRAC_BITS))
+#: A triangle whose snapped bounding box is smaller than this (fixed-point units, i.e. 256
+#: grid steps) uses plain int64 edge functions (|E| < 2**61); larger ones use exact limb
+#: arithmetic (sign of a 128-bit product difference).
+SAFE_EXTENT = 1 << 30
+_MASK30 = (1 << 30) - 1
+
+# Triangle set-up status codes.
+SKIP = 0
+SMALL = 1
+GIANT = 2
+ERR_STRADDLE = -100
+ERR_TOO_CLOSE = -101
+
+
+@njit(cache=True, parallel=True)
+def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge):
+    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``."""
+    n = V.shape[0]
+    for i in prange(n):
+        r0x = V[i, 0] - r0[0]
+        r1 = V[i, 1] - r0[1]
+        r2 = V[i, 2] - r0[2]
+        wi = r0x * f[0] + r1 * f[1] + r2 * f[2]
+        a = r0x * eu[0] + r1 * eu[1] + r2 * eu[2]
+        b = r0x * ev[0] + r1 * ev[1] + r2 * ev[2]
+        w[i] = wi
+        if perspective:
+            if wi > 0.0:
+                x = sx * (a / wi) + bx
+                y = sy * (b / wi) + by
+            else:
+                x = np.inf
+                y = np.inf
+        else:
+            x = sx * a + bx
+            y = sy * b + by
+        if abs(x) < COORD_LIMIT and abs(y) < COORD_LIMIT:
+            XY[i, 0] = np.int64(np.floor(x * ONE + 0.5))
+            XY[i, 1] = np.int64(np.floor(y * ONE + 0.5))
+            huge[i] = False
+        else:
+            # Keep the float position (clamped) for culling only.
+            XY[i, 0] = np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE) if x == x else 0
+            XY[i, 1] = np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE) if y == y else 0
+            huge[i] = True
+
+
+@njit(cache=True, inline="always")
+def _split30(x):
+    return x >> 30, x & _MASK30
+
+
+@njit(cache=True)
+def exact_cross_sign(a, b, c, d):
+    """Exact sign of ``a*b - c*d`` for int64 inputs of magnitude below 2**60."""
+    ah, al = _split30(a)
+    bh, bl = _split30(b)
+    ch, cl = _split30(c)
+    dh, dl = _split30(d)
+    dH = ah * bh - ch * dh
+    dM = (ah * bl + al * bh) - (ch * dl + cl * dh)
+    dL = al * bl - cl * dl
+    dM += dL >> 30
+    r = dL & _MASK30
+    dH += dM >> 30
+    r2 = dM & _MASK30
+    if dH > 0:
+        return 1
+    if dH < 0:
+        return -1
+    if r2 > 0 or r > 0:
+        return 1
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _tie(ex, ey):
+    """Sign of an edge function at a sample point exactly on the edge, after moving the point
+    by ``(eps, eps * delta)``: the lexicographic sign of ``(-ey, ex)``."""
+    if ey != 0:
+        return 1 if ey < 0 else -1
+    if ex != 0:
+        return 1 if ex > 0 else -1
+    return 0
+
+
+@njit(cache=True, parallel=True)
+def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box):
+    """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
+
+    Only triangles that can cover a sample get a box; ``status`` is written for all.
+    """
+    T = F.shape[0]
+    for t in prange(T):
+        i0 = F[t, 0]
+        i1 = F[t, 1]
+        i2 = F[t, 2]
+        status[t] = SKIP
+        ax = XY[i0, 0]
+        ay = XY[i0, 1]
+        bx_ = XY[i1, 0]
+        by_ = XY[i1, 1]
+        cx = XY[i2, 0]
+        cy = XY[i2, 1]
+        xmin = min(ax, min(bx_, cx))
+        xmax = max(ax, max(bx_, cx))
+        ymin = min(ay, min(by_, cy))
+        ymax = max(ay, max(by_, cy))
+        # Sample bounding box: integer fine-grid points inside the snapped box.
+        X0 = max(-((-xmin) >> FRAC_BITS), 0)
+        X1 = min(xmax >> FRAC_BITS, nW - 1)
+        Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+        Y1 = min(ymax >> FRAC_BITS, nH - 1)
+        w0 = w[i0]
+        w1 = w[i1]
+        w2 = w[i2]
+        wmin = min(w0, min(w1, w2))
+        wmax = max(w0, max(w1, w2))
+        if wmax < 0.0 or wmin > FL:
+            continue  # behind the source or beyond the detector
+        if perspective and wmax <= 0.0:
+            continue
+        if wmin < 0.0 or (perspective and wmin <= 0.0):
+            status[t] = ERR_STRADDLE
+            continue
+        if X0 > X1 or Y0 > Y1:
+            continue  # covers no sample (outside the beam or between samples)
+        if huge[i0] or huge[i1] or huge[i2]:
+            status[t] = ERR_TOO_CLOSE
+            continue
+        ext = max(xmax - xmin, ymax - ymin)
+        if ext < SAFE_EXTENT:
+            area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
+            o = 1 if area > 0 else (-1 if area < 0 else 0)
+            kind = SMALL
+        else:
+            o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
+            kind = GIANT
+        if o == 0:
+            continue  # zero projected area: never hit
+        status[t] = kind * o
+        box[t, 0] = X0
+        box[t, 1] = X1
+        box[t, 2] = Y0
+        box[t, 3] = Y1
+
+
+@njit(cache=True, parallel=True)
+def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
+                 kind, orient, cbox, coef, wrange):
+    """Compact per-triangle data of the triangles ``tri`` that cover samples.
+
+    Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
+    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
+    """
+    M = tri.shape[0]
+    for m in prange(M):
+        t = tri[m]
+        st = status[t]
+        orient[m] = 1 if st > 0 else -1
+        kind[m] = abs(st)
+        for q in range(4):
+            cbox[m, q] = box[t, q]
+        i0 = F[t, 0]
+        i1 = F[t, 1]
+        i2 = F[t, 2]
+        e1x = V[i1, 0] - V[i0, 0]
+        e1y = V[i1, 1] - V[i0, 1]
+        e1z = V[i1, 2] - V[i0, 2]
+        e2x = V[i2, 0] - V[i0, 0]
+        e2y = V[i2, 1] - V[i0, 1]
+        e2z = V[i2, 2] - V[i0, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        qx = V[i0, 0] - r0[0]
+        qy = V[i0, 1] - r0[1]
+        qz = V[i0, 2] - r0[2]
+        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
+        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+        if perspective:
+            # Ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0); hit depth = s * FL.
+            coef[m, 0] = FL * (nx * qx + ny * qy + nz * qz)
+            coef[m, 1] = 0.0
+            coef[m, 2] = 0.0
+            coef[m, 3] = nx * P00[0] + ny * P00[1] + nz * P00[2]
+            coef[m, 4] = nEx
+            coef[m, 5] = nEy
+        else:
+            # Ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
+            coef[m, 0] = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
+            coef[m, 1] = -nEx
+            coef[m, 2] = -nEy
+            coef[m, 3] = nx * f[0] + ny * f[1] + nz * f[2]
+            coef[m, 4] = 0.0
+            coef[m, 5] = 0.0
+        w0 = w[i0]
+        w1 = w[i1]
+        w2 = w[i2]
+        wrange[m, 0] = min(w0, min(w1, w2))
+        wrange[m, 1] = max(w0, max(w1, w2))
+
+
+@njit(cache=True)
+def bin_triangles(box, band_height, n_bands):
+    """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
+    T = box.shape[0]
+    counts = np.zeros(n_bands + 1, np.int64)
+    for t in range(T):
+        if True:
+            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                counts[b + 1] += 1
+    for b in range(n_bands):
+        counts[b + 1] += counts[b]
+    fill = counts[:-1].copy()
+    tris = np.empty(counts[n_bands], np.int32)
+    for t in range(T):
+        if True:
+            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                tris[fill[b]] = t
+                fill[b] += 1
+    return counts, tris
+
+
+@njit(cache=True, inline="always")
+def _depth(coef, wrange, t, X, Y):
+    num = coef[t, 0] + coef[t, 1] * X + coef[t, 2] * Y
+    den = coef[t, 3] + coef[t, 4] * X + coef[t, 5] * Y
+    W = num / den
+    lo = wrange[t, 0]
+    hi = wrange[t, 1]
+    if W != W:
+        return 0.5 * (lo + hi)
+    if W < lo:
+        return lo
+    if W > hi:
+        return hi
+    return W
+
+
+@njit(cache=True)
+def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
+           S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
+    """Visit the samples of compact triangle ``m`` in rows ``y0..y1`` that it covers.
+
+    mode 0: ``S[Y, X] += sign * W`` and ``N[Y, X] += entering`` (one body).
+    mode 1: count hits per sample of the band (``cnt``). mode 2: fill the band's hit buffers.
+    Hits beyond the detector (depth > FL) are dropped.
+    """
+    t = tri[m]
+    i0 = F[t, 0]
+    i1 = F[t, 1]
+    i2 = F[t, 2]
+    ax = XY[i0, 0]
+    ay = XY[i0, 1]
+    bx = XY[i1, 0]
+    by = XY[i1, 1]
+    cx = XY[i2, 0]
+    cy = XY[i2, 1]
+    o = np.int64(orient[m])
+    X0 = cbox[m, 0]
+    X1 = cbox[m, 1]
+    entering = o > 0
+    sgn = -1.0 if entering else 1.0
+    dn = 1 if entering else -1
+    body = tri_body[t]
+    # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
+    e0x = bx - ax
+    e0y = by - ay
+    e1x = cx - bx
+    e1y = cy - by
+    e2x = ax - cx
+    e2y = ay - cy
+    bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+    bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+    bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+    if kind[m] == SMALL:
+        px0 = X0 * ONE
+        stepx0 = -o * e0y * ONE
+        stepx1 = -o * e1y * ONE
+        stepx2 = -o * e2y * ONE
+        for Y in range(y0, y1 + 1):
+            py = Y * ONE
+            E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
+            E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
+            E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+            for X in range(X0, X1 + 1):
+                if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
+                    _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
+                            nW, buf_off, buf_w, buf_b)
+                E0 += stepx0
+                E1 += stepx1
+                E2 += stepx2
+    else:
+        for Y in range(y0, y1 + 1):
+            py = Y * ONE
+            for X in range(X0, X1 + 1):
+                px = X * ONE
+                s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
+                s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
+                s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
+                if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                    _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
+                            nW, buf_off, buf_w, buf_b)
+
+
+@njit(cache=True, inline="always")
+def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
+            buf_w, buf_b):
+    if mode == 1 and wrange[m, 1] <= FL:
+        cnt[(Y - row0) * nW + X] += 1      # counting pass: the hit is before the detector
+        return
+    W = _depth(coef, wrange, m, X, Y)
+    if W > FL:
+        return
+    if mode == 0:
+        S[Y, X] += sgn * W
+        N[Y, X] += dn
+    elif mode == 1:
+        cnt[(Y - row0) * nW + X] += 1
+    else:
+        k = (Y - row0) * nW + X
+        j = buf_off[k] + cnt[k]
+        cnt[k] += 1
+        buf_w[j] = W
+        buf_b[j] = body * 2 + (1 if dn > 0 else 0)
+
+
+@njit(cache=True, parallel=True)
+def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+                  orient, coef, wrange, tri_body, FL, S, N):
+    """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid."""
+    for k in prange(order.shape[0]):
+        dummy_i = np.zeros(1, np.int64)
+        dummy_f = np.zeros(1, np.float64)
+        dummy_b = np.zeros(1, np.int32)
+        b = order[k]
+        r0 = b * band_height
+        r1 = min(nH, r0 + band_height) - 1
+        for idx in range(band_start[b], band_start[b + 1]):
+            m = band_tris[idx]
+            y0 = max(cbox[m, 2], r0)
+            y1 = min(cbox[m, 3], r1)
+            _cover(m, y0, y1, 0, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
+                   S, N, dummy_i, 0, nW, dummy_i, dummy_f, dummy_b)
+
+
+@njit(cache=True, parallel=True)
+def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+                 orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
+                 H, L):
+    """Several bodies: per band, count then store every hit, then sort and sweep each sample.
+
+    ``L[ray, b]`` receives the length (mm) of the ray of sample (X, Y) whose material is body
+    ``b``: the body of highest ``precedence`` among those the ray is inside (entries minus exits
+    > 0), up to the detector (depth FL). Rays are in image order (see :func:`finish`).
+    """
+    nb = precedence.shape[0]
+    for k in prange(order.shape[0]):
+        dummy_S = np.zeros((1, 1), np.float64)
+        dummy_N = np.zeros((1, 1), np.int32)
+        b = order[k]
+        r0 = b * band_height
+        r1 = min(nH, r0 + band_height) - 1
+        npix = (r1 - r0 + 1) * nW
+        cnt = np.zeros(npix, np.int64)
+        off = np.zeros(npix + 1, np.int64)
+        dummy_w = np.zeros(1, np.float64)
+        dummy_b = np.zeros(1, np.int32)
+        for idx in range(band_start[b], band_start[b + 1]):
+            m = band_tris[idx]
+            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), 1, tri, F, XY, kind, cbox,
+                   orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off,
+                   dummy_w, dummy_b)
+        for p in range(npix):
+            off[p + 1] = off[p] + cnt[p]
+            cnt[p] = 0
+        total = off[npix]
+        if total == 0:
+            continue
+        bw = np.empty(total, np.float64)
+        bb = np.empty(total, np.int32)
+        for idx in range(band_start[b], band_start[b + 1]):
+            m = band_tris[idx]
+            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), 2, tri, F, XY, kind, cbox,
+                   orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, bw,
+                   bb)
+        inside = np.zeros(nb, np.int64)
+        for p in range(npix):
+            lo = off[p]
+            hi = off[p + 1]
+            if hi == lo:
+                continue
+            # Insertion sort of the sample's hits by depth (few per sample).
+            for i in range(lo + 1, hi):
+                kw = bw[i]
+                kb = bb[i]
+                j = i - 1
+                while j >= lo and bw[j] > kw:
+                    bw[j + 1] = bw[j]
+                    bb[j + 1] = bb[j]
+                    j -= 1
+                bw[j + 1] = kw
+                bb[j + 1] = kb
+            for q in range(nb):
+                inside[q] = 0
+            Y = r0 + p // nW
+            X = p % nW
+            j = Y // n
+            i = X // n
+            ray = ((H - 1 - j) * W + i) * n * n + (n - 1 - (Y - j * n)) * n + (X - i * n)
+            scale = 1.0
+            if perspective:
+                dx = P00[0] + X * Ex[0] + Y * Ey[0]
+                dy = P00[1] + X * Ex[1] + Y * Ey[1]
+                dz = P00[2] + X * Ex[2] + Y * Ey[2]
+                scale = np.sqrt(dx * dx + dy * dy + dz * dz) / FL
+            for i in range(lo, hi):
+                code = bb[i]
+                if code & 1:
+                    inside[code >> 1] += 1
+                else:
+                    inside[code >> 1] -= 1
+                win = -1
+                best = -1
+                for q in range(nb):
+                    if inside[q] > 0 and precedence[q] > best:
+                        best = precedence[q]
+                        win = q
+                if win >= 0:
+                    nxt = bw[i + 1] if i + 1 < hi else FL
+                    seg = nxt - bw[i]
+                    if seg > 0.0:
+                        L[ray, win] += seg * scale
+
+
+@njit(cache=True, parallel=True)
+def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
+    """Fine grid -> rays in image order, depth units -> mm along each ray.
+
+    ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis.
+
+    Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
+    ``((H - 1 - j) W + i) n n + r n + c``. A point-source ray's length is its depth span times
+    ``|D| / FL`` (D from the source to the sample's detector point).
+    """
+    nH = H * n
+    nW = W * n
+    nb = L.shape[1]
+    for Y in prange(nH):
+        j = Y // n
+        r = n - 1 - (Y - j * n)
+        for X in range(nW):
+            if single:
+                v = S[Y, X]
+                if v == 0.0:
+                    continue
+            i = X // n
+            c = X - i * n
+            ray = ((H - 1 - j) * W + i) * n * n + r * n + c
+            scale = 1.0
+            if perspective:
+                dx = P00[0] + X * Ex[0] + Y * Ey[0]
+                dy = P00[1] + X * Ex[1] + Y * Ey[1]
+                dz = P00[2] + X * Ex[2] + Y * Ey[2]
+                scale = np.sqrt(dx * dx + dy * dy + dz * dz) / FL
+            if single:
+                L[ray, 0] = v * scale
+            else:
+                for q in range(nb):
+                    L[ray, q] = Lf[Y, X, q] * scale
+
+
+@njit(cache=True, parallel=True)
+def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
+                  depth_ok, S, N, err):
+    """One body, in one pass over the triangles: cull, cover, depth and accumulate.
+
+    Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
+    own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
+    triangle that cannot be projected (straddling or too close to the source plane), else -1.
+    """
+    T = F.shape[0]
+    per = (T + n_chunks - 1) // n_chunks
+    for c in prange(n_chunks):
+        err[c] = -1
+        Sc = S[c]
+        Nc = N[c]
+        for t in range(c * per, min(T, (c + 1) * per)):
+            i0 = F[t, 0]
+            i1 = F[t, 1]
+            i2 = F[t, 2]
+            ax = XY[i0, 0]
+            ay = XY[i0, 1]
+            bx = XY[i1, 0]
+            by = XY[i1, 1]
+            cx = XY[i2, 0]
+            cy = XY[i2, 1]
+            xmin = min(ax, min(bx, cx))
+            xmax = max(ax, max(bx, cx))
+            ymin = min(ay, min(by, cy))
+            ymax = max(ay, max(by, cy))
+            X0 = max(-((-xmin) >> FRAC_BITS), 0)
+            X1 = min(xmax >> FRAC_BITS, nW - 1)
+            Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+            Y1 = min(ymax >> FRAC_BITS, nH - 1)
+            if depth_ok:
+                if X0 > X1 or Y0 > Y1:
+                    continue
+                wmin = 0.0
+                wmax = 0.0
+            else:
+                w0 = w[i0]
+                w1 = w[i1]
+                w2 = w[i2]
+                wmin = min(w0, min(w1, w2))
+                wmax = max(w0, max(w1, w2))
+                if wmax < 0.0 or wmin > FL:
+                    continue
+                if perspective and wmax <= 0.0:
+                    continue
+                if wmin < 0.0 or (perspective and wmin <= 0.0):
+                    err[c] = t
+                    continue
+                if X0 > X1 or Y0 > Y1:
+                    continue
+                if huge[i0] or huge[i1] or huge[i2]:
+                    err[c] = t
+                    continue
+            ext = max(xmax - xmin, ymax - ymin)
+            small = ext < SAFE_EXTENT
+            if small:
+                area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+                o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
+            else:
+                o = np.int64(exact_cross_sign(bx - ax, cy - ay, by - ay, cx - ax))
+            if o == 0:
+                continue
+            entering = o > 0
+            sgn = -1.0 if entering else 1.0
+            dn = 1 if entering else -1
+            e0x = bx - ax
+            e0y = by - ay
+            e1x = cx - bx
+            e1y = cy - by
+            e2x = ax - cx
+            e2y = ay - cy
+            bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+            bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+            bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+            have_plane = False
+            c0 = 0.0
+            c1 = 0.0
+            c2 = 0.0
+            c3 = 0.0
+            c4 = 0.0
+            c5 = 0.0
+            for Y in range(Y0, Y1 + 1):
+                py = Y * ONE
+                E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax)) if small else 0
+                E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx)) if small else 0
+                E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx)) if small else 0
+                for X in range(X0, X1 + 1):
+                    if small:
+                        inside = E0 >= bias0 and E1 >= bias1 and E2 >= bias2
+                        E0 -= o * e0y * ONE
+                        E1 -= o * e1y * ONE
+                        E2 -= o * e2y * ONE
+                    else:
+                        px = X * ONE
+                        inside = (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
+                                  and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
+                                  and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
+                    if not inside:
+                        continue
+                    if not have_plane:
+                        have_plane = True
+                        if depth_ok:
+                            wmin = min(w[i0], min(w[i1], w[i2]))
+                            wmax = max(w[i0], max(w[i1], w[i2]))
+                        f1x = V[i1, 0] - V[i0, 0]
+                        f1y = V[i1, 1] - V[i0, 1]
+                        f1z = V[i1, 2] - V[i0, 2]
+                        f2x = V[i2, 0] - V[i0, 0]
+                        f2y = V[i2, 1] - V[i0, 1]
+                        f2z = V[i2, 2] - V[i0, 2]
+                        nx = f1y * f2z - f1z * f2y
+                        ny = f1z * f2x - f1x * f2z
+                        nz = f1x * f2y - f1y * f2x
+                        qx = V[i0, 0] - r0[0]
+                        qy = V[i0, 1] - r0[1]
+                        qz = V[i0, 2] - r0[2]
+                        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
+                        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+                        if perspective:
+                            c0 = FL * (nx * qx + ny * qy + nz * qz)
+                            c3 = nx * P00[0] + ny * P00[1] + nz * P00[2]
+                            c4 = nEx
+                            c5 = nEy
+                        else:
+                            c0 = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
+                            c1 = -nEx
+                            c2 = -nEy
+                            c3 = nx * f[0] + ny * f[1] + nz * f[2]
+                    Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
+                    if Wd != Wd:
+                        Wd = 0.5 * (wmin + wmax)
+                    elif Wd < wmin:
+                        Wd = wmin
+                    elif Wd > wmax:
+                        Wd = wmax
+                    if Wd > FL:
+                        continue
+                    Sc[Y, X] += sgn * Wd
+                    Nc[Y, X] += dn
+
+
+@njit(cache=True, parallel=True)
+def reduce_chunks(S, N, FL, out):
+    """``out = sum_c S[c] + N[c] * FL`` (depth span of each sample, one body)."""
+    n_chunks, nH, nW = S.shape
+    for Y in prange(nH):
+        for X in range(nW):
+            s = 0.0
+            k = 0
+            for c in range(n_chunks):
+                s += S[c, Y, X]
+                k += N[c, Y, X]
+            out[Y, X] = s + k * FL
