@@ -84,9 +84,9 @@ print(f"I/I0 through 100 mm of water: by hand {by_hand:.6f}, xray_viz {package:.
 # Monochromatic: a straight line through the origin, slope :math:`\mu`. Polychromatic: a curve
 # that bends down, because each further millimetre attenuates the hardened beam less.
 wedge = xray_viz.load_scene("step_wedge")
-mono = xray_viz.render(wedge)
+mono = xray_viz.render(wedge, engine="numpy")
 poly_scene = wedge.replace(source=water_scene.source)
-poly = xray_viz.render(poly_scene)
+poly = xray_viz.render(poly_scene, engine="numpy")
 h = wedge.detector.shape[1]
 L_al = mono.path_length[h // 2, :, 0]
 inside = L_al > 0.5
