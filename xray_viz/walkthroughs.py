@@ -281,22 +281,28 @@ def run_walkthrough(n: int, *, off_screen: bool | None = None) -> dict:
     """
     import runpy
 
+    import sys
+
     path = walkthrough_path(int(n))
-    saved = os.environ.get("PYVISTA_OFF_SCREEN")
+    saved_env = os.environ.get("PYVISTA_OFF_SCREEN")
+    pv = sys.modules.get("pyvista")
+    saved_pv = getattr(pv, "OFF_SCREEN", None)
     if off_screen is not None:
         os.environ["PYVISTA_OFF_SCREEN"] = "true" if off_screen else "false"
-        import sys
-
-        if "pyvista" in sys.modules:
-            sys.modules["pyvista"].OFF_SCREEN = bool(off_screen)
+        if pv is not None:
+            pv.OFF_SCREEN = bool(off_screen)
     try:
         return runpy.run_path(str(path), run_name="__main__")
     finally:
         if off_screen is not None:
-            if saved is None:
+            if saved_env is None:
                 os.environ.pop("PYVISTA_OFF_SCREEN", None)
             else:
-                os.environ["PYVISTA_OFF_SCREEN"] = saved
+                os.environ["PYVISTA_OFF_SCREEN"] = saved_env
+            pv = sys.modules.get("pyvista")
+            if pv is not None:
+                pv.OFF_SCREEN = bool(saved_pv) if saved_pv is not None else bool(
+                    (saved_env or "").strip().lower() in _TRUE)
 
 
 def add_walkthrough_parser(subparsers):
