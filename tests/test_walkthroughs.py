@@ -285,3 +285,12 @@ def test_run_walkthrough_in_process(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "moller_trumbore.png").is_file()
     assert "PYVISTA_OFF_SCREEN" not in os.environ          # restored after the run
     assert "C = e1 . p" in capsys.readouterr().out
+
+
+def test_docstring_examples():
+    import doctest
+
+    import xray_viz.walkthroughs
+
+    result = doctest.testmod(xray_viz.walkthroughs)
+    assert result.attempted > 0 and result.failed == 0
