@@ -8,7 +8,8 @@ title, then ``# %%`` cells of narrative and code) that runs
 * off-screen, when ``PYVISTA_OFF_SCREEN=true``: every figure is written as a PNG into the folder
   named by ``XRAY_VIZ_OUTPUT`` (default ``out/walkthroughs/NN/``).
 
-From the command line: ``xray-viz walkthrough --list`` and ``xray-viz walkthrough N [--off-screen]``.
+From the command line: ``xray-viz walkthrough --list`` and
+``xray-viz walkthrough N [--off-screen]``.
 
 Examples
 --------

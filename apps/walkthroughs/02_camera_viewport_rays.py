@@ -72,11 +72,11 @@ print(f"forward: about {per_pixel:.0f} photons per pixel, with Poisson noise of 
 print(f"backward: {len(rays)} rays, exactly one per pixel, every one reaches the detector")
 
 # %%
-# Fewer than one photon in a hundred lands on this detector, and each pixel collects only a
-# couple of dozen: a noisy image from 200 000 photons. Backward tracing spends its work only on rays that form the image,
-# and gives each pixel its exact, noise-free expected signal (noise can be added afterwards).
-# A forward simulation is still needed for *scattered* photons, which do not travel straight:
-# this package, like the thesis, models only the primary beam.
+# Fewer than one photon in a hundred lands on this detector, and each pixel collects only a couple
+# of dozen: a noisy image from 200 000 photons. Backward tracing spends its work only on rays that
+# form the image, and gives each pixel its exact, noise-free expected signal (noise can be added
+# afterwards). A forward simulation is still needed for *scattered* photons, which do not travel
+# straight: this package, like the thesis, models only the primary beam.
 #
 # The picture
 # -----------

@@ -93,9 +93,9 @@ for label, r0, center in (("camera at the origin", [0.0, 0.0, 0.0], [0.0, 0.0, -
 # camera to :math:`(160, 120, 200)` above a detector at height 20 mm and the printed form's
 # "directions" are the pixel *positions*, which all point up and away from the detector: not one
 # ray arrives. With the camera on the axis 1 m above a detector 1.5 m away (the ``sphere``
-# phantom's geometry) the printed rays do reach the detector, but 3 times too far from its
-# centre (they point at the pixels' positions *as seen from the origin*): the image would be
-# silently magnified 3 times. The corrected form matches :func:`xray_viz.detector_rays` to rounding error.
+# phantom's geometry) the printed rays do reach the detector, but 3 times too far from its centre
+# (they point at the pixels' positions *as seen from the origin*): the image would be silently
+# magnified 3 times. The corrected form matches :func:`xray_viz.detector_rays` to rounding error.
 #
 # Figure 1.4 and the failure, in 3D
 # ---------------------------------

@@ -68,7 +68,8 @@ import pyvista as pv  # noqa: E402
 
 plotter = new_plotter()
 tri = pv.PolyData(V, faces=[3, 0, 1, 2])
-plotter.add_mesh(pv.Plane(center=(1.7, 1.3, -0.01), i_size=9, j_size=8), color="whitesmoke", lighting=False)
+plotter.add_mesh(pv.Plane(center=(1.7, 1.3, -0.01), i_size=9, j_size=8), color="whitesmoke",
+                 lighting=False)
 plotter.add_mesh(tri, color="lightsteelblue", show_edges=True, line_width=3, edge_color="navy")
 plotter.add_point_labels(V + [[-0.45, -0.45, 0], [0.45, -0.4, 0], [0, 0.5, 0]],
                          ["v0 (m1)", "v1 (m2)", "v2 (m3)"], font_size=20, point_size=1,

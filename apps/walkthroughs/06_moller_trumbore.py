@@ -65,7 +65,8 @@ print(f"beta = T . p / C = {beta:.6f}")
 print(f"q = T x e1 = {q}")
 print(f"gamma = d . q / C = {gamma:.6f}")
 print(f"t = e2 . q / C = {t:.6f}")
-print(f"alpha = 1 - beta - gamma = {alpha:.6f}; hit: {bool(min(alpha, beta, gamma) >= 0 and t >= 0)}")
+hit = bool(min(alpha, beta, gamma) >= 0 and t >= 0)
+print(f"alpha = 1 - beta - gamma = {alpha:.6f}; hit: {hit}")
 
 # %%
 # :math:`C` is negative here: seen along the ray, :math:`\vec v_0, \vec v_1, \vec v_2` run
@@ -114,7 +115,8 @@ start = np.array([[0.2, 0.3, 2.0]])
 good = moller_trumbore(start, down, ut[:1], ut[1:2], ut[2:])
 bug = moller_trumbore(start, down, ut[:1], ut[1:2], ut[2:], listing_bug=True)
 C_unit = (ut[1] - ut[0]) @ np.cross(down[0], ut[2] - ut[0])
-print(f"unit triangle: C = {C_unit:.1f}; correct t = {good[1][0]:.3f}, Listing 1 t = {bug[1][0]:.3f}")
+print(f"unit triangle: C = {C_unit:.1f}; correct t = {good[1][0]:.3f}, "
+      f"Listing 1 t = {bug[1][0]:.3f}")
 
 # %%
 # Listing 1 also tests ``abs(C) < 1e-9`` for "parallel": an absolute threshold, which means
@@ -137,7 +139,8 @@ plotter.add_mesh(arrow(v0, v2, tip=0.4), color="green")
 plotter.add_mesh(arrow(v0, v0 + p / np.linalg.norm(p) * 3, tip=0.4), color="purple")
 plotter.add_points(hit_ray[None], color="gold", point_size=20, render_points_as_spheres=True)
 plotter.add_point_labels(
-    np.array([v0 + [-0.6, -0.4, 0], v1 + [0.5, 0, 0], v2 + [0, 0.4, 0], (v0 + v1) / 2 + [0, -0.5, 0],
+    np.array([v0 + [-0.6, -0.4, 0], v1 + [0.5, 0, 0], v2 + [0, 0.4, 0],
+              (v0 + v1) / 2 + [0, -0.5, 0],
               (v0 + v2) / 2 + [-0.7, 0, 0], v0 + p / np.linalg.norm(p) * 3 + [-0.5, 0, 0],
               r0 + [0.4, 0, 0], hit_ray + [0.6, 0.2, 0], r0 + 1.5 * d + [0.5, 0, 0]]),
     ["v0", "v1", "v2", "e1", "e2", "p", "r0", f"hit, t = {t:.3f}", "d"],

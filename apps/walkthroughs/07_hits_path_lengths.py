@@ -73,14 +73,14 @@ L = path_lengths(hits.ray, hits.t, hits.body, hits.entering, n_rays=1, n_bodies=
 
 def sphere_chord(centre, radius):
     """Exact chord of the ray through an ideal sphere."""
-    b = np.linalg.norm(np.cross(np.asarray(centre) - r0, d))      # distance of the line from the centre
+    b = np.linalg.norm(np.cross(np.asarray(centre) - r0, d))      # line-to-centre distance
     return 2 * np.sqrt(max(radius**2 - b**2, 0.0))
 
 
 exact = {"tissue": sphere_chord([0, 0, 0], 40.0), "bone": sphere_chord([12, 0, 0], 15.0)}
 for k, name in enumerate(scene.body_names):
-    print(f"{name:>7s}: chord (sum of +-t) = {chord[name]:.4f} mm, ideal sphere {exact[name]:.4f} mm,"
-          f" effective path length L = {L[k]:.4f} mm")
+    print(f"{name:>7s}: chord (sum of +-t) = {chord[name]:.4f} mm, "
+          f"ideal sphere {exact[name]:.4f} mm, effective path length L = {L[k]:.4f} mm")
 print(f"tissue L = tissue chord - bone chord: {chord['tissue'] - chord['bone']:.4f} mm")
 
 # %%

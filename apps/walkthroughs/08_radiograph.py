@@ -59,8 +59,9 @@ print(f"nested_spheres: {scene.detector.shape[0]} x {scene.detector.shape[1]} pi
 # %%
 # They agree: the meshes are icospheres with a vertex on the beam axis, and vertices lie on the
 # ideal spheres. Off the axis the traced chords fall short of the ideal ones by up to about a
-# tenth of a millimetre (walkthrough 7): tessellation, not arithmetic. The air bubble shows as a *brighter* disc inside the bone's shadow:
-# air attenuates almost nothing, and inside the bubble it replaces the bone.
+# tenth of a millimetre (walkthrough 7): tessellation, not arithmetic. The air bubble shows as a
+# *brighter* disc inside the bone's shadow: air attenuates almost nothing, and inside the bubble
+# it replaces the bone.
 #
 # The 3D view and the radiograph
 # ------------------------------

@@ -151,14 +151,15 @@ for target in (None, 5120, 1280, 320):
     levels.append((len(mesh.faces), hausdorff, np.abs(err).max(), np.sqrt(np.mean(err**2)),
                    times["numpy"], times["fast"], mesh))
     print(f"{len(mesh.faces):7d} {hausdorff:14.3f} {np.abs(err).max():16.3f} / "
-          f"{np.sqrt(np.mean(err**2)):.4f} {1000 * times['numpy']:13.0f} / {1000 * times['fast']:.0f}")
+          f"{np.sqrt(np.mean(err**2)):.4f} {1000 * times['numpy']:13.0f} / "
+          f"{1000 * times['fast']:.0f}")
 
 # %%
 # The worst chord errors sit at the rim, where a ray can cross the ideal sphere but just miss the
-# polyhedron inside it. The chord error grows roughly as 1/faces (the gap between a flat triangle and the sphere goes
-# as the square of the triangle's size), and it is an *error of the geometry*, not of the
-# arithmetic: every correct engine gives the same numbers for the same mesh. The render time
-# falls far less than the triangle count, because part of it is per ray, not per triangle.
+# polyhedron inside it. The chord error grows roughly as 1/faces (the gap between a flat triangle
+# and the sphere goes as the square of the triangle's size), and it is an *error of the geometry*,
+# not of the arithmetic: every correct engine gives the same numbers for the same mesh. The render
+# time falls far less than the triangle count, because part of it is per ray, not per triangle.
 # Decimate to the error you can accept (``decimate(mesh, max_error=0.1)`` bisects for it), not
 # further.
 plt = pyplot()
