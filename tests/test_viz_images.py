@@ -33,12 +33,8 @@ def test_scene_view(verify_image_cache):
 def test_scene_view_texture(verify_image_cache):
     view = plot_scene(xray_viz.load_scene("sphere"), rays="row 128", radiograph=True,
                       texture=True, show_vectors=False, window_size=SIZE)
-    # look at the detector's front from beside the source, the ball in front of its shadow
-    view.plotter.subplot(0, 0)
-    view.plotter.camera.position = (120.0, 60.0, 250.0)
-    view.plotter.camera.focal_point = (0.0, 0.0, -500.0)
-    view.plotter.camera.up = (0.0, 1.0, 0.0)
-    view.plotter.reset_camera_clipping_range()
+    # the "b" view: from behind the source, the ball in front of its shadow on the detector
+    view.view_bodies()
     view.plotter.show()
 
 
@@ -46,4 +42,12 @@ def test_viewer_picked(verify_image_cache):
     viewer = Viewer(xray_viz.load_scene("sphere"), resolution=96, window_size=SIZE)
     viewer.set_source_distance(1100.0)
     viewer.pick_pixel(60, 30)
+    viewer.plotter.show()
+
+
+def test_viewer_bodies_view(verify_image_cache):
+    viewer = Viewer(xray_viz.load_scene("sphere"), resolution=64, rays="row 40",
+                    window_size=SIZE)
+    viewer.view_bodies()
+    viewer.pick_pixel(40, 20)
     viewer.plotter.show()

@@ -208,8 +208,11 @@ class SceneView:
     picked: RaySelection | None = None
     datasets: dict = field(default_factory=dict)
     grid_ij: tuple = ()
-    zoom: float = 0.9
+    zoom: float = 0.88
     status: str = ""
+    slider_band: float = 0.0
+    view_box: tuple = (0.02, 0.06, 0.98, 0.8)
+    camera_view: str = "side"
     _camera_set: bool = False
 
     # ---------------------------------------------------------------- helpers
@@ -223,6 +226,25 @@ class SceneView:
         """A length (mm) that sets marker and arrow-tip sizes: 1/40 of the scene's extent."""
         vp = self.viewport
         return max(np.linalg.norm(vp.FL), np.linalg.norm(vp.HO), np.linalg.norm(vp.VE)) / 40
+
+    @property
+    def bodies_bounds(self):
+        """``(lo, hi)``, the (3,) corners of the box around all bodies (the detector's if
+        there are none)."""
+        if self.scene.bodies:
+            lo = np.min([b.vertices.min(axis=0) for b in self.scene.bodies], axis=0)
+            hi = np.max([b.vertices.max(axis=0) for b in self.scene.bodies], axis=0)
+            return lo, hi
+        vp = self.viewport
+        corners = np.array([vp.LHC, vp.LHC + vp.HO + vp.VE])
+        return corners.min(axis=0), corners.max(axis=0)
+
+    @property
+    def glyph_radius(self) -> float:
+        """Radius (mm) of the entry/exit glyphs: 1/120 of the bodies' size, so they are
+        dots on the bodies, never larger than 1/10 of :attr:`size_scale`."""
+        lo, hi = self.bodies_bounds
+        return float(min(0.1 * self.size_scale, np.linalg.norm(hi - lo) / 120))
 
     def _add(self, name, mesh, *, group=None, **kwargs):
         self.plotter.subplot(*self.subplot_3d)
@@ -316,6 +338,8 @@ class SceneView:
             lo, hi = window_level_limits(image, window=self.window, level=self.level)
             gray = np.clip((image - lo) / max(hi - lo, 1e-300), 0, 1)
             gray = np.nan_to_num(gray, nan=0.0)
+            if self.cmap == "gray_r":                 # as in the 2D view: attenuation bright
+                gray = 1.0 - gray
             rgb = np.repeat((gray * 255).astype(np.uint8)[..., None], 3, axis=2)
             self._add("detector", plane, group="detector", texture=pv.Texture(rgb),
                       lighting=False)
@@ -339,12 +363,14 @@ class SceneView:
         else:
             self.grid_label = f"pixel grid: all {w} x {h} rays"
         self.plotter.subplot(*self.subplot_3d)
-        self.plotter.add_text(self.grid_label, position="lower_left", font_size=9,
-                              name="grid-label", color="black")
+        self._text(self.grid_label, (0.01, 0.008), "grid-label", font_size=8,
+                   vertical="bottom")
 
     def _draw_vectors(self):
         vp = self.viewport
-        tip = 1.5 * self.size_scale
+        # tips: readable in the side view, not swamping the detector in a close-up
+        tip = min(1.5 * self.size_scale,
+                  0.15 * min(np.linalg.norm(vp.HO), np.linalg.norm(vp.VE)))
         center = vp.LHC + vp.HO / 2 + vp.VE / 2
         arrows = {
             "HO": (vp.LHC, vp.HO),
@@ -382,7 +408,7 @@ class SceneView:
         starts, ends, _ = inside_segments(sel.hits)
         entry = sel.hits.point[sel.hits.entering]
         exit_ = sel.hits.point[~sel.hits.entering]
-        r = 0.1 * self.size_scale
+        r = self.glyph_radius
         group = "rays" if prefix == "rays" else "picked"
         self._add(prefix, _lines(sel.origins, sel.ends), group=group, color=color,
                   line_width=width, lighting=False)
@@ -410,10 +436,13 @@ class SceneView:
         entries += [["source r0", COLORS["source"]], ["ray", COLORS["ray"]],
                     ["inside a body", COLORS["inside"]], ["entry hit (sphere)", COLORS["entry"]],
                     ["exit hit (cube)", COLORS["exit"]]]
-        self.plotter.add_legend(entries, bcolor="white", border=True, size=(0.24, 0.2),
+        self.plotter.add_legend(entries, bcolor="white", border=True, size=(0.28, min(0.3, 0.026 * len(entries))),
                                 loc="upper left", face="rectangle", background_opacity=0.7)
 
     def _draw_radiograph(self):
+        """The image in the right subplot, laid out in fractions of the pane: the title on
+        top, the image in a box below it (above :attr:`slider_band`, kept for the viewer's
+        sliders), the colour bar to its right."""
         pl = self.plotter
         pl.subplot(*self.subplot_image)
         rg = self.radiograph
@@ -424,59 +453,214 @@ class SceneView:
         grid = image_to_grid(image, name=title)
         self.datasets["radiograph"] = grid
         clim = window_level_limits(image, window=self.window, level=self.level)
-        pl.add_mesh(grid, name="radiograph", scalars=title, cmap="gray", clim=clim,
+        # Attenuation bright, as radiologists read films: low I / I0 is white.
+        cmap = self.cmap
+        # box of the image, fractions of the pane: left, bottom, right, top
+        x0, x1 = 0.06, 0.76
+        y0, y1 = max(0.07, self.slider_band + 0.06), 0.86
+        for old in list(pl.scalar_bars.keys()):            # re-placed on every draw
+            pl.remove_scalar_bar(old, render=False)
+        pl.add_mesh(grid, name="radiograph", scalars=title, cmap=cmap, clim=clim,
                     lighting=False, show_scalar_bar=True, reset_camera=False, render=False,
-                    scalar_bar_args=dict(title=title, vertical=True, position_x=0.86,
-                                         position_y=0.2, height=0.5, width=0.06,
-                                         fmt="%.3g", title_font_size=14, label_font_size=12,
-                                         color="black"))
+                    scalar_bar_args=dict(title=title, vertical=True, position_x=0.8,
+                                         position_y=y0 + 0.1 * (y1 - y0),
+                                         height=0.8 * (y1 - y0), width=0.05,
+                                         fmt="%.3g", title_font_size=12, label_font_size=11,
+                                         color="black", n_labels=5))
         frame = pv.lines_from_points(np.array([[-.5, -.5, .05], [w - .5, -.5, .05],
                                                [w - .5, h - .5, .05], [-.5, h - .5, .05],
                                                [-.5, -.5, .05]]))
         pl.add_mesh(frame, name="radiograph-frame", color="black", line_width=1,
                     lighting=False, reset_camera=False, render=False, pickable=False)
-        corners = np.array([[0, 0, 0.1], [w - 1, h - 1, 0.1]], float)
-        pl.add_point_labels(corners, [f"(i, j) = (0, 0)  LHC", f"({w - 1}, {h - 1})"],
-                            font_size=10, show_points=False, shape_opacity=0.5,
-                            always_visible=True, name="radiograph-corners", reset_camera=False,
-                            render=False)
-        engine = getattr(rg, "engine", "?")
-        total = rg.timing.get("total", float("nan")) if getattr(rg, "timing", None) else math.nan
-        pl.add_text(f"radiograph: {self.quantity}, {w} x {h}, row 0 at the top\n"
-                    f"engine {engine}: render {total * 1000:.0f} ms" + (
-                        f"\n{self.status}" if self.status else ""), position="upper_left",
-                    font_size=10, name="radiograph-title", color="black")
+        # camera: parallel projection, the image centred in its box
+        aspect = self._pane_aspect()
+        scale = 0.5 * max(h / (y1 - y0), w / ((x1 - x0) * aspect))     # half the view height
+        cx = (w - 1) / 2 - ((x0 + x1) / 2 - 0.5) * 2 * scale * aspect
+        cy = (h - 1) / 2 - ((y0 + y1) / 2 - 0.5) * 2 * scale
         pl.view_xy()
         pl.camera.parallel_projection = True
-        shift = -0.1 * h if self.status else 0.0        # room for the viewer's sliders below
-        pl.camera.focal_point = ((w - 1) / 2, (h - 1) / 2 + shift, 0.0)
-        pl.camera.position = ((w - 1) / 2, (h - 1) / 2 + shift, 10.0 * max(w, h))
+        pl.camera.focal_point = (cx, cy, 0.0)
+        pl.camera.position = (cx, cy, 10.0 * max(w, h))
         pl.camera.up = (0.0, 1.0, 0.0)
-        pl.camera.parallel_scale = (0.8 if self.status else 0.68) * max(h, w)
+        pl.camera.parallel_scale = scale
         pl.reset_camera_clipping_range()
+        # corner labels just outside the frame: (0, 0) below its lower-left corner,
+        # (w-1, h-1) above its upper-right corner
+        pad = 0.012 * 2 * scale
+        corners = np.array([[-0.5, -0.5 - pad, 0.1], [w - 0.5, h - 0.5 + pad, 0.1]])
+        self._label(corners[:1], "(i, j) = (0, 0): LHC", "radiograph-corner-00",
+                    justify="left", vertical="top")
+        self._label(corners[1:], f"({w - 1}, {h - 1})", "radiograph-corner-wh",
+                    justify="right", vertical="bottom")
+        engine = getattr(rg, "engine", "?")
+        total = rg.timing.get("total", float("nan")) if getattr(rg, "timing", None) else math.nan
+        lines = [f"radiograph: {self.quantity}, {w} x {h}, row 0 at the top"]
+        if self.status:
+            lines.append(self.status)
+        lines.append(f"engine {engine}: {total * 1000:.0f} ms")
+        self._text("\n".join(lines), (0.03, 0.985), "radiograph-title", font_size=8)
         pl.subplot(*self.subplot_3d)
 
+    @property
+    def cmap(self) -> str:
+        """Grey map of the image: reversed for intensity, so attenuation is bright."""
+        return "gray_r" if self.quantity == "intensity" else "gray"
+
+    def _text(self, text, position, name, *, font_size=9, justify="left", vertical="top",
+              color="black"):
+        """Text in the current subplot at ``position``, fractions of the pane, anchored at
+        its ``justify`` / ``vertical`` side (fixed pixel size, so it never scales)."""
+        actor = self.plotter.add_text(text, position=position, viewport=True,
+                                      font_size=font_size, name=name, color=color)
+        prop = actor.GetTextProperty()
+        getattr(prop, f"SetJustificationTo{justify.capitalize()}")()
+        getattr(prop, f"SetVerticalJustificationTo{vertical.capitalize()}")()
+        return actor
+
+    def _label(self, point, text, name, *, justify="left", vertical="bottom", font_size=9):
+        """A text anchored at a 3D point of the current subplot."""
+        from vtkmodules.vtkRenderingCore import vtkTextActor
+
+        actor = vtkTextActor()
+        actor.SetInput(text)
+        coord = actor.GetPositionCoordinate()
+        coord.SetCoordinateSystemToWorld()
+        coord.SetValue(*np.asarray(point, float).ravel()[:3])
+        prop = actor.GetTextProperty()
+        prop.SetFontSize(font_size)
+        prop.SetColor(0.1, 0.1, 0.1)
+        getattr(prop, f"SetJustificationTo{justify.capitalize()}")()
+        getattr(prop, f"SetVerticalJustificationTo{vertical.capitalize()}")()
+        self.plotter.add_actor(actor, name=name, reset_camera=False, render=False,
+                               pickable=False)
+        return actor
+
     # ---------------------------------------------------------------- updates
-    def reset_camera(self) -> None:
-        """Pin the 3D camera: from the left of the beam, a little above, seeing the
-        detector's front (source) side."""
+    def _pane_aspect(self) -> float:
+        """Width / height of the current subplot in pixels."""
+        w, h = self.plotter.window_size
+        x0, y0, x1, y1 = self.plotter.renderer.GetViewport()
+        return max((x1 - x0) * w, 1.0) / max((y1 - y0) * h, 1.0)
+
+    def _axes(self):
+        """Unit vectors: ``forward`` (source to detector), ``up`` (the detector's VE) and
+        ``side`` (``up x forward``, the direction a side view looks along)."""
+        vp = self.viewport
+        forward = -np.asarray(vp.FL, float) / np.linalg.norm(vp.FL)
+        up = np.asarray(vp.VE, float) / np.linalg.norm(vp.VE)
+        up = up - up.dot(forward) * forward
+        up /= np.linalg.norm(up)
+        return forward, up, np.cross(up, forward)
+
+    def view_side(self, *, elevation: float = 25.0, azimuth: float = 12.0) -> None:
+        """The whole set-up from the side: the beam axis across the pane, the source on the
+        left, the detector on the right, seen from ``elevation`` degrees above the axis (the
+        detector's ``up`` is screen up) and ``azimuth`` degrees towards the source (so the
+        detector's face shows), zoomed so source-to-detector fills the pane's width."""
         vp = self.viewport
         self.plotter.subplot(*self.subplot_3d)
-        fl = np.linalg.norm(vp.FL)
-        ho = vp.HO / np.linalg.norm(vp.HO)
-        ve = vp.VE / np.linalg.norm(vp.VE)
-        center = vp.LHC + vp.HO / 2 + vp.VE / 2
-        focal = center + 0.45 * vp.FL
-        position = focal + fl * (0.5 * vp.FL / fl - 0.8 * ho + 0.35 * ve)
+        forward, up, side = self._axes()
+        e, a = math.radians(elevation), math.radians(azimuth)
+        dop = math.cos(e) * (math.cos(a) * side + math.sin(a) * forward) - math.sin(e) * up
+        right = np.cross(dop, up)
+        right /= np.linalg.norm(right)
+        cam_up = np.cross(right, dop)
+        center = np.asarray(vp.LHC + vp.HO / 2 + vp.VE / 2, float)
+        focal = (center + np.asarray(vp.r0, float)) / 2
+        width = float(np.linalg.norm(vp.FL)) * abs(forward @ right)
         cam = self.plotter.camera
+        cam.parallel_projection = False
+        cam.view_angle = 20.0
+        half = math.tan(math.radians(cam.view_angle) / 2)
+        bx0, by0, bx1, by1 = self.view_box
+        distance = width / self.zoom / (2 * half * self._pane_aspect() * (bx1 - bx0))
+        cam.SetWindowCenter(1.0 - bx0 - bx1, 1.0 - by0 - by1)   # focal point at the box centre
         cam.focal_point = tuple(focal)
-        cam.position = tuple(position)
-        cam.up = tuple(ve)
-        cam.view_angle = 30.0
-        self.plotter.renderer.reset_camera()
-        cam.zoom(self.zoom)
+        cam.position = tuple(focal - distance * dop)
+        cam.up = tuple(cam_up)
         self.plotter.reset_camera_clipping_range()
+        self.camera_view = "side"
+        self._pinned = self._camera_state()
         self._camera_set = True
+
+    def view_bodies(self, *, zoom: float = 1.0, azimuth: float = 14.0,
+                    elevation: float = 10.0) -> None:
+        """Close-up of the bodies from behind and beside the source, looking down the beam:
+        the bodies in front, the detector (and its texture) behind them, all in view.
+
+        ``azimuth`` and ``elevation`` (degrees) turn the line of sight away from the beam
+        axis, to the side and from above, so the bodies do not hide their shadow."""
+        vp = self.viewport
+        self.plotter.subplot(*self.subplot_3d)
+        forward, up, side = self._axes()
+        lo, hi = self.bodies_bounds
+        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.VE, vp.LHC + vp.HO + vp.VE])
+        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+        a, e = math.radians(azimuth), math.radians(elevation)
+        dop = (math.cos(e) * (math.cos(a) * forward + math.sin(a) * side)
+               - math.sin(e) * up)                       # camera -> focal point
+        right = np.cross(dop, up)
+        right /= np.linalg.norm(right)
+        screen_up = np.cross(right, dop)
+        cam = self.plotter.camera
+        cam.parallel_projection = False
+        cam.view_angle = 30.0
+        # the camera behind the source (as far from the bodies as the source is, or more)
+        behind = float((np.asarray(vp.r0) - (lo + hi) / 2) @ -dop) * 1.15
+        self._frame(np.vstack([corners, box]), dop, right, screen_up, margin=1.06 / zoom,
+                    min_distance=behind, anchor=(lo + hi) / 2)
+        self.camera_view = "bodies"
+
+    def _frame(self, points, dop, right, screen_up, *, margin=1.06, min_distance=0.0,
+               anchor=None) -> None:
+        """Aim the (perspective) camera along ``dop`` so that ``points`` fill the pane,
+        centred. With ``min_distance`` the camera stays at least that far (along ``dop``)
+        from ``anchor`` and narrows its view angle instead."""
+        cam = self.plotter.camera
+        bx0, by0, bx1, by1 = self.view_box
+        cam.SetWindowCenter(1.0 - bx0 - bx1, 1.0 - by0 - by1)   # focal point at the box centre
+        sx = self._pane_aspect() * (bx1 - bx0)      # the box's half-width / half-height,
+        sy = by1 - by0                              # in units of the view's half-height
+        half_v = math.tan(math.radians(cam.view_angle) / 2) / margin
+        focal = points.mean(axis=0)
+        anchor = focal if anchor is None else np.asarray(anchor, float)
+        for _ in range(12):
+            rel = points - focal
+            x, y, depth = rel @ right, rel @ screen_up, rel @ dop
+            need = np.maximum(np.abs(x) / (half_v * sx), np.abs(y) / (half_v * sy))
+            distance = float(np.max(need - depth))
+            floor = min_distance + float((anchor - focal) @ dop)
+            if distance < floor:                    # too close: step back, narrow the view
+                distance = floor
+                tx, ty = x / (distance + depth), y / (distance + depth)
+                half_v = max((tx.max() - tx.min()) / 2 / sx, (ty.max() - ty.min()) / 2 / sy)
+                cam.view_angle = math.degrees(2 * math.atan(half_v * margin))
+            # re-centre: shift the focal point to the middle of the points' angular extent
+            tx, ty = x / (distance + depth), y / (distance + depth)
+            focal = focal + distance * ((tx.max() + tx.min()) / 2 * right
+                                        + (ty.max() + ty.min()) / 2 * screen_up)
+        cam.focal_point = tuple(focal)
+        cam.position = tuple(focal - distance * dop)
+        cam.up = tuple(screen_up)
+        self.plotter.reset_camera_clipping_range()
+        self._pinned = self._camera_state()
+        self._camera_set = True
+
+    def _camera_state(self):
+        cam = self.plotter.renderers[self.plotter.renderers.loc_to_index(
+            self.subplot_3d)].camera
+        return (tuple(np.round(cam.position, 6)), tuple(np.round(cam.focal_point, 6)),
+                tuple(np.round(cam.up, 6)))
+
+    def camera_is_pinned(self) -> bool:
+        """Whether the 3D camera is still where :meth:`view_side` / :meth:`view_bodies`
+        put it (the user has not turned or zoomed it)."""
+        return getattr(self, "_pinned", None) == self._camera_state()
+
+    def reset_camera(self) -> None:
+        """Pin the 3D camera to the side view of the whole set-up (:meth:`view_side`)."""
+        self.view_side()
 
     def set_scene(self, scene, *, radiograph=None) -> None:
         """Show another scene (for example the source moved), and optionally its radiograph."""

@@ -24,13 +24,31 @@ __all__ = ["Viewer", "KEYS"]
 
 #: Key shortcuts (key -> (action, description)), shown on screen.
 KEYS = {
-    "y": ("rays", "toggle rays"),
-    "g": ("grid", "toggle pixel grid"),
-    "h": ("hits", "toggle hit points"),
-    "o": ("vectors", "toggle HO/VE/FL/LHC arrows"),
-    "m": ("frustum", "toggle beam frustum"),
-    "i": ("screenshot", "save a screenshot"),
+    "y": ("rays", "rays"),
+    "g": ("grid", "pixel grid"),
+    "h": ("hits", "hit points"),
+    "o": ("vectors", "HO/VE/FL/LHC arrows"),
+    "m": ("frustum", "frustum"),
+    "v": ("view-side", "side view"),
+    "b": ("view-bodies", "bodies close-up"),
+    "i": ("screenshot", "screenshot"),
 }
+
+
+def help_text() -> str:
+    """The on-screen key help: a few short lines (it sits above the 3D view)."""
+    toggles = [f"{k} {d}" for k, (a, d) in KEYS.items() if not a.startswith(("view", "scr"))]
+    others = [f"{k} {d}" for k, (a, d) in KEYS.items() if a.startswith(("view", "scr"))]
+    return ("toggle: " + "  ".join(toggles[:3]) + "\n" + "  ".join(toggles[3:])
+            + "\n" + "  ".join(others) + "  q quit"
+            + "\nclick the radiograph: its ray + mu(t)")
+
+#: Fraction of the radiograph pane's height kept below the image for the sliders.
+SLIDER_BAND = 0.3
+
+#: Part of the 3D pane (left, bottom, right, top fractions) the pinned views fill: between
+#: the key help and legend above and the check boxes and mu(t) chart below.
+VIEW_BOX = (0.02, 0.35, 0.98, 0.76)
 
 
 def _rotation_about(axis, angle_deg, point) -> np.ndarray:
@@ -93,7 +111,12 @@ class Viewer:
         self.view = plot_scene(self.scene, rays=rays, radiograph=self.radiograph,
                                texture=texture, window_size=window_size, off_screen=off_screen)
         self.plotter = self.view.plotter
-        self.chart = pv.Chart2D(size=(0.46, 0.3), loc=(0.52, 0.04), x_label="t (mm)",
+        if widgets:
+            self.view.slider_band = SLIDER_BAND
+            self.view.view_box = VIEW_BOX
+            self.view.reset_camera()
+        # bottom right of the 3D pane, right of the check boxes, below the beam
+        self.chart = pv.Chart2D(size=(0.74, 0.28), loc=(0.24, 0.05), x_label="t (mm)",
                                 y_label="mu (1/cm)")
         self.chart.visible = False
         self.plotter.subplot(0, 0)
@@ -138,7 +161,11 @@ class Viewer:
         self.radiograph = self._render(self.scene)
         picked = self.view.picked
         self.view.picked = None
+        pinned = self.view.camera_is_pinned()
         self.view.set_scene(self.scene, radiograph=self.radiograph)
+        if pinned:                        # follow the source, unless the user moved the camera
+            {"side": self.view.view_side, "bodies": self.view.view_bodies}.get(
+                self.view.camera_view, self.view.view_side)()
         if picked is not None:
             w, h = self.scene.detector.shape
             self.pick_pixel(min(int(picked.i[0]), w - 1), min(int(picked.j[0]), h - 1))
@@ -206,8 +233,8 @@ class Viewer:
         self.chart.clear()
         self.chart.line(x, y, color="tab:red", width=2.0)
         rg_li = float(self.radiograph.line_integral[h - 1 - j, i])
-        self.chart.title = (f"pixel (i, j) = ({i}, {j}):  integral mu dt = "
-                            f"{profile.line_integral:.4g}  (image: {rg_li:.4g})")
+        self.chart.title = (f"pixel ({i}, {j}): integral mu dt = {profile.line_integral:.4g}"
+                            f" (image {rg_li:.4g})")
         self.chart.x_range = [float(profile.t[0]), float(profile.t[-1])]
         top = float(max(profile.mu.max(), 1e-3)) * 1.15
         self.chart.y_range = [0.0, top]
@@ -228,6 +255,16 @@ class Viewer:
         if visible is None:
             visible = not self.view.is_visible(group)
         self.view.set_visible(group, visible)
+
+    def view_side(self) -> None:
+        """Camera: the whole set-up from the side (key ``v``)."""
+        self.view.view_side()
+        self.plotter.render()
+
+    def view_bodies(self) -> None:
+        """Camera: close-up of the bodies with the detector behind them (key ``b``)."""
+        self.view.view_bodies()
+        self.plotter.render()
 
     def screenshot(self, path=None) -> Path:
         """Save the window as an image (``xray-viz-N.png`` in the working directory)."""
@@ -260,25 +297,29 @@ class Viewer:
         pl = self.plotter
         fl0 = self.source_distance
         pl.subplot(0, 1)
-        style = dict(title_height=0.022, tube_width=0.004, slider_width=0.015,
+        style = dict(title_height=0.02, tube_width=0.004, slider_width=0.015,
                      color="black", title_color="black", interaction_event="end")
+        rows = (0.2, 0.075)                  # two rows of sliders inside the band kept free
         self.sliders = {}
         self.sliders["source_distance"] = pl.add_slider_widget(self.set_source_distance, (0.3 * fl0, 3.0 * fl0), value=fl0,
-                             title="source distance (mm)", pointa=(0.05, 0.2),
-                             pointb=(0.45, 0.2), fmt="%.0f", **style)
+                             title="source distance (mm)", pointa=(0.05, rows[0]),
+                             pointb=(0.45, rows[0]), fmt="%.0f", **style)
         self.sliders["rotation"] = pl.add_slider_widget(self.set_body_rotation, (-180.0, 180.0), value=0.0,
-                             title="body rotation (deg)", pointa=(0.55, 0.2),
-                             pointb=(0.95, 0.2), fmt="%.0f", **style)
+                             title="body rotation (deg)", pointa=(0.55, rows[0]),
+                             pointb=(0.95, rows[0]), fmt="%.0f", **style)
         if self.kvp is not None:
             self.sliders["kvp"] = pl.add_slider_widget(self.set_kvp, (20.0, 150.0), value=self.kvp, title="kVp",
-                                 pointa=(0.05, 0.07), pointb=(0.45, 0.07), fmt="%.0f", **style)
+                                 pointa=(0.05, rows[1]), pointb=(0.45, rows[1]), fmt="%.0f", **style)
         else:
             self.sliders["energy"] = pl.add_slider_widget(self.set_energy, (10.0, 150.0), value=self.energy,
-                                 title="energy (keV)", pointa=(0.05, 0.07),
-                                 pointb=(0.45, 0.07), fmt="%.0f", **style)
+                                 title="energy (keV)", pointa=(0.05, rows[1]),
+                                 pointb=(0.45, rows[1]), fmt="%.0f", **style)
         self.sliders["resolution"] = pl.add_slider_widget(self.set_resolution, (16, max(512, self.resolution)),
                              value=self.resolution, title="preview resolution (px)",
-                             pointa=(0.55, 0.07), pointb=(0.95, 0.07), fmt="%.0f", **style)
+                             pointa=(0.55, rows[1]), pointb=(0.95, rows[1]), fmt="%.0f", **style)
+        for widget in self.sliders.values():
+            rep = widget.GetRepresentation()
+            rep.SetLabelHeight(0.02)         # the value, above the slider
         pl.subplot(0, 0)
         for k, group in enumerate(("rays", "grid", "hits", "vectors")):
             y = 40 + 34 * k
@@ -288,13 +329,16 @@ class Viewer:
             pl.add_text(group, position=(42, y + 4), font_size=9, color="black",
                         name=f"check-{group}")
         for key, (action, _) in KEYS.items():
+            pl.clear_events_for_key(key)              # pyvista binds "b" and "v" itself
             if action == "screenshot":
                 pl.add_key_event(key, lambda: print(f"saved {self.screenshot()}"))
+            elif action == "view-side":
+                pl.add_key_event(key, self.view_side)
+            elif action == "view-bodies":
+                pl.add_key_event(key, self.view_bodies)
             else:
                 pl.add_key_event(key, lambda a=action: self.toggle(a))
-        help_text = "\n".join(f"{k}: {d}" for k, (_, d) in KEYS.items())
-        help_text += "\nclick the radiograph: ray + mu(t)\nq: quit"
-        pl.add_text(help_text, position="upper_right", font_size=8, color="black", name="help")
+        self.view._text(help_text(), (0.985, 0.985), "help", font_size=8, justify="right")
         pl.enable_point_picking(self.on_pick, left_clicking=True, picker="cell",
                                 show_message=False, show_point=False, tolerance=0.0)
         for actor in self.plotter.renderers[0].actors.values():
