@@ -95,3 +95,14 @@ def test_phantoms_listed_and_default_renders(tmp_path):
     out = tmp_path / "d.png"
     result = _run("render", "default", "-o", str(out))
     assert result.returncode == 0 and out.exists() and str(out) in result.stdout
+
+
+def test_walkthrough_subcommand_lists_and_refuses_unknown():
+    listed = _run("walkthrough", "--list")
+    assert listed.returncode == 0, listed.stderr
+    lines = listed.stdout.splitlines()
+    assert len(lines) == 11 and lines[0].split()[:2] == ["1", "01_parametric_ray"]
+    bad = _run("walkthrough", "99")
+    assert bad.returncode == 2
+    assert "no walkthrough 99" in bad.stderr and "Traceback" not in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1

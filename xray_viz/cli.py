@@ -33,6 +33,8 @@ examples:
   xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
   xray-viz bench --suite peers                      time and error against Open3D, embree, gVXR
   xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
+  xray-viz walkthrough --list                       the walkthroughs that rebuild the thesis
+  xray-viz walkthrough 6                            Moller-Trumbore step by step, one ray
 
 Run `xray-viz COMMAND --help` for the options of each command.
 """
@@ -124,6 +126,9 @@ def build_parser() -> argparse.ArgumentParser:
     from xray_viz.bench import add_bench_parser
 
     add_bench_parser(sub)
+    from xray_viz.walkthroughs import add_walkthrough_parser
+
+    add_walkthrough_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "
