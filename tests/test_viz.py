@@ -187,6 +187,26 @@ def test_show_command_screenshot(tmp_path, capsys):
             args.func(args)
 
 
+def test_show_command_view_bodies_starts_with_the_close_up(tmp_path):
+    from PIL import Image
+
+    parser = argparse.ArgumentParser(prog="xray-viz")
+    add_show_parser(parser.add_subparsers())
+    left = {}
+    for view in ("side", "bodies"):
+        out = tmp_path / f"{view}.png"
+        args = parser.parse_args(["show", "sphere", "--screenshot", str(out), "--size", "800",
+                                  "400", "--resolution", "32", "--view", view])
+        assert args.func(args) == 0
+        with Image.open(out) as im:
+            left[view] = np.asarray(im.convert("L"), dtype=float)[:, :400]
+    # the close-up fills far more of the 3D pane with the (blue-grey) sphere than the side view
+    changed = np.mean(np.abs(left["side"] - left["bodies"]) > 30)
+    assert changed > 0.05
+    with pytest.raises(SystemExit):
+        parser.parse_args(["show", "sphere", "--view", "top"])
+
+
 def test_attenuation_profile_of_nested_bodies_uses_the_inner_material():
     outer = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
     inner = trimesh.creation.icosphere(subdivisions=2, radius=10.0)

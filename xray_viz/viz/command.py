@@ -63,6 +63,9 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
                         "(default: the scene's)")
     p.add_argument("--texture", action="store_true",
                    help="also drape the radiograph on the detector plane")
+    p.add_argument("--view", choices=("side", "bodies"), default="side",
+                   help="starting camera: the whole set-up from the side (default), or a "
+                        "close-up of the bodies with the detector behind them (keys v and b)")
     p.set_defaults(func=show_command)
     return p
 
@@ -110,6 +113,8 @@ def show_command(args) -> int:
 
     viewer = Viewer(scene, rays=args.rays, resolution=args.resolution, texture=args.texture,
                     window_size=(w, h), off_screen=out is not None)
+    if args.view == "bodies":
+        viewer.view_bodies()
     if out is None:
         viewer.show()
         return 0
