@@ -239,36 +239,13 @@ def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
         i0 = F[t, 0]
         i1 = F[t, 1]
         i2 = F[t, 2]
-        e1x = V[i1, 0] - V[i0, 0]
-        e1y = V[i1, 1] - V[i0, 1]
-        e1z = V[i1, 2] - V[i0, 2]
-        e2x = V[i2, 0] - V[i0, 0]
-        e2y = V[i2, 1] - V[i0, 1]
-        e2z = V[i2, 2] - V[i0, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        qx = V[i0, 0] - r0[0]
-        qy = V[i0, 1] - r0[1]
-        qz = V[i0, 2] - r0[2]
-        nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
-        nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
-        if perspective:
-            # Ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0); hit depth = s * FL.
-            coef[m, 0] = FL * (nx * qx + ny * qy + nz * qz)
-            coef[m, 1] = 0.0
-            coef[m, 2] = 0.0
-            coef[m, 3] = nx * P00[0] + ny * P00[1] + nz * P00[2]
-            coef[m, 4] = nEx
-            coef[m, 5] = nEy
-        else:
-            # Ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
-            coef[m, 0] = nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2])
-            coef[m, 1] = -nEx
-            coef[m, 2] = -nEy
-            coef[m, 3] = nx * f[0] + ny * f[1] + nz * f[2]
-            coef[m, 4] = 0.0
-            coef[m, 5] = 0.0
+        c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL)
+        coef[m, 0] = c0
+        coef[m, 1] = c1
+        coef[m, 2] = c2
+        coef[m, 3] = c3
+        coef[m, 4] = c4
+        coef[m, 5] = c5
         w0 = w[i0]
         w1 = w[i1]
         w2 = w[i2]
@@ -549,7 +526,11 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
 @njit(cache=True, inline="always")
 def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
-    ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`)."""
+    ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`).
+
+    Point source: ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0), hit depth s * FL.
+    Parallel beam: ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
+    """
     f1x = V[i1, 0] - V[i0, 0]
     f1y = V[i1, 1] - V[i0, 1]
     f1z = V[i1, 2] - V[i0, 2]
