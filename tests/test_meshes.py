@@ -404,3 +404,18 @@ def test_mesh_command_errors(tmp_path, ball):
     with pytest.raises(SystemExit):  # argparse: the two decimation modes exclude each other
         run_mesh(tmp_path / "in.stl", "-o", tmp_path / "o.stl", "--decimate", 10,
                  "--max-error", 1)
+
+
+def test_check_mesh_reuses_its_report_until_the_mesh_changes():
+    from xray_viz.meshes.repair import check_mesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=5.0)
+    first = check_mesh(mesh)
+    assert first.outward and first.watertight
+    assert check_mesh(mesh) is first                  # same data: the cached report
+    mesh.invert()                                     # in place: faces flipped
+    flipped = check_mesh(mesh)
+    assert flipped is not first and not flipped.outward and flipped.volume < 0
+    mesh.vertices *= 2.0                              # in place: scaled
+    scaled = check_mesh(mesh)
+    assert scaled.volume == pytest.approx(8 * flipped.volume)

@@ -33,6 +33,7 @@ False
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -139,6 +140,27 @@ def check_mesh(mesh) -> MeshReport:
     >>> report.watertight, report.outward, round(report.volume)
     (True, True, 6000)
     """
+    try:
+        key = (id(mesh), hash(mesh))          # trimesh's hash follows the vertex and face data
+    except TypeError:
+        key = None
+    report = _CHECKED.get(key) if key is not None else None
+    if report is None:
+        report = _check_mesh(mesh)
+        if key is not None:
+            _CHECKED[key] = report
+            while len(_CHECKED) > _CHECKED_SIZE:
+                _CHECKED.popitem(last=False)
+    return report
+
+
+#: Reports of recently checked meshes: every new Scene checks its bodies, and a viewer or a
+#: benchmark that builds a Scene per frame from the same meshes should not pay for it again.
+_CHECKED: "OrderedDict[tuple, MeshReport]" = OrderedDict()
+_CHECKED_SIZE = 64
+
+
+def _check_mesh(mesh) -> MeshReport:
     import trimesh
 
     faces = np.asarray(mesh.faces, dtype=np.int64)
