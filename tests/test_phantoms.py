@@ -221,3 +221,18 @@ def test_library_size_and_package_data():
         for p in files:
             if p.suffix in (".toml", ".stl"):
                 assert p in shipped, p
+
+
+def test_every_phantom_folder_is_shipped_by_pyproject():
+    """A phantom's mesh folder missing from pyproject.toml would be absent from wheels."""
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    config = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {p.name for p in (root / "phantoms").iterdir()
+               if p.is_dir() and not p.name.startswith(("_", "."))}
+    assert folders, "no phantom folders found"
+    for name in folders:
+        assert f"xray_viz._phantoms.{name}" in config["packages"], name
+        assert "*.stl" in config["package-data"][f"xray_viz._phantoms.{name}"], name
