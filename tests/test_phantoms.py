@@ -214,25 +214,14 @@ def test_library_size_and_package_data():
     from pathlib import Path
 
     pyproject = Path(xray_viz.__path__[0]).parent / "pyproject.toml"
-    if pyproject.exists():  # a source checkout: the globs must ship every phantom file
-        globs = tomllib.loads(pyproject.read_text())["tool"]["setuptools"]["package-data"][
-            "xray_viz._phantoms"]
-        shipped = {p for g in globs for p in root.glob(g)}
+    if pyproject.exists():  # a source checkout: the packages and globs must ship every phantom file
+        config = tomllib.loads(pyproject.read_text())["tool"]["setuptools"]
+        shipped = set()
+        for package, globs in config["package-data"].items():
+            parts = package.split(".")
+            if parts[:2] == ["xray_viz", "_phantoms"] and package in config["packages"]:
+                folder = root.joinpath(*parts[2:])
+                shipped |= {p for g in globs for p in folder.glob(g)}
         for p in files:
             if p.suffix in (".toml", ".stl"):
                 assert p in shipped, p
-
-
-def test_every_phantom_folder_is_shipped_by_pyproject():
-    """A phantom's mesh folder missing from pyproject.toml would be absent from wheels."""
-    import tomllib
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    config = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
-    folders = {p.name for p in (root / "phantoms").iterdir()
-               if p.is_dir() and not p.name.startswith(("_", "."))}
-    assert folders, "no phantom folders found"
-    for name in folders:
-        assert f"xray_viz._phantoms.{name}" in config["packages"], name
-        assert "*.stl" in config["package-data"][f"xray_viz._phantoms.{name}"], name
