@@ -66,26 +66,15 @@ print(f"nested_spheres: {scene.detector.shape[0]} x {scene.detector.shape[1]} pi
 # The 3D view and the radiograph
 # ------------------------------
 # Every 12th ray of the detector's middle row is drawn, coloured inside the bodies, with its
-# entry and exit points; the camera is close to the phantom, so the source (1 m up) and most of
-# the detector are out of the picture (zoom out in the window to see them). The HO, VE, FL and
-# LHC arrows of walkthrough 3 are hidden here (``show_vectors=False``): at this scale they cover
-# the phantom. The radiograph is on the right (bright = more X-rays reach the
-# detector, as on a monitor, not as on film).
-def close_up(plotter, *, focal, distance):
-    """Keep plot_scene's viewing direction (from the left of the beam, a little above, with VE
-    up) but move the camera closer to the phantom."""
-    plotter.subplot(0, 0)
-    cam = plotter.camera
-    direction = np.subtract(cam.position, cam.focal_point)
-    cam.focal_point = tuple(focal)
-    cam.position = tuple(np.asarray(focal) + distance * direction / np.linalg.norm(direction))
-    plotter.reset_camera_clipping_range()
-
-
+# entry and exit points. ``view_bodies()`` (the viewer's ``b`` key) puts the camera behind and
+# beside the source, close to the phantom, with the detector behind it; the source itself (1 m
+# away) is out of the picture (``view_side()``, key ``v``, shows the whole set-up). The HO, VE, FL
+# and LHC arrows of walkthrough 3 are hidden here (``show_vectors=False``): at this scale they
+# cover the phantom. The radiograph is on the right (attenuation bright, as on a film viewer).
 plotter = new_plotter(shape=(1, 2), window_size=(1400, 700))
-plot_scene(scene, plotter=plotter, rays=[(i, 128) for i in range(4, 256, 12)], radiograph=image,
-           show_vectors=False)
-close_up(plotter, focal=[0.0, 0.0, -60.0], distance=650.0)
+view = plot_scene(scene, plotter=plotter, rays=[(i, 128) for i in range(4, 256, 12)],
+                  radiograph=image, show_vectors=False)
+view.view_bodies()
 show_or_save(plotter, "nested_spheres", walkthrough=WALKTHROUGH)
 
 # %%
@@ -101,7 +90,7 @@ w, h = limb.detector.shape
 print(f"limb: {w} x {h} pixels rendered in {limb_image.timing['total']:.2f} s, "
       f"max path length in bone {limb_image.path_length[..., 2].max():.1f} mm")
 plotter = new_plotter(shape=(1, 2), window_size=(1400, 700))
-plot_scene(limb, plotter=plotter, rays=[(i, h // 2) for i in range(4, w, 8)],
-           radiograph=limb_image, show_vectors=False)
-close_up(plotter, focal=[0.0, 0.0, -80.0], distance=650.0)
+view = plot_scene(limb, plotter=plotter, rays=[(i, h // 2) for i in range(4, w, 8)],
+                  radiograph=limb_image, show_vectors=False)
+view.view_bodies()
 show_or_save(plotter, "limb", walkthrough=WALKTHROUGH)
