@@ -150,8 +150,12 @@ def test_rotation_energy_resolution_and_toggles():
     narrow = np.count_nonzero(L[L.shape[0] // 2] > 0) * pitch
     assert wide == pytest.approx(60 * 1.5, abs=3 * pitch)
     assert narrow == pytest.approx(20 * 1.5, abs=3 * pitch)
+    turned = vw.scene.bodies[0].mesh
     vw.set_energy(80)
     assert vw.scene.source.energy == 80
+    assert vw.scene.bodies[0].mesh is turned            # still turned, not turned again
+    L = vw.radiograph.path_length[:, :, 0]
+    assert np.count_nonzero(L[L.shape[0] // 2] > 0) * pitch == pytest.approx(narrow)
     vw.set_resolution(24)
     assert max(vw.scene.detector.shape) == 24 and vw.radiograph.intensity.shape[1] == 24
     assert vw.scene.detector.size == pytest.approx(vw.base_scene.detector.size)

@@ -16,11 +16,14 @@ is counted up to it.
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
 
 from xray_viz.errors import SceneError
 
-__all__ = ["path_lengths", "body_precedence", "check_source_outside", "inside_counts"]
+__all__ = ["path_lengths", "body_precedence", "remember_precedence", "check_source_outside",
+           "inside_counts"]
 
 #: A fixed, irrational-looking direction for inside/outside tests (no axis, no diagonal).
 _PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
@@ -113,6 +116,43 @@ def body_precedence(scene) -> np.ndarray:
         A permutation of ``range(n_bodies)``; higher wins.
     """
     bodies = scene.bodies
+    key = _bodies_key(bodies)
+    if key is not None and key in _PRECEDENCE:
+        _PRECEDENCE.move_to_end(key)
+        return _PRECEDENCE[key].copy()
+    rank = _body_precedence(bodies)
+    remember_precedence(bodies, rank)
+    return rank
+
+
+def remember_precedence(bodies, rank) -> None:
+    """Record ``rank`` as :func:`body_precedence` of these bodies, as their meshes are now.
+
+    For bodies derived from ranked ones by a map that keeps nesting and overlaps (an
+    orientation-preserving affine transform of all of them: see
+    :meth:`xray_viz.scene.Scene.transform_bodies`).
+    """
+    key = _bodies_key(bodies)
+    if key is None:
+        return
+    _PRECEDENCE[key] = np.array(rank, dtype=int)
+    while len(_PRECEDENCE) > 16:
+        _PRECEDENCE.popitem(last=False)
+
+
+def _bodies_key(bodies):
+    try:                       # trimesh's hash follows the vertex and face data
+        return tuple((id(b.mesh), hash(b.mesh)) for b in bodies)
+    except TypeError:
+        return None
+
+
+#: Precedence of recently seen sets of bodies: a new Scene with the same meshes (the source
+#: moved, the energy changed) reuses it instead of testing containment again.
+_PRECEDENCE: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
+
+
+def _body_precedence(bodies) -> np.ndarray:
     n = len(bodies)
     depth = np.zeros(n, int)
     boxes = [(b.vertices.min(0), b.vertices.max(0)) for b in bodies]

@@ -42,7 +42,7 @@ from xray_viz.errors import MeshError
 
 __all__ = [
     "MeshReport", "RepairReport", "MeshRepairWarning", "check_mesh", "repair_mesh",
-    "ensure_traceable", "format_reports",
+    "ensure_traceable", "format_reports", "remember_check",
 ]
 
 
@@ -152,6 +152,21 @@ def check_mesh(mesh) -> MeshReport:
             while len(_CHECKED) > _CHECKED_SIZE:
                 _CHECKED.popitem(last=False)
     return report
+
+
+def remember_check(mesh, report: MeshReport) -> None:
+    """Record ``report`` as :func:`check_mesh`'s answer for ``mesh`` as it is now.
+
+    For a mesh derived from a checked one by a map known to keep the checked properties (an
+    orientation-preserving affine transform: see :meth:`xray_viz.scene.Scene.transform_bodies`).
+    """
+    try:
+        key = (id(mesh), hash(mesh))
+    except TypeError:
+        return
+    _CHECKED[key] = report
+    while len(_CHECKED) > _CHECKED_SIZE:
+        _CHECKED.popitem(last=False)
 
 
 #: Reports of recently checked meshes: every new Scene checks its bodies, and a viewer or a

@@ -312,12 +312,22 @@ class SceneView:
         for name in [n for n in self.plotter.actors if n.startswith("body:")]:
             if name[5:] not in self.scene.body_names:
                 self.plotter.remove_actor(name, render=False)
+        drawn = getattr(self, "_drawn_bodies", {})
         for body in self.scene.bodies:
             label = material_label(body)
             color = labels.setdefault(label, PALETTE[len(labels) % len(PALETTE)])
+            name = f"body:{body.name}"
+            try:
+                key = (id(body.mesh), hash(body.mesh), color)
+            except TypeError:
+                key = None
+            if key is not None and drawn.get(name) == key and name in self.plotter.actors:
+                continue        # the same mesh in the same colour (the source moved): keep it
             mesh = pv.PolyData.from_regular_faces(body.vertices, body.faces)
-            self._add(f"body:{body.name}", mesh, group="bodies", color=color, opacity=0.35,
+            self._add(name, mesh, group="bodies", color=color, opacity=0.35,
                       smooth_shading=True, specular=0.3)
+            drawn[name] = key
+        self._drawn_bodies = drawn
         self.material_colors = labels
 
     def _draw_source(self):

@@ -144,15 +144,14 @@ class Viewer:
             else det
         bodies = base.bodies
         if self.rotation % 360 != 0 and bodies:
-            lo = np.min([b.vertices.min(axis=0) for b in bodies], axis=0)
-            hi = np.max([b.vertices.max(axis=0) for b in bodies], axis=0)
-            m = _rotation_about(det.up, self.rotation, (lo + hi) / 2)
-            rotated = []
-            for b in bodies:
-                mesh = b.mesh.copy()
-                mesh.apply_transform(m)
-                rotated.append(dataclasses.replace(b, mesh=mesh))
-            bodies = tuple(rotated)
+            turned = getattr(self, "_turned", None)
+            if turned is None or turned[0] != self.rotation:   # keep them while other controls move
+                lo = np.min([b.vertices.min(axis=0) for b in bodies], axis=0)
+                hi = np.max([b.vertices.max(axis=0) for b in bodies], axis=0)
+                m = _rotation_about(det.up, self.rotation, (lo + hi) / 2)
+                turned = (self.rotation, base.transform_bodies(m).bodies)
+                self._turned = turned
+            bodies = turned[1]
         return base.replace(source=source, detector=detector, bodies=bodies)
 
     def update(self) -> None:
