@@ -319,12 +319,17 @@ class Viewer:
         for widget in self.sliders.values():
             rep = widget.GetRepresentation()
             rep.SetLabelHeight(0.02)         # the value, above the slider
+            # VTK widgets toggle themselves on the "i" key (our screenshot key) and come back
+            # in the renderer under the mouse: the slider would jump into the 3D pane.
+            widget.KeyPressActivationOff()
         pl.subplot(0, 0)
         for k, group in enumerate(("rays", "grid", "hits", "vectors")):
             y = 40 + 34 * k
-            pl.add_checkbox_button_widget(lambda on, g=group: self.toggle(g, on),
-                                          value=self.view.is_visible(group), position=(10, y),
-                                          size=26, border_size=2, color_on="#1f77b4")
+            box = pl.add_checkbox_button_widget(lambda on, g=group: self.toggle(g, on),
+                                                value=self.view.is_visible(group),
+                                                position=(10, y), size=26, border_size=2,
+                                                color_on="#1f77b4")
+            box.KeyPressActivationOff()
             pl.add_text(group, position=(42, y + 4), font_size=9, color="black",
                         name=f"check-{group}")
         for key, (action, _) in KEYS.items():
