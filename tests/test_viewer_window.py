@@ -80,3 +80,39 @@ def test_viewer_window_picks_a_pixel_switches_view_moves_the_source_and_quits(tm
     disc = [np.count_nonzero(im[pane] > 128) for im in (close_up, moved)]
     assert disc[1] < 0.8 * disc[0], disc
 
+
+
+WALKTHROUGH_DRIVER = r"""
+set -u
+"$XRAY_VIZ" walkthrough 1 > walkthrough.log 2>&1 &
+P=$!
+for k in $(seq 90); do
+  kill -0 $P 2>/dev/null || break
+  W=$(xdotool search --onlyvisible --name "xray_viz walkthrough" 2>/dev/null | tail -1)
+  if [ -n "$W" ]; then
+    sleep 1
+    echo "window: $(xdotool getwindowname $W)" >> windows.log
+    xdotool mousemove 200 200 key q
+  fi
+  sleep 1
+done
+kill -0 $P 2>/dev/null && { echo "walkthrough still running" >> windows.log; kill $P; }
+wait $P
+echo "exit $?" >> windows.log
+"""
+
+
+def test_walkthrough_opens_windows_on_screen_and_ends_when_they_close(tmp_path):
+    exe = Path(sys.executable).with_name("xray-viz")
+    env = {"XRAY_VIZ": str(exe), "PATH": "/usr/bin:/bin", "HOME": str(tmp_path),
+           "XRAY_VIZ_OUTPUT": str(tmp_path / "pngs")}
+    subprocess.run(["xvfb-run", "-a", "-s", "-screen 0 1600x900x24", "bash", "-c",
+                    WALKTHROUGH_DRIVER], cwd=tmp_path, env=env, timeout=240, check=False,
+                   capture_output=True)
+    windows = (tmp_path / "windows.log").read_text()
+    printed = (tmp_path / "walkthrough.log").read_text()
+    assert windows.strip().endswith("exit 0"), windows + printed
+    assert "window: xray_viz walkthrough 01: " in windows, windows
+    assert "Traceback" not in printed
+    assert "|r(t) - r0| = 6.0000" in printed          # the script ran to its end
+    assert not list(tmp_path.rglob("*.png"))           # on screen: windows, not files
