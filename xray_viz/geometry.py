@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Viewport", "viewport", "beam_direction", "pixel_coordinates", "detector_rays", "Rays"]
+__all__ = ["Viewport", "viewport", "detector_axes", "beam_direction", "pixel_coordinates", "detector_rays", "Rays"]
 
 
 def beam_direction(source_position, detector_center) -> np.ndarray:
@@ -81,6 +81,29 @@ class Viewport:
         return self.LHC + u * self.HO + v * self.VE
 
 
+def detector_axes(source_position, detector_center, up) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit vectors of the detector frame: ``forward``, ``unit(HO)`` and ``unit(VE)``.
+
+    ``forward = unit(-FL)`` is the beam axis, ``unit(HO) = unit(forward x up)`` and
+    ``unit(VE) = unit(HO) x forward``.
+
+    Raises
+    ------
+    SceneError
+        When the source sits at the detector centre or ``up`` is parallel to the beam.
+    """
+    forward = beam_direction(source_position, detector_center)
+    up = np.asarray(up, dtype=np.float64)
+    ho_dir = np.cross(forward, up)
+    norm = np.linalg.norm(ho_dir)
+    if norm < 1e-12 * np.linalg.norm(up):
+        from xray_viz.errors import SceneError
+
+        raise SceneError(f"[detector] up {up.tolist()} is parallel to the beam")
+    ho_dir /= norm
+    return forward, ho_dir, np.cross(ho_dir, forward)
+
+
 def viewport(source_position, detector) -> Viewport:
     """Compute HO, VE, FL and LHC (Eq. 1.2) for a source and a :class:`~xray_viz.scene.Detector`.
 
@@ -95,16 +118,7 @@ def viewport(source_position, detector) -> Viewport:
     r0 = np.asarray(source_position, dtype=np.float64)
     center = np.asarray(detector.center, dtype=np.float64)
     FL = r0 - center
-    forward = beam_direction(r0, center)
-    up = np.asarray(detector.up, dtype=np.float64)
-    ho_dir = np.cross(forward, up)
-    norm = np.linalg.norm(ho_dir)
-    if norm < 1e-12 * np.linalg.norm(up):
-        from xray_viz.errors import SceneError
-
-        raise SceneError(f"[detector] up {up.tolist()} is parallel to the beam")
-    ho_dir /= norm
-    ve_dir = np.cross(ho_dir, forward)
+    _, ho_dir, ve_dir = detector_axes(r0, center, detector.up)
     width, height = detector.size
     HO = width * ho_dir
     VE = height * ve_dir

@@ -53,7 +53,7 @@ import numba
 import numpy as np
 
 from xray_viz.errors import SceneError
-
+from xray_viz.geometry import detector_axes
 from xray_viz.tracing._raster import FRAC_BITS
 
 __all__ = ["fast_path_lengths", "trace_once", "clear_caches", "FRAC_BITS"]
@@ -141,18 +141,8 @@ def _frame(scene, n):
     """Detector frame and fine-grid mapping (see :mod:`xray_viz.tracing._raster`)."""
     r0 = np.asarray(scene.source.position, np.float64)
     center = np.asarray(scene.detector.center, np.float64)
-    fl_vec = r0 - center
-    FL = float(np.linalg.norm(fl_vec))
-    if FL == 0:
-        raise SceneError("the source sits at the detector centre: FL = r0 - center is zero")
-    f = -fl_vec / FL
-    up = np.asarray(scene.detector.up, np.float64)
-    eu = np.cross(f, up)
-    nrm = np.linalg.norm(eu)
-    if nrm < 1e-12 * np.linalg.norm(up):
-        raise SceneError(f"[detector] up {up.tolist()} is parallel to the beam")
-    eu /= nrm
-    ev = np.cross(eu, f)
+    f, eu, ev = detector_axes(r0, center, scene.detector.up)
+    FL = float(np.linalg.norm(r0 - center))
     W, H = scene.detector.shape
     px, py = scene.detector.pitch
     # Fine coordinate of a detector offset (a, b) mm from the centre.
