@@ -106,3 +106,20 @@ def test_walkthrough_subcommand_lists_and_refuses_unknown():
     assert bad.returncode == 2
     assert "no walkthrough 99" in bad.stderr and "Traceback" not in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("args,message", [
+    (["render"], "the following arguments are required: SCENE, -o/--output"),
+    (["render", "sphere", "-o", "x.npy", "--quantity", "foo"], "invalid choice: 'foo'"),
+    (["render", "sphere", "-o", "x.npy", "--supersample", "two"], "invalid int value: 'two'"),
+    (["show", "sphere", "--screenshot", "x.png", "--size", "abc", "600"], "invalid int value"),
+    (["frobnicate"], "invalid choice: 'frobnicate'"),
+])
+def test_usage_errors_are_one_line_too(tmp_path, args, message):
+    result = subprocess.run([sys.executable, "-m", "xray_viz.cli", *args], capture_output=True,
+                            text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert message in lines[0] and "--help" in lines[0] and lines[0].startswith("xray-viz")
+    assert not list(tmp_path.iterdir())                     # nothing written

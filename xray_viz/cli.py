@@ -16,8 +16,9 @@ from xray_viz.errors import XrayVizError
 DESCRIPTION = """\
 Simulate X-ray radiographs of triangle meshes by backward ray tracing (after Meneghini's thesis):
 rays run from an X-ray point source (or a parallel beam) through each pixel of a detector, every
-intersection with the scene's closed meshes is found (watertight Moller-Trumbore), and each ray
-is attenuated by Beer-Lambert's law over the path lengths it crossed.
+intersection with the scene's closed meshes is found (a watertight footprint rasteriser by
+default, a watertight Moller-Trumbore reference with --engine numpy), and each ray is attenuated
+by Beer-Lambert's law over the path lengths it crossed.
 
 A scene is a TOML file ([source], [detector], [[body]] tables) or the name of a bundled phantom
 (see `xray-viz phantoms`). Geometry is in mm, mu in 1/cm, energies in keV.
@@ -87,8 +88,15 @@ def _phantoms_command(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line, like every other error of the CLI."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="xray-viz", description=DESCRIPTION, epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     from xray_viz import __version__
