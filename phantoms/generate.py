@@ -1,13 +1,15 @@
-"""Generate the bundled phantom library: ``python phantoms/generate.py [NAME ...]``.
+"""Generate the bundled phantom library: ``python phantoms/generate.py [--out DIR] [NAME ...]``.
 
-Writes, next to this file, one scene file per phantom (``NAME.toml``) and its meshes
-(``NAME/*.stl``, binary STL). Deterministic and offline: the geometric phantoms are built from
-trimesh primitives, and the frog from ``frog_tissues.vti``, which ships inside pyvista's wheel
-(``pyvista.examples.load_frog_tissues``, no download).
+Writes, next to this file (or into ``--out DIR``), one scene file per phantom (``NAME.toml``)
+and its meshes (``NAME/*.stl``, binary STL). ``NAME ...`` (or ``--only NAME``, repeatable)
+makes only those phantoms; the default is all of them. Deterministic and offline: the
+geometric phantoms are built from trimesh primitives, and the frog from ``frog_tissues.vti``,
+which ships inside pyvista's wheel (``pyvista.examples.load_frog_tissues``, no download).
 
 Every body is checked closed (watertight), consistently wound and outward (positive volume)
-before it is written. Body materials are NIST compound names as xraylib knows them, except the
-plain ``sphere`` (``mu = 0.2`` 1/cm, so the core renders it without the physics module).
+before it is written. Body materials are NIST compound names as xraylib knows them, or
+mixtures of them by mass (the iodine-enhanced blood of shepp_logan), except the plain
+``sphere`` (``mu = 0.2`` 1/cm, so the core renders it without the physics module).
 Nested bodies rely on the renderer's rule "innermost wins".
 """
 
@@ -20,6 +22,8 @@ import numpy as np
 import trimesh
 
 HERE = Path(__file__).resolve().parent
+#: Where the phantoms are written: this folder unless ``--out DIR`` says otherwise.
+OUT = HERE
 
 BONE = "Bone, Cortical (ICRP)"
 BRAIN = "Brain (ICRP)"
@@ -121,6 +125,8 @@ def write_stl(mesh, path: Path, what: str):
 def fmt(v):
     if isinstance(v, str):
         return '"' + v + '"'
+    if isinstance(v, dict):  # a mixture by mass fraction: an inline table
+        return "{ " + ", ".join(f"{fmt(str(k))} = {fmt(x)}" for k, x in v.items()) + " }"
     if isinstance(v, (list, tuple, np.ndarray)):
         return "[" + ", ".join(fmt(x) for x in v) + "]"
     if isinstance(v, (bool, np.bool_)):
@@ -131,9 +137,10 @@ def fmt(v):
 
 
 def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0,
-                shape=(256, 256), pitch=None, fit=None, energy=60.0):
+                shape=(256, 256), pitch=None, fit=None, energy=60.0, detector_extra=None):
     """Write ``NAME.toml``. ``fit`` = (half width mm, half height mm, object z): pick the pitch
-    so the object, magnified onto the detector, fills ~90 % of it."""
+    so the object, magnified onto the detector, fills ~90 % of it. ``detector_extra``: more
+    ``[detector]`` keys (e.g. ``supersample``)."""
     if pitch is None:
         half_w, half_h, z_obj = fit
         mag = (source_z - detector_z) / (source_z - z_obj)
@@ -144,11 +151,12 @@ def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0
               f"energy = {fmt(energy)}", "", "[detector]",
               f"center = [0.0, 0.0, {fmt(detector_z)}]", "up = [0.0, 1.0, 0.0]",
               f"shape = {fmt(list(shape))}", f"pitch = {fmt(pitch)}"]
+    lines += [f"{key} = {fmt(value)}" for key, value in (detector_extra or {}).items()]
     for body in bodies:
         lines += ["", "[[body]]"]
         for key, value in body.items():
             lines.append(f"{key} = {fmt(value)}")
-    (HERE / f"{name}.toml").write_text("\n".join(lines) + "\n")
+    (OUT / f"{name}.toml").write_text("\n".join(lines) + "\n")
 
 
 # ------------------------------------------------------------------------------------------
@@ -157,7 +165,7 @@ def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0
 
 def make_sphere():
     ball = trimesh.creation.icosphere(subdivisions=5, radius=40.0)
-    write_stl(ball, HERE / "sphere" / "ball.stl", "sphere/ball")
+    write_stl(ball, OUT / "sphere" / "ball.stl", "sphere/ball")
     write_scene("sphere", [
         "sphere: a uniform ball of radius 40 mm (icosphere, 20480 faces), mu = 0.2 1/cm.",
         "The simplest check: the line integral through a sphere is known exactly.",
@@ -169,7 +177,7 @@ def make_nested_spheres():
     bodies = []
     for name, r, material in layers:
         write_stl(trimesh.creation.icosphere(subdivisions=4, radius=r),
-                  HERE / "nested_spheres" / f"{name}.stl", f"nested_spheres/{name}")
+                  OUT / "nested_spheres" / f"{name}.stl", f"nested_spheres/{name}")
         bodies.append(dict(name=name, mesh=f"nested_spheres/{name}.stl", material=material))
     write_scene("nested_spheres", [
         "nested_spheres: three concentric balls, innermost wins: water (r = 40 mm) around",
@@ -187,7 +195,7 @@ def make_step_wedge():
     wedge = staircase(STEP_WIDTHS, STEP_HEIGHTS, STEP_DEPTH)
     # centre the thickness on z = 0
     wedge.apply_translation([0, 0, -max(STEP_HEIGHTS) / 2])
-    write_stl(wedge, HERE / "step_wedge" / "wedge.stl", "step_wedge/wedge")
+    write_stl(wedge, OUT / "step_wedge" / "wedge.stl", "step_wedge/wedge")
     write_scene("step_wedge", [
         "step_wedge: an aluminium step wedge, 10 steps 8 mm wide and 2, 4, ... 20 mm thick",
         "along the beam, 40 mm tall: one closed staircase solid (Al, 2.699 g/cm3).",
@@ -196,24 +204,46 @@ def make_step_wedge():
         fit=(sum(STEP_WIDTHS) / 2, STEP_DEPTH / 2, 0), shape=(320, 192))
 
 
+#: Iodinated blood (10 mg of iodine per ml, a contrast study): what makes a tumour or a vessel
+#: show on a radiograph; plain blood differs from brain by 2 %, invisible in a projection.
+BLOOD_IODINE = {BLOOD: 0.99, "I": 0.01}
+BLOOD_IODINE_DENSITY = 1.07
+#: Half the iodine for the K&S nodules, whose contrast is half the tumours'.
+BLOOD_IODINE_HALF = {BLOOD: 0.995, "I": 0.005}
+BLOOD_IODINE_HALF_DENSITY = 1.065
+
+#: Size of the head: 1 phantom unit = 100 mm (brain 132 x 175 x 176 mm).
+SHEPP_LOGAN_SCALE = 100.0
+#: K&S's ellipsoid a, the skull's outer surface, as published. Their skull (a less b) is 2.0
+#: to 4.6 mm thick, too thin to show as a skull on a radiograph: the one change made to their
+#: geometry is that ellipsoid a is grown by this much on every semi-axis (the shell is then
+#: 6.0 to 8.6 mm thick); the brain (b) and everything inside it are as published.
+KAK_SLANEY_SKULL = (0.6900, 0.920, 0.900)
+SHEPP_LOGAN_SKULL_EXTRA = 4.0  # mm
+_SKULL = tuple(round(v + SHEPP_LOGAN_SKULL_EXTRA / SHEPP_LOGAN_SCALE, 6) for v in KAK_SLANEY_SKULL)
+
 #: The 3D Shepp-Logan head phantom (Kak and Slaney 1988, p. 102, with the published errata):
 #: semi-axes (a, b, c), centre (x, y, z), rotation about z in degrees, K&S refractive index,
-#: in units of the head size; and the material each ellipsoid is given here.
+#: in units of the head size (the skull's semi-axes grown, see KAK_SLANEY_SKULL); and the
+#: material each ellipsoid is given here (densities in SHEPP_LOGAN_DENSITY). K&S's values are
+#: CT densities (skull 2.0, brain 1.02, ventricles 1.00, tumours 1.03 to 1.04); the materials
+#: keep their signs against brain, with contrasts a radiograph can show (see make_shepp_logan).
 SHEPP_LOGAN = [
     # name          a       b      c       x0      y0      z0     theta  K&S    material
-    ("skull",      0.6900, 0.920, 0.900, 0.000, 0.000, 0.000, 0,    2.00, BONE),
+    ("skull",      *_SKULL,             0.000, 0.000, 0.000, 0,    2.00, BONE),
     ("brain",      0.6624, 0.874, 0.880, 0.000, 0.000, 0.000, 0,    -0.98, BRAIN),
-    ("ventricle_r", 0.4100, 0.160, 0.210, -0.220, 0.000, -0.250, 108, -0.02, WATER),
-    ("ventricle_l", 0.3100, 0.110, 0.220, 0.220, 0.000, -0.250, 72,  -0.02, WATER),
-    ("tumour",     0.2100, 0.250, 0.500, 0.000, 0.350, -0.250, 0,    0.02, BLOOD),
-    ("spot",       0.0460, 0.046, 0.046, 0.000, 0.100, -0.250, 0,    0.02, BLOOD),
-    ("nodule_1",   0.0460, 0.023, 0.020, -0.080, -0.650, -0.250, 0,   0.01, SOFT),
-    ("nodule_2",   0.0460, 0.023, 0.020, 0.060, -0.650, -0.250, 90,  0.01, SOFT),
-    ("vessel",     0.0560, 0.040, 0.100, 0.060, -0.105, 0.625, 90,   0.02, BLOOD),
-    ("cyst",       0.0560, 0.056, 0.100, 0.000, 0.100, 0.625, 0,    -0.02, WATER),
+    ("ventricle_r", 0.4100, 0.160, 0.210, -0.220, 0.000, -0.250, 108, -0.02, AIR),
+    ("ventricle_l", 0.3100, 0.110, 0.220, 0.220, 0.000, -0.250, 72,  -0.02, AIR),
+    ("tumour",     0.2100, 0.250, 0.500, 0.000, 0.350, -0.250, 0,    0.02, BLOOD_IODINE),
+    ("spot",       0.0460, 0.046, 0.046, 0.000, 0.100, -0.250, 0,    0.02, BLOOD_IODINE),
+    ("nodule_1",   0.0460, 0.023, 0.020, -0.080, -0.650, -0.250, 0,   0.01, BLOOD_IODINE_HALF),
+    ("nodule_2",   0.0460, 0.023, 0.020, 0.060, -0.650, -0.250, 90,  0.01, BLOOD_IODINE_HALF),
+    ("vessel",     0.0560, 0.040, 0.100, 0.060, -0.105, 0.625, 90,   0.02, BLOOD_IODINE),
+    ("cyst",       0.0560, 0.056, 0.100, 0.000, 0.100, 0.625, 0,    -0.02, AIR),
 ]
-#: Size of the head: 1 phantom unit = 100 mm (skull 138 x 184 x 180 mm).
-SHEPP_LOGAN_SCALE = 100.0
+#: Densities (g/cm^3) of the mixtures; the NIST compounds carry their own.
+SHEPP_LOGAN_DENSITY = {name: BLOOD_IODINE_DENSITY for name in ("tumour", "spot", "vessel")}
+SHEPP_LOGAN_DENSITY.update(nodule_1=BLOOD_IODINE_HALF_DENSITY, nodule_2=BLOOD_IODINE_HALF_DENSITY)
 #: Phantom axes to scene axes for a lateral view: scene x = K&S y (front-back),
 #: scene y = K&S z (feet-head, the detector's up), scene z = K&S x (the beam, ear to ear).
 SHEPP_LOGAN_ROTATION = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
@@ -226,15 +256,26 @@ def make_shepp_logan():
         m = ellipsoid(np.array([x0, y0, z0]) * SHEPP_LOGAN_SCALE,
                       np.array([a, b, c]) * SHEPP_LOGAN_SCALE, angle_deg=theta,
                       subdivisions=sub, rotation=SHEPP_LOGAN_ROTATION)
-        write_stl(m, HERE / "shepp_logan" / f"{name}.stl", f"shepp_logan/{name}")
-        bodies.append(dict(name=name, mesh=f"shepp_logan/{name}.stl", material=material))
+        write_stl(m, OUT / "shepp_logan" / f"{name}.stl", f"shepp_logan/{name}")
+        entry = dict(name=name, mesh=f"shepp_logan/{name}.stl", material=material)
+        if name in SHEPP_LOGAN_DENSITY:
+            entry["density"] = SHEPP_LOGAN_DENSITY[name]
+        bodies.append(entry)
+    skull = np.array(_SKULL) * SHEPP_LOGAN_SCALE * 2
     write_scene("shepp_logan", [
         "shepp_logan: the 3D Shepp-Logan head phantom (Kak and Slaney 1988, p. 102, with the",
-        "errata), ten ellipsoids scaled to a 138 x 184 x 180 mm head, seen from the side",
-        "(beam ear to ear, the top of the head up). Materials for a realistic skull radiograph:",
-        "cortical bone skull, brain (ICRP), water ventricles and cyst, blood tumour, spot and",
-        "vessel, soft-tissue nodules. Inner ellipsoids are nested: innermost wins.",
-    ], bodies, fit=(92, 90, 0), source_z=1000.0, detector_z=-300.0)
+        "errata), ten ellipsoids at 100 mm per unit, seen from the side (beam ear to ear, the",
+        "top of the head up). Materials for a head radiograph: cortical bone skull, brain",
+        "(ICRP); K&S's low-density ventricles and cyst hold air (as in a pneumoencephalogram)",
+        "and their dense tumour, spot and vessel are iodine-enhanced blood (10 mg/ml; nodules",
+        "5 mg/ml): at K&S's own 1-2 % contrasts (CSF, blood) they could not show in a",
+        f"projection. One deviation: the skull is {SHEPP_LOGAN_SKULL_EXTRA:g} mm thicker than "
+        "K&S's 2-4.6 mm",
+        "(outer ellipsoid a grown, brain b unchanged, 6-8.6 mm), so it shows as a skull:",
+        f"the head is {skull[0]:.0f} x {skull[1]:.0f} x {skull[2]:.0f} mm. Nested: innermost wins.",
+        "Best seen as --quantity line-integral (-ln I/I0, the log scale of film): an",
+        "intensity PNG, linear in I, shows a head (I0/20 to I0/50) as a nearly white disc.",
+    ], bodies, fit=(skull[1] / 2, skull[2] / 2, 0), source_z=1000.0, detector_z=-300.0)
 
 
 def make_limb():
@@ -250,7 +291,7 @@ def make_limb():
     bodies = []
     for name, r, length, c, sxz, material in parts:
         m = capsule_y(r, length, c, scale_xz=sxz)
-        write_stl(m, HERE / "limb" / f"{name}.stl", f"limb/{name}")
+        write_stl(m, OUT / "limb" / f"{name}.stl", f"limb/{name}")
         bodies.append(dict(name=name, mesh=f"limb/{name}.stl", material=material))
     write_scene("limb", [
         "limb: a forearm-like phantom. A fat/skin layer around muscle, and inside it two long",
@@ -259,10 +300,23 @@ def make_limb():
     ], bodies, fit=(45, 155, 0), shape=(192, 384), source_z=1000.0, detector_z=-200.0)
 
 
-#: Bar groups of the resolution phantom: line pairs per mm; three lead bars per group.
-RESOLUTION_LP_PER_MM = [0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0]
+#: Bar groups of the resolution phantom: line pairs per mm; three lead bars per group. The
+#: last two are finer than the detector can sample (see RESOLUTION_PITCH).
+RESOLUTION_LP_PER_MM = [0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0, 5.6, 8.0]
 RESOLUTION_BAR_LENGTH = 12.0
 RESOLUTION_THICKNESS = 0.1  # mm of lead along the beam
+#: Detector pixel pitch (mm) of the resolution scene, a typical flat panel's 0.1 mm: with the
+#: magnification 1.05 a pixel spans 0.095 mm at the bars, so Nyquist is 5.25 lp/mm.
+RESOLUTION_PITCH = 0.1
+RESOLUTION_SOURCE_Z, RESOLUTION_DETECTOR_Z = 1000.0, -50.0
+#: Rays per pixel (n x n, averaged): the pixel's area, whose averaging is the blur.
+RESOLUTION_SUPERSAMPLE = 4
+
+
+def resolution_nyquist() -> float:
+    """Line pairs per mm at the bars that the detector samples at two pixels per pair."""
+    mag = (RESOLUTION_SOURCE_Z - RESOLUTION_DETECTOR_Z) / RESOLUTION_SOURCE_Z
+    return mag / (2 * RESOLUTION_PITCH)
 
 
 def make_resolution():
@@ -278,15 +332,26 @@ def make_resolution():
     total = x - 3.0
     mesh = trimesh.util.concatenate(bars)
     mesh.apply_translation([-total / 2, 0, 0])
-    write_stl(mesh, HERE / "resolution" / "bars.stl", "resolution/bars")
+    write_stl(mesh, OUT / "resolution" / "bars.stl", "resolution/bars")
     groups = ", ".join(f"{f:g}" for f in RESOLUTION_LP_PER_MM)
+    nyquist = resolution_nyquist()
+    resolved = [f for f in RESOLUTION_LP_PER_MM if f < nyquist]
+    mag = (RESOLUTION_SOURCE_Z - RESOLUTION_DETECTOR_Z) / RESOLUTION_SOURCE_Z
+    shape = (int(np.ceil(total * mag / RESOLUTION_PITCH / 0.9 / 32)) * 32, 160)
     write_scene("resolution", [
-        "resolution: a bar pattern of 0.1 mm lead (Pb, 11.35 g/cm3), seven groups of three",
-        f"bars at {groups} line pairs per mm (bar width = gap = 1 / (2 f)).",
-        "Shows the detector's resolution limit: a group blurs once a bar is below one pixel.",
+        f"resolution: a bar pattern of 0.1 mm lead (Pb, 11.35 g/cm3), {len(RESOLUTION_LP_PER_MM)} "
+        "groups of three bars",
+        f"at {groups} line pairs per mm (bar width = gap = 1 / (2 f)).",
+        f"Shows the detector's resolution limit: {RESOLUTION_PITCH:g} mm pixels, each averaging "
+        f"{RESOLUTION_SUPERSAMPLE} x {RESOLUTION_SUPERSAMPLE} rays,",
+        f"are {RESOLUTION_PITCH / mag:.3f} mm at the bars, so Nyquist is {nyquist:.2f} lp/mm: "
+        f"groups up to {resolved[-1]:g} lp/mm are",
+        "resolved (the finest ones with less contrast); the finer groups are not: their bars",
+        "blur to grey or alias into a false, coarser pattern.",
     ], [dict(name="bars", mesh="resolution/bars.stl", material="Pb", density=11.35)],
-        fit=(total / 2, RESOLUTION_BAR_LENGTH / 2, 0), shape=(512, 128), source_z=1000.0,
-        detector_z=-50.0)
+        shape=shape, pitch=RESOLUTION_PITCH, source_z=RESOLUTION_SOURCE_Z,
+        detector_z=RESOLUTION_DETECTOR_Z,
+        detector_extra=dict(supersample=RESOLUTION_SUPERSAMPLE))
 
 
 #: Tissues of pyvista's frog_tissues.vti (label -> name, material, target faces).
@@ -372,18 +437,18 @@ def make_frog():
     body = _surface(small, spacing * 2, origin, sigma=1.0)
     body.apply_translation(shift)
     body = _finish(body, FROG_BODY_FACES, "body")
-    write_stl(body, HERE / "frog" / "body.stl", "frog/body")
+    write_stl(body, OUT / "frog" / "body.stl", "frog/body")
     bodies.append(dict(name="body", mesh="frog/body.stl", material=MUSCLE))
     for label, (name, material, faces) in FROG_TISSUES.items():
         mesh = _surface(labels == label, spacing, origin, sigma=1.0)
         mesh.apply_translation(shift)
         mesh = _finish(mesh, faces, name)
-        write_stl(mesh, HERE / "frog" / f"{name}.stl", f"frog/{name}")
+        write_stl(mesh, OUT / "frog" / f"{name}.stl", f"frog/{name}")
         entry = dict(name=name, mesh=f"frog/{name}.stl", material=material)
         if material == LUNG:
             entry["density"] = LUNG_DENSITY
         bodies.append(entry)
-    ext = np.ptp(np.vstack([trimesh.load(HERE / "frog" / "body.stl").bounds]), axis=0)
+    ext = np.ptp(np.vstack([trimesh.load(OUT / "frog" / "body.stl").bounds]), axis=0)
     # the frog lies in the x-y plane of the volume; the beam (-z) looks down on its back
     write_scene("frog", [
         "frog: a real anatomical phantom, the segmented frog of pyvista's frog_tissues.vti",
@@ -408,11 +473,29 @@ PHANTOMS = {
 
 
 def main(argv=None) -> int:
-    names = list(argv if argv is not None else sys.argv[1:]) or list(PHANTOMS)
+    """Command line: ``generate.py [--out DIR] [--only NAME]... [NAME ...]``."""
+    import argparse
+
+    global OUT
+    parser = argparse.ArgumentParser(
+        prog="generate.py", description="Generate the bundled phantoms (scene files and meshes).")
+    parser.add_argument("names", nargs="*", metavar="NAME",
+                        help=f"phantoms to make (default: all): {', '.join(PHANTOMS)}")
+    parser.add_argument("--only", action="append", default=[], metavar="NAME",
+                        help="make only this phantom (repeatable; same as naming it)")
+    parser.add_argument("--out", type=Path, default=HERE, metavar="DIR",
+                        help="folder to write into (default: the phantoms folder, %(default)s)")
+    args = parser.parse_args(argv)
+    names = list(dict.fromkeys(args.names + args.only)) or list(PHANTOMS)
     unknown = [n for n in names if n not in PHANTOMS]
     if unknown:
         print(f"unknown phantom(s) {unknown}; choose from {list(PHANTOMS)}", file=sys.stderr)
         return 2
+    if args.out.exists() and not args.out.is_dir():
+        print(f"--out {args.out}: not a folder", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    OUT = args.out.resolve()
     for name in names:
         print(f"{name} ...", flush=True)
         PHANTOMS[name]()

@@ -120,9 +120,10 @@ def test_repair_zero_area_and_duplicate_faces(ball):
     mesh, report = repair_mesh(broken)
     assert_repaired(mesh, report, ball)
     assert len(mesh.faces) == len(ball.faces)
-    # pymeshlab drops (a, a, b) faces with the duplicate vertices; then the copies
-    assert any("-5 faces" in c for c in report.changes)
-    assert any("duplicate faces (-3 faces)" in c for c in report.changes)
+    # pymeshlab drops (a, a, b) faces with the duplicate vertices (there are none); then the
+    # copies
+    assert report.changes == ("removed 5 zero-area faces with a repeated corner (-5 faces)",
+                              "removed duplicate faces (-3 faces)")
 
 
 def test_repair_non_manifold_fin(ball):
@@ -419,3 +420,261 @@ def test_check_mesh_reuses_its_report_until_the_mesh_changes():
     mesh.vertices *= 2.0                              # in place: scaled
     scaled = check_mesh(mesh)
     assert scaled.volume == pytest.approx(8 * flipped.volume)
+
+
+# --------------------------------------------------------------------------------------------
+# pieces of one body: each must be wound right for its nesting
+
+
+def ball_at(center, radius, *, inside_out=False, subdivisions=4):
+    b = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    faces = b.faces[:, ::-1] if inside_out else b.faces
+    return trimesh.Trimesh(b.vertices + np.asarray(center, float), faces, process=False)
+
+
+def two_pieces(a, b):
+    return trimesh.util.concatenate([a, b])
+
+
+def render_part(tmp_path, mesh):
+    """Load ``mesh`` as the one body of a parallel-beam scene (0.5 mm pixels over 96 x 64 mm)
+    and render it with the numpy engine. Returns (scene, image, rays)."""
+    import xray_viz
+    from xray_viz.geometry import detector_rays
+
+    mesh.export(tmp_path / "part.stl")
+    (tmp_path / "scene.toml").write_text(textwrap.dedent("""\
+        [source]
+        position = [0.0, 0.0, 1000.0]
+        kind = "parallel"
+        [detector]
+        center = [0.0, 0.0, -500.0]
+        shape = [192, 128]
+        pitch = 0.5
+        [[body]]
+        name = "part"
+        mesh = "part.stl"
+        mu = 0.2
+        """))
+    scene = scene_module.load_scene(tmp_path / "scene.toml")
+    image = xray_viz.render(scene, engine="numpy")
+    return scene, image, detector_rays(scene)
+
+
+def chords(rays, balls):
+    """Analytic path length of each ray through solid balls (cx, cy, cz, r, sign): a negative
+    sign is a cavity, subtracted."""
+    total = np.zeros(len(rays.origins))
+    for *c, r, sign in balls:
+        rel = np.asarray(c, float) - rays.origins
+        along = np.einsum("ij,ij->i", rel, rays.directions)
+        d2 = np.einsum("ij,ij->i", rel, rel) - along ** 2
+        total += sign * 2 * np.sqrt(np.clip(r * r - d2, 0, None))
+    return total.reshape(rays_shape(rays))
+
+
+def rays_shape(rays):
+    return (128, 192)
+
+
+def assert_chords(image, rays, balls, *, inner=0.9):
+    """Path lengths match the analytic chords within 1 % away from every silhouette (an
+    icosphere is a little smaller than its sphere); none is negative; I <= I0."""
+    L = image.total_path_length
+    expected = chords(rays, balls)
+    near_rim = np.zeros(L.shape, bool)
+    for *c, r, _ in balls:
+        rel = np.asarray(c, float) - rays.origins
+        along = np.einsum("ij,ij->i", rel, rays.directions)
+        d = np.sqrt(np.einsum("ij,ij->i", rel, rel) - along ** 2).reshape(L.shape)
+        near_rim |= (d > inner * r) & (d < r / inner)
+    assert L.min() >= -1e-9
+    assert np.all(image.intensity <= 1.0 + 1e-12)
+    np.testing.assert_allclose(L[~near_rim], expected[~near_rim], rtol=0.01, atol=0.05)
+    return L
+
+
+def test_check_flags_an_inside_out_piece_beside_a_good_one():
+    mesh = two_pieces(ball_at([-20, 0, 0], 12), ball_at([20, 0, 0], 8, inside_out=True))
+    report = check_mesh(mesh)
+    assert report.watertight and report.winding_consistent and report.volume > 0
+    assert not report.outward and report.misoriented == 1 and not report.traceable
+    assert "wound against its nesting (1 of 2 pieces" in report.problems()[0]
+
+
+def test_check_flags_an_outward_shell_nested_in_another():
+    report = check_mesh(two_pieces(ball_at([0, 0, 0], 20), ball_at([3, 0, 0], 8)))
+    assert report.volume > 0 and report.misoriented == 1 and not report.traceable
+
+
+def test_check_accepts_a_hollow_shell_and_an_island_in_its_cavity():
+    hollow = two_pieces(ball_at([0, 0, 0], 20), ball_at([0, 0, 0], 14, inside_out=True))
+    assert check_mesh(hollow).traceable
+    island = two_pieces(hollow, ball_at([2, 0, 0], 6))  # depth 2: outward again
+    assert check_mesh(island).traceable and check_mesh(island).misoriented == 0
+
+
+def test_inside_out_piece_is_repaired_with_a_warning_and_renders_right(tmp_path):
+    mesh = two_pieces(ball_at([-20, 0, 0], 12), ball_at([20, 0, 0], 8, inside_out=True))
+    with pytest.warns(MeshRepairWarning) as record:
+        scene, image, rays = render_part(tmp_path, mesh)
+    (warning,) = record
+    text = str(warning.message)
+    assert "body 'part'" in text and "wound against its nesting" in text
+    assert "flipped 1 of 2 pieces" in text
+    assert check_mesh(scene.bodies[0].mesh).traceable
+    L = assert_chords(image, rays, [(-20, 0, 0, 12, 1), (20, 0, 0, 8, 1)])
+    assert L.max() == pytest.approx(24.0, abs=0.05)
+
+
+def test_nested_outward_shell_becomes_a_cavity_with_a_warning(tmp_path):
+    # even-odd rule: a closed surface inside another bounds a cavity (no double counting)
+    mesh = two_pieces(ball_at([0, 0, 0], 30), ball_at([0, 0, 0], 10))
+    with pytest.warns(MeshRepairWarning, match=r"body 'part'.*flipped 1 of 2 pieces"):
+        scene, image, rays = render_part(tmp_path, mesh)
+    L = assert_chords(image, rays, [(0, 0, 0, 30, 1), (0, 0, 0, 10, -1)])
+    assert L[64, 96] == pytest.approx(40.0, abs=0.05)  # 60 mm of ball less the 20 mm cavity
+
+
+def test_hollow_shell_is_accepted_unchanged(tmp_path):
+    mesh = two_pieces(ball_at([0, 0, 0], 30), ball_at([0, 0, 0], 10, inside_out=True))
+    scene, image, rays = render_part(tmp_path, mesh)  # filterwarnings=error: no repair
+    assert len(scene.bodies[0].mesh.faces) == len(mesh.faces)
+    assert scene.bodies[0].mesh.volume == pytest.approx(mesh.volume, rel=1e-6)
+    assert_chords(image, rays, [(0, 0, 0, 30, 1), (0, 0, 0, 10, -1)])
+    fixed, report = repair_mesh(mesh)
+    assert report.changes == ()
+
+
+def test_check_calls_a_zero_volume_mesh_flat_not_inside_out():
+    # two triangles back to back: closed, consistently wound, encloses nothing
+    pillow = trimesh.Trimesh([[0, 0, 0], [10, 0, 0], [0, 10, 0]], [[0, 1, 2], [0, 2, 1]],
+                             process=False)
+    report = check_mesh(pillow)
+    assert report.watertight and report.flat and not report.outward
+    assert report.problems() == ["flat (zero volume)"]
+    assert not any("inside-out" in p for p in report.problems())
+
+
+# --------------------------------------------------------------------------------------------
+# repair: near-duplicate soup, small closed pieces, honest labels
+
+
+def test_repair_soup_with_jittered_vertices(ball):
+    soup = ball.vertices[ball.faces].reshape(-1, 3)
+    soup = soup + np.random.default_rng(4).uniform(-1e-4, 1e-4, soup.shape)  # 0.1 um jitter
+    mesh = trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), process=False)
+    assert not check_mesh(mesh).watertight
+    fixed, report = repair_mesh(mesh)
+    assert_repaired(fixed, report, ball)
+    assert len(fixed.vertices) == len(ball.vertices)
+    threshold = 1e-4 * np.linalg.norm(np.ptp(soup, axis=0))  # merge_distance = 0.01 %
+    assert any(f"closer than {threshold:.3g} mm" in c and f"-{len(soup) - len(ball.vertices)} "
+               "vertices" in c for c in report.changes), report.changes
+
+
+def test_repair_keeps_small_closed_pieces(ball):
+    # a ball and twenty closed 12-face boxes: all under min_component_faces, none is debris
+    boxes = [trimesh.creation.box(extents=[1, 1, 1]) for _ in range(20)]
+    for k, b in enumerate(boxes):
+        b.apply_translation([60 + 3 * k, 0, 0])
+    good = trimesh.util.concatenate([ball, *boxes])
+    fixed, report = repair_mesh(good)
+    assert len(fixed.faces) == len(good.faces) and report.changes == ()
+    assert fixed.body_count == 21
+    # with a hole in the ball and a stray open triangle, only the triangle goes
+    stray = trimesh.Trimesh([[0, 0, 70], [1, 0, 70], [0, 1, 70]], [[0, 1, 2]], process=False)
+    broken = trimesh.util.concatenate([trimesh.Trimesh(ball.vertices, ball.faces[1:]), *boxes,
+                                       stray])
+    fixed, report = repair_mesh(broken)
+    assert fixed.body_count == 21 and check_mesh(fixed).traceable
+    assert fixed.volume == pytest.approx(ball.volume + 20.0, rel=0.01)
+    assert "removed 1 small open pieces, stray faces or debris (-1 faces)" in report.changes
+
+
+def test_repair_labels_say_what_changed(ball):
+    # an exact duplicate of a corner that two faces use, and three copied faces
+    soup = trimesh.Trimesh(ball.vertices[ball.faces].reshape(-1, 3),
+                           np.arange(3 * len(ball.faces)).reshape(-1, 3), process=False)
+    _, report = repair_mesh(soup)
+    (merge,) = [c for c in report.changes if "duplicate vertices" in c]
+    assert merge == (f"merged coincident duplicate vertices "
+                     f"(-{3 * len(ball.faces) - len(ball.vertices)} vertices)")
+    assert not any("faces" in c and "duplicate vertices" in c for c in report.changes)
+    # corners that coincide only after merging: the faces go with the merge, and it says so
+    degenerate = ball.vertices[np.column_stack([ball.faces[:5, 0], ball.faces[:5, 0],
+                                                ball.faces[:5, 1]])]
+    tri = np.vstack([ball.vertices[ball.faces], degenerate]).reshape(-1, 3)
+    _, report = repair_mesh(trimesh.Trimesh(tri, np.arange(len(tri)).reshape(-1, 3),
+                                            process=False))
+    (merge,) = report.changes
+    assert merge.startswith("merged coincident duplicate vertices; removed 5 faces left with a "
+                            "repeated corner (-")
+    assert merge.endswith(" vertices, -5 faces)")
+
+
+def test_mesh_command_input_column_is_the_file_as_stored(tmp_path, ball):
+    src = tmp_path / "ball.stl"  # STL: every triangle's corners stored separately
+    ball.export(src)
+    rc, text = run_mesh(src, "-o", tmp_path / "out.stl")
+    assert rc == 0
+    rows = {line.split()[0]: line.split()[1:] for line in text.splitlines()[2:10]}
+    assert rows["vertices"] == [str(3 * len(ball.faces)), str(len(ball.vertices))]
+    assert "changes: none" not in text
+    assert (f"merged coincident duplicate vertices "
+            f"(-{3 * len(ball.faces) - len(ball.vertices)} vertices)") in text
+    clean = tmp_path / "ball.ply"  # PLY keeps shared vertices: nothing to do
+    ball.export(clean)
+    rc, text = run_mesh(clean, "-o", tmp_path / "out.ply")
+    assert rc == 0 and "changes: none" in text
+
+
+def test_mesh_command_checks_the_output_before_repairing(tmp_path, ball, monkeypatch):
+    import xray_viz.meshes.repair as repair_module
+
+    ball.export(tmp_path / "in.stl")
+    calls = []
+    monkeypatch.setattr(repair_module, "repair_mesh", lambda *a, **k: calls.append(a))
+    with pytest.raises(SceneFileNotFoundError, match="folder .*nodir does not exist"):
+        run_mesh(tmp_path / "in.stl", "-o", tmp_path / "nodir" / "x.stl")
+    (tmp_path / "adir.stl").mkdir()
+    with pytest.raises(MeshError, match="is a folder"):
+        run_mesh(tmp_path / "in.stl", "-o", tmp_path / "adir.stl")
+    assert calls == []
+
+
+def test_mesh_command_output_errors_print_nothing_but_the_error(tmp_path, ball):
+    ball.export(tmp_path / "in.stl")
+    proc = subprocess.run([sys.executable, "-m", "xray_viz.cli", "mesh", str(tmp_path / "in.stl"),
+                           "-o", str(tmp_path / "nodir" / "x.stl")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and "nodir" in proc.stderr
+
+
+@pytest.mark.parametrize("name, text", [("bad.vtp", "not a vtk file"), ("bad.vtk", "garbage"),
+                                        ("cut.vtp", "<?xml version=\"1.0\"?>\n<VTKFile type=")])
+def test_corrupt_vtk_file_is_one_line_on_stderr(tmp_path, name, text):
+    bad = tmp_path / name
+    bad.write_text(text)
+    code = (f"from xray_viz.meshes import load_mesh\ntry:\n    load_mesh({str(bad)!r})\n"
+            "except ValueError as exc:\n    print(exc)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stderr == ""
+    assert proc.stdout.startswith(f"{bad}: cannot read mesh (corrupt")
+    proc = subprocess.run([sys.executable, "-m", "xray_viz.cli", "mesh", str(bad), "-o",
+                           str(tmp_path / "x.stl")], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and "cannot read mesh" in proc.stderr, proc.stderr
+
+
+def test_repair_leaves_the_frog_skeleton_alone():
+    """64 closed bones, 12 of them under 25 faces: nothing to repair, nothing removed."""
+    from xray_viz import phantoms
+
+    skeleton = load_mesh(phantoms._root() / "frog" / "skeleton.stl")
+    assert check_mesh(skeleton).traceable
+    fixed, report = repair_mesh(skeleton)
+    assert report.changes == ()
+    assert fixed.body_count == skeleton.body_count == 64
+    assert len(fixed.faces) == len(skeleton.faces)

@@ -151,6 +151,7 @@ def test_shepp_logan_ellipsoids():
     for body, (name, a, b, c, x0, y0, z0, theta, _, material) in zip(scene.bodies,
                                                                       gen.SHEPP_LOGAN):
         assert body.material == material
+        assert body.density == gen.SHEPP_LOGAN_DENSITY.get(name)
         assert body.mesh.volume == pytest.approx(4 / 3 * math.pi * a * b * c * s ** 3, rel=0.02)
         # the vertices satisfy the rotated ellipsoid equation (in the phantom's own frame)
         p = body.vertices @ gen.SHEPP_LOGAN_ROTATION - np.array([x0, y0, z0]) * s
@@ -165,6 +166,91 @@ def test_shepp_logan_ellipsoids():
     assert np.all(inside(skull, brain.vertices * 0.999))
     for body in scene.bodies[2:]:
         assert np.all(inside(brain, body.vertices)), body.name
+
+
+#: Kak and Slaney's 3D table (1988, p. 102, with the errata): name, semi-axes, centre, angle.
+KAK_SLANEY = [
+    ("skull", 0.6900, 0.920, 0.900, 0.0, 0.0, 0.0, 0),
+    ("brain", 0.6624, 0.874, 0.880, 0.0, 0.0, 0.0, 0),
+    ("ventricle_r", 0.4100, 0.160, 0.210, -0.22, 0.0, -0.25, 108),
+    ("ventricle_l", 0.3100, 0.110, 0.220, 0.22, 0.0, -0.25, 72),
+    ("tumour", 0.2100, 0.250, 0.500, 0.0, 0.35, -0.25, 0),
+    ("spot", 0.0460, 0.046, 0.046, 0.0, 0.1, -0.25, 0),
+    ("nodule_1", 0.0460, 0.023, 0.020, -0.08, -0.65, -0.25, 0),
+    ("nodule_2", 0.0460, 0.023, 0.020, 0.06, -0.65, -0.25, 90),
+    ("vessel", 0.0560, 0.040, 0.100, 0.06, -0.105, 0.625, 90),
+    ("cyst", 0.0560, 0.056, 0.100, 0.0, 0.1, 0.625, 0),
+]
+
+
+def test_shepp_logan_is_kak_slaney_but_for_a_thicker_skull():
+    """The table is K&S's except the skull's outer ellipsoid, grown by the documented extra so
+    that the shell (a less b) is an adult skull's 6 mm or more; each inner ellipsoid attenuates
+    more than brain where K&S make it denser, less where they make it lighter."""
+    from xray_viz.physics.materials import linear_attenuation
+
+    gen = _generator()
+    s = gen.SHEPP_LOGAN_SCALE
+    for row, ks in zip(gen.SHEPP_LOGAN, KAK_SLANEY):
+        assert row[0] == ks[0]
+        np.testing.assert_allclose(row[4:8], ks[4:8])
+        grown = gen.SHEPP_LOGAN_SKULL_EXTRA / s if row[0] == "skull" else 0.0
+        np.testing.assert_allclose(row[1:4], np.array(ks[1:4]) + grown, atol=1e-9)
+    shell = (np.array(gen.SHEPP_LOGAN[0][1:4]) - np.array(gen.SHEPP_LOGAN[1][1:4])) * s
+    assert shell.min() >= 6.0 - 1e-9
+    assert f"{gen.SHEPP_LOGAN_SKULL_EXTRA:g} mm thicker" in phantoms.describe("shepp_logan")
+    scene = scene_of("shepp_logan")
+    energy = scene.source.energy
+
+    def mu(body):
+        return float(linear_attenuation(body.material, [energy], density=body.density)[0])
+
+    mu_brain = mu(scene.bodies[1])
+    assert mu(scene.bodies[0]) > 2 * mu_brain
+    for body, row in zip(scene.bodies[2:], gen.SHEPP_LOGAN[2:]):
+        assert np.sign(mu(body) - mu_brain) == np.sign(row[8]), body.name
+
+
+def test_shepp_logan_radiograph_shows_skull_ventricles_and_tumour():
+    """Line integrals at the projections of scene points (object plane z = 0): the air
+    ventricles are darker than brain beside them, the tumour brighter, the skull's rim (seen
+    edge on) a bright ring."""
+    scene = small(scene_of("shepp_logan"), 128)
+    image = xray_viz.render(scene)
+    li = image.line_integral
+
+    def at(x, y):
+        return li[pixel(scene, x, y)]
+
+    brain = at(-35.0, -25.0)
+    assert at(0.0, -25.0) < brain - 0.3          # ventricles (K&S c, d), air
+    assert at(35.0, -25.0) > brain + 0.15        # tumour (K&S e), iodine-enhanced
+    # the skull seen edge on, just outside the brain (88 mm up, 87 mm to the front): a bright
+    # ring over the brain inside it
+    assert at(0.0, 89.0) > at(0.0, 80.0) + 0.3
+    assert at(89.0, 0.0) > at(80.0, 0.0) + 0.3
+    assert image.path_length[..., 0].max() > 50.0
+
+
+def small(scene, n):
+    """The scene with an n x n detector over the same field of view."""
+    import dataclasses
+
+    d = scene.detector
+    size = np.array(d.size, float)
+    pitch = tuple(float(v) for v in size / (n - 1))
+    return scene.replace(detector=dataclasses.replace(d, shape=(n, n), pitch=pitch))
+
+
+def pixel(scene, x, y):
+    """(row, column) of the pixel whose ray passes through the point (x, y, 0)."""
+    zs, zd = scene.source.position[2], scene.detector.center[2]
+    mag = (zs - zd) / zs
+    w, h = scene.detector.shape
+    pu, pv = scene.detector.pitch
+    col = int(round(x * mag / pu + (w - 1) / 2))
+    row = int(round((h - 1) / 2 - y * mag / pv))
+    return row, col
 
 
 def test_limb_nesting_and_volumes():
@@ -191,6 +277,38 @@ def test_resolution_bars():
     expected = sum(widths) * gen.RESOLUTION_BAR_LENGTH * gen.RESOLUTION_THICKNESS
     assert bars.mesh.volume == pytest.approx(expected, rel=1e-5)
     assert bars.material == "Pb"
+
+
+def test_resolution_groups_go_past_nyquist_and_blur():
+    """The coarse groups are resolved at full contrast; groups finer than the detector's
+    Nyquist limit exist and lose their bar pattern (less contrast than the coarse ones)."""
+    gen = _generator()
+    scene = scene_of("resolution")
+    nyquist = gen.resolution_nyquist()
+    zs, zd = scene.source.position[2], scene.detector.center[2]
+    assert nyquist == pytest.approx((zs - zd) / zs / (2 * scene.detector.pitch[0]))
+    assert sum(f > nyquist for f in gen.RESOLUTION_LP_PER_MM) >= 2
+    assert scene.detector.supersample > 1  # a pixel averages over its area
+    image = xray_viz.render(scene)
+    row = image.intensity[scene.detector.shape[1] // 2]
+    x = 0.0
+    groups = []
+    for f in gen.RESOLUTION_LP_PER_MM:
+        groups.append((f, x, x + 5 / (2 * f)))
+        x += 5 / (2 * f) + 3.0
+    total = x - 3.0
+    contrast = {}
+    for f, a, b in groups:
+        lo = pixel(scene, a - total / 2, 0)[1]
+        hi = pixel(scene, b - total / 2, 0)[1]
+        seg = row[lo:hi + 1]
+        contrast[f] = seg.max() - seg.min()
+    full = contrast[gen.RESOLUTION_LP_PER_MM[0]]
+    assert full > 0.3
+    for f in gen.RESOLUTION_LP_PER_MM:
+        if f <= nyquist / 2:
+            assert contrast[f] == pytest.approx(full, rel=0.02), f
+    assert contrast[max(gen.RESOLUTION_LP_PER_MM)] < 0.5 * full
 
 
 def test_frog():
@@ -225,3 +343,53 @@ def test_library_size_and_package_data():
         for p in files:
             if p.suffix in (".toml", ".stl"):
                 assert p in shipped, p
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_every_phantom_renders(name):
+    """Each phantom at a 48 x 48 detector over its own field of view: finite, attenuated in
+    the middle, never brighter than the unattenuated beam, no warning (filterwarnings=error)."""
+    scene = small(scene_of(name), 48)
+    image = xray_viz.render(scene)
+    i0 = scene.detector.i0
+    assert image.intensity.shape == (48, 48)
+    assert np.all(np.isfinite(image.intensity)) and np.all(np.isfinite(image.line_integral))
+    assert np.all(image.path_length >= -1e-9)
+    assert np.all(image.intensity <= i0 * (1 + 1e-12))
+    middle = image.line_integral[16:32, 16:32]
+    assert middle.max() > 0.05, name
+    corners = image.intensity[[0, 0, -1, -1], [0, -1, 0, -1]]
+    assert np.all(corners > image.intensity.min())  # the object does not cover everything
+
+
+def test_bare_name_is_a_phantom_even_beside_a_folder_of_that_name(tmp_path, monkeypatch):
+    (tmp_path / "frog").mkdir()
+    (tmp_path / "sphere").mkdir()
+    (tmp_path / "notaphantom").mkdir()
+    monkeypatch.chdir(tmp_path)
+    scene = load_scene("frog")
+    assert scene.path == phantoms.scene_path("frog") and scene.bodies[0].name == "body"
+    from pathlib import Path
+
+    assert load_scene(Path("sphere")).bodies[0].name == "ball"
+    from xray_viz.errors import SceneError
+
+    with pytest.raises(SceneError, match="is a directory"):
+        load_scene("notaphantom")
+    with pytest.raises(SceneError, match="is a directory"):
+        load_scene("./frog")           # a path, not a bare name: the folder
+    from xray_viz.cli import main
+
+    assert main(["render", "sphere", "-o", str(tmp_path / "s.png")]) == 0
+    assert (tmp_path / "s.png").stat().st_size > 1000
+
+
+def test_generator_out_and_only(tmp_path):
+    gen = _generator()
+    assert gen.main(["--out", str(tmp_path / "lib"), "--only", "sphere"]) == 0
+    written = sorted(str(p.relative_to(tmp_path / "lib")) for p in (tmp_path / "lib").rglob("*")
+                     if p.is_file())
+    assert written == ["sphere.toml", "sphere/ball.stl"]
+    for rel in written:  # deterministic: the same bytes as the bundled files
+        assert (tmp_path / "lib" / rel).read_bytes() == (phantoms._root() / rel).read_bytes()
+    assert gen.main(["--out", str(tmp_path / "lib"), "--only", "nope"]) == 2

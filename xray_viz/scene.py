@@ -713,6 +713,8 @@ def load_scene(path: str | Path) -> Scene:
     ----------
     path : str or Path
         A ``.toml`` scene file, or the name of a bundled phantom (see ``xray-viz phantoms``).
+        An existing file is read; otherwise a bare name (no suffix, no folder) is a phantom's
+        name, even when a folder of that name exists (``./frog`` names the folder).
 
     Returns
     -------
@@ -734,19 +736,23 @@ def load_scene(path: str | Path) -> Scene:
     ['ball']
     """
     p = Path(path)
-    if not p.exists():
+    if not p.is_file():
+        # a bare name (no suffix, no folder) that is not a file is a phantom's name, even when
+        # the working directory has a folder of that name (a phantom's mesh folder, say)
         from xray_viz import phantoms
 
-        resolved = phantoms.scene_path(str(path))
-        if resolved is None:
+        bare = not p.suffix and "/" not in str(path) and "\\" not in str(path)
+        resolved = phantoms.scene_path(str(path)) if bare else None
+        if resolved is not None:
+            p = resolved
+        elif p.is_dir():
+            raise SceneError(f"{p}: is a directory, not a scene file")
+        elif not p.exists():
             names = ", ".join(phantoms.names())
             raise SceneFileNotFoundError(
                 f"{path}: no such scene file, and no bundled phantom of that name "
                 f"(phantoms: {names})"
             )
-        p = resolved
-    if p.is_dir():
-        raise SceneError(f"{p}: is a directory, not a scene file")
     try:
         text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError:

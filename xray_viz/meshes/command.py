@@ -33,15 +33,19 @@ WRITE_SUFFIXES = (".stl", ".ply", ".obj", ".off")
 _DESCRIPTION = """\
 Repair a triangle mesh so that it can be traced, optionally decimate it, and write it.
 
-Repair always runs (pymeshlab): duplicate and close vertices are merged, duplicate and
-zero-area faces and unreferenced vertices removed, non-manifold edges and vertices split,
-small stray pieces removed, holes closed, faces oriented coherently and outward.
+Repair always runs (pymeshlab): duplicate vertices are merged, and vertices on open edges
+closer than 0.01 % of the bounding box diagonal; duplicate and zero-area faces and
+unreferenced vertices removed, non-manifold edges and vertices split, small open stray pieces
+removed (closed pieces are kept, however small), holes closed, faces oriented coherently and
+each piece outward (inward where it is a cavity inside another piece).
 
 Decimation (quadric edge collapse, keeping the mesh closed) is either to a face count
 (--decimate FACES) or to an error budget (--max-error MM: the fewest faces whose Hausdorff
 distance to the repaired mesh stays within MM millimetres).
 
-A report of the mesh before and after is printed. OUT is written atomically (a temporary
+A report of the mesh before and after is printed; its "input" column is the file as stored
+(an STL keeps every triangle's corners separately, so its duplicate vertices show there and
+their merging is listed among the changes). OUT is written atomically (a temporary
 file in the same folder, then renamed), in the format given by its extension.
 """
 
@@ -85,14 +89,23 @@ def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _write_atomic(mesh, out: Path) -> None:
-    suffix = out.suffix.lower()
-    if suffix not in WRITE_SUFFIXES:
+def _check_output(out: Path) -> Path:
+    """OUT's folder, after checking that OUT can be written: a known suffix, an existing
+    folder, not a folder itself."""
+    if out.suffix.lower() not in WRITE_SUFFIXES:
         raise MeshError(f"{out}: cannot write {out.suffix or 'files without an extension'!r}; "
                         f"use one of {', '.join(WRITE_SUFFIXES)}")
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir():
         raise SceneFileNotFoundError(f"{out}: folder {folder} does not exist; create it first")
+    if out.is_dir():
+        raise MeshError(f"{out}: is a folder; give a file name to write")
+    return folder
+
+
+def _write_atomic(mesh, out: Path) -> None:
+    suffix = out.suffix.lower()
+    folder = _check_output(out)
     fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=suffix, dir=folder)
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -143,11 +156,9 @@ def mesh_command(args, *, stdout=None) -> int:
         raise MeshError(f"--decimate must be at least 4 faces, got {target}")
     if max_error is not None and not max_error > 0:
         raise MeshError(f"--max-error must be > 0 mm, got {max_error}")
-    if dst.suffix.lower() not in WRITE_SUFFIXES:
-        raise MeshError(f"{dst}: cannot write {dst.suffix or 'files without an extension'!r}; "
-                        f"use one of {', '.join(WRITE_SUFFIXES)}")
+    _check_output(dst)  # before the work: a bad OUT fails at once, not after the repair
 
-    mesh = load_mesh(src)
+    mesh = load_mesh(src, process=False)  # as stored: the report's input column is the file
     repaired, report = repair_mesh(mesh)
     if not report.after.traceable:
         print(report.table(), file=out)

@@ -18,6 +18,53 @@ VTK_SUFFIXES = (".vtp", ".vtk")
 MESH_SUFFIXES = TRIMESH_SUFFIXES + VTK_SUFFIXES
 
 
+def _quiet_vtk_read(pv, path: Path):
+    """Read a VTK file with VTK's own logging silenced; its first error becomes a MeshError.
+
+    On a corrupt file VTK prints a screenful (its logger, its output window, and pyvista's
+    observer passing it on to Python logging and warnings) before the reader gives up. Here a
+    plain VTK reader runs (no pyvista observer), VTK's logger is off
+    (``pv.vtk_verbosity('off')``) and the output window is swapped for a string buffer, so the
+    user sees one line.
+    """
+    from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
+
+    if path.suffix.lower() == ".vtp":
+        from vtkmodules.vtkIOXML import vtkXMLPolyDataReader as Reader
+    else:
+        from vtkmodules.vtkIOLegacy import vtkDataSetReader as Reader
+    buffer = vtkStringOutputWindow()
+    previous = vtkOutputWindow.GetInstance()
+    vtkOutputWindow.SetInstance(buffer)
+    try:
+        with pv.vtk_verbosity("off"):
+            reader = Reader()
+            reader.SetFileName(str(path))
+            reader.Update()
+            output = reader.GetOutputDataObject(0)
+    except Exception as exc:
+        raise MeshError(f"{path}: cannot read mesh: {exc}") from None
+    finally:
+        vtkOutputWindow.SetInstance(previous)
+    errors = _vtk_errors(buffer.GetOutput())
+    if errors or output is None:
+        reason = errors[0] if errors else "the VTK reader produced nothing"
+        raise MeshError(f"{path}: cannot read mesh (corrupt or not a {path.suffix} file): "
+                        f"{reason}")
+    return pv.wrap(output)
+
+
+def _vtk_errors(text: str) -> list[str]:
+    """The messages of VTK's ``ERROR: In file, line N`` / ``vtkClass (0x...): message`` blocks."""
+    out = []
+    lines = text.splitlines()
+    for k, line in enumerate(lines):
+        if line.startswith("ERROR") and k + 1 < len(lines):
+            message = lines[k + 1]
+            out.append(message.split("): ", 1)[1].strip() if "): " in message else message.strip())
+    return out
+
+
 def _read_vtk(path: Path):
     """(vertices, faces) of a .vtp/.vtk file, triangulated; pyvista imported only here."""
     try:
@@ -25,10 +72,7 @@ def _read_vtk(path: Path):
     except ImportError:  # pragma: no cover - pyvista is a dependency
         raise MeshError(f"{path}: reading {path.suffix} files needs pyvista "
                         "(pip install pyvista)") from None
-    try:
-        data = pv.read(path)
-    except Exception as exc:  # VTK readers raise many types on corrupt files
-        raise MeshError(f"{path}: cannot read mesh: {exc}") from None
+    data = _quiet_vtk_read(pv, path)
     if not isinstance(data, pv.PolyData):
         try:
             data = data.extract_surface(algorithm="dataset_surface")
@@ -45,8 +89,8 @@ def _read_vtk(path: Path):
     return np.asarray(data.points, dtype=np.float64), faces
 
 
-def load_mesh(path: str | Path):
-    """Read a triangle mesh and check that it can be traced.
+def load_mesh(path: str | Path, *, process: bool = True):
+    """Read a triangle mesh.
 
     Parameters
     ----------
@@ -54,11 +98,15 @@ def load_mesh(path: str | Path):
         An STL (ASCII or binary), OBJ, PLY, OFF or GLB/GLTF file (read with trimesh), or a
         VTK ``.vtp`` / ``.vtk`` file (read with pyvista, imported only for these; polygons
         are triangulated, and a volume mesh is reduced to its outer surface).
+    process : bool, optional
+        Merge coincident duplicate vertices (trimesh ``process=True``; STL stores every
+        triangle's corners separately, a triangle soup). False gives the vertices and faces
+        as stored, for a report of the file itself (``xray-viz mesh``).
 
     Returns
     -------
     trimesh.Trimesh
-        Duplicate vertices merged (STL is a triangle soup).
+        With duplicate vertices merged unless ``process`` is False.
 
     Raises
     ------
@@ -98,5 +146,6 @@ def load_mesh(path: str | Path):
     if not np.all(np.isfinite(vertices)):
         bad = int(np.sum(~np.all(np.isfinite(vertices), axis=1)))
         raise MeshError(f"{path}: {bad} vertices are NaN or infinite")
-    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=True, validate=False)
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=bool(process),
+                           validate=False)
     return mesh

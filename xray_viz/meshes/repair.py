@@ -5,11 +5,18 @@ body must be *closed* (watertight: every edge shared by exactly two faces) and *
 (consistently wound, positive signed volume). One missing or extra hit is an error of a whole
 ray length, not a small one.
 
-* :func:`check_mesh` is fast (trimesh properties only) and is run on every body at load time.
+A body of several closed pieces is outward when every piece is wound right *for its nesting*:
+outward where it is enclosed by an even number of other pieces (0: a solid; 2: an island in a
+cavity), inward where the number is odd (a cavity). An inside-out ball next to a good one, or
+an outward shell inside another, is not outward even when the total volume is positive: rays
+through it would get negative or doubled path lengths.
+
+* :func:`check_mesh` is fast (trimesh properties, plus a few inside/outside ray tests for a
+  closed mesh of several pieces) and is run on every body at load time.
 * :func:`repair_mesh` runs the pymeshlab pipeline of FIELD-NOTES section 7: merge duplicate and
   close vertices, remove duplicate and zero-area faces and unreferenced vertices, split
-  non-manifold edges, drop tiny stray components, fix non-manifold vertices, close holes, orient
-  faces coherently and outward.
+  non-manifold edges, drop small open debris (never a closed piece), fix non-manifold vertices,
+  close holes, orient faces coherently and each piece outward or, for a cavity, inward.
 * :func:`ensure_traceable` is what the scene loader calls: unchanged when the mesh is already
   closed and outward, repaired (with the list of what changed) otherwise, refused with a
   :class:`~xray_viz.errors.MeshError` when repair does not make it closed.
@@ -33,6 +40,7 @@ False
 
 from __future__ import annotations
 
+import dataclasses
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -69,9 +77,15 @@ class MeshReport:
     volume : float
         Signed volume in mm^3 (positive when the normals point outward).
     outward : bool
-        ``winding_consistent and volume > 0``.
+        ``winding_consistent``, ``volume > 0`` and no piece wound against its nesting
+        (``misoriented == 0``).
     changes : tuple of str
         What a repair changed to arrive at this mesh (empty for a plain check).
+    misoriented : int
+        Closed pieces wound the wrong way for their nesting depth (see :func:`check_mesh`): an
+        inside-out ball next to a good one, or an outward shell inside another outward shell.
+    flat : bool
+        The enclosed volume is zero (to rounding): a sheet, or faces folded onto each other.
     """
 
     faces: int
@@ -83,6 +97,8 @@ class MeshReport:
     volume: float
     outward: bool
     changes: tuple[str, ...] = ()
+    misoriented: int = 0
+    flat: bool = False
 
     @property
     def traceable(self) -> bool:
@@ -93,11 +109,22 @@ class MeshReport:
         """Short descriptions of what keeps the mesh from being traceable."""
         out = []
         if not self.watertight:
-            out.append(f"not watertight ({self.boundary_edges} boundary edges)")
+            out.append(f"not watertight ({self.boundary_edges} boundary edges)"
+                       if self.boundary_edges else
+                       "not watertight (edges shared by more than two faces)")
+        nesting = (f"wound against its nesting ({self.misoriented} of {self.components} pieces: "
+                   "each piece must face outward, or inward where it is a cavity inside "
+                   "another piece)")
         if not self.winding_consistent:
             out.append("inconsistent face winding")
-        elif self.volume <= 0:
+        elif self.flat:
+            out.append("flat (zero volume)")
+        elif 0 < self.misoriented < self.components:
+            out.append(nesting)
+        elif self.volume < 0:
             out.append("inside-out (negative volume)")
+        elif self.misoriented:
+            out.append(nesting)
         return out
 
 
@@ -123,6 +150,10 @@ class RepairReport:
 
 def check_mesh(mesh) -> MeshReport:
     """Report whether a mesh is closed and outward, using trimesh's cheap properties.
+
+    A closed mesh of several pieces is also tested for nesting: each piece must face outward
+    when an even number of other pieces enclose it, inward (a cavity) when the number is odd;
+    :attr:`MeshReport.misoriented` counts the pieces that do not.
 
     Parameters
     ----------
@@ -179,6 +210,7 @@ def _check_mesh(mesh) -> MeshReport:
     import trimesh
 
     faces = np.asarray(mesh.faces, dtype=np.int64)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
     if len(faces):
         edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
         boundary = len(trimesh.grouping.group_rows(edges, require_count=1))
@@ -189,11 +221,96 @@ def _check_mesh(mesh) -> MeshReport:
         boundary, volume, components = 0, 0.0, 0
     watertight = bool(mesh.is_watertight) if len(faces) else False
     winding = bool(mesh.is_winding_consistent) if len(faces) else False
+    flat = _is_flat(vertices, volume) if len(faces) else True
+    misoriented = 0
+    if watertight and winding and components > 1:
+        labels, n = _piece_labels(mesh)
+        if n > 1:  # pieces may cancel (an inside-out copy beside a good one): not flat then
+            piece_volume, depth = _piece_orientation(vertices, faces, labels, n)
+            flat = _is_flat(vertices, float(np.abs(piece_volume).sum()))
+            expected = np.where(depth % 2 == 0, 1.0, -1.0)
+            misoriented = int(np.sum(np.sign(piece_volume) != expected))
     return MeshReport(
         faces=len(faces), vertices=len(mesh.vertices), watertight=watertight,
         winding_consistent=winding, boundary_edges=boundary, components=components,
-        volume=volume, outward=winding and volume > 0,
+        volume=volume, outward=winding and volume > 0 and not flat and misoriented == 0,
+        misoriented=misoriented, flat=flat,
     )
+
+
+def _is_flat(vertices, volume) -> bool:
+    """Zero enclosed volume, to rounding, for the size of the mesh."""
+    if not len(vertices) or not np.isfinite(volume):
+        return True
+    diag = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    return abs(volume) <= 1e-9 * diag ** 3
+
+
+#: A fixed direction with no relation to the axes or diagonals, for inside/outside tests.
+_PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
+#: Points of each piece tested against the others for containment (the majority decides).
+_SAMPLES = 5
+
+
+def _piece_labels(mesh):
+    """(labels, n): the edge-connected piece of every face of a trimesh."""
+    import trimesh
+
+    if len(mesh.faces) == 0:
+        return np.zeros(0, np.int64), 0
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency,
+                                                      node_count=len(mesh.faces))
+    return np.asarray(labels, np.int64), int(labels.max()) + 1
+
+
+def _piece_orientation(vertices, faces, labels, n):
+    """Signed volume and nesting depth of each piece.
+
+    The nesting depth of a piece is the number of other pieces that enclose it: a point on
+    the piece (the majority of a few face centres) is inside another closed piece when a ray
+    from it crosses that piece an odd number of times (watertight ray-triangle tests, so a ray
+    through an edge counts once). Parity does not depend on the pieces' winding.
+
+    Returns
+    -------
+    volume : (n,) float
+    depth : (n,) int
+    """
+    from xray_viz.tracing.hits import trace_triangles
+
+    tris = vertices[faces] - vertices.mean(axis=0)  # near the origin: the volume sum stays exact
+    six_v = np.einsum("ij,ij->i", tris[:, 0], np.cross(tris[:, 1], tris[:, 2]))
+    volume = np.bincount(labels, weights=six_v, minlength=n) / 6.0
+    depth = np.zeros(n, np.int64)
+    if n < 2:
+        return volume, depth
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    np.minimum.at(lo, labels, tris.min(axis=1))
+    np.maximum.at(hi, labels, tris.max(axis=1))
+    order = np.argsort(labels, kind="stable")
+    starts = np.searchsorted(labels[order], np.arange(n + 1))
+    members = [order[starts[k]:starts[k + 1]] for k in range(n)]
+    samples = []
+    for k in range(n):  # face centres spread over the piece
+        pick = members[k][np.linspace(0, len(members[k]) - 1, min(_SAMPLES, len(members[k])))
+                          .astype(int)]
+        samples.append(tris[pick].mean(axis=1))
+    for j in range(n):
+        # only a piece whose bounding box lies within j's can be inside j
+        inner = np.flatnonzero(np.all(lo >= lo[j], axis=1) & np.all(hi <= hi[j], axis=1))
+        inner = inner[inner != j]
+        if not len(inner):
+            continue
+        points = np.vstack([samples[k] for k in inner])
+        owner = np.repeat(np.arange(len(inner)), [len(samples[k]) for k in inner])
+        ray, *_ = trace_triangles(tris[members[j]], points,
+                                  np.broadcast_to(_PROBE, points.shape))
+        odd = np.bincount(ray, minlength=len(points)) % 2 == 1
+        votes = np.bincount(owner, weights=odd, minlength=len(inner))
+        counts = np.bincount(owner, minlength=len(inner))
+        depth[inner[votes * 2 > counts]] += 1
+    return volume, depth
 
 
 def format_reports(columns, *, changes=()) -> str:
@@ -246,44 +363,45 @@ def format_reports(columns, *, changes=()) -> str:
 
 
 def _orient_outward(vertices, faces):
-    """Flip every inside-out component that is not a cavity of another component."""
+    """Flip every piece wound against its nesting (see :func:`_piece_orientation`).
+
+    Returns
+    -------
+    faces : (F, 3) int
+        A copy with the faces of those pieces reversed (``faces`` itself when none is).
+    flipped : (k,) int
+        Indices of the flipped pieces.
+    n : int
+        Number of pieces.
+    """
     import trimesh
 
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
-    parts = [np.flatnonzero(labels == k) for k in range(labels.max() + 1)] if len(faces) else []
-    if len(parts) <= 1:
-        with np.errstate(all="ignore"):
-            negative = len(faces) and mesh.volume < 0
-        if negative:
-            return faces[:, ::-1].copy()
-        return faces
-    tris = vertices[faces]
-    boxes = [(tris[p].reshape(-1, 3).min(0), tris[p].reshape(-1, 3).max(0)) for p in parts]
+    labels, n = _piece_labels(mesh)
+    if n == 0:
+        return faces, np.zeros(0, np.int64), 0
+    volume, depth = _piece_orientation(np.asarray(vertices, np.float64), faces, labels, n)
+    expected = np.where(depth % 2 == 0, 1.0, -1.0)
+    flipped = np.flatnonzero(np.sign(volume) == -expected)  # a flat piece cannot be fixed so
+    if not len(flipped):
+        return faces, flipped, n
     faces = faces.copy()
-    for k, part in enumerate(parts):
-        sub = trimesh.Trimesh(vertices, faces[part], process=False)
-        with np.errstate(all="ignore"):
-            negative = sub.volume < 0
-        if not negative:
-            continue
-        lo, hi = boxes[k]
-        inside_other = any(np.all(lo >= b[0]) and np.all(hi <= b[1]) and j != k
-                           for j, b in enumerate(boxes))
-        if inside_other:
-            continue  # a cavity: inward normals are right
-        faces[part] = faces[part][:, ::-1]
-    return faces
+    sel = np.isin(labels, flipped)
+    faces[sel] = faces[sel][:, ::-1]
+    return faces, flipped, n
 
 
 def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 25,
                 merge_distance: float = 0.01):
     """Repair a mesh with pymeshlab so that it is closed and outward.
 
-    The steps, in order (FIELD-NOTES section 7): remove duplicate vertices and merge close ones;
-    remove duplicate faces, zero-area faces and unreferenced vertices; split non-manifold edges
-    and drop stray components smaller than ``min_component_faces`` (a fin, debris); repair
-    non-manifold vertices; close holes; orient faces coherently; flip inside-out components.
+    The steps, in order (FIELD-NOTES section 7): merge duplicate (coincident) vertices, then
+    vertices on open edges closer than ``merge_distance``; remove duplicate faces, zero-area
+    faces and unreferenced vertices; split non-manifold edges and drop small *open* pieces (a stray fin,
+    debris: pieces of fewer than ``min_component_faces`` faces with a boundary or non-manifold
+    edge; closed pieces are kept however small); repair non-manifold vertices; close holes;
+    orient faces coherently; flip every piece wound against its nesting (outward, or inward
+    where the piece is a cavity inside another piece).
 
     Parameters
     ----------
@@ -292,9 +410,11 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
     max_hole_edges : int, optional
         Largest hole, in boundary edges, that is closed.
     min_component_faces : int, optional
-        Pieces with fewer faces are removed, unless the mesh has no bigger piece.
+        Open pieces with fewer faces are removed, unless the mesh has no bigger piece.
     merge_distance : float, optional
-        Vertices closer than this percentage of the bounding box diagonal are merged.
+        Vertices on open edges (cracks in the surface) closer than this percentage of the
+        bounding box diagonal are merged: an absolute distance, the default 0.01 % is
+        0.014 mm for a ball of radius 40 mm. Vertices of closed parts are never merged.
 
     Returns
     -------
@@ -327,49 +447,163 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
         f = m.face_matrix()
         return len(np.unique(f)), len(f)
 
-    def delta(n, noun):
+    def amount(n, noun):
         return f"{'+' if n > 0 else '-'}{abs(n)} {noun}" if n else ""
 
     def step(label, filter_name, **kwargs):
+        """Run a filter (a name, or a function of the MeshSet); when it changed the counts,
+        record ``label`` and the change."""
         v0, f0 = counts()
-        result = getattr(ms, filter_name)(**kwargs)
+        run = filter_name if callable(filter_name) else getattr(ms, filter_name)
+        result = run(**kwargs)
         v1, f1 = counts()
         if (v0, f0) != (v1, f1):
-            parts = ", ".join(p for p in (delta(v1 - v0, "vertices"), delta(f1 - f0, "faces")) if p)
-            changes.append(f"{label(result) if callable(label) else label} ({parts})")
+            text = label(result, v1 - v0, f1 - f0) if callable(label) else label
+            parts = ", ".join(p for p in (amount(v1 - v0, "vertices"), amount(f1 - f0, "faces"))
+                              if p)
+            changes.append(f"{text} ({parts})")
         return result
 
-    step("removed duplicate vertices", "meshing_remove_duplicate_vertices")
-    step("merged close vertices", "meshing_merge_close_vertices",
-         threshold=pymeshlab.PercentageValue(merge_distance))
+    def merged(what):
+        def label(_, dv, df):
+            # pymeshlab drops a face whose corners are (now) the same vertex twice
+            if dv == 0:
+                return f"removed {-df} zero-area faces with a repeated corner"
+            text = f"merged {what}"
+            if df < 0:
+                text += f"; removed {-df} faces left with a repeated corner"
+            return text
+        return label
+
+    step(merged("coincident duplicate vertices"), "meshing_remove_duplicate_vertices")
+    diag = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
+    threshold = merge_distance / 100.0 * diag  # an absolute distance in mm, as documented
+    if threshold > 0:
+        step(merged(f"open-edge vertices closer than {threshold:.3g} mm"),
+             lambda: _merge_close_boundary_vertices(ms, pymeshlab, threshold))
     step("removed duplicate faces", "meshing_remove_duplicate_faces")
     step("removed zero-area faces", "meshing_remove_null_faces")
     ms.meshing_remove_unreferenced_vertices()
     step("split non-manifold edges", "meshing_repair_non_manifold_edges", method="Split Vertices")
-    largest = _largest_component_faces(ms)
-    if largest >= min_component_faces:
-        step("removed small stray components",
-             "meshing_remove_connected_component_by_face_number",
-             mincomponentsize=min_component_faces, removeunref=True)
+    removed = _remove_open_debris(ms, pymeshlab, min_faces=min_component_faces)
+    if removed:
+        n_pieces, n_faces = removed
+        changes.append(f"removed {n_pieces} small open pieces, stray faces or debris "
+                       f"(-{n_faces} faces)")
     step("split non-manifold vertices", "meshing_repair_non_manifold_vertices")
     ms.meshing_remove_unreferenced_vertices()
-    step(lambda r: f"closed {r.get('closed_holes', '?')} holes", "meshing_close_holes",
+    step(lambda r, dv, df: f"closed {r.get('closed_holes', '?')} holes", "meshing_close_holes",
          maxholesize=int(max_hole_edges))
     faces_before = ms.current_mesh().face_matrix().astype(np.int64)
     ms.meshing_re_orient_faces_coherently()
     m = ms.current_mesh()
     vertices, faces = m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64)
-    faces = _orient_outward(vertices, faces)
+    faces, _, _ = _orient_outward(vertices, faces)
     if faces.shape == faces_before.shape:
-        n_flip = int(np.sum(np.any(_canonical(faces) != _canonical(faces_before), axis=1)))
-        if n_flip == len(faces):
-            changes.append(f"turned the inside-out mesh outward (flipped all {n_flip} faces)")
-        elif n_flip:
-            changes.append(f"re-oriented {n_flip} faces outward")
+        changes += _orientation_changes(vertices, faces_before, faces)
     repaired = trimesh.Trimesh(vertices, faces, process=False)
     after = check_mesh(repaired)
-    after = MeshReport(**{**after.__dict__, "changes": tuple(changes)})
+    after = dataclasses.replace(after, changes=tuple(changes))
     return repaired, RepairReport(before=before, after=after, changes=tuple(changes))
+
+
+def _orientation_changes(vertices, old, new) -> list[str]:
+    """Describe how the winding of ``new`` differs from ``old`` (same faces, some reversed)."""
+    import trimesh
+
+    flipped = np.any(_canonical(new) != _canonical(old), axis=1)
+    n_flip = int(flipped.sum())
+    if n_flip == 0:
+        return []
+    if n_flip == len(new):
+        return [f"turned the inside-out mesh outward (flipped all {n_flip} faces)"]
+    labels, n = _piece_labels(trimesh.Trimesh(vertices, new, process=False))
+    per_piece = np.bincount(labels, weights=flipped, minlength=n)
+    size = np.bincount(labels, minlength=n)
+    whole = per_piece == size
+    out = []
+    if whole.any():
+        k = int(whole.sum())
+        out.append(f"flipped {k} of {n} pieces to match their nesting: outward, or inward for a "
+                   f"cavity inside another piece ({int(size[whole].sum())} faces)")
+    partly = int(per_piece[~whole].sum())
+    if partly:
+        out.append(f"re-oriented {partly} faces to agree with their neighbours")
+    return out
+
+
+def _boundary_vertices(faces) -> np.ndarray:
+    """Vertices on an edge used by only one face."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, uses = np.unique(edges, axis=0, return_counts=True)
+    return np.unique(unique[uses == 1])
+
+
+def _merge_close_boundary_vertices(ms, pymeshlab, threshold):
+    """Merge vertices on open edges that lie within ``threshold`` mm of each other.
+
+    This stitches the cracks of a triangle soup whose copies of a corner are a little apart
+    (exported in single precision, jittered). Only vertices on open edges are merged: a closed
+    surface's short edges (0.004 mm in the decimated frog skeleton) are not collapsed, which
+    pymeshlab's ``meshing_merge_close_vertices`` would do, making non-manifold edges.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    m = ms.current_mesh()
+    vertices, faces = m.vertex_matrix(), m.face_matrix().astype(np.int64)
+    if len(faces) == 0:
+        return
+    rim = _boundary_vertices(faces)
+    if len(rim) < 2:
+        return
+    pairs = cKDTree(vertices[rim]).query_pairs(threshold, output_type="ndarray")
+    if len(pairs) == 0:
+        return
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(rim),) * 2)
+    _, cluster = connected_components(graph, directed=False)
+    first = np.full(cluster.max() + 1, len(rim))
+    np.minimum.at(first, cluster, np.arange(len(rim)))
+    remap = np.arange(len(vertices))
+    remap[rim] = rim[first[cluster]]
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
+                               face_matrix=remap[faces].astype(np.int32)))
+    ms.meshing_remove_unreferenced_vertices()
+
+
+def _remove_open_debris(ms, pymeshlab, *, min_faces):
+    """Remove pieces of fewer than ``min_faces`` faces that are open or non-manifold.
+
+    Closed pieces (every edge shared by exactly two faces of the piece) are kept however small:
+    a little bone is not debris. Nothing is removed when no piece has ``min_faces`` faces.
+
+    Returns
+    -------
+    (pieces, faces) removed, or None when nothing was.
+    """
+    import trimesh
+
+    m = ms.current_mesh()
+    vertices, faces = m.vertex_matrix(), m.face_matrix().astype(np.int64)
+    if len(faces) == 0:
+        return None
+    labels, n = _piece_labels(trimesh.Trimesh(vertices, faces, process=False))
+    size = np.bincount(labels, minlength=n)
+    if n < 2 or size.max() < min_faces:
+        return None
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, inverse, uses = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    bad_edge = uses[inverse.ravel()] != 2  # boundary (1) or non-manifold (3 or more)
+    open_piece = np.bincount(np.repeat(labels, 3), weights=bad_edge, minlength=n) > 0
+    drop = open_piece & (size < min_faces)
+    if not drop.any():
+        return None
+    keep = ~drop[labels]
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
+                               face_matrix=faces[keep].astype(np.int32)))
+    ms.meshing_remove_unreferenced_vertices()
+    return int(drop.sum()), int((~keep).sum())
 
 
 def _canonical(faces):
@@ -377,18 +611,6 @@ def _canonical(faces):
     k = np.argmin(faces, axis=1)
     idx = (k[:, None] + np.arange(3)) % 3
     return np.take_along_axis(faces, idx, axis=1)
-
-
-def _largest_component_faces(ms) -> int:
-    import trimesh
-
-    m = ms.current_mesh()
-    faces = m.face_matrix()
-    if len(faces) == 0:
-        return 0
-    tm = trimesh.Trimesh(m.vertex_matrix(), faces, process=False)
-    labels = trimesh.graph.connected_component_labels(tm.face_adjacency, node_count=len(faces))
-    return int(np.bincount(labels).max())
 
 
 def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
