@@ -199,3 +199,60 @@ def test_focal_spot_blur_conserves_signal(tmp_path):
     a, b = xray_viz.render(sharp).intensity, xray_viz.render(blurred).intensity
     assert np.abs(a - b).max() > 0.1                                # edges are blurred
     assert b.sum() == pytest.approx(a.sum(), rel=1e-12)            # total signal conserved
+
+
+def test_gaussian_kernel_has_exact_variance_below_a_pixel():
+    from xray_viz.physics.imaging import gaussian_kernel
+
+    for sigma in (0.01, 0.05, 0.2, 0.7, 2.5):
+        k = gaussian_kernel(sigma)
+        n = np.arange(len(k)) - (len(k) - 1) / 2
+        assert k.sum() == pytest.approx(1.0, abs=1e-14) and np.allclose(k, k[::-1])
+        assert k @ n**2 == pytest.approx(sigma**2, rel=1e-3)
+    # a few pixels wide, it is the sampled Gaussian
+    k = gaussian_kernel(3.0)
+    n = np.arange(len(k)) - (len(k) - 1) / 2
+    g = np.exp(-n**2 / 18.0)
+    assert np.abs(k - g / g.sum()).max() < 2e-3
+
+
+def test_sub_pixel_focal_spot_blurs_an_edge_and_conserves_signal(tmp_path):
+    # point source 1000 mm above the object plane, detector 500 mm below it: M = 1.5; a 0.03 mm
+    # focal spot gives a 0.015 mm (0.06 pixel) FWHM penumbra, sigma = 0.0255 pixel, for which
+    # a sampled Gaussian kernel (scipy's gaussian_filter, truncate=4) is the identity
+    kw = dict(source={**POINT, "energy": 60.0},
+              bodies=[("slab", box([40, 40, 8], center=[20.0, 0, 0]), {"mu": 2.0})])
+    sharp = load(tmp_path, detector=parallel_detector(shape=(32, 32), pitch=0.25), **kw)
+    blurred = load(tmp_path, detector=parallel_detector(shape=(32, 32), pitch=0.25,
+                                                        focal_spot=0.03), **kw)
+    fwhm_px = focal_spot_blur_mm(blurred) / 0.25
+    sigma_px = fwhm_px / (2 * np.sqrt(2 * np.log(2)))
+    assert fwhm_px == pytest.approx(0.06)
+    a, b = xray_viz.render(sharp).intensity, xray_viz.render(blurred).intensity
+    # the slab's side x = 0 projects between columns 15 and 16
+    step = np.abs(np.diff(a, axis=1)).max(axis=0)
+    col = int(np.argmax(step))
+    assert col == 15 and step[col] > 0.3
+    # across a step of height d the neighbour pixels change by d * T(1) / sum(T) ~ d sigma^2 / 2
+    from scipy.ndimage import gaussian_filter
+    from scipy.special import ive
+
+    assert np.array_equal(gaussian_filter(a, sigma_px, truncate=4.0), a)   # the old, no-op blur
+    w1 = ive(1, sigma_px**2) / sum(ive(n, sigma_px**2) for n in range(-5, 6))
+    d = a[:, col + 1] - a[:, col]
+    np.testing.assert_allclose(b[:, col] - a[:, col], w1 * d, rtol=1e-3, atol=1e-12)
+    assert np.abs(b - a).max() > 1e-4                                # measurable
+    assert b.sum() == pytest.approx(a.sum(), rel=1e-12)             # total signal conserved
+
+
+def test_focal_spot_blur_conserves_signal_at_the_border(tmp_path):
+    # an edge that runs off the detector: the mirrored border keeps the sum exactly
+    kw = dict(source={**POINT, "energy": 60.0},
+              bodies=[("cube", box([8, 8, 8], center=[3.0, 2.0, 0]), {"mu": 2.0})])
+    sharp = load(tmp_path, detector=parallel_detector(shape=(24, 20), pitch=0.5), **kw)
+    blurred = load(tmp_path, detector=parallel_detector(shape=(24, 20), pitch=0.5,
+                                                        focal_spot=2.0), **kw)
+    a, b = xray_viz.render(sharp).intensity, xray_viz.render(blurred).intensity
+    assert a[:, -1].std() > 0.1 or a[0].std() > 0.1          # the cube reaches a border
+    assert np.abs(a - b).max() > 0.05
+    assert b.sum() == pytest.approx(a.sum(), rel=1e-12)

@@ -28,7 +28,9 @@ def test_mass_attenuation_matches_xcom(material, table):
     energies = np.array(list(table), dtype=float)
     expected = np.array(list(table.values()))
     got = mass_attenuation(material, energies)
-    np.testing.assert_allclose(got, expected, rtol=0.01)
+    # xraylib agrees with these tables to better than 0.04 %; 0.5 % leaves room for rounding of
+    # the tabulated values and of the mixture's mass fractions, not for a wrong cross section
+    np.testing.assert_allclose(got, expected, rtol=0.005)
 
 
 def test_water_60kev_anchor():
@@ -67,16 +69,46 @@ def test_mixture_is_mass_weighted():
                                + 0.3 * mass_attenuation("Bone, Cortical (ICRP)", e))
 
 
-def test_case_insensitive_nist_name():
-    assert check_material("water, liquid") == 1.0
+def test_names_are_case_sensitive_with_the_right_spelling_suggested():
     assert len(nist_compounds()) > 100
+    with pytest.raises(MaterialError, match=r"unknown material 'water, liquid': did you mean "
+                                            r"'Water, Liquid'\?"):
+        check_material("water, liquid")
 
 
-def test_unknown_name_suggests_closest():
-    with pytest.raises(MaterialError, match="did you mean 'Water, Liquid'"):
-        mass_attenuation("Water Liquid", 60.0)
-    with pytest.raises(MaterialError, match="Bone, Cortical"):
-        linear_attenuation("Bone Cortical ICRP", 60.0)
+def _suggestions(name):
+    with pytest.raises(MaterialError) as info:
+        mass_attenuation(name, 60.0)
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith(f"unknown material {name!r}: ")
+    if "did you mean " not in msg:
+        return []
+    import ast
+
+    return list(ast.literal_eval("(" + msg.split("did you mean ", 1)[1].split("? ", 1)[0] + ",)"))
+
+
+@pytest.mark.parametrize("name, expected", [
+    ("water", ["Water, Liquid", "Water Vapor"]),         # the liquid first, no 'Amber'
+    ("WATER", ["Water, Liquid", "Water Vapor"]),
+    ("Water Liquid", ["Water, Liquid"]),
+    ("tissue, soft (icrp)", ["Tissue, Soft (ICRP)"]),
+    ("al", ["Al"]),                                      # the element, not 'Valine'
+    ("AL", ["Al"]),
+    ("h2o", ["H2O"]),                                    # a formula with its case corrected
+    ("CACO3", ["CaCO3", "CaCo3"]),
+    ("nacl", ["NaCl"]),
+])
+def test_unknown_name_suggestions(name, expected):
+    assert _suggestions(name) == expected
+
+
+def test_unknown_name_suggestion_order():
+    assert _suggestions("Bone Cortical ICRP")[0] == "Bone, Cortical (ICRP)"
+    assert _suggestions("bone")[0] == "Bone, Cortical (ICRP)"         # the common tissue first
+    assert _suggestions("muscle")[0] == "Muscle, Skeletal"
+    assert _suggestions("fat") == []                     # no 'FAt' (F + astatine)
+    assert "Valine" not in _suggestions("Al ")           # a stray blank: still the element
 
 
 @pytest.mark.parametrize("material", ["H2O", "Al", {"H2O": 1.0}])

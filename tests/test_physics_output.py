@@ -61,8 +61,68 @@ def test_dicom_values_and_geometry(tmp_path, image):
     assert [float(v) for v in ds.PixelSpacing] == pytest.approx([0.6 * 0.6, 0.4 * 0.6])
     assert float(ds.KVP) == pytest.approx(70.0)
     assert float(ds.FocalSpots) == pytest.approx(0.6)
-    assert np.array_equal(ds.pixel_array.astype(np.float64) * float(ds.RescaleSlope)
-                          + float(ds.RescaleIntercept), back)
+    rwv = ds.RealWorldValueMappingSequence[0]
+    assert np.array_equal(ds.pixel_array.astype(np.float64) * rwv.RealWorldValueSlope
+                          + rwv.RealWorldValueIntercept, back)
+
+
+@pytest.mark.parametrize("quantity, bright, shape, sign, relationship, unit", [
+    ("intensity", "low", "INVERSE", 1, "LIN", "1"),
+    ("line-integral", "high", "IDENTITY", -1, "LOG", "1"),
+    ("path-length", "high", "IDENTITY", -1, "LOG", "mm"),
+    (None, "high", "IDENTITY", -1, "LIN", "1"),
+])
+def test_dicom_dx_conformance(tmp_path, image, quantity, bright, shape, sign, relationship, unit):
+    # PS3.3 C.8.11.3 (DX Image Module): Rescale Slope 1 and Intercept 0 (enumerated), Rescale
+    # Type US, Presentation LUT Shape for a FOR PRESENTATION image, IDENTITY with MONOCHROME2 and
+    # INVERSE with MONOCHROME1; the physical values go in a Real World Value Mapping item.
+    scene = _scene(tmp_path, energy=70.0)
+    save_image(tmp_path / "a.dcm", image, scene=scene, bright=bright, quantity=quantity)
+    ds = pydicom.dcmread(tmp_path / "a.dcm")
+    assert ds.SOPClassUID == "1.2.840.10008.5.1.4.1.1.1.1" and ds.Modality == "DX"
+    assert ds.PresentationIntentType == "FOR PRESENTATION"
+    assert (float(ds.RescaleSlope), float(ds.RescaleIntercept), ds.RescaleType) == (1, 0, "US")
+    assert ds.PresentationLUTShape == shape
+    assert ds.PhotometricInterpretation == ("MONOCHROME1" if shape == "INVERSE" else
+                                            "MONOCHROME2")
+    assert ds.PixelIntensityRelationship == relationship
+    assert ds.PixelIntensityRelationshipSign == sign
+    assert list(ds.ImageType) == ["DERIVED", "SECONDARY", ""]
+    assert ds.ImageLaterality == "U" and ds.LossyImageCompression == "00"
+    # the window is in stored values (identity Modality LUT) and spans them all
+    assert float(ds.WindowCenter) == 32767.5 and float(ds.WindowWidth) == 65536
+    assert len(ds.RealWorldValueMappingSequence) == 1
+    rwv = ds.RealWorldValueMappingSequence[0]
+    assert (rwv.RealWorldValueFirstValueMapped, rwv.RealWorldValueLastValueMapped) == (0, 65535)
+    assert rwv["RealWorldValueFirstValueMapped"].VR == "US"
+    assert rwv.RealWorldValueIntercept == image.min()
+    assert rwv.RealWorldValueSlope == pytest.approx((image.max() - image.min()) / 65535,
+                                                    rel=1e-15)
+    assert rwv.LUTLabel == (quantity or "value") and rwv.LUTExplanation
+    units = rwv.MeasurementUnitsCodeSequence[0]
+    assert (units.CodeValue, units.CodingSchemeDesignator) == (unit, "UCUM")
+    # geometry tags are kept
+    for keyword in ("ImagerPixelSpacing", "PixelSpacing",
+                    "EstimatedRadiographicMagnificationFactor", "DistanceSourceToDetector",
+                    "DistanceSourceToPatient", "KVP", "FocalSpots"):
+        assert keyword in ds
+    assert ds.pixel_array.dtype == np.uint16 and ds.pixel_array.shape == image.shape
+    step = (image.max() - image.min()) / 65535
+    assert np.abs(load_image(tmp_path / "a.dcm") - image).max() <= step / 2 * (1 + 1e-9)
+
+
+def test_dicom_reader_falls_back_to_rescale(tmp_path, image):
+    # files without a Real World Value Mapping (older xray_viz, other writers) use the rescale
+    scene = _scene(tmp_path, energy=70.0)
+    save_image(tmp_path / "a.dcm", image, scene=scene)
+    ds = pydicom.dcmread(tmp_path / "a.dcm")
+    rwv = ds.RealWorldValueMappingSequence[0]
+    slope, intercept = rwv.RealWorldValueSlope, rwv.RealWorldValueIntercept
+    del ds.RealWorldValueMappingSequence
+    ds.RescaleSlope, ds.RescaleIntercept = f"{slope:.10e}", f"{intercept:.10g}"
+    ds.save_as(tmp_path / "old.dcm")
+    back = load_image(tmp_path / "old.dcm")
+    assert np.abs(back - image).max() <= slope * (0.5 + 1e-6)
 
 
 def test_dicom_tube_spectrum_kvp_and_rendered_line_integral(tmp_path):

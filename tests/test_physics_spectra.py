@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from physics_scenes import load, parallel_detector
+from physics_scenes import box, load, parallel_detector
 from xray_viz.errors import SceneError, SceneFileNotFoundError, SpectrumError
 from xray_viz.physics.spectra import (Spectrum, read_spectrum_csv, source_spectrum,
                                       spectrum_from_dict, tube_spectrum)
@@ -101,3 +101,136 @@ def test_scene_spectrum_missing_file(tmp_path):
     with pytest.raises(SceneFileNotFoundError, match="nope.csv"):
         load(tmp_path, source={"position": [0, 0, 1000], "spectrum": {"file": "nope.csv"}},
              detector=parallel_detector())
+
+
+# --------------------------------------------------------------------------------------------
+# CSV files: encodings, headers, malformed rows
+
+
+def test_csv_not_utf8_is_a_spectrum_error(tmp_path):
+    p = tmp_path / "latin1.csv"
+    p.write_bytes("énergie,fluence\n30,1\n".encode("latin-1"))
+    with pytest.raises(SpectrumError, match=r"latin1\.csv: not a UTF-8 text file"):
+        read_spectrum_csv(p)
+    p = tmp_path / "utf16.csv"
+    p.write_text("30,1\n50,2\n", encoding="utf-16")
+    with pytest.raises(SpectrumError, match=r"utf16\.csv: not a UTF-8"):
+        read_spectrum_csv(p)
+
+
+def test_csv_unreadable_is_a_spectrum_error(tmp_path, monkeypatch):
+    from xray_viz.physics import spectra
+
+    p = tmp_path / "locked.csv"
+    p.write_text("30,1\n")
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(p))
+
+    monkeypatch.setattr(spectra, "open", refuse, raising=False)   # also when run as root
+    with pytest.raises(SpectrumError, match=r"locked\.csv: cannot read the spectrum file: "
+                                            "Permission denied"):
+        read_spectrum_csv(p)
+
+
+def test_csv_byte_order_mark_keeps_the_first_row(tmp_path):
+    p = tmp_path / "bom.csv"
+    p.write_bytes(b"\xef\xbb\xbf30,1\n50,3\n")
+    assert read_spectrum_csv(p).energies.tolist() == [30.0, 50.0]
+    p.write_bytes(b"\xef\xbb\xbfkeV,fluence\n30,1\n50,3\n")       # a BOM before a header too
+    np.testing.assert_allclose(read_spectrum_csv(p).weights, [0.25, 0.75])
+
+
+@pytest.mark.parametrize("text, line, value", [
+    ("30,abc\n50,2\n", 1, "abc"),                           # malformed first row, not a header
+    ("keV,fluence\n30,abc\n50,2\n", 2, "abc"),
+    ("x,30\n50,2\n", 1, "x"),                               # a header has no number at all
+    ("keV,fluence\nunits,relative\n30,1\n", 2, "units"),    # at most one header line
+    ("# c\n\nkeV,fluence\n# c\n30,1\nkeV,fluence\n", 6, "keV"),  # a header after the data
+    ("30;1\n50;\n", 2, ""),                                 # an empty field
+])
+def test_csv_malformed_rows_name_file_line_and_value(tmp_path, text, line, value):
+    p = tmp_path / "bad.csv"
+    p.write_text(text)
+    with pytest.raises(SpectrumError) as info:
+        read_spectrum_csv(p)
+    msg = str(info.value)
+    assert "\n" not in msg and msg.startswith(str(p.resolve()))
+    assert f"line {line}: {value!r} is not a number" in msg
+
+
+def test_csv_one_header_comments_and_separators(tmp_path):
+    p = tmp_path / "ok.csv"
+    p.write_text("# from a spreadsheet\nenergy (keV); fluence\n30; 1\n# mid comment\n50 2\n")
+    assert read_spectrum_csv(p).energies.tolist() == [30.0, 50.0]
+
+
+def test_cli_malformed_csv_is_one_line_exit_2(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from physics_scenes import write_scene
+
+    (tmp_path / "spec.csv").write_text("30,abc\n50,2\n")
+    scene = write_scene(tmp_path, source={"position": [0, 0, 1000],
+                                          "spectrum": {"file": "spec.csv"}},
+                        detector=parallel_detector(),
+                        bodies=[("cube", box([4, 4, 4]), {"mu": 0.2})])
+    script = Path(sys.executable).parent / "xray-viz"
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "xray_viz.cli"]
+    out = tmp_path / "out.npy"
+    run = subprocess.run(cmd + ["render", str(scene), "-o", str(out)], capture_output=True,
+                         text=True, timeout=120, cwd=tmp_path)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in run.stderr
+    assert lines[0].startswith(f"xray-viz: error: {scene}: [source] ")
+    assert "spec.csv: line 1: 'abc' is not a number" in lines[0]
+    assert not out.exists() and not list(tmp_path.glob("*.npy")) and not run.stdout
+
+
+# --------------------------------------------------------------------------------------------
+# tube spectra: parameters checked when the scene is loaded, without computing the spectrum
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"kvp": 800.0}, r"kvp = 800 is outside the 10-500 kV that SpekPy models for the W anode"),
+    ({"kvp": 5.0}, "kvp = 5 is outside"),
+    ({"kvp": 60.0, "anode": "Mo"}, "kvp = 60 is outside the 10-50 kV .* Mo anode"),
+    ({"kvp": 80.0, "anode_angle": 95.0}, "anode_angle must be between 0 and 90"),
+    ({"kvp": 80.0, "anode_angle": 0.0}, "anode_angle must be a number > 0"),
+    ({"kvp": 80.0, "filters": {"Alu": 1.0}}, "unknown filter material 'Alu': did you mean 'Al'"),
+    ({"kvp": 80.0, "filters": {"al": 1.0}}, "unknown filter material 'al': did you mean 'Al'\\?"),
+    ({"kvp": 80.0, "filters": {"Cuu": 0.0}}, "did you mean 'Cu'"),   # checked even at 0 mm
+])
+def test_tube_parameters_validated_without_spekpy(spec, message):
+    with pytest.raises(SpectrumError, match=message):
+        spectrum_from_dict(spec)
+
+
+def test_scene_load_names_file_and_key_and_stays_fast(tmp_path):
+    import subprocess
+    import sys
+
+    from physics_scenes import write_scene
+
+    bad = write_scene(tmp_path, source={"position": [0, 0, 1000],
+                                        "spectrum": {"kvp": 80.0, "filters": {"Alu": 2.5}}},
+                      detector=parallel_detector(), name="bad")
+    with pytest.raises(SceneError, match=rf"^{bad}: \[source\] spectrum has an unknown filter "
+                                         r"material 'Alu': did you mean 'Al'"):
+        import xray_viz
+
+        xray_viz.load_scene(bad)
+    good = write_scene(tmp_path, source={"position": [0, 0, 1000],
+                                         "spectrum": {"kvp": 80.0, "filters": {"Al": 2.5}}},
+                       detector=parallel_detector(), name="good")
+    # a fresh process: loading the scene neither imports SpekPy nor computes the spectrum
+    code = ("import sys, time, xray_viz; t = time.perf_counter(); "
+            f"xray_viz.load_scene({str(good)!r}); "
+            "print('spekpy' in sys.modules, time.perf_counter() - t)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120, check=True)
+    imported, seconds = run.stdout.split()
+    assert imported == "False" and float(seconds) < 0.5

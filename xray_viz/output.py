@@ -1,5 +1,6 @@
 """Writing images: ``.npy`` (float64 as computed), ``.tiff`` (float32), ``.png`` (16-bit) and
-DICOM ``.dcm`` (16-bit with rescale slope and intercept, and the geometry of the scene).
+DICOM ``.dcm`` (a 16-bit DX image with the geometry of the scene; the physical values through a
+Real World Value Mapping).
 
 Files are written to a temporary name beside the target and renamed into place, so a failed
 write never leaves a half-written file.
@@ -15,7 +16,8 @@ import numpy as np
 
 from xray_viz.errors import OutputError
 
-__all__ = ["save_image", "load_image", "to_uint16", "dicom_dataset", "FORMATS"]
+__all__ = ["save_image", "load_image", "to_uint16", "dicom_dataset", "dicom_values", "FORMATS",
+           "UNITS"]
 
 #: Output suffixes and what they hold.
 FORMATS = {
@@ -23,7 +25,7 @@ FORMATS = {
     ".tiff": "float32 TIFF",
     ".tif": "float32 TIFF",
     ".png": "16-bit grey PNG, attenuation bright, windowed to the data",
-    ".dcm": "DICOM DX image, 16-bit with RescaleSlope/Intercept, geometry of the scene",
+    ".dcm": "DICOM DX image, 16-bit, values by Real World Value Mapping, geometry of the scene",
 }
 
 
@@ -127,10 +129,16 @@ def _ds(value: float) -> str:
 def dicom_dataset(image, scene, *, bright="high", quantity=None):
     """A DICOM Digital X-Ray (for presentation) dataset of an image and its scene's geometry.
 
-    Pixel data are 16-bit unsigned integers windowed to the finite values of the image;
-    ``value = stored * RescaleSlope + RescaleIntercept`` recovers them to within half a
-    quantisation step, ``(max - min) / 65535 / 2``. Infinite values (a line integral through a
-    body that stops every photon) are stored as the window's end.
+    Pixel data are 16-bit unsigned integers spanning the finite values of the image. The DX
+    Image Module fixes ``RescaleSlope = 1``, ``RescaleIntercept = 0`` (``RescaleType = "US"``),
+    so the physical values are carried by one item of the ``RealWorldValueMappingSequence``
+    (0040,9096): ``value = stored * RealWorldValueSlope + RealWorldValueIntercept`` (double
+    precision) for stored values 0..65535, with ``LUTLabel`` the quantity and
+    ``MeasurementUnitsCodeSequence`` its UCUM unit (``"1"``, no units, for intensities in photons
+    per pixel and line integrals; ``"mm"`` for path lengths). It recovers the values to within
+    half a quantisation step, ``(max - min) / 65535 / 2`` (:func:`load_image`). Infinite values
+    (a line integral through a body that stops every photon) are stored as the range's end.
+    The window (``WindowCenter``/``WindowWidth``, in stored values) spans the whole range.
 
     Geometry written:
 
@@ -147,9 +155,14 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
       the photon energy of a monochromatic beam (then also in ``ImageComments``).
     * ``FocalSpots`` (mm) when a focal spot is set.
 
-    Photometric interpretation: ``MONOCHROME2`` (high values white) or, with ``bright="low"``,
-    ``MONOCHROME1`` (low values white: an intensity image shows attenuation bright, like a
-    radiograph).
+    Grey scale: ``PhotometricInterpretation = "MONOCHROME2"`` with
+    ``PresentationLUTShape = "IDENTITY"`` (high values white) or, with ``bright="low"``,
+    ``"MONOCHROME1"`` with ``"INVERSE"`` (low values white: an intensity image shows attenuation
+    bright, like a radiograph). ``PixelIntensityRelationship`` is ``LIN`` for intensities and
+    ``LOG`` for line integrals and path lengths; ``PixelIntensityRelationshipSign`` is ``+1``
+    for intensities (higher stored values, more X-rays) and ``-1`` for line integrals and path
+    lengths; for ``quantity=None`` it follows ``bright`` (``"low"``: ``+1``). With the defaults of
+    :func:`save_image` for each quantity, less X-ray intensity is always shown white.
 
     Examples
     --------
@@ -170,11 +183,12 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     a = np.asarray(image, dtype=np.float64)
     if a.ndim != 2:
         raise OutputError(f"DICOM output needs an (H, W) image, got shape {a.shape}")
+    if bright not in ("high", "low"):
+        raise OutputError(f"bright must be 'high' or 'low', got {bright!r}")
     finite = np.isfinite(a)
     lo, hi = (float(a[finite].min()), float(a[finite].max())) if finite.any() else (0.0, 0.0)
-    # quantise with the slope and intercept exactly as written (decimal strings)
-    intercept = float(_ds(lo))
-    slope = float(_ds((hi - lo) / 65535.0)) if hi > lo else 1.0
+    intercept = lo
+    slope = (hi - lo) / 65535.0 if hi > lo else 1.0
     filled = np.where(np.isnan(a), lo, np.clip(a, lo, hi))
     stored = np.clip(np.round((filled - intercept) / slope), 0, 65535).astype(np.uint16)
 
@@ -193,7 +207,7 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     ds.FrameOfReferenceUID = generate_uid()
     ds.Modality = "DX"
     ds.PresentationIntentType = "FOR PRESENTATION"
-    ds.ImageType = ["DERIVED", "SECONDARY"]
+    ds.ImageType = ["DERIVED", "SECONDARY", ""]      # DX: value 3 present and empty
     ds.ContentDate = now.strftime("%Y%m%d")
     ds.ContentTime = now.strftime("%H%M%S")
     ds.StudyDate, ds.StudyTime = ds.ContentDate, ds.ContentTime
@@ -201,9 +215,20 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     ds.PatientID = "XRAY_VIZ"
     ds.Manufacturer = "xray_viz (simulation)"
     ds.SeriesDescription = f"simulated radiograph: {quantity or 'image'}"
+    ds.PatientBirthDate = ""
+    ds.PatientSex = ""
+    ds.ReferringPhysicianName = ""
+    ds.StudyID = ""
+    ds.AccessionNumber = ""
+    ds.SeriesNumber = 1
+    ds.InstanceNumber = 1
     ds.PatientOrientation = ""
     ds.BodyPartExamined = ""
     ds.ViewPosition = ""
+    ds.ImageLaterality = "U"
+    ds.AcquisitionContextSequence = []
+    ds.BurnedInAnnotation = "NO"
+    ds.LossyImageCompression = "00"
 
     # pixels
     h, w = a.shape
@@ -214,15 +239,23 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     ds.BitsStored = 16
     ds.HighBit = 15
     ds.PixelRepresentation = 0
-    ds.RescaleIntercept = _ds(intercept)
-    ds.RescaleSlope = _ds(slope)
+    # DX Image Module: an identity Modality LUT; Presentation LUT Shape follows the photometric
+    # interpretation (PS3.3 C.8.11.3, C.7.6.1.1.6)
+    ds.RescaleIntercept = "0"
+    ds.RescaleSlope = "1"
     ds.RescaleType = "US"
-    ds.WindowCenter = _ds((lo + hi) / 2)
-    ds.WindowWidth = _ds(max(hi - lo, slope))
-    if quantity is not None:
-        # +1: higher values mean more X-rays (intensity); -1: fewer (line integral, path length)
+    ds.PresentationLUTShape = "INVERSE" if bright == "low" else "IDENTITY"
+    ds.WindowCenter = "32767.5"
+    ds.WindowWidth = "65536"
+    ds.VOILUTFunction = "LINEAR"
+    # +1: higher values mean more X-rays (intensity); -1: fewer (line integral, path length)
+    if quantity is None:
+        ds.PixelIntensityRelationship = "LIN"
+        ds.PixelIntensityRelationshipSign = 1 if bright == "low" else -1
+    else:
         ds.PixelIntensityRelationship = "LIN" if quantity == "intensity" else "LOG"
         ds.PixelIntensityRelationshipSign = 1 if quantity == "intensity" else -1
+    ds.RealWorldValueMappingSequence = [_real_world_value_mapping(slope, intercept, quantity)]
     ds.PixelData = stored.tobytes()
 
     # geometry
@@ -247,11 +280,64 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     return ds
 
 
+#: UCUM units of each quantity: (code, meaning).
+UNITS = {"intensity": ("1", "no units"), "line-integral": ("1", "no units"),
+         "path-length": ("mm", "millimeter")}
+
+
+def _real_world_value_mapping(slope: float, intercept: float, quantity):
+    """The Real World Value Mapping item: stored 0..65535 -> value, with units (UCUM)."""
+    from pydicom.dataset import Dataset
+
+    code, meaning = UNITS.get(quantity, ("1", "no units"))
+    item = Dataset()
+    item.add_new(0x00409216, "US", 0)           # RealWorldValueFirstValueMapped
+    item.add_new(0x00409211, "US", 65535)       # RealWorldValueLastValueMapped
+    item.RealWorldValueIntercept = float(intercept)
+    item.RealWorldValueSlope = float(slope)
+    item.LUTLabel = (quantity or "value")[:16]
+    item.LUTExplanation = {
+        "intensity": "detected intensity I = I0 F T (photons per pixel)",
+        "line-integral": "line integral -ln(I / (I0 F))",
+        "path-length": "total path length through the bodies (mm)",
+    }.get(quantity, "image value")
+    units = Dataset()
+    units.CodeValue = code
+    units.CodingSchemeDesignator = "UCUM"
+    units.CodeMeaning = meaning
+    item.MeasurementUnitsCodeSequence = [units]
+    return item
+
+
+def dicom_values(ds) -> np.ndarray:
+    """The float64 values of a DICOM image: its first Real World Value Mapping applied to the
+    stored pixels (falling back to the Modality LUT's RescaleSlope/RescaleIntercept).
+
+    Examples
+    --------
+    >>> import numpy as np, xray_viz
+    >>> image = np.array([[0.5, 1.0], [2.0, 4.0]])
+    >>> ds = dicom_dataset(image, xray_viz.load_scene("sphere"), quantity="line-integral")
+    >>> bool(np.abs(dicom_values(ds) - image).max() <= 3.5 / 65535 / 2)
+    True
+    """
+    stored = ds.pixel_array.astype(np.float64)
+    rwv = ds.get("RealWorldValueMappingSequence")
+    if rwv:
+        item = rwv[0]
+        first = int(item.get("RealWorldValueFirstValueMapped", 0))
+        last = int(item.get("RealWorldValueLastValueMapped", 65535))
+        if not np.all((stored >= first) & (stored <= last)):
+            raise OutputError("DICOM stored values outside the Real World Value Mapping's range")
+        return stored * float(item.RealWorldValueSlope) + float(item.RealWorldValueIntercept)
+    return stored * float(ds.get("RescaleSlope", 1.0)) + float(ds.get("RescaleIntercept", 0.0))
+
+
 def load_image(path) -> np.ndarray:
     """Read back an image written by :func:`save_image`.
 
     ``.npy`` and ``.tiff`` give the saved values, ``.png`` the 16-bit stored values, ``.dcm`` the
-    rescaled float64 values (``stored * RescaleSlope + RescaleIntercept``).
+    float64 values of its Real World Value Mapping (:func:`dicom_values`).
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -260,9 +346,7 @@ def load_image(path) -> np.ndarray:
     if suffix == ".dcm":
         import pydicom
 
-        ds = pydicom.dcmread(path)
-        stored = np.frombuffer(ds.PixelData, dtype="<u2").reshape(ds.Rows, ds.Columns)
-        return stored * float(ds.RescaleSlope) + float(ds.RescaleIntercept)
+        return dicom_values(pydicom.dcmread(path))
     from PIL import Image
 
     with Image.open(path) as im:

@@ -26,7 +26,9 @@ weights, which reproduces beam hardening. An ideal detector absorbs every photon
 efficiency 1 at all energies). Point-source fall-off ``cos^3(theta)`` (inverse square times
 obliquity) relative to the detector centre, evaluated at pixel centres. Focal-spot unsharpness as
 one Gaussian kernel of FWHM ``focal_spot * (SID - SOD) / SOD`` for the object plane through the
-centre of the bodies' bounding box (:func:`~xray_viz.physics.imaging.source_object_distance`).
+centre of the bodies' bounding box (:func:`~xray_viz.physics.imaging.source_object_distance`);
+a discrete Gaussian whose variance is exact also for blurs far below a pixel
+(:func:`~xray_viz.physics.imaging.gaussian_kernel`).
 Quantum noise: Poisson counts; for energy-integrating detectors via the Swank factor.
 
 What is NOT modelled

@@ -14,6 +14,11 @@ A material is one of
       material = { "Water, Liquid" = 0.7, "Bone, Cortical (ICRP)" = 0.3 }
       density = 1.25
 
+Names, formulas and symbols are case-sensitive, so that each material has one spelling; an
+unknown name fails with the closest valid ones suggested, the right spelling first
+(``"water, liquid"`` -> ``'Water, Liquid'``, ``"AL"`` -> ``'Al'``, ``"h2o"`` -> ``'H2O'``; see
+:func:`suggest_materials`).
+
 The mass attenuation coefficient is the *total* one with coherent (Rayleigh) scattering,
 ``mu/rho = sigma_photo + sigma_coherent + sigma_incoherent`` (xraylib ``CS_Total``/``CS_Total_CP``),
 which is the "Total Attenuation with Coherent Scattering" column of NIST XCOM; e.g. water at
@@ -38,7 +43,7 @@ import numpy as np
 from xray_viz.errors import MaterialError
 
 __all__ = ["mass_attenuation", "linear_attenuation", "material_density", "check_material",
-           "nist_compounds", "material_key"]
+           "nist_compounds", "material_key", "suggest_materials"]
 
 
 def _xraylib():
@@ -73,27 +78,145 @@ def material_key(material):
                         f"got {material!r}")
 
 
+#: NIST compounds most often meant, suggested first among equally good matches.
+COMMON_COMPOUNDS = ("Water, Liquid", "Tissue, Soft (ICRP)", "Bone, Cortical (ICRP)",
+                    "Adipose Tissue (ICRP)", "Muscle, Skeletal", "Lung (ICRP)", "Blood (ICRP)",
+                    "Brain (ICRP)", "Skin (ICRP)", "Air, Dry (near sea level)",
+                    "Polymethyl Methacralate (Lucite, Perspex)", "Polyethylene")
+
+#: Elements offered in a case-corrected formula of several elements: Z <= 56 and the heavy
+#: elements of common detector, contrast and shielding compounds, no noble gases (so that
+#: "fat" does not become 'FAt', nor "bone" 'BONe').
+_FORMULA_ELEMENTS = frozenset(range(1, 57)) - {2, 10, 18, 36, 54} | {57, 58, 64, 71, 74, 78, 79,
+                                                                     80, 81, 82, 83, 92}
+
+
+@lru_cache(maxsize=1)
+def _element_symbols() -> dict[str, tuple[str, int]]:
+    """``{"al": ("Al", 13), ...}`` for Z = 1..92 (xraylib ``AtomicNumberToSymbol``)."""
+    xrl = _xraylib()
+    return {xrl.AtomicNumberToSymbol(z).lower(): (xrl.AtomicNumberToSymbol(z), z)
+            for z in range(1, 93)}
+
+
+def _formula_spellings(name: str, *, limit: int = 3) -> list[str]:
+    """Chemical formulas that differ from ``name`` at most in letter case and that xraylib's
+    ``CompoundParser`` accepts, lightest elements first (``"h2o"`` -> ``["H2O"]``,
+    ``"AL"`` -> ``["Al"]``); at most ``limit``.
+
+    Examples
+    --------
+    >>> _formula_spellings("caco3")
+    ['CaCO3', 'CaCo3']
+    """
+    if not name or len(name) > 40 or not all(c.isalnum() or c in "()[]." for c in name):
+        return []
+    symbols = _element_symbols()
+    found: list[tuple[tuple[str, ...], str]] = []
+
+    def walk(i: int, text: str, used: tuple[str, ...]):
+        if len(found) >= 64:
+            return
+        if i == len(name):
+            found.append((used, text))
+            return
+        if not name[i].isalpha():
+            walk(i + 1, text + name[i], used)
+            return
+        for n in (1, 2):
+            sym = symbols.get(name[i:i + n].lower()) if name[i:i + n].isalpha() else None
+            if sym and len(name[i:i + n]) == n:
+                walk(i + n, text + sym[0], used + (sym[0],))
+
+    walk(0, "", ())
+    xrl = _xraylib()
+    out = []
+    for used, text in found:
+        if not used:
+            continue
+        if len(set(used)) > 1 and any(symbols[u.lower()][1] not in _FORMULA_ELEMENTS
+                                      for u in used):
+            continue
+        try:
+            xrl.CompoundParser(text)
+        except ValueError:
+            continue
+        out.append((sum(symbols[u.lower()][1] for u in set(used)), text))
+    return [text for _, text in sorted(set(out))][:limit]
+
+
+def _words(text: str) -> list[str]:
+    return [w for w in "".join(c.lower() if c.isalnum() else " " for c in text).split()]
+
+
+def suggest_materials(name: str, *, n: int = 3) -> list[str]:
+    """Valid material names close to an unknown ``name``, best first.
+
+    In order: the element symbol or formula with its letter case corrected (``"al"`` -> ``'Al'``,
+    ``"h2o"`` -> ``'H2O'``); NIST compounds equal to ``name`` but for case and punctuation;
+    NIST compounds that contain every word of ``name`` (common tissues first); then, only if
+    none of those exist, difflib's closest NIST names.
+
+    Examples
+    --------
+    >>> suggest_materials("water")
+    ['Water, Liquid', 'Water Vapor']
+    >>> suggest_materials("AL")
+    ['Al']
+    >>> suggest_materials("h2o")
+    ['H2O']
+    """
+    names = nist_compounds()
+    key = name.strip()
+    words = _words(key)
+    out: list[str] = []
+    compact = key.replace(" ", "")
+    is_symbol = compact.lower() in _element_symbols()
+    formula_like = any(c.isdigit() or c in "()[]" for c in compact)
+    if is_symbol or formula_like:
+        out += _formula_spellings(compact)
+    exact = [c for c in names if _words(c) == words and words]
+    rank = {c: i for i, c in enumerate(COMMON_COMPOUNDS)}
+    containing = sorted(
+        (c for c in names if c not in exact and words
+         and all(any(cw.startswith(w) if len(w) >= 3 else cw == w for cw in _words(c))
+                 for w in words)),
+        key=lambda c: (rank.get(c, len(rank)), not _words(c)[0].startswith(words[0]), len(c), c))
+    out += exact + containing
+    if not (is_symbol or formula_like) and not exact and not containing:
+        out += _formula_spellings(compact)
+    if not out:
+        lower = {c.lower(): c for c in names}
+        out += [lower[c] for c in difflib.get_close_matches(key.lower(), list(lower), n=n,
+                                                            cutoff=0.5)]
+    seen = []
+    for c in out:
+        if c not in seen and c != name:
+            seen.append(c)
+    return seen[:n]
+
+
 @lru_cache(maxsize=512)
 def _resolve_name(name: str):
-    """``("nist", canonical_name, density)`` or ``("formula", name, None)``; MaterialError if neither."""
+    """``("nist", name, density)`` or ``("formula", name, None)``; MaterialError if neither.
+
+    Names are exact: a NIST compound spelled with other letter case, an element or formula
+    with wrong case (``"AL"``, ``"h2o"``) is refused, with the right spelling suggested first.
+    """
     xrl = _xraylib()
-    names = nist_compounds()
-    if name in names:
+    if name in nist_compounds():
         return ("nist", name, float(xrl.GetCompoundDataNISTByName(name)["density"]))
     try:
         xrl.CompoundParser(name)
         return ("formula", name, None)
     except ValueError:
         pass
-    lower = {n.lower(): n for n in names}
-    if name.strip().lower() in lower:
-        canonical = lower[name.strip().lower()]
-        return ("nist", canonical, float(xrl.GetCompoundDataNISTByName(canonical)["density"]))
-    close = difflib.get_close_matches(name.lower(), list(lower), n=3, cutoff=0.5)
-    hint = (f"did you mean {', '.join(repr(lower[c]) for c in close)}? " if close else "")
+    close = suggest_materials(name)
+    hint = (f"did you mean {', '.join(map(repr, close))}? " if close else "")
     raise MaterialError(
         f"unknown material {name!r}: {hint}use a NIST compound name (xray_viz.physics.materials."
         f"nist_compounds() lists them), a chemical formula such as 'H2O' or an element such as 'Al'"
+        " (names and symbols are case-sensitive)"
     )
 
 
@@ -134,7 +257,7 @@ def check_material(material, *, density=None) -> float:
     Raises
     ------
     MaterialError
-        Unknown name (with the closest NIST names suggested), bad mixture, or a formula,
+        Unknown name (with the closest valid names suggested), bad mixture, or a formula,
         element or mixture without a density.
 
     Examples

@@ -7,12 +7,17 @@ In a scene's ``[source]`` table give either ``energy`` (keV, monochromatic) or `
     tube potential (kV), ``anode_angle`` in degrees (default 12), ``filters`` a table of
     ``material = thickness in mm`` (SpekPy material names: element symbols, ``"Water, Liquid"``,
     ...; default none, i.e. no added filtration), ``bin`` the energy bin width in keV (default 1),
-    ``anode`` ``"W"`` (default), ``"Mo"`` or ``"Rh"``. SpekPy takes ~0.5 s per spectrum (plus ~3 s
-    to import); spectra are cached per parameter set.
+    ``anode`` ``"W"`` (default), ``"Mo"`` or ``"Rh"``; ``kvp`` from 10 to 500 kV for W, 10 to 50
+    kV for Mo and Rh (:data:`KVP_RANGE`). The parameters (and filter names) are checked when the
+    scene is loaded; the spectrum is computed when first used (SpekPy takes ~0.2 s per spectrum,
+    plus ~0.7 s to import) and cached per parameter set.
 ``spectrum = { file = "spec.csv" }``
-    Two columns, energy (keV) and relative fluence (photons in that bin), comma separated, ``#``
-    comments and one header line allowed; the path is relative to the scene file. For a fluence
-    *per keV* on a non-uniform grid, multiply by the bin widths first.
+    Two columns, energy (keV) and relative fluence (photons in that bin), comma, semicolon or
+    blank separated, UTF-8 (a byte-order mark is allowed). ``#`` comments and blank lines are
+    allowed anywhere, and one header line before the data, none of whose fields is a number;
+    any other non-numeric field is an error naming the file and line. The path is relative to
+    the scene file. For a fluence *per keV* on a non-uniform grid, multiply by the bin widths
+    first.
 
 Every spectrum becomes a :class:`Spectrum`: bin energies and photon-fluence weights that sum to 1.
 
@@ -38,7 +43,7 @@ import numpy as np
 from xray_viz.errors import SceneFileNotFoundError, SpectrumError
 
 __all__ = ["Spectrum", "tube_spectrum", "read_spectrum_csv", "spectrum_from_dict",
-           "source_spectrum", "SPECTRUM_KEYS", "ANODES"]
+           "source_spectrum", "SPECTRUM_KEYS", "ANODES", "KVP_RANGE"]
 
 #: Keys of a ``spectrum`` table and their meaning.
 SPECTRUM_KEYS = {
@@ -128,14 +133,55 @@ def _spekpy():
     return spekpy
 
 
-def _spekpy_materials() -> list[str]:
-    try:
-        from spekpy.IO import get_matls
+@lru_cache(maxsize=1)
+def _spekpy_materials() -> frozenset[str] | None:
+    """Names SpekPy accepts as filter materials, or None if SpekPy is not installed.
 
-        usr, default = get_matls()
-        return list(usr) + list(default)
-    except Exception:  # pragma: no cover - private SpekPy helper
-        return []
+    SpekPy looks a filter up as ``NAME.comp`` in its ``data/matl_usr`` then ``data/matl_def``
+    directories (element symbols and NIST-like compound names). The directories are listed
+    without importing SpekPy (~0.7 s), so scene files are checked quickly at load time.
+    """
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec("spekpy")
+    except (ImportError, ValueError):  # pragma: no cover
+        spec = None
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    root = Path(list(spec.submodule_search_locations)[0]) / "data"
+    names = set()
+    for sub in ("matl_usr", "matl_def"):
+        try:
+            names.update(p.name[:-5] for p in (root / sub).iterdir() if p.name.endswith(".comp"))
+        except OSError:
+            continue
+    return frozenset(names) or None
+
+
+def _filter_hint(material: str, known) -> str:
+    """``"did you mean 'Al'? "``: a case-insensitive match first, then a name one letter
+    shorter (``'Alu'`` -> ``'Al'``) or starting with the given one, then difflib's closest."""
+    known = sorted(known)
+    m = material.strip().lower()
+    close = [k for k in known if k.lower() == m]
+    close += sorted((k for k in known if k not in close
+                     and ((m.startswith(k.lower()) and len(m) - len(k) == 1 and len(k) >= 2)
+                          or (k.lower().startswith(m) and len(m) >= 3))),
+                    key=lambda k: (abs(len(k) - len(m)), k))
+    close += [c for c in difflib.get_close_matches(material, known, n=3) if c not in close]
+    return f"did you mean {', '.join(map(repr, close[:3]))}? " if close else ""
+
+
+def _unknown_filter(material: str, known) -> SpectrumError:
+    return SpectrumError(f"spectrum has an unknown filter material {material!r}: "
+                         f"{_filter_hint(material, known)}"
+                         "use an element symbol such as 'Al' or 'Cu', or a SpekPy material name "
+                         "such as 'Water, Liquid'")
+
+
+#: Tube potentials (kV) SpekPy models for each anode (its default physics model, "casim").
+KVP_RANGE = {"W": (10.0, 500.0), "Mo": (10.0, 50.0), "Rh": (10.0, 50.0)}
 
 
 @lru_cache(maxsize=64)
@@ -146,16 +192,11 @@ def _tube_spectrum_cached(kvp, anode_angle, filters, bin_width, anode) -> Spectr
     except Exception as exc:
         raise SpectrumError(f"SpekPy cannot model kvp = {kvp:g} with anode {anode!r} and "
                             f"anode_angle = {anode_angle:g}: {exc}") from None
-    known = None
     for material, mm in filters:
         try:
             s.filter(material, mm)
         except Exception:
-            known = known or _spekpy_materials()
-            close = difflib.get_close_matches(material, known, n=3)
-            hint = f"did you mean {', '.join(map(repr, close))}? " if close else ""
-            raise SpectrumError(f"unknown filter material {material!r}: {hint}use an element "
-                                "symbol such as 'Al' or 'Cu', or a SpekPy material name") from None
+            raise _unknown_filter(material, _spekpy_materials() or ()) from None
     k, fluence = s.get_spectrum()
     keep = fluence > 0
     if not np.any(keep):
@@ -199,27 +240,50 @@ def tube_spectrum(kvp: float, *, anode_angle: float = 12.0, filters=None, bin_wi
                                  d["bin"], d["anode"])
 
 
+def _csv_fields(text: str) -> list[str]:
+    text = text.replace(";", ",")
+    return [p.strip() for p in text.split(",")] if "," in text else text.split()
+
+
+def _is_number(field: str) -> bool:
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
+
+
 @lru_cache(maxsize=64)
 def _read_csv_cached(path: str, mtime_ns: int, size: int) -> Spectrum:
     rows = []
-    with open(path, encoding="utf-8") as fh:
-        for lineno, line in enumerate(fh, 1):
-            text = line.split("#", 1)[0].strip()
-            if not text:
+    header_seen = False
+    try:
+        # utf-8-sig: a byte-order mark (as spreadsheet programs write) is not part of line 1
+        with open(path, encoding="utf-8-sig") as fh:
+            lines = fh.readlines()
+    except UnicodeDecodeError as exc:
+        raise SpectrumError(f"{path}: not a UTF-8 text file (byte {exc.start}); a spectrum is a "
+                            "two-column CSV text file: keV, relative fluence") from None
+    except OSError as exc:
+        raise SpectrumError(f"{path}: cannot read the spectrum file: {exc.strerror}") from None
+    for lineno, line in enumerate(lines, 1):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        parts = _csv_fields(text)
+        bad = [p for p in parts if not _is_number(p)]
+        if bad:
+            # one header line is allowed, before the data, and only if no field is a number
+            if not rows and not header_seen and len(bad) == len(parts):
+                header_seen = True
                 continue
-            text = text.replace(";", ",")
-            parts = [p.strip() for p in text.split(",")] if "," in text else text.split()
-            try:
-                values = [float(p) for p in parts]
-            except ValueError:
-                if not rows:  # a header line
-                    continue
-                raise SpectrumError(f"{path}: line {lineno}: expected two numbers (keV, fluence), "
-                                    f"got {line.strip()!r}") from None
-            if len(values) != 2:
-                raise SpectrumError(f"{path}: line {lineno}: expected two columns (keV, fluence), "
-                                    f"got {len(values)}")
-            rows.append(values)
+            why = ("only one header line is allowed, before the data" if len(bad) == len(parts)
+                   else "expected two numbers: keV, relative fluence")
+            raise SpectrumError(f"{path}: line {lineno}: {bad[0]!r} is not a number ({why})")
+        if len(parts) != 2:
+            raise SpectrumError(f"{path}: line {lineno}: expected two columns (keV, fluence), "
+                                f"got {len(parts)}")
+        rows.append([float(p) for p in parts])
     if not rows:
         raise SpectrumError(f"{path}: no spectrum rows (two columns: keV, relative fluence)")
     data = np.asarray(rows)
@@ -246,6 +310,8 @@ def read_spectrum_csv(path) -> Spectrum:
         st = path.stat()
     except FileNotFoundError:
         raise SceneFileNotFoundError(f"{path}: spectrum file not found") from None
+    except OSError as exc:
+        raise SpectrumError(f"{path}: cannot read the spectrum file: {exc.strerror}") from None
     if path.is_dir():
         raise SpectrumError(f"{path}: is a directory, not a spectrum CSV file")
     return _read_csv_cached(str(path.resolve()), st.st_mtime_ns, st.st_size)
@@ -272,7 +338,19 @@ def spectrum_from_dict(spec, *, base_dir=None) -> dict:
     Raises
     ------
     SpectrumError
-        Unknown keys, wrong types or values.
+        Unknown keys, wrong types or values: a ``kvp`` outside the range SpekPy models for the
+        anode (:data:`KVP_RANGE`), an ``anode_angle`` outside 0-90 degrees, a filter material
+        SpekPy does not know (checked against its material files, without computing the
+        spectrum), a malformed CSV file.
+    SceneFileNotFoundError
+        The CSV file does not exist.
+
+    Notes
+    -----
+    A tube spectrum is only computed (~0.2 s, plus ~0.7 s to import SpekPy) when first used,
+    by :func:`source_spectrum`; validating it here costs microseconds, so
+    :func:`~xray_viz.scene.load_scene` stays fast. The one error left to that point is a
+    filtration that absorbs the whole spectrum.
 
     Examples
     --------
@@ -315,15 +393,22 @@ def spectrum_from_dict(spec, *, base_dir=None) -> dict:
     if anode not in ANODES:
         raise SpectrumError(f"spectrum anode must be one of {', '.join(map(repr, ANODES))}, "
                             f"got {anode!r}")
+    lo, hi = KVP_RANGE[anode]
+    if not lo <= kvp <= hi:
+        raise SpectrumError(f"spectrum kvp = {kvp:g} is outside the {lo:g}-{hi:g} kV that SpekPy "
+                            f"models for the {anode} anode")
     filters = spec.get("filters", {})
     if not isinstance(filters, Mapping):
         raise SpectrumError(f"spectrum filters must be a table such as {{ Al = 2.5 }} (mm), "
                             f"got {filters!r}")
     clean = {}
+    known = _spekpy_materials()
     for material, mm in filters.items():
         if isinstance(mm, bool) or not isinstance(mm, (int, float)) or not math.isfinite(mm) \
                 or mm < 0:
             raise SpectrumError(f"spectrum filter {material} must be a thickness >= 0 mm, got {mm!r}")
+        if known is not None and str(material) not in known:
+            raise _unknown_filter(str(material), known)
         if mm > 0:
             clean[str(material)] = float(mm)
     return {"kvp": kvp, "anode_angle": angle, "filters": clean, "bin": bin_width, "anode": anode}
