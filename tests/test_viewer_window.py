@@ -21,7 +21,9 @@ pytestmark = pytest.mark.skipif(
     reason="needs xvfb-run and xdotool (installed by .ci/system-deps)")
 
 # The window is 1400 x 700 at the top left of the virtual screen (no window manager); the
-# radiograph fills the right half, its centre near (986, 272).
+# radiograph fills the right half, its centre near (986, 272). The source-distance slider is the
+# first of three in the upper row under it (viewer.SLIDER_COLUMNS: x 728 to 910, y 560), its
+# knob at 0.26 of the way (the distance, 1500 mm, in a range of 450 to 4500 mm): x 775.
 DRIVER = r"""
 set -u
 "$XRAY_VIZ" show sphere > viewer.log 2>&1 &
@@ -33,9 +35,9 @@ xdotool mousemove 986 272 click 1; sleep 3        # pick the centre pixel of the
 xdotool mousemove 300 300 key i; sleep 2          # screenshot after picking: xray-viz-1.png
 xdotool key b; sleep 2
 xdotool key i; sleep 2                            # bodies close-up: xray-viz-2.png
-xdotool mousemove 812 561 mousedown 1; sleep 0.5  # drag the source-distance knob to the right
-xdotool mousemove 900 561; sleep 0.5
-xdotool mousemove 1000 561; sleep 0.5
+xdotool mousemove 775 561 mousedown 1; sleep 0.5  # drag the source-distance knob to the right
+xdotool mousemove 840 561; sleep 0.5
+xdotool mousemove 905 561; sleep 0.5
 xdotool mouseup 1; sleep 5
 xdotool mousemove 300 300 key i; sleep 2          # source moved away: xray-viz-3.png
 xdotool key q

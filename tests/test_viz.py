@@ -221,3 +221,200 @@ def test_attenuation_profile_of_nested_bodies_uses_the_inner_material():
     prof = attenuation_profile(scene, hits, 1500.0)
     assert prof.mu.tolist() == [0.0, 0.1, 1.0, 0.1, 0.0]
     assert prof.body.tolist() == [-1, 0, 1, 0, -1]
+
+
+# --------------------------------------------------------------------------------------------
+# window/level, spectra, sizes, palette, camera, colour bar, labels
+
+
+def _slider_moved(widget, value):
+    """Move a slider widget's knob as the mouse does: its value, then the end event."""
+    from vtkmodules.vtkCommonCore import vtkCommand
+
+    widget.GetRepresentation().SetValue(value)
+    widget.InvokeEvent(vtkCommand.EndInteractionEvent)
+
+
+def _pane(plotter, loc):
+    """The actors of one subplot (``plotter.actors`` are those of the current one)."""
+    return plotter.renderers[plotter.renderers.loc_to_index(loc)].actors
+
+
+def test_window_level_sliders_set_the_image_range_and_the_text(viewer):
+    image = viewer.radiograph.intensity
+    actor = _pane(viewer.plotter, (0, 1))["radiograph"]
+    title = _pane(viewer.plotter, (0, 1))["radiograph-title"]
+    lo, hi = float(image.min()), float(image.max())
+    assert actor.mapper.scalar_range == pytest.approx((lo, hi))        # default: image range
+    assert f"W={hi - lo:.3g}, L={(hi + lo) / 2:.3g} (image range)" in title.GetInput()
+    assert viewer.sliders["window"].GetRepresentation().GetValue() == pytest.approx(hi - lo)
+    _slider_moved(viewer.sliders["window"], 0.2)
+    _slider_moved(viewer.sliders["level"], 0.7)
+    actor = _pane(viewer.plotter, (0, 1))["radiograph"]
+    assert actor.mapper.scalar_range == pytest.approx((0.6, 0.8))
+    text = _pane(viewer.plotter, (0, 1))["radiograph-title"].GetInput()
+    assert "W=0.2, L=0.7" in text and "image range" not in text
+    assert viewer.view.colorbar_labels == ["0.60", "0.65", "0.70", "0.75", "0.80"]
+    # kept while the source moves and the image is rendered again
+    viewer.set_source_distance(1200.0)
+    assert _pane(viewer.plotter, (0, 1))["radiograph"].mapper.scalar_range == pytest.approx(
+        (0.6, 0.8))
+    assert viewer.sliders["level"].GetRepresentation().GetValue() == pytest.approx(0.7)
+    viewer.set_window_level()                                           # back to the range
+    image = viewer.radiograph.intensity
+    assert _pane(viewer.plotter, (0, 1))["radiograph"].mapper.scalar_range == pytest.approx(
+        (float(image.min()), float(image.max())))
+    with pytest.raises(ValueError):
+        viewer.set_window(0.0)
+
+
+def test_pick_chart_of_a_spectrum_scene_names_its_energy_and_the_images_meaning():
+    pytest.importorskip("spekpy")
+    from xray_viz.physics.spectra import source_spectrum
+
+    base = xray_viz.load_scene("nested_spheres")
+    det = Detector.from_size([0, 0, -500], [0, 1, 0], (40, 40), base.detector.size)
+    scene = base.replace(source=Source(position=[0.0, 0.0, 1000.0], spectrum={"kvp": 80.0}),
+                         detector=det)
+    vw = Viewer(scene, resolution=40, window_size=SIZE)
+    try:
+        spectrum = source_spectrum(vw.scene.source)
+        prof = vw.pick_pixel(20, 20)                       # through water, bone and air
+        image_li = float(vw.radiograph.line_integral[40 - 1 - 20, 20])
+        title = vw.chart.title
+        # mu at the ray's effective energy: its integral is the image's -ln(I / I0) ...
+        assert spectrum.energies[0] < prof.energy < spectrum.energies[-1]
+        assert f"E_eff = {prof.energy:.1f} keV" in title and "80 kVp" in title
+        assert prof.line_integral == pytest.approx(image_li, rel=1e-6)
+        assert "-ln(I/I0) of the whole spectrum" in title
+        assert f"{prof.energy:.3g} keV" in vw.chart.y_label
+        # ... while the mean energy's differs (beam hardening), and the title says by how much
+        at_mean = attenuation_profile(vw.scene, vw.view.picked.hits,
+                                      float(vw.view.picked.t_max[0]),
+                                      energy=spectrum.mean_energy)
+        assert abs(at_mean.line_integral - image_li) > 0.05 * image_li
+        assert f"mean {spectrum.mean_energy:.1f} keV gives {at_mean.line_integral:.4g}" in title
+        # a ray that misses the bodies: mu at the mean energy, said so
+        prof = vw.pick_pixel(0, 0)
+        assert prof.energy == pytest.approx(spectrum.mean_energy)
+        assert "mu at the mean" in vw.chart.title and prof.line_integral == 0
+    finally:
+        vw.close()
+
+
+def test_monochromatic_pick_chart_names_its_energy(viewer):
+    viewer.pick_pixel(24, 20)
+    assert viewer.chart.title.startswith("pixel (24, 20) at 60 keV: integral mu dt = ")
+    assert viewer.profile.energy == 60.0
+
+
+def test_show_command_rejects_huge_sizes_in_one_line(tmp_path, capsys):
+    from xray_viz.cli import main
+
+    out = tmp_path / "big.png"
+    assert main(["show", "sphere", "--screenshot", str(out), "--size", "100000",
+                 "100000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "100000" in err and "8192" in err, err
+    assert "Traceback" not in err and not out.exists()
+    parser = argparse.ArgumentParser(prog="xray-viz")
+    add_show_parser(parser.add_subparsers())
+    args = parser.parse_args(["show", "sphere", "--screenshot", str(out), "--size", "1400",
+                              "9000"])
+    with pytest.raises(OutputError, match="9000"):
+        args.func(args)
+
+
+def test_material_colours_are_not_marker_colours():
+    from matplotlib.colors import to_rgb
+
+    from xray_viz.viz.scene_view import COLORS, PALETTE
+
+    view = plot_scene(xray_viz.load_scene("nested_spheres"), rays="center", window_size=SIZE)
+    try:
+        used = list(view.material_colors.values())
+    finally:
+        view.plotter.close()
+    assert len(set(used)) == 3
+    markers = [COLORS[k] for k in ("source", "ray", "inside", "entry", "exit", "picked", "HO",
+                                   "VE", "FL", "LHC")]
+    for colour in PALETTE:
+        for marker in markers:
+            distance = np.linalg.norm(np.subtract(to_rgb(colour), to_rgb(marker)))
+            assert distance > 0.2, (colour, marker)           # not the same colour
+
+
+def _box_fraction(view, points):
+    xy = view._world_to_box(points)
+    bx0, by0, bx1, by1 = view.view_box
+    return np.mean((xy[:, 0] >= bx0) & (xy[:, 0] <= bx1) & (xy[:, 1] >= by0)
+                   & (xy[:, 1] <= by1))
+
+
+def test_side_view_shows_the_detector_face_and_frames_the_whole_set_up():
+    view = plot_scene(xray_viz.load_scene("nested_spheres"), rays="grid 3", window_size=SIZE)
+    try:
+        vp = viewport(view.scene.source.position, view.scene.detector)
+        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.HO + vp.VE, vp.LHC + vp.VE])
+        lo, hi = view.bodies_bounds
+        points = np.vstack([corners, vp.r0[None], lo[None], hi[None]])
+        assert _box_fraction(view, points) == 1.0                  # everything in view
+        xy = view._world_to_box(points)
+        bx0, by0, bx1, by1 = view.view_box
+        span = np.ptp(xy, axis=0) / [bx1 - bx0, by1 - by0]
+        assert span.max() > 0.9                                    # ... and filling the box
+        # the detector is seen face on enough that its pixel grid shows: the projected
+        # parallelogram is well over a sliver (edge on, its area was ~0)
+        c = view._world_to_box(corners) * view.plotter.window_size / [2, 1]   # pixels
+        d1, d2 = c[2] - c[0], c[3] - c[1]
+        area = 0.5 * abs(d1[0] * d2[1] - d1[1] * d2[0])
+        w, h = np.ptp(c, axis=0)
+        assert area > 0.4 * w * h and min(w, h) > 30
+        # all the labels of the arrows are in the pane
+        labels = np.array(list(view.vector_label_points.values()))
+        assert _box_fraction(view, labels) == 1.0
+    finally:
+        view.plotter.close()
+
+
+def test_bodies_view_keeps_the_arrow_labels_in_view_and_thin_shafts():
+    vw = Viewer(xray_viz.load_scene("sphere"), resolution=48, window_size=SIZE)
+    try:
+        vw.view_bodies()
+        xy = vw.view._world_to_box(np.array(list(vw.view.vector_label_points.values())[:4]))
+        assert np.all((xy > 0) & (xy < 1)), xy                  # HO, VE, FL, LHC labels
+        # the shafts are lines of ARROW_WIDTH pixels, the tips sized by the detector
+        from xray_viz.viz.scene_view import ARROW_WIDTH
+
+        fl = vw.view.datasets["vec:FL"]
+        assert fl.n_lines == 1
+        assert vw.plotter.actors["vec:FL"].GetProperty().GetLineWidth() == ARROW_WIDTH
+        det = min(vw.scene.detector.size)
+        tips = {k: vw.view.datasets[f"vec:{k}"] for k in ("HO", "FL")}
+        sizes = [np.ptp(t.extract_cells(range(1, t.n_cells)).points, axis=0).max()
+                 for t in tips.values()]
+        assert sizes == pytest.approx([0.1 * det] * 2, rel=0.05)   # the same on HO and FL
+    finally:
+        vw.close()
+
+
+def test_colour_bar_has_round_ticks_and_legible_corner_labels(view):
+    from xray_viz.viz.scene_view import CORNER_FONT
+
+    bar = view.plotter.scalar_bars["I / I0"]
+    assert bar.GetUseCustomLabels() and bar.GetVerticalTitleSeparation() > 0
+    labels = view.colorbar_labels
+    assert 3 <= len(labels) <= 7
+    assert all(len(x.split(".")[-1]) <= 2 for x in labels), labels
+    steps = np.diff([float(x) for x in labels])
+    assert np.allclose(steps, steps[0])
+    for name in ("radiograph-corner-00", "radiograph-corner-wh"):
+        prop = _pane(view.plotter, (0, 1))[name].GetTextProperty()
+        assert prop.GetFontSize() == CORNER_FONT >= 12
+
+
+def test_vector_labels_toggle_with_the_arrows(view):
+    view.set_visible("vectors", False)
+    assert not view.plotter.actors["vec-labels-labels"].GetVisibility()
+    view.set_visible("vectors", True)
+    assert view.plotter.actors["vec-labels-labels"].GetVisibility()

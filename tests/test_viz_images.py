@@ -51,3 +51,19 @@ def test_viewer_bodies_view(verify_image_cache):
     viewer.view_bodies()
     viewer.pick_pixel(40, 20)
     viewer.plotter.show()
+
+
+def test_scene_view_materials(verify_image_cache):
+    # three materials (water around bone around air), each in its own colour, none of them a
+    # marker's; the rays of the middle row darken inside the balls without hiding them
+    view = plot_scene(xray_viz.load_scene("nested_spheres"), rays="row 128", radiograph=True,
+                      window_size=SIZE)
+    view.view_bodies()
+    view.plotter.show()
+
+
+def test_viewer_frog_bodies_view(verify_image_cache):
+    # seven materials; the arrows thin, their labels in view, the rays clear of the check boxes
+    viewer = Viewer(xray_viz.load_scene("frog"), resolution=64, window_size=SIZE)
+    viewer.view_bodies()
+    viewer.plotter.show()

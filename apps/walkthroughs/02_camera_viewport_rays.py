@@ -111,6 +111,9 @@ plotter.add_mesh(segments(np.broadcast_to(vp.r0, (reach[show].sum(), 3)), ends[r
                  color="green", line_width=3)
 plotter.add_mesh(segments(np.broadcast_to(vp.r0, ((~reach[show]).sum(), 3)), ends[~reach[show]]),
                  color="grey", line_width=1.5)
+# the missing photons fly 260 mm from the source in every direction, up to 560 mm above the
+# ball: frame them all (same line of sight as the right-hand panel, further back)
+plotter.camera_position = [(1150.0, -1300.0, 760.0), (0.0, 0.0, 190.0), (0.0, 0.0, 1.0)]
 
 plotter.subplot(0, 1)
 plotter.add_text("backward: one ray per pixel", font_size=12, color="black",

@@ -8,12 +8,13 @@ Viz only *reads* scenes, rays, hits and radiographs; nothing in tracing or physi
 """
 
 from xray_viz.viz.rays import (AttenuationProfile, RaySelection, attenuation_profile,
-                               inside_segments, pixel_ray_index, select_pixels, trace_selection)
+                               effective_energy, inside_segments, pixel_ray_index,
+                               select_pixels, trace_selection)
 from xray_viz.viz.scene_view import SceneView, plot_scene
 
 __all__ = ["plot_scene", "SceneView", "Viewer", "RaySelection", "AttenuationProfile",
            "select_pixels", "pixel_ray_index", "trace_selection", "inside_segments",
-           "attenuation_profile"]
+           "attenuation_profile", "effective_energy"]
 
 
 def __getattr__(name):

@@ -20,6 +20,10 @@ SCREENSHOT_FORMATS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 #: Smallest window ``--size`` accepts.
 MIN_SIZE = (400, 200)
 
+#: Largest window side ``--size`` accepts, in pixels (VTK aborts with ``std::bad_alloc`` when
+#: it cannot allocate a render window of, say, 100000 x 100000).
+MAX_SIZE = 8192
+
 
 def _use_egl_if_headless() -> None:
     """Off-screen without an X server: let VTK pick EGL (Mesa llvmpipe) instead of X."""
@@ -54,7 +58,8 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
                    help="render off-screen, save the window to OUT (.png, .jpg, .bmp, .tiff) "
                         "and exit")
     p.add_argument("--size", nargs=2, type=int, metavar=("W", "H"), default=[1400, 700],
-                   help="window size in pixels (default: 1400 700)")
+                   help=f"window size in pixels, from {MIN_SIZE[0]} x {MIN_SIZE[1]} to "
+                        f"{MAX_SIZE} a side (default: 1400 700)")
     p.add_argument("--rays", default="grid 7",
                    help="rays drawn in 3D: 'grid N', 'every K', 'row J', 'column I', 'center' "
                         "or 'none' (default: %(default)s)")
@@ -76,7 +81,8 @@ def show_command(args) -> int:
     Raises
     ------
     OutputError
-        Unsupported screenshot format, or a window smaller than 400 x 200.
+        Unsupported screenshot format, or a window smaller than 400 x 200 or with a side
+        larger than 8192 pixels.
     XrayVizError
         No display to open a window on (use ``--screenshot``), a bad ``--rays``.
     SceneError, SceneFileNotFoundError
@@ -94,6 +100,9 @@ def show_command(args) -> int:
     if w < MIN_SIZE[0] or h < MIN_SIZE[1]:
         raise OutputError(f"--size {w} {h}: the window must be at least "
                           f"{MIN_SIZE[0]} x {MIN_SIZE[1]} pixels")
+    if w > MAX_SIZE or h > MAX_SIZE:
+        raise OutputError(f"--size {w} {h}: {max(w, h)} pixels is too large; each side must "
+                          f"be at most {MAX_SIZE} pixels")
     if args.resolution is not None and args.resolution < 2:
         raise XrayVizError(f"--resolution must be >= 2 pixels, got {args.resolution}")
     from xray_viz.viz.rays import select_pixels

@@ -28,6 +28,7 @@ __all__ = [
     "trace_selection",
     "inside_segments",
     "attenuation_profile",
+    "effective_energy",
 ]
 
 
@@ -302,3 +303,72 @@ def attenuation_profile(scene, hits: Hits, t_max: float, *, energy=None) -> Atte
     line_integral = float(np.sum(mu * np.diff(t)) / MM_PER_CM)
     return AttenuationProfile(t=t, mu=mu, body=body, line_integral=line_integral,
                               energy=float(energy))
+
+
+def effective_energy(scene, profile: AttenuationProfile, line_integral: float, *,
+                     energies) -> float | None:
+    """The single photon energy (keV) at which ``profile``'s ray has ``line_integral``.
+
+    A polychromatic image holds ``-ln(I / I0)`` of the whole spectrum, not the line integral
+    at any one energy; the ray's *effective energy* is the energy a monochromatic beam would
+    need to give the same value along the same path (lower than the spectrum's mean where the
+    soft photons are absorbed, higher behind thick bone: beam hardening).
+
+    Parameters
+    ----------
+    scene : Scene
+    profile : AttenuationProfile
+        The ray's path through the bodies (at any energy: only ``t`` and ``body`` are used).
+    line_integral : float
+        The image's value, e.g. ``Radiograph.line_integral[H - 1 - j, i]``.
+    energies : (float, float)
+        The range of keV searched, e.g. the spectrum's lowest and highest bins.
+
+    Returns
+    -------
+    float or None
+        None when no energy in the range gives ``line_integral``: the ray misses every body,
+        or its bodies have a constant ``mu``.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> scene = xray_viz.load_scene("nested_spheres")
+    >>> sel = trace_selection(scene, "center")
+    >>> prof = attenuation_profile(scene, sel.hits, float(sel.t_max[0]), energy=50.0)
+    >>> e = effective_energy(scene, prof, prof.line_integral, energies=(20.0, 80.0))
+    >>> round(e, 3)
+    50.0
+    """
+    from xray_viz.physics.imaging import MM_PER_CM, body_mu
+
+    inside = profile.body >= 0
+    if not inside.any() or not np.isfinite(line_integral):
+        return None
+    lengths = np.bincount(profile.body[inside], weights=np.diff(profile.t)[inside],
+                          minlength=len(scene.bodies))
+
+    def excess(e):
+        return body_mu(scene, np.atleast_1d(e)) @ lengths / MM_PER_CM - line_integral
+
+    lo, hi = (float(e) for e in energies)
+    grid = np.linspace(lo, hi, 129)
+    d = excess(grid)
+    if np.ptp(d) < 1e-12 * max(abs(line_integral), 1.0):
+        return None                               # mu does not change with energy
+    change = np.flatnonzero((d[:-1] == 0) | (np.sign(d[:-1]) != np.sign(d[1:])))
+    if not len(change):
+        return None
+    k = change[-1]                                # the highest energy that fits (K-edges)
+    a, b = grid[k], grid[k + 1]
+    da = d[k]
+    for _ in range(48):                           # bisection to ~1e-12 keV
+        m = (a + b) / 2
+        dm = float(excess(m)[0])
+        if dm == 0:
+            return float(m)
+        if np.sign(dm) == np.sign(da):
+            a, da = m, dm
+        else:
+            b = m
+    return float((a + b) / 2)

@@ -10,12 +10,14 @@
   viewport centre to ``r0``) and ``LHC`` (from ``r0`` to the lower-left corner, the ray
   direction of pixel (0, 0) in Eq. 1.5) as labelled arrows (thesis Figure 1.3);
 * optionally the beam's frustum (``r0`` to the four corners);
-* a chosen subset of rays from the source to their pixels, the parts inside bodies highlighted,
-  entries and exits as spheres and cubes - every point taken from
-  :func:`xray_viz.tracing.trace_rays`;
+* a chosen subset of rays from the source to their pixels, the parts inside bodies drawn dark
+  and half transparent (the material colours show through), entries and exits as spheres and
+  cubes - every point taken from :func:`xray_viz.tracing.trace_rays`;
 
 and in the right subplot the radiograph, row 0 at the top as in the image arrays, with its
-own colour bar and window/level. It can also be draped on the detector plane as a texture.
+own colour bar (round ticks, :func:`colorbar_ticks`) and window/level (shown as ``W=..., L=...``
+in its title; :meth:`SceneView.set_window_level`). It can also be draped on the detector plane
+as a texture.
 """
 
 from __future__ import annotations
@@ -30,27 +32,39 @@ from xray_viz.geometry import pixel_coordinates, viewport
 from xray_viz.viz.rays import RaySelection, inside_segments, trace_selection
 
 __all__ = ["SceneView", "plot_scene", "material_label", "grid_indices", "image_to_grid",
-           "window_level_limits"]
+           "window_level_limits", "colorbar_ticks"]
 
-#: Colours given to materials in order of appearance (matplotlib's tab10).
-PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
-           "#7f7f7f", "#bcbd22", "#17becf")
-
+#: Colours of what the viewer marks: the source, rays, hits, the picked ray and the HO, VE,
+#: FL and LHC arrows. None of them is a material colour (:data:`PALETTE`), so a marker never
+#: reads as a material: yellow for the source and rays, black for the ray inside the bodies,
+#: bright green and sky blue for the entry and exit glyphs, magenta for the picked ray, red
+#: and green (darker) for the viewport edges HO and VE, black and grey for FL and LHC.
 COLORS = {
     "source": "gold",
     "detector": "#9aa4b1",
     "grid": "#303841",
     "ray": "#e0c000",
-    "inside": "#d62728",
-    "entry": "#2ca02c",
-    "exit": "#1f3fbf",
+    "inside": "#1a1a1a",
+    "entry": "#00d000",
+    "exit": "#00b0ff",
     "picked": "magenta",
     "frustum": "#888888",
-    "HO": "#d62728",
-    "VE": "#2ca02c",
-    "FL": "#1f77b4",
-    "LHC": "#9467bd",
+    "HO": "#e00000",
+    "VE": "#008f00",
+    "FL": "#1a1a1a",
+    "LHC": "#7f7f7f",
 }
+
+#: Colours given to materials in order of appearance: matplotlib's tab10 and tab20b without
+#: the reds, greens, cyans, yellows, greys and magentas of :data:`COLORS`.
+PALETTE = ("#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#393b79", "#e7969c", "#c49c94",
+           "#6b6ecf", "#7b4173")
+
+#: Width in pixels of the HO, VE, FL and LHC arrows' shafts.
+ARROW_WIDTH = 3
+
+#: Font size of the radiograph's corner labels, (0, 0) and (W - 1, H - 1).
+CORNER_FONT = 14
 
 #: Actor names of each toggleable group of the 3D view.
 GROUPS = {
@@ -58,7 +72,8 @@ GROUPS = {
     "source": ("source",),
     "detector": ("detector",),
     "grid": ("grid",),
-    "vectors": ("vec:HO", "vec:VE", "vec:FL", "vec:LHC", "vec-labels"),
+    # add_point_labels(name="vec-labels") registers its actor as "vec-labels-labels"
+    "vectors": ("vec:HO", "vec:VE", "vec:FL", "vec:LHC", "vec-labels-labels"),
     "frustum": ("frustum",),
     "rays": ("rays", "rays-inside"),
     "hits": ("hits-entry", "hits-exit"),
@@ -122,6 +137,36 @@ def window_level_limits(image, *, window=None, level=None) -> tuple[float, float
     return float(level - window / 2), float(level + window / 2)
 
 
+def colorbar_ticks(lo: float, hi: float, *, n: int = 5) -> tuple[np.ndarray, str]:
+    """Round tick values in ``[lo, hi]`` (steps of 1, 2 or 5 times a power of ten, about
+    ``n`` of them) and a printf format that shows them without spurious digits.
+
+    Examples
+    --------
+    >>> ticks, fmt = colorbar_ticks(0.202, 1.0)
+    >>> [fmt % t for t in ticks]
+    ['0.4', '0.6', '0.8', '1.0']
+    >>> ticks, fmt = colorbar_ticks(0.8, 1.0)
+    >>> [fmt % t for t in ticks]
+    ['0.80', '0.85', '0.90', '0.95', '1.00']
+    """
+    lo, hi = float(lo), float(hi)
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
+        return np.array([lo]), "%.3g"
+    mag = 10.0 ** math.floor(math.log10((hi - lo) / max(n, 1)))
+    best = None
+    for step in (m * mag for m in (0.5, 1, 2, 5, 10, 20)):   # the count nearest n wins
+        ticks = np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
+        if len(ticks) >= 2 and (best is None or abs(len(ticks) - n) < abs(len(best[0]) - n)):
+            best = (ticks, step)
+    if best is None:
+        return np.array([lo, hi]), "%.3g"
+    ticks, step = best
+    digits = max(0, -math.floor(math.log10(step) + 1e-9))
+    fmt = f"%.{digits}f" if max(abs(lo), abs(hi)) < 1e5 else "%.3g"
+    return np.round(ticks, digits + 2) + 0.0, fmt
+
+
 def image_to_grid(image, *, name="value") -> pv.ImageData:
     """An (H, W) image as cells of a flat :class:`pyvista.ImageData`, pixel (i, j) at (i, j).
 
@@ -144,12 +189,19 @@ def image_to_grid(image, *, name="value") -> pv.ImageData:
     return grid
 
 
-def _arrow(start, vector, *, tip: float) -> pv.PolyData:
-    """An arrow from ``start`` along ``vector`` with a tip ``tip`` mm long (not scaled)."""
-    length = float(np.linalg.norm(vector))
-    f = min(0.4, tip / max(length, 1e-12))
-    return pv.Arrow(start=start, direction=vector, tip_length=f, tip_radius=0.35 * f,
-                    shaft_radius=0.08 * f, scale=length)
+def _arrow(start, vector, *, tip: float, tip_radius: float) -> pv.PolyData:
+    """An arrow from ``start`` along ``vector``: a line for the shaft (drawn a fixed number
+    of pixels wide, so it is neither invisible far away nor a fat cylinder beside the
+    camera) and a cone ``tip`` mm long (at most 40% of the arrow) of radius ``tip_radius``."""
+    start = np.asarray(start, float)
+    vector = np.asarray(vector, float)
+    tip = min(float(tip), 0.4 * float(np.linalg.norm(vector)))
+    unit = vector / max(float(np.linalg.norm(vector)), 1e-300)
+    end = start + vector
+    shaft = pv.Line(start, end - tip * unit)
+    cone = pv.Cone(center=end - 0.5 * tip * unit, direction=unit, height=tip,
+                   radius=float(tip_radius), resolution=24)
+    return shaft.append_polydata(cone)
 
 
 def _lines(starts, ends) -> pv.PolyData:
@@ -208,10 +260,11 @@ class SceneView:
     picked: RaySelection | None = None
     datasets: dict = field(default_factory=dict)
     grid_ij: tuple = ()
-    zoom: float = 0.88
+    zoom: float = 1.0
     status: str = ""
     slider_band: float = 0.0
     view_box: tuple = (0.02, 0.06, 0.98, 0.8)
+    bodies_view_box: tuple | None = None
     camera_view: str = "side"
     _camera_set: bool = False
 
@@ -376,24 +429,64 @@ class SceneView:
         self._text(self.grid_label, (0.01, 0.008), "grid-label", font_size=8,
                    vertical="bottom")
 
+    #: Where along each arrow its label sits by default (fraction from its start).
+    LABEL_AT = {"HO": 0.6, "VE": 0.6, "FL": 0.5, "LHC": 0.35}
+
+    def _vector_arrows(self):
+        """``{name: (start, vector)}`` of the HO, VE, FL and LHC arrows (thesis Figure 1.3)."""
+        vp = self.viewport
+        center = vp.LHC + vp.HO / 2 + vp.VE / 2
+        return {"HO": (vp.LHC, vp.HO), "VE": (vp.LHC, vp.VE), "FL": (center, vp.FL),
+                "LHC": (vp.r0, vp.LHC - vp.r0)}
+
     def _draw_vectors(self):
         vp = self.viewport
-        # tips: readable in the side view, not swamping the detector in a close-up
-        tip = min(1.5 * self.size_scale,
-                  0.15 * min(np.linalg.norm(vp.HO), np.linalg.norm(vp.VE)))
-        center = vp.LHC + vp.HO / 2 + vp.VE / 2
-        arrows = {
-            "HO": (vp.LHC, vp.HO),
-            "VE": (vp.LHC, vp.VE),
-            "FL": (center, vp.FL),
-            "LHC": (vp.r0, vp.LHC - vp.r0),
-        }
+        # Tips sized by the detector, not by |FL| (the same arrows on a 1 m or a 10 cm
+        # beam); shafts are lines ARROW_WIDTH pixels wide: visible in the whole-set-up view,
+        # not fat cylinders where the FL and LHC arrows run past the camera of the close-up.
+        det = float(min(np.linalg.norm(vp.HO), np.linalg.norm(vp.VE)))
+        tip = 0.1 * det
+        for key, (start, vec) in self._vector_arrows().items():
+            self._add(f"vec:{key}", _arrow(start, vec, tip=tip, tip_radius=0.28 * tip),
+                      group="vectors", color=COLORS[key], line_width=ARROW_WIDTH)
+        self._draw_vector_labels()
+
+    def _world_to_box(self, points) -> np.ndarray:
+        """``(n, 2)`` positions of 3D points in the 3D pane, as fractions of the pane (0 to 1
+        across, 0 to 1 up); points behind the camera get NaN."""
+        self.plotter.subplot(*self.subplot_3d)
+        cam = self.plotter.camera
+        m = cam.GetCompositeProjectionTransformMatrix(self._pane_aspect(), -1, 1)
+        mat = np.array([[m.GetElement(r, c) for c in range(4)] for r in range(4)])
+        pts = np.c_[np.asarray(points, float).reshape(-1, 3), np.ones(len(points))]
+        h = pts @ mat.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = (h[:, :2] / h[:, 3:4] + 1) / 2
+        xy[h[:, 3] <= 0] = np.nan
+        return xy
+
+    def _draw_vector_labels(self):
+        """Label the arrows and ``r0``: each label at its usual place along the arrow
+        (:attr:`LABEL_AT`), or, where that is out of the pinned view, at the nearest place
+        along the arrow that is in the box the camera framed (or, failing that, in the
+        pane)."""
+        vp = self.viewport
         label_pts, labels = [], []
-        for key, (start, vec) in arrows.items():
-            self._add(f"vec:{key}", _arrow(start, vec, tip=tip), group="vectors",
-                      color=COLORS[key])
-            frac = {"HO": 0.6, "VE": 0.6, "FL": 0.5, "LHC": 0.35}[key]
-            label_pts.append(np.asarray(start) + frac * np.asarray(vec))
+        frac = np.linspace(0.05, 0.95, 37)
+        for key, (start, vec) in self._vector_arrows().items():
+            start, vec = np.asarray(start, float), np.asarray(vec, float)
+            at = self.LABEL_AT[key]
+            if self._camera_set:
+                xy = self._world_to_box(start + frac[:, None] * vec)
+                # in the view box if the arrow passes through it, else anywhere in the pane
+                box = getattr(self, "_framed_box", self.view_box)
+                for bx0, by0, bx1, by1 in (box, (0.0, 0.0, 1.0, 1.0)):
+                    inside = ((xy[:, 0] > bx0 + 0.03) & (xy[:, 0] < bx1 - 0.06)
+                              & (xy[:, 1] > by0 + 0.03) & (xy[:, 1] < by1 - 0.03))
+                    if inside.any():
+                        at = float(frac[inside][np.argmin(np.abs(frac[inside] - at))])
+                        break
+            label_pts.append(start + at * vec)
             labels.append(key if key != "LHC" else "LHC - r0")
         label_pts.append(vp.r0)
         labels.append("r0 (source)")
@@ -403,6 +496,7 @@ class SceneView:
             shape_opacity=0.6, always_visible=True, name="vec-labels", reset_camera=False,
             render=False)
         actor.SetVisibility(self.is_visible("vectors"))
+        self.vector_label_points = dict(zip(labels, np.asarray(label_pts)))
 
     def _draw_frustum(self):
         vp = self.viewport
@@ -422,8 +516,10 @@ class SceneView:
         group = "rays" if prefix == "rays" else "picked"
         self._add(prefix, _lines(sel.origins, sel.ends), group=group, color=color,
                   line_width=width, lighting=False)
+        # inside a body: a little wider than the ray, dark and half transparent, so the
+        # body's own (material) colour still shows around and through it
         self._add(f"{prefix}-inside", _lines(starts, ends), group=group,
-                  color=COLORS["inside"], line_width=width + 3, lighting=False)
+                  color=COLORS["inside"], line_width=width + 1, opacity=0.55, lighting=False)
         hits_group = "hits" if prefix == "rays" else "picked"
         name_entry = "hits-entry" if prefix == "rays" else "picked-entry"
         name_exit = "hits-exit" if prefix == "rays" else "picked-exit"
@@ -473,10 +569,24 @@ class SceneView:
         pl.add_mesh(grid, name="radiograph", scalars=title, cmap=cmap, clim=clim,
                     lighting=False, show_scalar_bar=True, reset_camera=False, render=False,
                     scalar_bar_args=dict(title=title, vertical=True, position_x=0.8,
-                                         position_y=y0 + 0.1 * (y1 - y0),
+                                         position_y=y0 + 0.05 * (y1 - y0),
                                          height=0.8 * (y1 - y0), width=0.05,
                                          fmt="%.3g", title_font_size=12, label_font_size=11,
                                          color="black", n_labels=5))
+        # round ticks (0.2, 0.4, ...) rather than five evenly spaced odd values, and the
+        # title clear of the top tick label
+        bar = pl.scalar_bars[title]
+        ticks, fmt = colorbar_ticks(*clim, n=5)
+        from vtkmodules.vtkCommonCore import vtkDoubleArray
+
+        values = vtkDoubleArray()
+        for t in ticks:
+            values.InsertNextValue(float(t))
+        bar.SetCustomLabels(values)
+        bar.SetUseCustomLabels(True)
+        bar.SetLabelFormat(fmt)
+        bar.SetVerticalTitleSeparation(int(0.6 * bar.GetTitleTextProperty().GetFontSize()) + 6)
+        self.colorbar_labels = [fmt % t for t in ticks]
         frame = pv.lines_from_points(np.array([[-.5, -.5, .05], [w - .5, -.5, .05],
                                                [w - .5, h - .5, .05], [-.5, h - .5, .05],
                                                [-.5, -.5, .05]]))
@@ -499,15 +609,21 @@ class SceneView:
         pad = 0.012 * 2 * scale
         corners = np.array([[-0.5, -0.5 - pad, 0.1], [w - 0.5, h - 0.5 + pad, 0.1]])
         self._label(corners[:1], "(i, j) = (0, 0): LHC", "radiograph-corner-00",
-                    justify="left", vertical="top")
+                    justify="left", vertical="top", font_size=CORNER_FONT)
         self._label(corners[1:], f"({w - 1}, {h - 1})", "radiograph-corner-wh",
-                    justify="right", vertical="bottom")
+                    justify="right", vertical="bottom", font_size=CORNER_FONT)
         engine = getattr(rg, "engine", "?")
         total = rg.timing.get("total", float("nan")) if getattr(rg, "timing", None) else math.nan
         lines = [f"radiograph: {self.quantity}, {w} x {h}, row 0 at the top"]
         if self.status:
             lines.append(self.status)
-        lines.append(f"engine {engine}: {total * 1000:.0f} ms")
+        wl, lv = clim[1] - clim[0], (clim[0] + clim[1]) / 2
+        self.window_level_text = (f"W={wl:.3g}, L={lv:.3g}"
+                                  + (" (image range)" if self.window is None
+                                     and self.level is None else ""))
+        # the render time last: its digits change from run to run, nothing after them moves
+        lines.append(f"window/level {self.window_level_text};  engine {engine}: "
+                     f"{total * 1000:.0f} ms")
         self._text("\n".join(lines), (0.03, 0.985), "radiograph-title", font_size=8)
         pl.subplot(*self.subplot_3d)
 
@@ -562,44 +678,79 @@ class SceneView:
         up /= np.linalg.norm(up)
         return forward, up, np.cross(up, forward)
 
-    def view_side(self, *, elevation: float = 25.0, azimuth: float = 12.0) -> None:
-        """The whole set-up from the side: the beam axis across the pane, the source on the
-        left, the detector on the right, seen from ``elevation`` degrees above the axis (the
-        detector's ``up`` is screen up) and ``azimuth`` degrees towards the source (so the
-        detector's face shows), zoomed so source-to-detector fills the pane's width."""
+    def view_side(self, *, azimuth: float = 60.0, elevation: float | None = None,
+                  view_angle: float = 12.0) -> None:
+        """The whole set-up in a three-quarter view, framed to fill :attr:`view_box`: the
+        source on the left, the detector on the right with its face (the pixel grid, HO and
+        VE) turned towards the viewer, the bodies and rays between them.
+
+        Parameters
+        ----------
+        azimuth : float
+            Degrees the line of sight turns from the side axis (``up x forward``, a view
+            across the beam that sees the detector edge-on) towards the beam direction: 0 is
+            a pure side view, 90 looks down the beam from behind the source.
+        elevation : float, optional
+            Degrees from above (the detector's ``up`` stays screen up). By default the one of
+            4, 6, ... 32 degrees whose picture fills :attr:`view_box` best: low in a wide box
+            (the beam across it), higher in a squarer one (the beam rising along its
+            diagonal).
+        view_angle : float
+            Of the perspective camera, degrees; small is nearly a parallel projection (the
+            source end does not look much larger than the detector end).
+        """
         vp = self.viewport
         self.plotter.subplot(*self.subplot_3d)
         forward, up, side = self._axes()
-        e, a = math.radians(elevation), math.radians(azimuth)
-        dop = math.cos(e) * (math.cos(a) * side + math.sin(a) * forward) - math.sin(e) * up
-        right = np.cross(dop, up)
-        right /= np.linalg.norm(right)
-        cam_up = np.cross(right, dop)
-        center = np.asarray(vp.LHC + vp.HO / 2 + vp.VE / 2, float)
-        focal = (center + np.asarray(vp.r0, float)) / 2
-        width = float(np.linalg.norm(vp.FL)) * abs(forward @ right)
+        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.VE, vp.LHC + vp.HO + vp.VE])
+        lo, hi = self.bodies_bounds
+        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+        r0 = np.asarray(vp.r0, float)
+        source = r0 + 0.6 * self.size_scale * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0],
+                                                         [0, -1, 0], [0, 0, 1], [0, 0, -1]])
+        points = np.vstack([corners, box, source])
+
+        def axes(elev):
+            e, a = math.radians(elev), math.radians(azimuth)
+            dop = math.cos(e) * (math.cos(a) * side + math.sin(a) * forward) - math.sin(e) * up
+            right = np.cross(dop, up)
+            right /= np.linalg.norm(right)
+            return dop, right, np.cross(right, dop)
+
+        if elevation is None:
+            # Fill the box: the elevation tilts the beam on screen without narrowing it (its
+            # width is set by the azimuth), so raise it until the picture's shape matches the
+            # box's (nearly parallel projection: the points' extents on screen).
+            bx0, by0, bx1, by1 = self.view_box
+            w, h = self._pane_aspect() * (bx1 - bx0), by1 - by0
+
+            def filled(elev):
+                _, right, screen_up = axes(elev)
+                ex = max(np.ptp(points @ right), 1e-12)
+                ey = max(np.ptp(points @ screen_up), 1e-12)
+                s = min(w / ex, h / ey)
+                return round(s * s * ex * ey / (w * h), 3)
+
+            elevation = max(range(4, 33, 2), key=lambda e: (filled(e), -e))
+        dop, right, screen_up = axes(elevation)
         cam = self.plotter.camera
         cam.parallel_projection = False
-        cam.view_angle = 20.0
-        half = math.tan(math.radians(cam.view_angle) / 2)
-        bx0, by0, bx1, by1 = self.view_box
-        distance = width / self.zoom / (2 * half * self._pane_aspect() * (bx1 - bx0))
-        cam.SetWindowCenter(1.0 - bx0 - bx1, 1.0 - by0 - by1)   # focal point at the box centre
-        cam.focal_point = tuple(focal)
-        cam.position = tuple(focal - distance * dop)
-        cam.up = tuple(cam_up)
-        self.plotter.reset_camera_clipping_range()
+        cam.view_angle = float(view_angle)
+        self._frame(points, dop, right, screen_up, margin=1.04 / self.zoom)
         self.camera_view = "side"
-        self._pinned = self._camera_state()
-        self._camera_set = True
+        self.side_elevation = float(elevation)
 
-    def view_bodies(self, *, zoom: float = 1.0, azimuth: float = 14.0,
-                    elevation: float = 10.0) -> None:
+    def view_bodies(self, *, zoom: float = 1.0, azimuth: float = -14.0,
+                    elevation: float = 4.0) -> None:
         """Close-up of the bodies from behind and beside the source, looking down the beam:
         the bodies in front, the detector (and its texture) behind them, all in view.
 
         ``azimuth`` and ``elevation`` (degrees) turn the line of sight away from the beam
-        axis, to the side and from above, so the bodies do not hide their shadow."""
+        axis, to the side and from above, so the bodies do not hide their shadow. The
+        defaults put the (out of view) source to the right at about mid-height, so the rays
+        come in from the right edge of the pane, clear of the legend, the key help, the check
+        boxes (left) and the mu(t) chart (below)."""
         vp = self.viewport
         self.plotter.subplot(*self.subplot_3d)
         forward, up, side = self._axes()
@@ -619,16 +770,19 @@ class SceneView:
         # the camera behind the source (as far from the bodies as the source is, or more)
         behind = float((np.asarray(vp.r0) - (lo + hi) / 2) @ -dop) * 1.15
         self._frame(np.vstack([corners, box]), dop, right, screen_up, margin=1.06 / zoom,
-                    min_distance=behind, anchor=(lo + hi) / 2)
+                    min_distance=behind, anchor=(lo + hi) / 2,
+                    box=self.bodies_view_box or self.view_box)
         self.camera_view = "bodies"
 
     def _frame(self, points, dop, right, screen_up, *, margin=1.06, min_distance=0.0,
-               anchor=None) -> None:
-        """Aim the (perspective) camera along ``dop`` so that ``points`` fill the pane,
-        centred. With ``min_distance`` the camera stays at least that far (along ``dop``)
-        from ``anchor`` and narrows its view angle instead."""
+               anchor=None, box=None) -> None:
+        """Aim the (perspective) camera along ``dop`` so that ``points`` fill ``box`` (left,
+        bottom, right, top fractions of the pane; default :attr:`view_box`), centred. With
+        ``min_distance`` the camera stays at least that far (along ``dop``) from ``anchor``
+        and narrows its view angle instead."""
         cam = self.plotter.camera
-        bx0, by0, bx1, by1 = self.view_box
+        bx0, by0, bx1, by1 = self.view_box if box is None else box
+        self._framed_box = (bx0, by0, bx1, by1)
         cam.SetWindowCenter(1.0 - bx0 - bx1, 1.0 - by0 - by1)   # focal point at the box centre
         sx = self._pane_aspect() * (bx1 - bx0)      # the box's half-width / half-height,
         sy = by1 - by0                              # in units of the view's half-height
@@ -656,6 +810,8 @@ class SceneView:
         self.plotter.reset_camera_clipping_range()
         self._pinned = self._camera_state()
         self._camera_set = True
+        if "vec-labels-labels" in self.plotter.actors:
+            self._draw_vector_labels()          # keep the labels in the new view
 
     def _camera_state(self):
         cam = self.plotter.renderers[self.plotter.renderers.loc_to_index(
@@ -693,6 +849,21 @@ class SceneView:
             self._draw_detector()
         if self.subplot_image is not None:
             self._draw_radiograph()
+
+    def set_window_level(self, window=None, level=None) -> None:
+        """Grey-level window of the radiograph (and its texture): colours span
+        ``level +- window / 2``; None for either takes it from the image's range (see
+        :func:`window_level_limits`)."""
+        self.set_radiograph(self.radiograph, window=window, level=level)
+
+    @property
+    def window_level(self) -> tuple[float, float]:
+        """``(window, level)`` in use, the image's range filled in for unset values."""
+        if self.radiograph is None:
+            return math.nan, math.nan
+        lo, hi = window_level_limits(self.radiograph.quantity(self.quantity),
+                                     window=self.window, level=self.level)
+        return hi - lo, (hi + lo) / 2
 
     def show_pixel(self, i: int, j: int) -> RaySelection:
         """Draw the ray of pixel (i, j) and its hits in 3D, and mark the pixel in the image.

@@ -2,8 +2,8 @@
 
 Every widget calls a plain method (:meth:`Viewer.set_source_distance`,
 :meth:`Viewer.set_body_rotation`, :meth:`Viewer.set_energy`, :meth:`Viewer.set_resolution`,
-:meth:`Viewer.pick_pixel`, :meth:`Viewer.toggle`), so scripts and tests drive the viewer exactly
-as the mouse does.
+:meth:`Viewer.set_window`, :meth:`Viewer.set_level`, :meth:`Viewer.pick_pixel`,
+:meth:`Viewer.toggle`), so scripts and tests drive the viewer exactly as the mouse does.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 import pyvista as pv
 
 from xray_viz.geometry import viewport
-from xray_viz.viz.rays import attenuation_profile, pixel_ray_index
+from xray_viz.viz.rays import attenuation_profile, effective_energy, pixel_ray_index
 from xray_viz.viz.scene_view import plot_scene
 
 __all__ = ["Viewer", "KEYS"]
@@ -43,12 +43,22 @@ def help_text() -> str:
             + "\n" + "  ".join(others) + "  q quit"
             + "\nclick the radiograph: its ray + mu(t)")
 
+#: Ranges of the window and level sliders, in units of I / I0 (the viewer shows intensity).
+WINDOW_RANGE = (0.01, 1.0)
+LEVEL_RANGE = (0.0, 1.0)
+
 #: Fraction of the radiograph pane's height kept below the image for the sliders.
 SLIDER_BAND = 0.3
 
+#: Left and right ends of the three sliders of a row, fractions of the radiograph pane.
+SLIDER_COLUMNS = ((0.04, 0.30), (0.37, 0.63), (0.70, 0.96))
+
 #: Part of the 3D pane (left, bottom, right, top fractions) the pinned views fill: between
 #: the key help and legend above and the check boxes and mu(t) chart below.
-VIEW_BOX = (0.02, 0.35, 0.98, 0.76)
+VIEW_BOX = (0.02, 0.35, 0.98, 0.84)
+
+#: The box of the bodies close-up (key ``b``): right of the legend, below the key help.
+BODIES_VIEW_BOX = (0.3, 0.35, 0.98, 0.84)
 
 
 def _rotation_about(axis, angle_deg, point) -> np.ndarray:
@@ -114,6 +124,7 @@ class Viewer:
         if widgets:
             self.view.slider_band = SLIDER_BAND
             self.view.view_box = VIEW_BOX
+            self.view.bodies_view_box = BODIES_VIEW_BOX
             self.view.reset_camera()
         # bottom right of the 3D pane, right of the check boxes, below the beam
         self.chart = pv.Chart2D(size=(0.74, 0.28), loc=(0.24, 0.05), x_label="t (mm)",
@@ -209,8 +220,36 @@ class Viewer:
         self.resolution = int(round(pixels))
         self.update()
 
+    def set_window(self, window: float) -> None:
+        """Grey-level window of the radiograph (a width in I / I0); the level stays (the
+        middle of the image's range until it is set)."""
+        window = float(window)
+        if not window > 0:
+            raise ValueError(f"window must be > 0, got {window}")
+        self.set_window_level(window, self.view.level)
+
+    def set_level(self, level: float) -> None:
+        """Grey-level window's centre (I / I0); the window stays (the image's range until
+        it is set)."""
+        self.set_window_level(self.view.window, float(level))
+
+    def set_window_level(self, window=None, level=None) -> None:
+        """Show the radiograph with colours spanning ``level +- window / 2``; None for
+        either: from the image's range (the default). Kept while the other controls
+        re-render the image."""
+        self.view.set_window_level(window, level)
+        self._sync_sliders()
+
     def pick_pixel(self, i: int, j: int):
         """Show pixel (i, j)'s ray in 3D and mu along it in the chart.
+
+        With a monochromatic source mu is that of its energy and the chart's line integral is
+        the image's. With a spectrum the image holds ``-ln(I / I0)`` of the whole spectrum,
+        which no single mu(t) integrates to in general: the chart shows mu at the ray's
+        effective energy (:func:`~xray_viz.viz.rays.effective_energy`, the energy whose line
+        integral is the image's value) and says what the spectrum's mean energy would give
+        (less or more: beam hardening). Where no energy fits (the ray misses every body, or
+        its mu is constant) it uses the mean energy.
 
         Parameters
         ----------
@@ -220,20 +259,47 @@ class Viewer:
         Returns
         -------
         AttenuationProfile
+            Its ``energy`` is the energy of the chart's mu.
         """
+        from xray_viz.physics.spectra import source_spectrum
+
         w, h = self.scene.detector.shape
         pixel_ray_index((w, h), i, j)                    # range check
         sel = self.view.show_pixel(i, j)
-        profile = attenuation_profile(self.scene, sel.hits, float(sel.t_max[0]),
-                                      energy=self.energy)
+        rg_li = float(self.radiograph.line_integral[h - 1 - j, i])
+        spectrum = source_spectrum(self.scene.source)
+        t_max = float(sel.t_max[0])
+        if len(spectrum) == 1:
+            energy = float(spectrum.energies[0])
+            profile = attenuation_profile(self.scene, sel.hits, t_max, energy=energy)
+            title = (f"pixel ({i}, {j}) at {energy:g} keV: integral mu dt = "
+                     f"{profile.line_integral:.4g} (image {rg_li:.4g})")
+        else:
+            beam = f"{spectrum.kvp:g} kVp" if spectrum.kvp else "spectrum"
+            mean = spectrum.mean_energy
+            at_mean = attenuation_profile(self.scene, sel.hits, t_max, energy=mean)
+            e_eff = effective_energy(self.scene, at_mean, rg_li,
+                                     energies=(spectrum.energies[0], spectrum.energies[-1]))
+            if e_eff is not None:
+                profile = attenuation_profile(self.scene, sel.hits, t_max, energy=e_eff)
+                title = (f"pixel ({i}, {j}), {beam}: mu at E_eff = {e_eff:.1f} keV, "
+                         f"integral mu dt = {profile.line_integral:.4g}\n= image -ln(I/I0) "
+                         f"of the whole spectrum (mean {mean:.1f} keV gives "
+                         f"{at_mean.line_integral:.4g}: beam hardening)")
+            else:
+                profile = at_mean
+                title = (f"pixel ({i}, {j}), {beam}: mu at the mean {mean:.1f} keV, "
+                         f"integral mu dt = {profile.line_integral:.4g}\nimage -ln(I/I0) of "
+                         f"the whole spectrum: {rg_li:.4g}")
         self.profile = profile
         self.picked_pixel = (int(i), int(j))
         x, y = profile.steps()
         self.chart.clear()
         self.chart.line(x, y, color="tab:red", width=2.0)
-        rg_li = float(self.radiograph.line_integral[h - 1 - j, i])
-        self.chart.title = (f"pixel ({i}, {j}): integral mu dt = {profile.line_integral:.4g}"
-                            f" (image {rg_li:.4g})")
+        self.chart.title = title
+        # two lines with a spectrum: smaller, to fit the chart of a 1200 x 600 window
+        self.chart.GetTitleProperties().SetFontSize(12 if "\n" not in title else 10)
+        self.chart.y_label = f"mu at {profile.energy:.3g} keV (1/cm)"
         self.chart.x_range = [float(profile.t[0]), float(profile.t[-1])]
         top = float(max(profile.mu.max(), 1e-3)) * 1.15
         self.chart.y_range = [0.0, top]
@@ -287,8 +353,14 @@ class Viewer:
                                  level=self.view.level)
         if self.view.picked is not None:
             self.view.show_pixel(int(self.view.picked.i[0]), int(self.view.picked.j[0]))
+        self._sync_sliders()
+
+    def _sync_sliders(self) -> None:
+        """Put every slider's knob at the value in use."""
+        window, level = self.view.window_level
         values = {"source_distance": self.source_distance, "rotation": self.rotation,
-                  "kvp": self.kvp, "energy": self.energy, "resolution": self.resolution}
+                  "kvp": self.kvp, "energy": self.energy, "resolution": self.resolution,
+                  "window": window, "level": level}
         for key, widget in getattr(self, "sliders", {}).items():
             widget.GetRepresentation().SetValue(values[key])
 
@@ -299,23 +371,34 @@ class Viewer:
         style = dict(title_height=0.02, tube_width=0.004, slider_width=0.015,
                      color="black", title_color="black", interaction_event="end")
         rows = (0.2, 0.075)                  # two rows of sliders inside the band kept free
+        cols = SLIDER_COLUMNS                # three sliders a row
+        window, level = self.view.window_level
+        specs = [
+            ("source_distance", self.set_source_distance, (0.3 * fl0, 3.0 * fl0), fl0,
+             "source distance (mm)", "%.0f"),
+            ("rotation", self.set_body_rotation, (-180.0, 180.0), 0.0,
+             "body rotation (deg)", "%.0f"),
+            ("kvp", self.set_kvp, (20.0, 150.0), self.kvp, "kVp", "%.0f")
+            if self.kvp is not None else
+            ("energy", self.set_energy, (10.0, 150.0), self.energy, "energy (keV)", "%.0f"),
+            ("resolution", self.set_resolution, (16, max(512, self.resolution)),
+             self.resolution, "preview resolution (px)", "%.0f"),
+            ("window", self.set_window, WINDOW_RANGE, window, "window W (I / I0)", "%.2f"),
+            ("level", self.set_level, LEVEL_RANGE, level, "level L (I / I0)", "%.2f"),
+        ]
         self.sliders = {}
-        self.sliders["source_distance"] = pl.add_slider_widget(self.set_source_distance, (0.3 * fl0, 3.0 * fl0), value=fl0,
-                             title="source distance (mm)", pointa=(0.05, rows[0]),
-                             pointb=(0.45, rows[0]), fmt="%.0f", **style)
-        self.sliders["rotation"] = pl.add_slider_widget(self.set_body_rotation, (-180.0, 180.0), value=0.0,
-                             title="body rotation (deg)", pointa=(0.55, rows[0]),
-                             pointb=(0.95, rows[0]), fmt="%.0f", **style)
-        if self.kvp is not None:
-            self.sliders["kvp"] = pl.add_slider_widget(self.set_kvp, (20.0, 150.0), value=self.kvp, title="kVp",
-                                 pointa=(0.05, rows[1]), pointb=(0.45, rows[1]), fmt="%.0f", **style)
-        else:
-            self.sliders["energy"] = pl.add_slider_widget(self.set_energy, (10.0, 150.0), value=self.energy,
-                                 title="energy (keV)", pointa=(0.05, rows[1]),
-                                 pointb=(0.45, rows[1]), fmt="%.0f", **style)
-        self.sliders["resolution"] = pl.add_slider_widget(self.set_resolution, (16, max(512, self.resolution)),
-                             value=self.resolution, title="preview resolution (px)",
-                             pointa=(0.55, rows[1]), pointb=(0.95, rows[1]), fmt="%.0f", **style)
+        for k, (key, callback, rng, value, title, fmt) in enumerate(specs):
+            y = rows[k // 3]
+            x0, x1 = cols[k % 3]
+            rng = (min(rng[0], value), max(rng[1], value))
+            # pyvista calls the callback once with the initial value: not a user's choice
+            # (it would fix the window/level that follows the image by default)
+            self._adding_widgets = True
+            self.sliders[key] = pl.add_slider_widget(
+                lambda v, f=callback: None if self._adding_widgets else f(v), rng,
+                value=value, title=title, pointa=(x0, y), pointb=(x1, y), fmt=fmt, **style)
+            self._adding_widgets = False
+            pl.subplot(0, 1)
         for widget in self.sliders.values():
             rep = widget.GetRepresentation()
             rep.SetLabelHeight(0.02)         # the value, above the slider
