@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
 import trimesh
 
 import xray_viz
+from xray_viz import phantoms
 from xray_viz.errors import SceneError
 from xray_viz.geometry import detector_rays
 from xray_viz.render import ENGINES, render
@@ -84,6 +86,36 @@ def test_agrees_with_numpy_engine(name, kind, supersample):
     assert np.all(ok), f"{np.count_nonzero(~ok)} rays differ"
 
 
+@functools.lru_cache(maxsize=None)
+def _phantom(name):
+    return xray_viz.load_scene(name)
+
+
+def _reduced(scene, kind, width=64):
+    """The scene on a ~64-pixel-wide detector with the same field of view (pitch scaled)."""
+    det = scene.detector
+    (w, h), (sw, sh) = det.shape, det.size
+    nw, nh = width, max(8, round(width * h / w))
+    small = dataclasses.replace(det, shape=(nw, nh), pitch=(sw / (nw - 1), sh / (nh - 1)),
+                                noise=False, supersample=1)
+    return scene.replace(detector=small, source=dataclasses.replace(scene.source, kind=kind))
+
+
+@pytest.mark.parametrize("kind", ["point", "parallel"])
+@pytest.mark.parametrize("name", phantoms.names())
+def test_every_bundled_phantom_agrees_with_numpy_engine(name, kind):
+    """Every phantom of the library (frog: 16 bodies, 173k faces), both engines, 1e-9 relative
+    on path lengths and on the line integral."""
+    scene = _reduced(_phantom(name), kind)
+    fast = render(scene, engine="fast")
+    ref = render(scene, engine="numpy")
+    assert fast.engine == "fast" and ref.path_length.max() > 0
+    for a, b in ((fast.path_length, ref.path_length), (fast.line_integral, ref.line_integral)):
+        assert a.shape == b.shape
+        bad = np.abs(a - b) > 1e-9 * np.abs(b).max()
+        assert not bad.any(), f"{name}: {np.count_nonzero(bad)} values differ"
+
+
 @pytest.mark.parametrize("kind", ["point", "parallel"])
 def test_cube_edges_exact(kind):
     """Rows of rays through edges, diagonals and vertices: zero miscounted rays."""
@@ -137,25 +169,131 @@ def test_keep_hits_delegates_to_the_reference_engine():
     assert render(scene, keep_hits=True).hits is not None
 
 
-def test_body_crossing_the_source_plane_is_refused():
-    # A long bar beside the source, reaching behind it: the source is outside every body.
+def test_body_crossing_the_source_plane_inside_the_beam_is_refused():
+    # A thin bar beside the source, reaching behind it and into the beam pyramid in front of
+    # it (at z = 900 the pyramid is 3.15 mm wide each way): the source is outside every body.
+    bar = trimesh.creation.box(extents=[2, 2, 200])
+    bar.apply_translation([3, 0, 1000])
+    scene = make_scene([_sphere(), bar], pitch=1.5)
+    with pytest.raises(SceneError, match="crosses the plane of the source") as err:
+        fast_path_lengths(scene, cache=False)
+    # One line naming the fallback for the API and for the command line.
+    msg = str(err.value)
+    assert "\n" not in msg and "engine='numpy'" in msg and "--engine numpy" in msg
+    # Alone, the bar goes through the one-body path: refused the same way.
+    with pytest.raises(SceneError, match="--engine numpy"):
+        fast_path_lengths(make_scene(bar, pitch=1.5), cache=False)
+    # The reference engine handles it (any rays).
+    ref = ENGINES["numpy"](scene, supersample=1, keep_hits=False)[0]
+    assert ref[:, 1].max() > 0
+
+
+@pytest.mark.parametrize("where", ["beside", "corner"])
+def test_body_crossing_the_source_plane_outside_the_beam_renders(where):
+    """A bar crossing the plane of the source far outside the beam meets no ray: culled, not
+    refused. "corner": its box straddles the pyramid's planes, so it is not culled as a body,
+    but each triangle crossing the source plane is outside a side plane: skipped, not refused.
+    """
+    bar = trimesh.creation.box(extents=[10, 10, 400])
+    if where == "beside":
+        bar.apply_translation([200, 0, 1000])
+    else:
+        # A long thin ellipsoid leaning into the beam in front of the source (rays meet it)
+        # and crossing z = 1000 over 200 mm outside the beam's +x side plane.
+        bar = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+        bar.apply_scale([3, 3, 320])
+        bar.apply_transform(trimesh.transformations.rotation_matrix(0.6, [0, 1, 0]))
+        bar.apply_translation([150, 0, 900])
+    scene = make_scene([_sphere(), bar], pitch=1.5)
+    for part in (scene, scene.replace(bodies=scene.bodies[1:])):
+        L = fast_path_lengths(part, cache=False)[0]
+        ref = ENGINES["numpy"](part, supersample=1, keep_hits=False)[0]
+        np.testing.assert_allclose(L, ref, rtol=0, atol=1e-9 * 80)
+        assert (ref[:, -1].max() > 1) == (where == "corner")
+    from xray_viz.tracing.fast import visible_bodies
+
+    assert visible_bodies(scene) == ((0,) if where == "beside" else (0, 1))
+
+
+def test_body_crossing_the_parallel_source_plane_outside_the_slab_renders():
     bar = trimesh.creation.box(extents=[10, 10, 400])
     bar.apply_translation([200, 0, 1000])
-    scene = make_scene([_sphere(), bar], pitch=1.5)
-    with pytest.raises(SceneError, match="crosses the plane of the source"):
-        fast_path_lengths(scene, cache=False)
-    # The reference engine handles it (any rays).
-    assert ENGINES["numpy"](scene, supersample=1, keep_hits=False)[0].max() > 0
-
-
-def test_bodies_behind_the_source_or_off_screen_are_culled():
-    behind = _sphere(10, 1, (0, 0, 1500))
-    aside = _sphere(10, 1, (5000, 0, 0))
-    scene = make_scene([_sphere(), behind, aside], pitch=1.5)
+    scene = make_scene([_sphere(), bar], pitch=1.5, kind="parallel")    # accepted
     L = fast_path_lengths(scene, cache=False)[0]
     ref = ENGINES["numpy"](scene, supersample=1, keep_hits=False)[0]
-    assert np.all(L[:, 1:] == 0)
+    assert np.all(L[:, 1] == 0) and ref[:, 0].max() > 70
     np.testing.assert_allclose(L, ref, rtol=0, atol=1e-9 * 80)
+    # Inside the slab it is still refused when the scene is made (rays would start in it).
+    bar.apply_translation([-190, 0, 0])
+    with pytest.raises(SceneError, match="crosses the plane of the parallel-beam source"):
+        make_scene([_sphere(), bar], pitch=1.5, kind="parallel")
+    # And a huge body whose cross-section holds the whole slab (no face near the beam).
+    big = trimesh.creation.box(extents=[4000, 4000, 400])
+    big.apply_translation([0, 0, 1000])
+    with pytest.raises(SceneError, match="crosses the plane of the parallel-beam source"):
+        make_scene(big, pitch=1.5, kind="parallel")
+
+
+@pytest.mark.parametrize("kind", ["point", "parallel"])
+def test_bodies_outside_the_beam_are_culled_as_a_whole(kind, monkeypatch):
+    """Bodies behind the source, beside the beam or beyond the detector are never projected;
+    they get zero path length and change nothing else (nesting included)."""
+    import xray_viz.tracing.fast as fast
+
+    behind = _sphere(10, 1, (0, 0, 1500))
+    aside = _sphere(10, 1, (5000, 0, 0))
+    beyond = _sphere(10, 1, (0, 0, -700))
+    below = _sphere(10, 1, (0, 120, 0))
+    inner = _sphere(20, 2, (5, 3, -4))
+    scene = make_scene([_sphere(), behind, inner, aside, beyond, below], pitch=1.5, kind=kind)
+    assert fast.visible_bodies(scene) == (0, 2)
+    seen = []
+    project = fast._geometry
+
+    def spy(scene, keep=None):
+        seen.append(keep)
+        return project(scene, keep)
+
+    monkeypatch.setattr(fast, "_geometry", spy)
+    L = fast_path_lengths(scene, cache=False)[0]
+    assert seen == [(0, 2)]                    # only the bodies in the beam are projected
+    ref = ENGINES["numpy"](scene, supersample=1, keep_hits=False)[0]
+    assert np.all(L[:, [1, 3, 4, 5]] == 0)
+    np.testing.assert_allclose(L, ref, rtol=0, atol=1e-9 * 80)
+    # The same lengths as without the culled bodies; the inner sphere still wins inside.
+    alone = fast_path_lengths(scene.replace(bodies=(scene.bodies[0], scene.bodies[2])),
+                              cache=False)[0]
+    np.testing.assert_array_equal(L[:, [0, 2]], alone)
+    assert L[:, 2].max() > 35 and L[:, 0].max() > 70
+    # One body left in the beam: the one-body path, written to its column.
+    scene1 = scene.replace(bodies=(scene.bodies[1], scene.bodies[0], scene.bodies[3]))
+    L1 = fast_path_lengths(scene1, supersample=2, cache=False)[0]
+    ref1 = ENGINES["numpy"](scene1, supersample=2, keep_hits=False)[0]
+    assert np.all(L1[:, [0, 2]] == 0)
+    np.testing.assert_allclose(L1, ref1, rtol=0, atol=1e-9 * 80)
+    # Nothing in the beam.
+    none = scene.replace(bodies=(scene.bodies[1], scene.bodies[3]))
+    assert np.all(fast_path_lengths(none, cache=False)[0] == 0)
+
+
+def test_culling_is_conservative_at_the_edge_of_the_beam():
+    """Bodies just inside the outermost rays are kept (supersampled rays reach past the pixel
+    rays): the culled result equals the reference for boxes straddling each side plane."""
+    from xray_viz.tracing.fast import visible_bodies
+
+    scene = make_scene(_sphere(), pitch=1.5, shape=(16, 12))
+    # Edge ray of the fine grid at supersampling 3: offset (8 - 1/6) * 1.5 mm on the detector,
+    # 1500 mm from the source; a small cube touching it at z = 0 (1000 mm from the source).
+    x = (8 - 1 / 6) * 1.5 * 1000 / 1500
+    for dx in (-0.01, 0.0, 0.01):
+        cube = trimesh.creation.box(extents=[2, 2, 2])
+        cube.apply_translation([x + 1 + dx, 0, 0])
+        part = scene.replace(bodies=(dataclasses.replace(scene.bodies[0], mesh=cube),))
+        L = fast_path_lengths(part, supersample=3, cache=False)[0]
+        ref = ENGINES["numpy"](part, supersample=3, keep_hits=False)[0]
+        np.testing.assert_allclose(L, ref, rtol=0, atol=1e-9 * 2)
+        if dx <= 0:
+            assert visible_bodies(part) == (0,) and ref.max() > 0
 
 
 def test_zero_area_triangles_and_empty_scene():
@@ -206,3 +344,25 @@ def test_band_path_for_large_detectors_matches_direct_path(kind, monkeypatch):
     if kind == "parallel":
         ok |= _in_face_plane(cube)[:, None]
     assert np.all(ok)
+
+
+def test_body_bounds_are_cached_per_mesh_not_measured_per_scene(monkeypatch):
+    """Scene.replace (the viewer moving the source) checks the source against cached boxes."""
+    import xray_viz.attenuation as att
+
+    m = _sphere(sub=2)
+    lo, hi = att.mesh_bounds(m)
+    assert att.mesh_bounds(m)[0] is lo and not lo.flags.writeable
+    np.testing.assert_array_equal(lo, m.vertices.min(0))
+    scene = make_scene(m, pitch=1.5)
+    calls = []
+    measure = att._measure
+    monkeypatch.setattr(att, "_measure", lambda mesh: calls.append(1) or measure(mesh))
+    for z in (900.0, 800.0, 700.0):
+        scene.replace(source=dataclasses.replace(scene.source, position=[0, 0, z]))
+        scene.replace(source=dataclasses.replace(scene.source, kind="parallel"))
+    fast_path_lengths(scene, cache=False)
+    assert calls == []
+    # A changed mesh is measured again.
+    m.apply_translation([5, 0, 0])
+    assert att.mesh_bounds(m)[0][0] == pytest.approx(lo[0] + 5) and calls == [1]

@@ -7,9 +7,16 @@ reference computed in exact integer arithmetic:
   along edges, face diagonals, through vertices and inside the side-face planes;
 * convex polyhedra with every vertex on an integer lattice, turned by random *rational* rotations
   (Pythagorean quaternions, so the rotated vertices stay on the lattice) and translated by
-  integers, seen through a detector whose rays pass through lattice points: rays go exactly
-  through vertices and edge points by construction. The chord of a ray through a convex
-  polyhedron is the intersection of half-spaces, computed exactly with Python integers;
+  random integers, seen through a detector placed so that its rays pass exactly through chosen
+  vertices and edge points: parallel beam, rays on the lattice through a chosen vertex; point
+  source, a chosen vertex on the central ray and the detector twice as far, so that the rays
+  cross the vertex's plane on the lattice and pass through interior points of its edges. For
+  both beams the rays through vertices and through edge points are counted exactly (all
+  vertices, all edges) and must be > 0. The chord of a ray through a convex polyhedron is the
+  intersection of half-spaces, computed exactly with Python integers;
+* arbitrary rays (any direction, not a detector grid) aimed exactly at every vertex and edge
+  midpoint of such a polyhedron: the NumPy engine's ``trace_rays`` finds exactly one entry (at
+  the aimed point) and one exit, and the exact chord;
 * far sources (1e5 mm), tiny bodies (1e-3 mm, scaled by a power of two so that scaling is exact),
   large coordinate offsets (1e6 mm), slivers (aspect ratio ~1000) and zero-area triangles
   (a T-junction closed by a degenerate triangle), many nested shells.
@@ -19,6 +26,8 @@ one-sided limits (0 or the closed chord). ``-m slow`` runs many more random case
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import pytest
@@ -199,8 +208,94 @@ def test_cube_suite_zero_miscounted_rays(engine, kind):
 # Lattice polyhedra: rays exactly through vertices and edges
 
 
+def rays_through(v, edges, origins, directions):
+    """Rays passing exactly through a vertex, and through the interior of an edge, of a mesh.
+
+    Everything is integer and decided exactly: a ray ``o + t d`` (``t > 0``) passes through
+    vertex ``a`` when ``(a - o) x d = 0`` and ``(a - o) . d > 0``; through the open edge
+    ``(a, b)`` when ``d = alpha (a - o) + beta (b - o)`` with ``alpha, beta > 0``. A float
+    test preselects the (ray, edge) pairs that can be coplanar; Python integers decide them.
+
+    Returns
+    -------
+    vertex, edge : (n,) bool
+    """
+    v = np.asarray(v, np.int64)
+    o = np.asarray(origins, np.int64)
+    d = np.asarray(directions, np.int64)
+    assert np.abs(v).max() + np.abs(o).max() < 2**30 and np.abs(d).max() < 2**31
+    vertex = np.zeros(len(o), bool)
+    for a in v:
+        p = a - o
+        vertex |= np.all(np.cross(p, d) == 0, axis=1) & (np.einsum("ij,ij->i", p, d) > 0)
+    edge = np.zeros(len(o), bool)
+    df = d.astype(float)
+    for ia, ib in np.asarray(edges):
+        p, q = v[ia] - o, v[ib] - o
+        pf, qf = p.astype(float), q.astype(float)
+        det = np.einsum("ij,ij->i", pf, np.cross(qf, df))
+        size = (np.linalg.norm(pf, axis=1) * np.linalg.norm(qf, axis=1)
+                * np.linalg.norm(df, axis=1))
+        for k in np.flatnonzero(np.abs(det) <= 1e-9 * size):
+            P, Q, D = (x[k].tolist() for x in (p, q, d))
+            n = _cross(P, Q)
+            if n == [0, 0, 0] or _dot(n, D) != 0:
+                continue
+            if _dot(_cross(D, Q), n) > 0 and _dot(_cross(P, D), n) > 0:
+                edge[k] = True
+    return vertex, edge
+
+
+def _cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _edges(faces):
+    e = np.sort(np.asarray(faces)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(e, axis=0)
+
+
+def _aim_point_source(v, faces, rng, u, distance):
+    """Source and detector (beam along -z) putting a chosen vertex ``v0`` on the central ray.
+
+    Returns ``(source, center, pitch, v0)`` in the mesh's frame, all integers. The detector
+    is ``2 D0`` from the source (``D0``: the source's height above ``v0``), with pitch ``2 u``:
+    its rays cross the plane of ``v0`` exactly on the lattice of spacing ``u`` around it. For
+    an edge ``(v0, b)`` with ``b`` nearer the source, the ray through the lattice point
+    ``v0 + (b - v0)_xy`` meets the edge at ``t = D0 / (D0 + (b - v0)_z)``, strictly inside it;
+    ``v0`` is chosen among the vertices having such an edge (on the lattice, not along the
+    beam), preferring those near the middle of the body across the beam (a smaller detector).
+    """
+    edges = _edges(faces)
+    good = []
+    for k in range(len(v)):
+        nb = np.concatenate([edges[edges[:, 0] == k, 1], edges[edges[:, 1] == k, 0]])
+        e = v[nb] - v[k]
+        ok = (e[:, 2] > 0) & np.any(e[:, :2] != 0, axis=1) & np.all(e[:, :2] % u == 0, axis=1)
+        if ok.any():
+            good.append(k)
+    assert good, "no vertex with an edge towards the source"
+    reach = [np.abs(v[:, :2] - v[k, :2]).max() for k in good]
+    best = [good[i] for i in np.argsort(reach, kind="stable")[:3]]
+    v0 = v[int(rng.choice(best))]
+    d0 = int(distance + rng.integers(-20, 21) * u)
+    source = v0 + np.array([0, 0, d0])
+    return source, v0 - np.array([0, 0, d0]), 2 * u, v0
+
+
 def lattice_case(seed, *, kind, offset=(0, 0, 0), distance=1000, scale=1.0, sliver=False,
                  degenerate=False, rays_across=48):
+    """A random lattice polyhedron (rational rotation), randomly translated, and a detector
+    whose rays pass exactly through chosen vertices and edge points.
+
+    Returns ``(scene, ref, amb, through_vertex, through_edge)``: the exact chords, the rays
+    whose length is ambiguous (in a face plane), and how many rays pass exactly through a
+    vertex and through the interior of an edge (counted exactly, all vertices and edges).
+    """
     rng = np.random.default_rng(seed)
     v, faces = lattice_hull(rng)
     unit = 1
@@ -210,24 +305,35 @@ def lattice_case(seed, *, kind, offset=(0, 0, 0), distance=1000, scale=1.0, sliv
         distance *= 1024
     planes = face_planes(v, faces)
     span = int(np.abs(v).max()) + 2 * unit
-    pitch = unit * max(1, (span // unit) // rays_across)
-    shape = (2 * (span // pitch) + 3, 2 * (span // pitch) + 1)
-    off = np.asarray(offset, np.int64)
-    source = off + np.array([0, 0, distance])
-    center = off + np.array([0, 0, -span - 5])
+    u = unit * max(1, (span // unit) // rays_across)       # ray spacing at the body
+    if kind == "parallel":
+        # Rays on the lattice of spacing u through v0 (all lattice points when u == unit),
+        # the beam axis a few rays away from the body's middle.
+        v0 = v[rng.integers(len(v))]
+        axis = v0[:2] % u + u * rng.integers(-3, 4, size=2)
+        source = np.array([axis[0], axis[1], distance])
+        center = np.array([axis[0], axis[1], -span - 5])
+        pitch = u
+        reach = np.abs(v[:, :2] - axis).max(axis=0) / u
+    else:
+        source, center, pitch, v0 = _aim_point_source(v, faces, rng, u, distance)
+        # Half-extent of the body's projection, in rays, across the beam.
+        depth = source[2] - v[:, 2]
+        reach = (np.abs(v[:, :2] - v0[:2]) * (source[2] - v0[2]) / depth[:, None]).max(axis=0) / u
+    nx, ny = (int(np.ceil(r)) + 1 for r in reach)
+    shape = (2 * nx + 3, 2 * ny + 1)
+    # A random translation of the whole set-up (integers: exact in float), plus the case's.
+    off = np.asarray(offset, np.int64) + rng.integers(-1000, 1001, size=3) * \
+        (100 if np.any(offset) else 1)
     mesh = trimesh.Trimesh((v + off) * scale, faces, process=False)
-    scene = make_scene(mesh, source=source * scale, center=center * scale, shape=shape,
-                       pitch=pitch * scale, kind=kind)
-    # Reference: everything relative to the offset (translation does not change chords).
-    o, d, t_max = integer_rays(source - off, center - off, shape, pitch, kind)
+    scene = make_scene(mesh, source=(source + off) * scale, center=(center + off) * scale,
+                       shape=shape, pitch=pitch * scale, kind=kind)
+    # Reference, in the mesh's frame (a translation does not change chords).
+    o, d, t_max = integer_rays(source, center, shape, pitch, kind)
     ref, amb = exact_chords(planes, o, d, t_max, box=(v.min(0) - 1, v.max(0) + 1))
     ref = ref * np.linalg.norm(d, axis=1) * scale
-    # How many rays pass exactly through a vertex of the mesh (parallel beam: same x, y).
-    through = 0
-    if kind == "parallel":
-        vx = set(map(tuple, v[:, :2].tolist()))
-        through = sum((a, b) in vx for a, b in o[:, :2].tolist())
-    return scene, ref, amb, through
+    vertex, edge = rays_through(v, _edges(faces), o, d)
+    return scene, ref, amb, int(vertex.sum()), int(edge.sum())
 
 
 def _refine(v, faces, rng, *, sliver, degenerate):
@@ -276,9 +382,13 @@ CASES = {
 }
 
 
+@functools.lru_cache(maxsize=32)
+def _case(name, seed):
+    return lattice_case(seed, **CASES[name])          # shared by both engines (read only)
+
+
 def _run_case(name, seed, engine):
-    opts = CASES[name]
-    scene, ref, amb, through = lattice_case(seed, **opts)
+    scene, ref, amb, through_vertex, through_edge = _case(name, seed)
     L = xray_viz.render(scene, engine=engine).total_path_length.ravel()
     size = float(np.ptp(scene.bodies[0].vertices, axis=0).max())
     t_far = float(np.linalg.norm(scene.source.position - scene.detector.center))
@@ -286,16 +396,15 @@ def _run_case(name, seed, engine):
     bad = check_lengths(L, ref, amb, atol=atol)
     assert ref.max() > 0
     assert bad == 0, f"{name} seed {seed} engine {engine}: {bad} rays miscounted"
-    return through
+    # Both beams: rays exactly through vertices and through edge points, by construction.
+    assert through_vertex > 0 and through_edge > 0, (name, seed, through_vertex, through_edge)
+    return through_vertex, through_edge
 
 
 @pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_lattice_polyhedra_sample(name, engine):
-    through = _run_case(name, 1, engine)
-    if CASES[name]["kind"] == "parallel" and not CASES[name].get("sliver") \
-            and not CASES[name].get("degenerate"):
-        assert through > 0          # some rays go exactly through vertices
+    _run_case(name, 1, engine)
 
 
 @pytest.mark.slow
@@ -304,6 +413,71 @@ def test_lattice_polyhedra_sample(name, engine):
 def test_lattice_polyhedra_many_seeds(name, engine):
     for seed in range(2, 12):
         _run_case(name, seed, engine)
+
+
+# --------------------------------------------------------------------------------------------
+# Any rays (not a detector grid) aimed exactly at vertices and edge points: the NumPy engine
+
+
+def _aimed_rays(seed, *, offset=0):
+    """Rays of random directions through every vertex and every edge midpoint of a random
+    lattice polyhedron (doubled, so that midpoints are integers), each continuing into the
+    body towards a random interior lattice point. Exact in float."""
+    rng = np.random.default_rng(seed)
+    v, faces = lattice_hull(rng)
+    v2 = 2 * v
+    planes = face_planes(v2, faces)
+    inside = []
+    while len(inside) < 8:
+        c = rng.integers(-4, 5, size=3)
+        if all(sum(n[i] * int(c[i]) for i in range(3)) < k for n, k in planes):
+            inside.append(c)
+    edges = _edges(faces)
+    targets = np.vstack([v2, v2[edges[:, 0]] // 2 + v2[edges[:, 1]] // 2])
+    kinds = np.array(["vertex"] * len(v2) + ["edge"] * len(edges))
+    aim = np.array(inside)[rng.integers(len(inside), size=len(targets))]
+    d = aim - targets
+    back = rng.integers(1, 4, size=len(targets))
+    o = targets - back[:, None] * d
+    off = rng.integers(-1000, 1001, size=3) * (1 + offset)
+    mesh = trimesh.Trimesh((v2 + off).astype(float), faces, process=False)
+    return mesh, planes, o, d, back, off, kinds, (v2.min(0) - 1, v2.max(0) + 1)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_any_rays_through_vertices_and_edge_points_cross_once(seed):
+    _check_aimed(seed)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("offset", [0, 1000])
+def test_any_rays_through_vertices_and_edge_points_many_seeds(offset):
+    for seed in range(3, 23):
+        _check_aimed(seed, offset=offset)
+
+
+def _check_aimed(seed, offset=0):
+    from xray_viz.tracing import trace_rays
+
+    mesh, planes, o, d, back, off, kinds, box = _aimed_rays(seed, offset=offset)
+    scene = make_scene(mesh)
+    hits = trace_rays(scene, (o + off).astype(float), d.astype(float))
+    n = len(o)
+    counts = np.bincount(hits.ray, minlength=n)
+    entries = np.bincount(hits.ray, weights=hits.entering, minlength=n).astype(int)
+    bad = (counts != 2) | (entries != 1)
+    assert not bad.any(), (f"seed {seed}: {np.count_nonzero(bad)} rays miscounted "
+                           f"({sorted(set(kinds[bad]))})")
+    assert {"vertex", "edge"} <= set(kinds)
+    first = np.searchsorted(hits.ray, np.arange(n))
+    assert np.all(hits.entering[first]) and not np.any(hits.entering[first + 1])
+    # Entry exactly at the aimed point (t = back), the chord against exact arithmetic.
+    np.testing.assert_allclose(hits.t[first], back, rtol=1e-12)
+    ref, amb = exact_chords(planes, o, d, [10**6] * n, box=box)
+    norm = np.linalg.norm(d, axis=1)
+    L = (hits.t[first + 1] - hits.t[first]) * norm
+    assert not amb.any() and np.all(ref > 0)
+    np.testing.assert_allclose(L, ref * norm, rtol=0, atol=1e-9 * np.ptp(box, axis=0).max())
 
 
 # --------------------------------------------------------------------------------------------

@@ -23,7 +23,7 @@ import numpy as np
 from xray_viz.errors import SceneError
 
 __all__ = ["path_lengths", "body_precedence", "remember_precedence", "check_source_outside",
-           "inside_counts"]
+           "inside_counts", "mesh_bounds", "beam_planes", "boxes_outside_beam"]
 
 #: A fixed, irrational-looking direction for inside/outside tests (no axis, no diagonal).
 _PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
@@ -155,7 +155,7 @@ _PRECEDENCE: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
 def _body_precedence(bodies) -> np.ndarray:
     n = len(bodies)
     depth = np.zeros(n, int)
-    boxes = [(b.vertices.min(0), b.vertices.max(0)) for b in bodies]
+    boxes = [mesh_bounds(b.mesh) for b in bodies]
     for a in range(n):
         samples = _sample_vertices(bodies[a].vertices)
         for b in range(n):
@@ -174,35 +174,155 @@ def _body_precedence(bodies) -> np.ndarray:
     return rank
 
 
+def mesh_bounds(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounding box ``(lo, hi)`` of a mesh's vertices, cached per mesh data.
+
+    The cache is keyed by the mesh object and its data hash (trimesh keeps the hash until the
+    vertices or faces change), so a changed mesh is measured again; a new :class:`Scene` made
+    with ``replace`` (the viewer moving the source) costs a dictionary look-up, not a pass over
+    the vertices.
+    """
+    try:
+        key = (id(mesh), hash(mesh))
+    except TypeError:
+        key = None
+    if key is not None:
+        hit = _BOUNDS.get(key)
+        if hit is not None:
+            _BOUNDS.move_to_end(key)
+            return hit
+    lo, hi = _measure(mesh)
+    for a in (lo, hi):
+        a.setflags(write=False)
+    if key is not None:
+        _BOUNDS[key] = (lo, hi)
+        while len(_BOUNDS) > 256:
+            _BOUNDS.popitem(last=False)
+    return lo, hi
+
+
+_BOUNDS: "OrderedDict[tuple, tuple]" = OrderedDict()
+
+
+def _measure(mesh):
+    v = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+    if len(v):
+        return v.min(axis=0), v.max(axis=0)
+    return np.full(3, np.inf), np.full(3, -np.inf)
+
+
+def beam_planes(r0, forward, eu, ev, FL, half_u, half_v, perspective) -> np.ndarray:
+    """Planes bounding the beam: every ray point ``x`` has ``n . (x - r0) <= c`` for each row
+    ``(nx, ny, nz, c)`` of the result.
+
+    Rows 0-3 are the side planes (through the source for a point source: the pyramid from the
+    source through the detector rectangle of half-widths ``half_u``, ``half_v`` mm along ``eu``
+    and ``ev``; the slab box of a parallel beam), row 4 the source plane (nothing behind it),
+    row 5 the detector plane (rays end there, ``FL`` from the source).
+    """
+    f = np.asarray(forward, np.float64)
+    eu = np.asarray(eu, np.float64)
+    ev = np.asarray(ev, np.float64)
+    rows = []
+    for e, h in ((eu, half_u), (ev, half_v)):
+        for s in (1.0, -1.0):
+            if perspective:
+                rows.append(np.append(s * FL * e - h * f, 0.0))   # |a| FL <= h w
+            else:
+                rows.append(np.append(s * e, h))                  # |a| <= h
+    rows.append(np.append(-f, 0.0))
+    rows.append(np.append(f, FL))
+    return np.ascontiguousarray(rows, dtype=np.float64)
+
+
+def beam_half_widths(detector) -> tuple[float, float]:
+    """Half-widths (mm) of a detector's ray grid, any supersampling included, plus one pixel:
+    a margin far above rounding and fixed-point snapping, so culling by them is conservative."""
+    (w, h), (pu, pv) = detector.shape, detector.pitch
+    return (w / 2 + 1) * pu, (h / 2 + 1) * pv
+
+
+def boxes_outside_beam(lo, hi, r0, planes) -> np.ndarray:
+    """(n,) bool: which boxes ``[lo[k], hi[k]]`` lie wholly outside one of the beam's
+    ``planes`` (see :func:`beam_planes`), so that no ray of the beam meets what is inside them.
+
+    Exact up to a relative margin of 1e-12 kept on the safe (not outside) side.
+    """
+    lo = np.asarray(lo, np.float64).reshape(-1, 3)
+    hi = np.asarray(hi, np.float64).reshape(-1, 3)
+    n, c = planes[:, :3], planes[:, 3]
+    mid, half = (lo + hi) / 2 - r0, (hi - lo) / 2
+    nearest = mid @ n.T - half @ np.abs(n).T            # min of n . (x - r0) over each box
+    scale = (np.abs(mid) + half) @ np.abs(n).T + np.abs(c)
+    return np.any(nearest - c > 1e-12 * scale, axis=1)
+
+
 def check_source_outside(scene) -> None:
     """Refuse a scene whose rays would start inside a body.
+
+    A parallel beam's rays start on the source plane (through the source, across the beam);
+    a body crossing that plane is refused only where the crossing can lie within the beam
+    (the rectangle of the rays' starting points, widened by a pixel). Bounding boxes are
+    cached per mesh (:func:`mesh_bounds`), so this costs no pass over the vertices for a
+    body wholly in front of the source plane or, for a point source, not around the source.
 
     Raises
     ------
     SceneError
-        If the point source is inside a body, or a parallel beam's source plane cuts a body.
+        If the point source is inside a body, or a parallel beam's source plane cuts a body
+        across the beam.
     """
-    from xray_viz.geometry import beam_direction
+    from xray_viz.geometry import detector_axes
 
     r0 = scene.source.position
-    forward = beam_direction(r0, scene.detector.center)
     where = f"{scene.path}: " if scene.path else ""
-    for body in scene.bodies:
-        v = body.vertices
-        if scene.source.kind == "parallel":
+    if not scene.bodies:
+        return
+    parallel = scene.source.kind == "parallel"
+    boxes = [mesh_bounds(body.mesh) for body in scene.bodies]
+    if parallel:
+        forward, eu, ev = detector_axes(r0, scene.detector.center, scene.detector.up)
+        hu, hv = beam_half_widths(scene.detector)
+        slab = beam_planes(r0, forward, eu, ev, 0.0, hu, hv, False)[:4]
+        aside = boxes_outside_beam([b[0] for b in boxes], [b[1] for b in boxes], r0, slab)
+    for k, body in enumerate(scene.bodies):
+        lo, hi = boxes[k]
+        if parallel:
+            mid, half = (lo + hi) / 2 - r0, (hi - lo) / 2
+            centre, reach = float(mid @ forward), float(half @ np.abs(forward))
+            if aside[k] or not centre - reach < 0 < centre + reach:
+                continue
+            v = body.vertices
             depth = (v - r0) @ forward
-            if depth.min() < 0 < depth.max():
+            if not depth.min() < 0 < depth.max():
+                continue
+            if _crosses_within(body, v - r0, depth, eu, ev, hu, hv) or \
+                    _winding(v[body.faces], r0) > 0:
                 raise SceneError(
                     f"{where}body {body.name!r} crosses the plane of the parallel-beam source "
                     f"(through {r0.tolist()}, across the beam): move the source back")
             continue
-        lo, hi = v.min(0), v.max(0)
         if np.any(r0 < lo) or np.any(r0 > hi):
             continue
-        tris = v[body.faces]
-        wind = [inside_counts(tris, r0, direction=d)[0]
-                for d in (_PROBE, np.array([-0.6, 0.48, -0.64]))]
-        if max(wind) > 0:
+        if _winding(body.vertices[body.faces], r0) > 0:
             raise SceneError(
                 f"{where}the source {r0.tolist()} is inside body {body.name!r}: move the "
                 "source outside every body")
+
+
+def _winding(tris, point) -> int:
+    return max(inside_counts(tris, point, direction=d)[0]
+               for d in (_PROBE, np.array([-0.6, 0.48, -0.64])))
+
+
+def _crosses_within(body, rel, depth, eu, ev, hu, hv) -> bool:
+    """Does a face of the body meeting the source plane reach into the beam's rectangle?"""
+    f = body.faces
+    d = depth[f]
+    meet = (d.min(axis=1) <= 0) & (d.max(axis=1) >= 0)
+    if not meet.any():
+        return False
+    tri = rel[f[meet]]
+    a, b = tri @ eu, tri @ ev
+    return bool(np.any((a.min(axis=1) <= hu) & (a.max(axis=1) >= -hu)
+                       & (b.min(axis=1) <= hv) & (b.max(axis=1) >= -hv)))

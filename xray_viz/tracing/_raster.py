@@ -159,11 +159,44 @@ def _tie(ex, ey):
     return 0
 
 
+@njit(cache=True, inline="always")
+def _side_value(V, i, r0, planes, k):
+    """``n . (V[i] - r0) - c`` for side plane ``k`` of the beam, and its rounding scale."""
+    dx = V[i, 0] - r0[0]
+    dy = V[i, 1] - r0[1]
+    dz = V[i, 2] - r0[2]
+    nx = planes[k, 0]
+    ny = planes[k, 1]
+    nz = planes[k, 2]
+    c = planes[k, 3]
+    return (nx * dx + ny * dy + nz * dz - c,
+            abs(nx * dx) + abs(ny * dy) + abs(nz * dz) + abs(c))
+
+
+@njit(cache=True)
+def beyond_side(V, i0, i1, i2, r0, planes):
+    """True when triangle (i0, i1, i2) lies wholly outside one of the beam's side planes
+    (rows of ``planes``, see :func:`xray_viz.attenuation.beam_planes`): no ray meets it.
+
+    Decides whether a triangle crossing the plane of the source (which cannot be projected)
+    is harmless; the margin (1e-12 relative) keeps doubtful triangles inside.
+    """
+    for k in range(planes.shape[0]):
+        s0, m0 = _side_value(V, i0, r0, planes, k)
+        s1, m1 = _side_value(V, i1, r0, planes, k)
+        s2, m2 = _side_value(V, i2, r0, planes, k)
+        if s0 > 1e-12 * m0 and s1 > 1e-12 * m1 and s2 > 1e-12 * m2:
+            return True
+    return False
+
+
 @njit(cache=True, parallel=True)
-def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box):
+def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
     """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
 
-    Only triangles that can cover a sample get a box; ``status`` is written for all.
+    Only triangles that can cover a sample get a box; ``status`` is written for all. A triangle
+    crossing the plane of the source is an error (ERR_STRADDLE) unless it lies wholly outside
+    one of the beam's side ``planes`` (:func:`beyond_side`).
     """
     T = F.shape[0]
     for t in prange(T):
@@ -196,7 +229,8 @@ def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box):
         if perspective and wmax <= 0.0:
             continue
         if wmin < 0.0 or (perspective and wmin <= 0.0):
-            status[t] = ERR_STRADDLE
+            if not beyond_side(V, i0, i1, i2, r0, planes):
+                status[t] = ERR_STRADDLE
             continue
         if X0 > X1 or Y0 > Y1:
             continue  # covers no sample (outside the beam or between samples)
@@ -569,7 +603,7 @@ _BLOCK = 1024
 
 @njit(cache=True, parallel=True)
 def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
-                  depth_ok, S, N, err, K):
+                  depth_ok, S, N, err, K, planes):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
     By blocks of ``_BLOCK`` triangles: when ``depth_ok``, a branch-free first pass drops the
@@ -578,7 +612,8 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
     own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
-    triangle that cannot be projected (straddling or too close to the source plane), else -1.
+    triangle that cannot be projected (straddling or too close to the source plane), else -1;
+    a straddling triangle wholly outside one of the beam's side ``planes`` is skipped instead.
 
     Fast path: a triangle whose sample box holds a single sample (most triangles of a fine mesh)
     evaluates its three edge functions there once; when none is zero, the sample is inside
@@ -641,7 +676,8 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
                     if perspective and wmax <= 0.0:
                         continue
                     if wmin < 0.0 or (perspective and wmin <= 0.0):
-                        err[c] = t
+                        if not beyond_side(V, i0, i1, i2, r0, planes):
+                            err[c] = t
                         continue
                     if X0 > X1 or Y0 > Y1:
                         continue

@@ -3,6 +3,12 @@
 For a detector grid every ray shares the source (point source) or the direction (parallel
 beam), so tracing all hits is rasterising the scene's triangles onto the detector:
 
+0. **Cull bodies**: a body whose bounding box (cached per mesh) lies wholly outside the beam -
+   outside one side plane of the pyramid from a point source through the detector's edges
+   (widened by a pixel), or of a parallel beam's slab box, wholly behind the plane of the
+   source or beyond the detector - is skipped as a whole: none of its vertices is projected,
+   its path lengths are zero, and precedence among the other bodies is unchanged (no ray
+   meets it, so it contains no stretch of any ray).
 1. **Project** each mesh vertex onto the detector (perspective for a point source, orthographic
    for a parallel beam) in units of the ray grid (with ``n x n`` supersampling, the sub-ray grid),
    and **snap** it to fixed point, ``2**-22`` of a grid step (``FRAC_BITS``). Shared vertices
@@ -28,14 +34,21 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
 The result is cached per (meshes, source, detector, supersampling): re-rendering the same
 geometry with other energies or materials costs nothing, and the per-mesh set-up (faces sorted
 along the Morton order of their vertices, vertices numbered in order of first use by those faces,
-concatenated over bodies) is cached per mesh.
+concatenated over the bodies in the beam) is cached per mesh.
 
-Limits: meshes must be closed and outward oriented (as for the NumPy engine); a body crossing
-the plane of the source is refused with a :class:`~xray_viz.errors.SceneError` (the NumPy engine
-traces it). Snapping moves projected vertices by at most ``2**-23`` of a grid step: the
-watertightness is exact, and the path length of a ray grazing a silhouette within that distance
-differs from the exact one by the chord there (below 1e-9 of the body size in the stress suite).
-Float64 throughout; there is no float32 path.
+Limits: meshes must be closed and outward oriented (as for the NumPy engine). A body crossing
+the plane of the source inside the beam cannot be projected and is refused with a
+:class:`~xray_viz.errors.SceneError` (the NumPy engine traces it): precisely, a triangle that
+crosses that plane is refused unless it lies wholly outside one side plane of the beam (then no
+ray meets it and it is skipped), so a body crossing the source plane away from the beam renders.
+Snapping moves projected vertices by at most ``2**-23`` of a grid step: the watertightness is
+exact, and the path length of a ray grazing a silhouette within that distance differs from the
+exact one by the chord there (below 1e-9 of the body size in the stress suite).
+
+Precision: float64 throughout (projection, depths, sums) and exact int64 / limb arithmetic for
+coverage. **There is no float32 path** in this engine or in the NumPy engine, so there is no
+float32-against-float64 error to report; the stress suite (``tests/test_stress.py``) measures
+the float64 engines against exact rational references instead.
 
 Rays are the ideal grid of :func:`xray_viz.geometry.detector_rays`; the engine agrees with the
 NumPy reference engine to rounding (~1e-12 relative) except on rays lying *in* a face plane,
@@ -56,16 +69,20 @@ from xray_viz.errors import SceneError
 from xray_viz.geometry import detector_axes
 from xray_viz.tracing._raster import FRAC_BITS
 
-__all__ = ["fast_path_lengths", "trace_once", "clear_caches", "FRAC_BITS"]
+__all__ = ["fast_path_lengths", "trace_once", "clear_caches", "visible_bodies", "FRAC_BITS"]
 
+_PREP_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
 _MESH_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
 _L_CACHE: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
+_PREP_CACHE_SIZE = 64
+_PREP_CACHE_BYTES = 512 << 20
 _MESH_CACHE_SIZE = 8
 _L_CACHE_SIZE = 4
 
 
 def clear_caches() -> None:
     """Forget cached meshes and path lengths (for timing cold runs)."""
+    _PREP_CACHE.clear()
     _MESH_CACHE.clear()
     _L_CACHE.clear()
     _WORK.clear()
@@ -108,33 +125,91 @@ def _spatial_order(v, f):
     return np.ascontiguousarray(v[order]), np.ascontiguousarray(rank[f])
 
 
-def _geometry(scene):
-    """Concatenated vertices (V, 3) float64, faces (T, 3) int64 and triangle bodies (T,) int32,
-    cached per tuple of meshes."""
-    key = tuple(_mesh_key(b) for b in scene.bodies)
+def _prepared(body):
+    """One mesh's vertices (V, 3) float64 and faces (T, 3) int32/int64 in spatial order
+    (:func:`_spatial_order`), cached per mesh."""
+    key = _mesh_key(body)
+    hit = _PREP_CACHE.get(key)
+    if hit is not None:
+        _PREP_CACHE.move_to_end(key)
+        return hit
+    v, f = _spatial_order(np.asarray(body.vertices, dtype=np.float64),
+                          np.asarray(body.faces, dtype=np.int64))
+    f = np.array(f, dtype=np.int32 if len(v) < 2**31 else np.int64, order="C")
+    if np.may_share_memory(v, body.mesh.vertices):
+        v = v.copy()                    # small meshes: not a view of the mesh's own data
+    for a in (v, f):
+        a.setflags(write=False)
+    _PREP_CACHE[key] = (v, f)
+    # Bounded in entries and in bytes (a viewer turning a big mesh makes a new one per frame).
+    while len(_PREP_CACHE) > 1 and (
+            len(_PREP_CACHE) > _PREP_CACHE_SIZE or
+            sum(a.nbytes + b.nbytes for a, b in _PREP_CACHE.values()) > _PREP_CACHE_BYTES):
+        _PREP_CACHE.popitem(last=False)
+    return v, f
+
+
+def _geometry(scene, keep=None):
+    """Concatenated vertices (V, 3) float64, faces (T, 3) int32 (int64 beyond 2**31 vertices)
+    and triangle bodies (T,) int32 (indices into ``scene.bodies``) of the bodies ``keep``
+    (default: all), cached per tuple of (body index, mesh)."""
+    keep = tuple(range(len(scene.bodies))) if keep is None else tuple(keep)
+    key = tuple((k, _mesh_key(scene.bodies[k])) for k in keep)
     hit = _MESH_CACHE.get(key)
     if hit is not None:
         _MESH_CACHE.move_to_end(key)
         return key, hit
-    verts, faces, owner = [], [], []
-    offset = 0
-    for k, body in enumerate(scene.bodies):
-        v, f = _spatial_order(np.asarray(body.vertices, dtype=np.float64),
-                              np.asarray(body.faces, dtype=np.int64))
-        verts.append(v)
-        faces.append(f + offset)
-        owner.append(np.full(len(f), k, np.int32))
-        offset += len(v)
-    V = np.ascontiguousarray(np.concatenate(verts)) if verts else np.zeros((0, 3))
-    F = np.ascontiguousarray(np.concatenate(faces), dtype=np.int32 if offset < 2**31 else np.int64) \
-        if faces else np.zeros((0, 3), np.int32)
-    B = np.concatenate(owner) if owner else np.zeros(0, np.int32)
+    parts = [_prepared(scene.bodies[k]) for k in keep]
+    if len(parts) == 1:
+        V, F = parts[0]                 # shared with the per-mesh cache: no copy
+    elif parts:
+        offset = np.cumsum([0] + [len(v) for v, _ in parts])
+        wide = offset[-1] >= 2**31
+        V = np.ascontiguousarray(np.concatenate([v for v, _ in parts]))
+        F = np.ascontiguousarray(np.concatenate(
+            [f.astype(np.int64) + o for (_, f), o in zip(parts, offset)]),
+            dtype=np.int64 if wide else np.int32)
+    else:
+        V, F = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    B = np.concatenate([np.full(len(f), k, np.int32) for k, (_, f) in zip(keep, parts)]) \
+        if parts else np.zeros(0, np.int32)
     for a in (V, F, B):
         a.setflags(write=False)
     _MESH_CACHE[key] = (V, F, B)
     while len(_MESH_CACHE) > _MESH_CACHE_SIZE:
         _MESH_CACHE.popitem(last=False)
     return key, (V, F, B)
+
+
+def _beam(scene, frame):
+    """The beam's bounding planes (:func:`xray_viz.attenuation.beam_planes`), for any
+    supersampling, widened by a pixel (:func:`xray_viz.attenuation.beam_half_widths`)."""
+    from xray_viz.attenuation import beam_half_widths, beam_planes
+
+    r0, center, f, eu, ev, FL = frame[:6]
+    hu, hv = beam_half_widths(scene.detector)
+    return beam_planes(r0, f, eu, ev, FL, hu, hv, scene.source.kind != "parallel")
+
+
+def visible_bodies(scene, planes=None) -> tuple:
+    """Indices of the bodies whose bounding box meets the beam (any supersampling); the others
+    are culled as a whole: no vertex of theirs is projected, their path lengths are zero.
+
+    Boxes are cached per mesh (:func:`xray_viz.attenuation.mesh_bounds`). A body is culled when
+    its box lies wholly outside one side plane of the beam (the pyramid from a point source
+    through the detector's edges, the slab box of a parallel beam), wholly behind the plane of
+    the source or wholly beyond the detector.
+    """
+    from xray_viz.attenuation import boxes_outside_beam, mesh_bounds
+
+    if not scene.bodies:
+        return ()
+    if planes is None:
+        planes = _beam(scene, _frame(scene, 1))
+    boxes = [mesh_bounds(b.mesh) for b in scene.bodies]
+    out = boxes_outside_beam(np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes]),
+                             np.asarray(scene.source.position, np.float64), planes)
+    return tuple(int(k) for k in np.flatnonzero(~out))
 
 
 def _frame(scene, n):
@@ -173,6 +248,10 @@ def _workspace(n_vertices, n_triangles):
 _DIRECT_MAX_SAMPLES = 1 << 23
 
 
+#: How to fall back to the reference engine, for the refusal messages.
+_USE_NUMPY = "use the NumPy engine (engine='numpy' in Python, --engine numpy on the command line)"
+
+
 def _refuse(scene, B, t, r0, w, F):
     body = scene.bodies[int(B[t])].name
     ws = w[F[t]]
@@ -180,11 +259,11 @@ def _refuse(scene, B, t, r0, w, F):
     if ws.min() < 0 or (perspective and ws.min() <= 0):
         raise SceneError(
             f"body {body!r} crosses the plane of the source (through {r0.tolist()}, across the "
-            "beam): the fast engine cannot project it; move the source back or use "
-            "engine='numpy'")
+            f"beam) within the beam's cone: the fast engine cannot project it; move the source "
+            f"back or {_USE_NUMPY}")
     raise SceneError(
         f"body {body!r} is too close to the plane of the source to project onto the detector; "
-        "move the source back or use engine='numpy'")
+        f"move the source back or {_USE_NUMPY}")
 
 
 def _accumulators(n_chunks, nH, nW):
@@ -237,8 +316,8 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
     --------
     >>> import xray_viz
     >>> L, _ = fast_path_lengths(xray_viz.load_scene("sphere"))
-    >>> L.shape, round(float(L.max()), 3)
-    ((65536, 1), 79.998)
+    >>> L.shape, round(float(L.max()), 1)
+    ((65536, 1), 80.0)
     """
     n = int(supersample)
     if n < 1:
@@ -248,7 +327,7 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
         from xray_viz.render import _numpy_path_lengths
 
         return _numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
-    gkey, (V, F, B) = _geometry(scene)
+    gkey = tuple(_mesh_key(b) for b in scene.bodies)
     src, det = scene.source, scene.detector
     key = (gkey, tuple(src.position.tolist()), src.kind, tuple(det.center.tolist()),
            tuple(det.up.tolist()), tuple(det.shape), tuple(det.pitch), n,
@@ -258,7 +337,7 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
         if hit is not None:
             _L_CACHE.move_to_end(key)
             return hit, None
-    L = trace_once(scene, supersample=n, _geometry_arrays=(V, F, B))
+    L = trace_once(scene, supersample=n)
     if cache:
         L.setflags(write=False)
         _L_CACHE[key] = L
@@ -267,7 +346,7 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
     return L, None
 
 
-def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndarray:
+def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
     """Trace a scene's detector rays with the fast engine, without the result cache.
 
     Parameters
@@ -282,21 +361,29 @@ def trace_once(scene, *, supersample: int = 1, _geometry_arrays=None) -> np.ndar
         :func:`~xray_viz.geometry.detector_rays`.
     """
     with _LOCK:
-        return _trace(scene, supersample=supersample, geometry_arrays=_geometry_arrays)
+        return _trace(scene, supersample=supersample)
 
 
-def _trace(scene, *, supersample, geometry_arrays):
+def _trace(scene, *, supersample):
     from xray_viz.tracing import _raster as R
 
     n = int(supersample)
     W, H = scene.detector.shape
     nb = len(scene.bodies)
-    V, F, B = _geometry(scene)[1] if geometry_arrays is None else geometry_arrays
     n_rays = W * H * n * n
-    if nb == 0 or len(F) == 0:
+    if nb == 0:
+        return np.zeros((n_rays, 0))
+    frame = _frame(scene, n)
+    r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = frame
+    planes = _beam(scene, frame)
+    keep = visible_bodies(scene, planes)
+    if not keep:
         return np.zeros((n_rays, nb))
+    V, F, B = _geometry(scene, keep)[1]
+    if len(F) == 0:
+        return np.zeros((n_rays, nb))
+    sides = np.ascontiguousarray(planes[:4])
     perspective = scene.source.kind != "parallel"
-    r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = _frame(scene, n)
     nW, nH = W * n, H * n
     XY, w, huge, status, box, K = _workspace(len(V), len(F))
     if perspective:
@@ -307,21 +394,58 @@ def _trace(scene, *, supersample, geometry_arrays):
         R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
         P0 = P00
     n_chunks = numba.get_num_threads()
-    if nb == 1 and n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
-        # One body: a single pass over the triangles, one accumulator per thread.
+    if len(keep) == 1:
+        L1 = _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
+                           nW, nH, K, sides, status, box, B, n, W, H, scene)
+        if nb == 1:
+            return L1
+        L = np.zeros((n_rays, nb))
+        L[:, keep[0]] = L1[:, 0]
+        return L
+    tri, kind, orient, cbox, coef, wrange, order, band_start, band_tris, band_height = \
+        _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides,
+               status, box, B, scene)
+    L = np.zeros((n_rays, nb))
+    prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
+    R.raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                   cbox, orient, coef, wrange, B, FL, prec, perspective, P0, Ex, Ey, n, W,
+                   H, L)
+    return L
+
+
+def _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
+                  K, sides, status, box, B, n, W, H, scene):
+    """Path lengths (n_rays, 1) of the one body left in the beam."""
+    L = np.zeros((W * H * n * n, 1))
+    if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
+        # A single pass over the triangles, one accumulator per thread.
         Sc, Nc = _accumulators(n_chunks, nH, nW)
         err = np.empty(n_chunks, np.int64)
         depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
         R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                        depth_ok, Sc, Nc, err, K)
+                        depth_ok, Sc, Nc, err, K, sides)
         if err.max() >= 0:
             _refuse(scene, B, int(err.max()), r0, w, F)
         S = np.empty((nH, nW))
         R.reduce_chunks(Sc, Nc, FL, S)
-        L = np.zeros((n_rays, 1))
-        R.finish(S, np.zeros((1, 1, 1)), True, FL, perspective, P0, Ex, Ey, n, W, H, L)
-        return L
-    R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box)
+    else:
+        tri, kind, orient, cbox, coef, wrange, order, band_start, band_tris, band_height = \
+            _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides,
+                   status, box, B, scene)
+        Sd = np.zeros((nH, nW))
+        N = np.zeros((nH, nW), np.int32)
+        R.raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                        cbox, orient, coef, wrange, B, FL, Sd, N)
+        S = np.empty((nH, nW))
+        R.reduce_chunks(Sd[None], N[None], FL, S)
+    R.finish(S, np.zeros((1, 1, 1)), True, FL, perspective, P0, Ex, Ey, n, W, H, L)
+    return L
+
+
+def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides, status,
+           box, B, scene):
+    """Cull, set up and bin the triangles by bands of detector rows (banded rasters)."""
+    R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides)
     if status.min() <= R.ERR_STRADDLE:
         _refuse(scene, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
     tri = np.flatnonzero(status).astype(np.int64)
@@ -338,19 +462,4 @@ def _trace(scene, *, supersample, geometry_arrays):
     n_bands = int(math.ceil(nH / band_height))
     band_start, band_tris = R.bin_triangles(cbox, band_height, n_bands)
     order = _band_order(n_bands)
-    L = np.zeros((n_rays, nb))
-    if nb == 1:
-        Sd = np.zeros((nH, nW))
-        N = np.zeros((nH, nW), np.int32)
-        R.raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                        cbox, orient, coef, wrange, B, FL, Sd, N)
-        S = np.empty((nH, nW))
-        R.reduce_chunks(Sd[None], N[None], FL, S)
-        Lf = np.zeros((1, 1, 1))
-        R.finish(S, Lf, True, FL, perspective, P0, Ex, Ey, n, W, H, L)
-    else:
-        prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
-        R.raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                       cbox, orient, coef, wrange, B, FL, prec, perspective, P0, Ex, Ey, n, W,
-                       H, L)
-    return L
+    return tri, kind, orient, cbox, coef, wrange, order, band_start, band_tris, band_height
