@@ -65,7 +65,7 @@ print(f"nested_spheres: {scene.detector.shape[0]} x {scene.detector.shape[1]} pi
 #
 # The 3D view and the radiograph
 # ------------------------------
-# Every 12th ray of the detector's middle row is drawn, coloured inside the bodies, with its
+# Every 12th ray of the detector's middle row is drawn, its parts inside the bodies dark, with its
 # entry and exit points. ``view_bodies()`` (the viewer's ``b`` key) puts the camera behind and
 # beside the source, close to the phantom, with the detector behind it; the source itself (1 m
 # away) is out of the picture (``view_side()``, key ``v``, shows the whole set-up). The HO, VE, FL
