@@ -19,4 +19,13 @@ if [ ${#need[@]} -gt 0 ]; then
     echo "install them with: sudo apt-get install ${need[*]}" >&2
   fi
 fi
-"$PY" -m pip install --quiet -e '.[bench]' 2>&1 | grep -v "^WARNING: Location" || true
+log="$(mktemp)"
+if "$PY" -m pip install --quiet -e '.[bench]' >"$log" 2>&1; then
+  echo "bench extra installed (open3d, embreex, gvxr)"
+else
+  cat "$log" >&2
+  echo "pip install -e '.[bench]' failed (output above)" >&2
+  rm -f "$log"
+  exit 1
+fi
+rm -f "$log"
