@@ -1,5 +1,7 @@
 """Round trips of every output format, and the DICOM geometry."""
 
+from pathlib import Path
+
 import numpy as np
 import pydicom
 import pytest
@@ -59,7 +61,8 @@ def test_dicom_values_and_geometry(tmp_path, image):
     assert float(ds.EstimatedRadiographicMagnificationFactor) == pytest.approx(1500 / 900)
     assert [float(v) for v in ds.ImagerPixelSpacing] == pytest.approx([0.6, 0.4])  # row, column
     assert [float(v) for v in ds.PixelSpacing] == pytest.approx([0.6 * 0.6, 0.4 * 0.6])
-    assert float(ds.KVP) == pytest.approx(70.0)
+    assert "KVP" not in ds                       # a monochromatic beam has no tube potential
+    assert "beam: monochromatic 70 keV" in ds.ImageComments
     assert float(ds.FocalSpots) == pytest.approx(0.6)
     rwv = ds.RealWorldValueMappingSequence[0]
     assert np.array_equal(ds.pixel_array.astype(np.float64) * rwv.RealWorldValueSlope
@@ -104,7 +107,7 @@ def test_dicom_dx_conformance(tmp_path, image, quantity, bright, shape, sign, re
     # geometry tags are kept
     for keyword in ("ImagerPixelSpacing", "PixelSpacing",
                     "EstimatedRadiographicMagnificationFactor", "DistanceSourceToDetector",
-                    "DistanceSourceToPatient", "KVP", "FocalSpots"):
+                    "DistanceSourceToPatient", "FocalSpots"):
         assert keyword in ds
     assert ds.pixel_array.dtype == np.uint16 and ds.pixel_array.shape == image.shape
     step = (image.max() - image.min()) / 65535
@@ -152,3 +155,17 @@ def test_dicom_needs_scene(tmp_path, image):
     with pytest.raises(OutputError, match="scene"):
         save_image(tmp_path / "a.dcm", image)
     assert not (tmp_path / "a.dcm").exists()
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".tiff", ".png"])
+def test_unwritable_output_names_the_users_path_and_leaves_nothing(tmp_path, suffix):
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("")
+    target = blocker / f"x{suffix}"
+    with pytest.raises(OutputError, match=r"not_a_folder/x\.\w+: cannot write: .* is a file"):
+        save_image(target, np.eye(3))
+    missing = Path("/proc/xray_viz_test") / f"x{suffix}"      # /proc refuses new folders
+    with pytest.raises(OutputError) as info:
+        save_image(missing, np.eye(3))
+    assert str(info.value).startswith(f"{missing}: cannot write") and "\n" not in str(info.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["not_a_folder"]

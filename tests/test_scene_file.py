@@ -80,6 +80,12 @@ BAD = [
     ('mesh = "ball.stl"', 'mesh = "nope.stl"', "mesh file not found"),
     ("[detector]", "[detectr]", "unknown key 'detectr'"),
     ("energy = 60.0", "energy = -5.0", "energy must be > 0"),
+    # the known keys listed are every key the table accepts, not only those the file uses
+    ("mu = 0.2", "mu = 0.2\nrotaton = [0, 0, 90]",
+     "unknown key 'rotaton' (did you mean 'rotation'?); known keys: density, material, mesh, mu, "
+     "name, position, repair, rotation, scale, units"),
+    ("pitch = 2.0", "pitch = 2.0\npich = 2.0", "known keys: I0, center, falloff, focal_spot, "
+     "noise, pitch, response, seed, shape, size, supersample, up"),
 ]
 
 

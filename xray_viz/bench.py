@@ -1027,12 +1027,17 @@ def add_bench_parser(subparsers):
     """Add the ``bench`` sub-command to an ``argparse`` sub-parsers object."""
     p = subparsers.add_parser(
         "bench", help="benchmark the engines: time vs error, peers, scaling",
-        description=__doc__.split("\n\n")[0] + " See BENCHMARKS.md.")
+        description="Benchmarks of the engines: run time against error (sphere and Shepp-Logan "
+                    "at increasing mesh resolution and supersampling, with a Pareto plot), the "
+                    "peers side by side on the same rays (Open3D, trimesh+embree, pyvista, "
+                    "gVXR: install them with pip install -e '.[bench]' and bash "
+                    "benchmarks/setup.sh), and scaling with triangles and pixels. Results go "
+                    "to --out as JSON, Markdown tables and PNG plots. See BENCHMARKS.md.")
     p.add_argument("--suite", choices=("all", "pareto", "peers", "scaling"), default="all",
                    help="which benchmark to run (default: %(default)s)")
-    p.add_argument("--out", default="benchmarks/results",
+    p.add_argument("--out", default="benchmarks/results", metavar="DIR",
                    help="directory for JSON, Markdown tables and plots (default: %(default)s)")
-    p.add_argument("--repeat", type=int, default=7,
+    p.add_argument("--repeat", type=int, default=7, metavar="N",
                    help="timed runs per measurement; the median is reported (default: 7)")
     p.add_argument("--quick", action="store_true",
                    help="smaller meshes and detectors: about a minute (62 s measured on 2 "

@@ -73,7 +73,8 @@ def _render_command(args) -> int:
     save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
                quantity=args.quantity)
     w, h = scene.detector.shape
-    print(f"wrote {out} ({args.quantity}, {w}x{h}, {len(scene.bodies)} bodies, "
+    n = len(scene.bodies)
+    print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
           f"engine {image.engine}, {image.timing['total'] * 1000:.0f} ms)")
     return 0
 

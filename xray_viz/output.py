@@ -48,15 +48,24 @@ def to_uint16(image, *, bright="high") -> np.ndarray:
 
 
 def _atomic_write(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(fd)
+    """Write through a temporary file beside ``path``, then rename: never a half-written file.
+
+    An operating-system error names ``path`` (not the temporary file) in an :class:`OutputError`.
+    """
+    tmp = None
+    if path.parent.exists() and not path.parent.is_dir():
+        raise OutputError(f"{path}: cannot write: {path.parent} is a file, not a folder")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+        os.close(fd)
         write(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+    except BaseException as exc:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
         raise
 
 
@@ -151,8 +160,9 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
       ``DistanceSourceToPatient`` (SOD, source to the object plane through the centre of the
       bodies' bounding box, along the beam axis; see
       :func:`xray_viz.physics.imaging.source_object_distance`), in mm.
-    * ``KVP``: the tube potential of a tube spectrum, the highest energy (keV) of a CSV spectrum,
-      the photon energy of a monochromatic beam (then also in ``ImageComments``).
+    * ``KVP``: the tube potential of a tube spectrum, or the highest energy (keV) of a CSV
+      spectrum (its end point). A monochromatic beam has no tube potential: it has no ``KVP``,
+      and its photon energy is in ``ImageComments`` ("beam: monochromatic 60 keV").
     * ``FocalSpots`` (mm) when a focal spot is set.
 
     Grey scale: ``PhotometricInterpretation = "MONOCHROME2"`` with
@@ -271,7 +281,8 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     ds.DistanceSourceToDetector = _ds(sid)
     ds.DistanceSourceToPatient = _ds(sod)
     spectrum = source_spectrum(scene.source)
-    ds.KVP = _ds(spectrum.kvp if spectrum.kvp is not None else spectrum.max_energy)
+    if len(spectrum) > 1:                 # a monochromatic beam has no tube potential
+        ds.KVP = _ds(spectrum.kvp if spectrum.kvp is not None else spectrum.max_energy)
     if scene.detector.focal_spot > 0:
         ds.FocalSpots = _ds(scene.detector.focal_spot)
     ds.ImageComments = (f"{quantity or 'image'}; beam: {spectrum.description}; "

@@ -392,6 +392,13 @@ def _traceable(body: Body, where: str = "") -> Body:
 # --------------------------------------------------------------------------------------------
 # TOML parsing and validation
 
+#: Every key each table of a scene file accepts (an unknown key is an error that lists these).
+SOURCE_KEYS = ("position", "kind", "energy", "spectrum")
+DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
+                 "falloff", "supersample", "focal_spot")
+BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
+             "units", "repair")
+
 
 class _Table:
     """Typed access to one TOML table that remembers which keys were read."""
@@ -549,6 +556,7 @@ def _integer(t: _Table, key: str, *, minimum: int, default=None):
 def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
     from xray_viz.meshes.io import load_mesh
 
+    t.expect(BODY_KEYS)
     name = t.string("name", default=f"body{index}")
     mesh_name = t.string("mesh", required=True)
     mu = t.number("mu", nonnegative=True)
@@ -631,6 +639,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     top.expect(("source", "detector", "body"))
     src = top.table("source", required=True)
     src.where = "[source]"
+    src.expect(SOURCE_KEYS)
     position = src.vector("position", 3, required=True)
     kind = src.string("kind", default="point", choices=("point", "parallel"))
     spectrum = src.raw("spectrum")
@@ -652,6 +661,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
 
     det = top.table("detector", required=True)
     det.where = "[detector]"
+    det.expect(DETECTOR_KEYS)
     center = det.vector("center", 3, required=True)
     up = det.vector("up", 3, default=np.array([0.0, 1.0, 0.0]))
     shape = det.vector("shape", 2, required=True, integer=True)

@@ -276,8 +276,16 @@ def check_material(material, *, density=None) -> float:
     tabulated = material_density(material)
     if tabulated is None:
         what = "a mixture" if not isinstance(material, str) else "a chemical formula or element"
+        example = "density = 1.0 for water"
+        if isinstance(material, str):
+            xrl = _xraylib()
+            try:
+                z = xrl.SymbolToAtomicNumber(material)
+                example = f"density = {xrl.ElementDensity(z):g} for solid {material}"
+            except ValueError:
+                pass                       # a formula: no tabulated density to suggest
         raise MaterialError(f"material {material!r} is {what}: give its density in g/cm3 "
-                            "(e.g. density = 1.0)")
+                            f"(e.g. {example})")
     return tabulated
 
 
@@ -355,7 +363,7 @@ def linear_attenuation(material, energies_kev, *, density=None) -> np.ndarray:
     >>> linear_attenuation("H2O", 60.0)
     Traceback (most recent call last):
     ...
-    xray_viz.errors.MaterialError: material 'H2O' is a chemical formula or element: give its density in g/cm3 (e.g. density = 1.0)
+    xray_viz.errors.MaterialError: material 'H2O' is a chemical formula or element: give its density in g/cm3 (e.g. density = 1.0 for water)
     """
     rho = check_material(material, density=density)
     return mass_attenuation(material, energies_kev) * rho
