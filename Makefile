@@ -1,4 +1,6 @@
 # xray_viz developer entry points. `make demo` and `make test` are the README's Quick start.
+SHELL := /bin/bash
+.SHELLFLAGS := -o pipefail -c
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -9,8 +11,8 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml .ci/system-deps
 	bash .ci/system-deps
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet --upgrade pip 2>&1 | { grep -v '^WARNING: Location' || true; }
+	$(PY) -m pip install --quiet -e '.[test]' 2>&1 | { grep -v '^WARNING: Location' || true; }
 	touch $(STAMP)
 
 setup: $(STAMP)
