@@ -179,7 +179,8 @@ def test_show_command_screenshot(tmp_path, capsys):
 
     with Image.open(out) as im:
         assert im.size == (1200, 600)
-    assert "wrote" in capsys.readouterr().out
+    out_text = capsys.readouterr().out
+    assert "wrote" in out_text and "64x64 radiograph right" in out_text     # the preview's
     for argv, err in ((["show", "sphere", "--screenshot", str(tmp_path / "a.gif")], OutputError),
                       (["show", "nosuch", "--screenshot", str(out)], SceneFileNotFoundError),
                       (["show", "sphere", "--screenshot", str(out), "--size", "10", "10"],
@@ -418,3 +419,88 @@ def test_vector_labels_toggle_with_the_arrows(view):
     assert not view.plotter.actors["vec-labels-labels"].GetVisibility()
     view.set_visible("vectors", True)
     assert view.plotter.actors["vec-labels-labels"].GetVisibility()
+
+
+# --------------------------------------------------------------------------------------------
+# I0 != 1, preview resolution, grid steps
+
+
+def photon_scene(*, shape=(48, 40), i0=1000.0):
+    """:func:`small_scene`'s ball made of water, ``[detector] I0 = i0`` photons per pixel and
+    fall-off."""
+    scene = small_scene(shape=shape)
+    det = Detector.from_size([0, 0, -500], [0, 1, 0], shape, scene.detector.size, i0=i0,
+                             falloff=True)
+    ball = Body(name="ball", mesh=scene.bodies[0].mesh, material="Water, Liquid")
+    return scene.replace(detector=det, bodies=(ball,))
+
+
+def test_photon_image_is_labelled_in_photons_and_the_sliders_cover_it():
+    from xray_viz.viz.viewer import window_level_ranges
+
+    vw = Viewer(photon_scene(), resolution=48, window_size=SIZE)
+    try:
+        image = vw.radiograph.intensity
+        lo, hi = float(image.min()), float(image.max())
+        assert hi > 500                                        # photons, not I / I0
+        # the colour bar says what it shows: I in photons, with ticks across the image's range
+        assert list(vw.plotter.scalar_bars.keys()) == ["I (photons)"]
+        ticks = [float(t) for t in vw.view.colorbar_labels]
+        assert lo <= ticks[0] and ticks[-1] <= hi and ticks[-1] - ticks[0] > 0.5 * (hi - lo)
+        reps = {k: vw.sliders[k].GetRepresentation() for k in ("window", "level")}
+        assert "photons" in reps["window"].GetTitleText()
+        assert "photons" in reps["level"].GetTitleText()
+        # the level slider spans the image, the window slider from narrow to wider than it,
+        # and the knobs (the image range by default) sit inside, not pinned at an end
+        r = vw.slider_ranges
+        assert r["level"] == pytest.approx((lo, hi))
+        assert r["window"][0] < 0.05 * (hi - lo) and r["window"][1] >= hi - lo
+        assert r["window"][0] < reps["window"].GetValue() < r["window"][1]
+        assert r["level"][0] < reps["level"].GetValue() < r["level"][1]
+        _slider_moved(vw.sliders["window"], 200.0)
+        _slider_moved(vw.sliders["level"], 700.0)
+        actor = _pane(vw.plotter, (0, 1))["radiograph"]
+        assert actor.mapper.scalar_range == pytest.approx((600.0, 800.0))
+        # a re-render that changes the image's range moves the sliders' ranges with it
+        vw.set_energy(25.0)
+        image = vw.radiograph.intensity
+        assert float(image.min()) < 0.5 * lo
+        w_rng, l_rng, _ = window_level_ranges(image)
+        assert vw.slider_ranges["level"] == pytest.approx(l_rng)
+        assert vw.slider_ranges["window"] == pytest.approx(w_rng)
+        assert reps["level"].GetValue() == pytest.approx(700.0)       # the window/level kept
+    finally:
+        vw.close()
+
+
+def test_unit_i0_keeps_the_transmitted_fraction():
+    vw = Viewer(photon_scene(i0=1.0), resolution=48, window_size=SIZE)
+    try:
+        assert list(vw.plotter.scalar_bars.keys()) == ["I / I0"]
+        assert "(I / I0)" in vw.sliders["window"].GetRepresentation().GetTitleText()
+    finally:
+        vw.close()
+
+
+def test_show_command_caps_the_preview_resolution(tmp_path, capsys):
+    from xray_viz.cli import main
+
+    out = tmp_path / "big.png"
+    assert main(["show", "sphere", "--screenshot", str(out), "--resolution", "5000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "5000" in err and "2048" in err, err
+    assert "Traceback" not in err and not out.exists()
+
+
+def test_grid_label_gives_both_steps_when_they_differ():
+    v = plot_scene(small_scene(shape=(192, 384)), rays=None, window_size=SIZE)
+    try:
+        ii, jj = v.grid_ij
+        assert (ii[1] - ii[0], jj[1] - jj[0]) == (6, 12)
+        assert v.grid_label == ("pixel grid: 33 x 33 of 192 x 384 rays drawn "
+                                "(column step 6, row step 12)")
+    finally:
+        v.plotter.close()
+    v = plot_scene(small_scene(shape=(256, 256)), rays=None, window_size=SIZE)
+    assert v.grid_label.endswith("(step 8)")
+    v.plotter.close()

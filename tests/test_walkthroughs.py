@@ -132,7 +132,8 @@ def test_04_printed_eq_1_5_fails_away_from_the_origin(runs):
         assert "detector_rays: max difference 0.0e+00" in block
     assert "max angle to the correct ray 0.0 deg, 0 of 20 rays" in origin
     assert "max miss distance 0.0 mm" in origin
-    assert "20 of 20 rays never reach the detector" in away
+    assert "20 of 20 rays never reach the detector, so there is no miss distance" in away
+    assert "miss distance -" not in out
     miss = float(re.search(r"max miss distance ([\d.]+) mm", axis).group(1))
     # The printed form aims at the pixel positions seen from the origin: 3x magnified, so the
     # corner pixel (80, 60) lands at (240, 180), 200 mm away.
@@ -224,6 +225,43 @@ def test_10_textbook_double_counts_and_watertight_does_not(runs):
     assert counts["point source", "watertight"] == 0
     assert "centre ray,   textbook: 4 hits, L = 80.0 mm (exact 40.0 mm)" in out
     assert "centre ray, watertight: 2 hits, L = 40.0 mm (exact 40.0 mm)" in out
+    # every wrong ray goes through a shared edge (crossing or grazing the cube) ...
+    edges = re.findall(r"(parallel|point source) beam: (\d+) wrong rays, (\d+) of them through "
+                       r"a shared edge \((\d+) crossing the cube, (\d+) grazing it\)", out)
+    assert len(edges) == 2
+    for beam, wrong, on_edge, crossing, grazing in edges:
+        assert int(wrong) == counts[beam, "textbook"] == int(on_edge)
+        assert int(crossing) + int(grazing) == int(on_edge)
+    # ... but not every ray through one goes wrong: rounding takes some off their edge
+    saved = re.findall(r"of the (\d+) rays that cross the cube through a shared edge, (\d+) "
+                       r"come out right, e.g. the ray to the pixel at \(([-\d.e]+), ([-\d.e]+)\)",
+                       out)
+    assert len(saved) == 2
+    for (_, _, _, crossing, _), (total, right, _, _) in zip(edges, saved):
+        assert 0 < int(right) < int(total) and int(total) - int(right) == int(crossing)
+    total, right, x, y = saved[0]                   # the parallel beam's: a diagonal pixel,
+    assert abs(float(x)) != abs(float(y))           # a rounding error off its diagonal
+    assert abs(float(x)) == pytest.approx(abs(float(y)), abs=1e-12)
+    # a strict edge test rounds the ties the other way: other counts, still not zero
+    strict = dict(re.findall(r"(parallel|point source) beam, strict edges: (\d+) of \d+ rays "
+                             r"wrong \(inclusive: \d+\)", out))
+    assert len(strict) == 2
+    for beam, n in strict.items():
+        assert 0 < int(n) != counts[beam, "textbook"]
+
+
+def test_walkthrough_without_a_display_says_use_off_screen(tmp_path):
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("DISPLAY", "WAYLAND_DISPLAY", "PYVISTA_OFF_SCREEN")}
+    env["XRAY_VIZ_OUTPUT"] = str(tmp_path / "pngs")
+    exe = Path(sys.executable).with_name("xray-viz")
+    proc = subprocess.run([str(exe), "walkthrough", "1"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    err = proc.stderr.strip()
+    assert err.count("\n") == 0 and "no display" in err and "--off-screen" in err, err
+    assert "\x1b" not in proc.stderr and "WARN" not in proc.stderr and proc.stdout == ""
+    assert not (tmp_path / "pngs").exists()
 
 
 def test_11_repair_and_decimation(runs):

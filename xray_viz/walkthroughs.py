@@ -323,7 +323,7 @@ def add_walkthrough_parser(subparsers):
         "walkthrough", help="list or run the walkthroughs that rebuild the thesis step by step",
         description="Run a walkthrough: a script that rebuilds one step of the thesis with the "
                     "code, opening PyVista windows (or writing PNGs with --off-screen).")
-    p.add_argument("number", nargs="?", type=int, metavar="N", help="walkthrough to run")
+    p.add_argument("number", nargs="?", type=int, metavar="N", help="walkthrough to run, 1 to %d (see --list)" % len(list_walkthroughs()))
     p.add_argument("--list", action="store_true", help="list the walkthroughs and exit")
     p.add_argument("--off-screen", action="store_true",
                    help="write the figures as PNGs (into $XRAY_VIZ_OUTPUT, default "
@@ -349,6 +349,9 @@ def walkthrough_command(args) -> int:
     ------
     WalkthroughNotFoundError
         If ``number`` is not a walkthrough, or neither ``--list`` nor a number was given.
+    XrayVizError
+        On screen (no ``--off-screen``, ``PYVISTA_OFF_SCREEN`` not set) without a display to
+        open the windows on (:func:`xray_viz.viz.command.require_display`).
     """
     if args.list or args.number is None:
         if not args.list:
@@ -357,6 +360,11 @@ def walkthrough_command(args) -> int:
         for number, name, title in list_walkthroughs():
             print(f"{number:2d}  {name:32s} {title}")
         return 0
+    walkthrough_path(args.number)                  # an unknown number first: its own error
+    if not args.off_screen and not is_off_screen():
+        from xray_viz.viz.command import require_display
+
+        require_display("--off-screen to write the figures as PNGs")
     run_walkthrough(args.number, off_screen=True if args.off_screen else None)
     return 0
 

@@ -84,9 +84,14 @@ for label, r0, center in (("camera at the origin", [0.0, 0.0, 0.0], [0.0, 0.0, -
     print(f"{label}: r0 = {vp.r0}")
     print(f"  corrected Eq. 1.5 vs xray_viz.detector_rays: max difference {agree:.1e}")
     lost = int(np.isnan(t).sum())
-    far = f"{np.nanmax(miss):.1f} mm" if lost < W * H else "-"
+    if lost < W * H:
+        far = f"max miss distance {np.nanmax(miss):.1f} mm"
+        if lost:
+            far += f" (of the {W * H - lost} that do)"
+    else:
+        far = "so there is no miss distance to measure (none of them points towards it)"
     print(f"  printed Eq. 1.5: max angle to the correct ray {angle.max():.1f} deg, "
-          f"{lost} of {W * H} rays never reach the detector, max miss distance {far}")
+          f"{lost} of {W * H} rays never reach the detector, {far}")
 
 # %%
 # With the camera at the origin, :math:`\vec r_0 = 0` and both forms agree (angle 0). Move the

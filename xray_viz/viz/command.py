@@ -12,7 +12,8 @@ from pathlib import Path
 
 from xray_viz.errors import OutputError, XrayVizError
 
-__all__ = ["add_show_parser", "show_command", "SCREENSHOT_FORMATS"]
+__all__ = ["add_show_parser", "show_command", "require_display", "SCREENSHOT_FORMATS",
+           "MAX_RESOLUTION"]
 
 #: File suffixes ``--screenshot`` can write.
 SCREENSHOT_FORMATS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -23,6 +24,33 @@ MIN_SIZE = (400, 200)
 #: Largest window side ``--size`` accepts, in pixels (VTK aborts with ``std::bad_alloc`` when
 #: it cannot allocate a render window of, say, 100000 x 100000).
 MAX_SIZE = 8192
+
+
+#: Largest preview resolution ``--resolution`` accepts, pixels along the detector's longer side
+#: (the viewer re-renders at it on every slider move; 2048 x 2048 already takes seconds).
+MAX_RESOLUTION = 2048
+
+
+def require_display(remedy: str) -> None:
+    """Raise unless there is a display to open a window on (always true off Linux).
+
+    Without ``DISPLAY`` (or ``WAYLAND_DISPLAY``) VTK only logs "bad X server connection"
+    and shows nothing; this says so in one line instead.
+
+    Parameters
+    ----------
+    remedy : str
+        What to use instead, e.g. ``"--off-screen to write the figures as PNGs"``.
+
+    Raises
+    ------
+    XrayVizError
+        ``no display to open a window on (DISPLAY is not set); use <remedy>``.
+    """
+    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
+            and not os.environ.get("WAYLAND_DISPLAY"):
+        raise XrayVizError(f"no display to open a window on (DISPLAY is not set); use "
+                           f"{remedy}")
 
 
 def _use_egl_if_headless() -> None:
@@ -64,8 +92,8 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
                    help="rays drawn in 3D: 'grid N', 'every K', 'row J', 'column I', 'center' "
                         "or 'none' (default: %(default)s)")
     p.add_argument("--resolution", type=int, default=None, metavar="N",
-                   help="preview resolution: pixels along the detector's longer side "
-                        "(default: the scene's)")
+                   help="preview resolution: pixels along the detector's longer side, at "
+                        f"most {MAX_RESOLUTION} (default: the scene's)")
     p.add_argument("--texture", action="store_true",
                    help="also drape the radiograph on the detector plane")
     p.add_argument("--view", choices=("side", "bodies"), default="side",
@@ -84,7 +112,8 @@ def show_command(args) -> int:
         Unsupported screenshot format, or a window smaller than 400 x 200 or with a side
         larger than 8192 pixels.
     XrayVizError
-        No display to open a window on (use ``--screenshot``), a bad ``--rays``.
+        No display to open a window on (use ``--screenshot``), a bad ``--rays``, a
+        ``--resolution`` below 2 or above :data:`MAX_RESOLUTION`.
     SceneError, SceneFileNotFoundError
         From :func:`xray_viz.load_scene`.
     """
@@ -105,6 +134,9 @@ def show_command(args) -> int:
                           f"be at most {MAX_SIZE} pixels")
     if args.resolution is not None and args.resolution < 2:
         raise XrayVizError(f"--resolution must be >= 2 pixels, got {args.resolution}")
+    if args.resolution is not None and args.resolution > MAX_RESOLUTION:
+        raise XrayVizError(f"--resolution {args.resolution}: too large; the preview can be at "
+                           f"most {MAX_RESOLUTION} pixels along the detector's longer side")
     from xray_viz.viz.rays import select_pixels
 
     scene = xray_viz.load_scene(args.scene)
@@ -112,10 +144,8 @@ def show_command(args) -> int:
         select_pixels(scene.detector.shape, args.rays)
     except ValueError as exc:
         raise XrayVizError(f"--rays: {exc}") from None
-    if out is None and sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
-            and not os.environ.get("WAYLAND_DISPLAY"):
-        raise XrayVizError("no display to open a window on (DISPLAY is not set); use "
-                           "--screenshot OUT.png to render the view off-screen")
+    if out is None:
+        require_display("--screenshot OUT.png to render the view off-screen")
     if out is not None:
         _use_egl_if_headless()
     from xray_viz.viz.viewer import Viewer
@@ -129,7 +159,7 @@ def show_command(args) -> int:
         return 0
     viewer.screenshot(out)
     viewer.close()
-    sw, sh = scene.detector.shape
+    sw, sh = viewer.scene.detector.shape               # the preview's, at --resolution
     print(f"wrote {out} ({w}x{h} window: 3D scene left, {sw}x{sh} radiograph right, render "
           f"{viewer.radiograph.timing['total'] * 1000:.0f} ms)")
     return 0

@@ -32,7 +32,7 @@ from xray_viz.geometry import pixel_coordinates, viewport
 from xray_viz.viz.rays import RaySelection, inside_segments, trace_selection
 
 __all__ = ["SceneView", "plot_scene", "material_label", "grid_indices", "image_to_grid",
-           "window_level_limits", "colorbar_ticks"]
+           "quantity_title", "window_level_limits", "colorbar_ticks"]
 
 #: Colours of what the viewer marks: the source, rays, hits, the picked ray and the HO, VE,
 #: FL and LHC arrows. None of them is a material colour (:data:`PALETTE`), so a marker never
@@ -112,6 +112,28 @@ def grid_indices(n: int, *, max_lines: int = 33) -> np.ndarray:
     step = math.ceil((n - 1) / (max_lines - 1))
     idx = np.arange(0, n, step)
     return np.unique(np.r_[idx, n - 1])
+
+
+def quantity_title(quantity: str, scene=None) -> str:
+    """What an image of ``quantity`` holds, with its unit, as the colour bar's title.
+
+    The intensity image is ``I0 F T`` (:mod:`xray_viz.physics.imaging`): with the detector's
+    ``I0`` left at 1 that is the transmitted fraction ``I / I0``; with ``I0`` set (photons per
+    unattenuated pixel) it is the detected intensity in photons, shown as it is.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> quantity_title("intensity", xray_viz.load_scene("sphere"))
+    'I / I0'
+    >>> quantity_title("path-length")
+    'path length (mm)'
+    """
+    if quantity == "intensity":
+        i0 = getattr(getattr(scene, "detector", None), "i0", 1.0)
+        return "I / I0" if i0 == 1 else "I (photons)"
+    return {"line-integral": "line integral",
+            "path-length": "path length (mm)"}.get(quantity, quantity)
 
 
 def window_level_limits(image, *, window=None, level=None) -> tuple[float, float]:
@@ -421,8 +443,11 @@ class SceneView:
         self._add("grid", grid, group="grid", style="wireframe", color=COLORS["grid"],
                   line_width=1, lighting=False, opacity=0.7 if len(ii) > 12 else 1.0)
         if len(ii) < w or len(jj) < h:
+            si, sj = (int(ii[1] - ii[0]) if len(ii) > 1 else 1,
+                      int(jj[1] - jj[0]) if len(jj) > 1 else 1)
+            steps = f"step {si}" if si == sj else f"column step {si}, row step {sj}"
             self.grid_label = (f"pixel grid: {len(ii)} x {len(jj)} of {w} x {h} rays drawn "
-                               f"(step {max(1, ii[1] - ii[0]) if len(ii) > 1 else 1})")
+                               f"({steps})")
         else:
             self.grid_label = f"pixel grid: all {w} x {h} rays"
         self.plotter.subplot(*self.subplot_3d)
@@ -554,8 +579,7 @@ class SceneView:
         rg = self.radiograph
         image = rg.quantity(self.quantity)
         h, w = image.shape
-        title = {"intensity": "I / I0", "line-integral": "line integral",
-                 "path-length": "path length (mm)"}.get(self.quantity, self.quantity)
+        title = self.quantity_title
         grid = image_to_grid(image, name=title)
         self.datasets["radiograph"] = grid
         clim = window_level_limits(image, window=self.window, level=self.level)
@@ -626,6 +650,12 @@ class SceneView:
                      f"{total * 1000:.0f} ms")
         self._text("\n".join(lines), (0.03, 0.985), "radiograph-title", font_size=8)
         pl.subplot(*self.subplot_3d)
+
+    @property
+    def quantity_title(self) -> str:
+        """Name and unit of the image shown (the colour bar's title), see
+        :func:`quantity_title`."""
+        return quantity_title(self.quantity, self.scene)
 
     @property
     def cmap(self) -> str:

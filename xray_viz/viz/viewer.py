@@ -20,7 +20,7 @@ from xray_viz.geometry import viewport
 from xray_viz.viz.rays import attenuation_profile, effective_energy, pixel_ray_index
 from xray_viz.viz.scene_view import plot_scene
 
-__all__ = ["Viewer", "KEYS"]
+__all__ = ["Viewer", "KEYS", "window_level_ranges"]
 
 #: Key shortcuts (key -> (action, description)), shown on screen.
 KEYS = {
@@ -43,9 +43,32 @@ def help_text() -> str:
             + "\n" + "  ".join(others) + "  q quit"
             + "\nclick the radiograph: its ray + mu(t)")
 
-#: Ranges of the window and level sliders, in units of I / I0 (the viewer shows intensity).
-WINDOW_RANGE = (0.01, 1.0)
-LEVEL_RANGE = (0.0, 1.0)
+def window_level_ranges(image) -> tuple[tuple[float, float], tuple[float, float], str]:
+    """Ranges of the window and level sliders for an image, and the format of their values.
+
+    The level runs over the image's finite range ``[lo, hi]`` and the window from 1/100 of
+    that range to twice it (the default window, the whole range, sits mid-way: it can be
+    narrowed for contrast or widened), in the image's own units (``I / I0``, or photons when the
+    detector's ``I0`` is set); a flat image gets a range of ``|value|`` (or 1) around its
+    value. The format shows about three significant digits of the range.
+
+    Examples
+    --------
+    >>> window_level_ranges([[0.2, 1.0]])
+    ((0.008, 1.6), (0.2, 1.0), '%.2f')
+    >>> window_level_ranges([[26.0, 1120.0]])
+    ((10.94, 2188.0), (26.0, 1120.0), '%.0f')
+    """
+    a = np.asarray(image, dtype=float)
+    finite = a[np.isfinite(a)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    span = hi - lo
+    if not span > 0:
+        span = abs(hi) or 1.0
+        lo, hi = hi - span / 2, hi + span / 2
+    digits = max(0, 1 - math.floor(math.log10(span)))
+    return (span / 100, 2 * span), (lo, hi), f"%.{digits}f"
+
 
 #: Fraction of the radiograph pane's height kept below the image for the sliders.
 SLIDER_BAND = 0.3
@@ -221,16 +244,17 @@ class Viewer:
         self.update()
 
     def set_window(self, window: float) -> None:
-        """Grey-level window of the radiograph (a width in I / I0); the level stays (the
-        middle of the image's range until it is set)."""
+        """Grey-level window of the radiograph (a width in the image's units: ``I / I0``, or
+        photons when the detector's ``I0`` is set); the level stays (the middle of the
+        image's range until it is set)."""
         window = float(window)
         if not window > 0:
             raise ValueError(f"window must be > 0, got {window}")
         self.set_window_level(window, self.view.level)
 
     def set_level(self, level: float) -> None:
-        """Grey-level window's centre (I / I0); the window stays (the image's range until
-        it is set)."""
+        """Grey-level window's centre (in the image's units, as :meth:`set_window`); the
+        window stays (the image's range until it is set)."""
         self.set_window_level(self.view.window, float(level))
 
     def set_window_level(self, window=None, level=None) -> None:
@@ -334,6 +358,9 @@ class Viewer:
     def screenshot(self, path=None) -> Path:
         """Save the window as an image (``xray-viz-N.png`` in the working directory)."""
         path = Path(path) if path else Path(f"xray-viz-{next(self._shots)}.png")
+        # Off-screen, once the window has been drawn, the screenshot alone shows the slider
+        # labels and the justified texts as they were before the last update: draw first.
+        self.plotter.render()
         self.plotter.screenshot(str(path))
         return path
 
@@ -356,13 +383,29 @@ class Viewer:
         self._sync_sliders()
 
     def _sync_sliders(self) -> None:
-        """Put every slider's knob at the value in use."""
+        """Put every slider's knob at the value in use; the window and level sliders' ranges
+        follow the image's (:func:`window_level_ranges`), widened to the value in use."""
         window, level = self.view.window_level
         values = {"source_distance": self.source_distance, "rotation": self.rotation,
                   "kvp": self.kvp, "energy": self.energy, "resolution": self.resolution,
                   "window": window, "level": level}
-        for key, widget in getattr(self, "sliders", {}).items():
+        sliders = getattr(self, "sliders", {})
+        if "window" in sliders:
+            w_rng, l_rng, fmt = window_level_ranges(self.radiograph.quantity(self.view.quantity))
+            for key, rng in (("window", w_rng), ("level", l_rng)):
+                rep = sliders[key].GetRepresentation()
+                rep.SetMinimumValue(min(rng[0], values[key]))
+                rep.SetMaximumValue(max(rng[1], values[key]))
+                rep.SetLabelFormat(fmt)
+        for key, widget in sliders.items():
             widget.GetRepresentation().SetValue(values[key])
+
+    @property
+    def slider_ranges(self) -> dict:
+        """``{name: (min, max)}`` of every slider, as the widgets have them."""
+        return {key: (w.GetRepresentation().GetMinimumValue(),
+                      w.GetRepresentation().GetMaximumValue())
+                for key, w in getattr(self, "sliders", {}).items()}
 
     def _add_widgets(self) -> None:
         pl = self.plotter
@@ -373,6 +416,8 @@ class Viewer:
         rows = (0.2, 0.075)                  # two rows of sliders inside the band kept free
         cols = SLIDER_COLUMNS                # three sliders a row
         window, level = self.view.window_level
+        w_rng, l_rng, wl_fmt = window_level_ranges(self.radiograph.quantity(self.view.quantity))
+        unit = "I / I0" if self.view.quantity_title == "I / I0" else "photons"
         specs = [
             ("source_distance", self.set_source_distance, (0.3 * fl0, 3.0 * fl0), fl0,
              "source distance (mm)", "%.0f"),
@@ -383,8 +428,8 @@ class Viewer:
             ("energy", self.set_energy, (10.0, 150.0), self.energy, "energy (keV)", "%.0f"),
             ("resolution", self.set_resolution, (16, max(512, self.resolution)),
              self.resolution, "preview resolution (px)", "%.0f"),
-            ("window", self.set_window, WINDOW_RANGE, window, "window W (I / I0)", "%.2f"),
-            ("level", self.set_level, LEVEL_RANGE, level, "level L (I / I0)", "%.2f"),
+            ("window", self.set_window, w_rng, window, f"window W ({unit})", wl_fmt),
+            ("level", self.set_level, l_rng, level, f"level L ({unit})", wl_fmt),
         ]
         self.sliders = {}
         for k, (key, callback, rng, value, title, fmt) in enumerate(specs):
