@@ -366,3 +366,96 @@ def test_body_bounds_are_cached_per_mesh_not_measured_per_scene(monkeypatch):
     # A changed mesh is measured again.
     m.apply_translation([5, 0, 0])
     assert att.mesh_bounds(m)[0][0] == pytest.approx(lo[0] + 5) and calls == [1]
+
+
+# --------------------------------------------------------------------------------------------
+# one body of several pieces: the nonzero rule, whatever else is in the scene
+
+
+def _pieces(*meshes):
+    return trimesh.util.concatenate(list(meshes))
+
+
+def _union_chord(rays, balls):
+    """Length of each ray inside the union of balls ``(centre, r)`` (sorted interval union)."""
+    lo, hi = [], []
+    for c, r in balls:
+        rel = np.asarray(c, float) - rays.origins
+        d = rays.directions / np.linalg.norm(rays.directions, axis=1)[:, None]
+        along = np.einsum("ij,ij->i", rel, d)
+        h = np.sqrt(np.clip(r * r - (np.einsum("ij,ij->i", rel, rel) - along ** 2), 0, None))
+        lo.append(np.where(h > 0, along - h, np.inf))
+        hi.append(np.where(h > 0, along + h, -np.inf))
+    lo, hi = np.array(lo).T, np.array(hi).T
+    order = np.argsort(lo, axis=1)
+    lo, hi = np.take_along_axis(lo, order, 1), np.take_along_axis(hi, order, 1)
+    total, reach = np.zeros(len(lo)), np.full(len(lo), -np.inf)
+    for k in range(lo.shape[1]):
+        total += np.clip(hi[:, k] - np.maximum(lo[:, k], reach), 0, None)
+        reach = np.maximum(reach, hi[:, k])
+    return total
+
+
+@pytest.mark.parametrize("kind", ["point", "parallel"])
+def test_overlapping_pieces_of_one_body_give_their_union_with_or_without_culled_bodies(kind):
+    balls = [((-12, 0, 0), 25.0), ((12, 0, 0), 25.0)]
+    two = _pieces(*(_sphere(r, 3, c) for c, r in balls))
+    far = _sphere(2, 1, (5000, 0, 0))                     # outside the beam: culled
+    alone = make_scene(two, kind=kind, pitch=1.0, shape=(81, 61))
+    with_far = make_scene([two, far], kind=kind, pitch=1.0, shape=(81, 61))
+    L1 = fast_path_lengths(alone, cache=False)[0][:, 0]
+    L2 = fast_path_lengths(with_far, cache=False)[0]
+    assert np.all(L2[:, 1] == 0)
+    np.testing.assert_array_equal(L1, L2[:, 0])           # the culled body changes nothing
+    ref = ENGINES["numpy"](alone, supersample=1, keep_hits=False)[0][:, 0]
+    assert np.abs(L1 - ref).max() <= 1e-9 * ref.max()
+    # the union of the two balls (an icosphere lies between its in- and circumscribed balls)
+    rays = detector_rays(alone)
+    ico = _sphere(25.0, 3)
+    r_in = np.abs(np.einsum("ij,ij->i", ico.face_normals, ico.triangles[:, 0])).min()
+    outer, inner = _union_chord(rays, balls), _union_chord(rays, [(c, r_in) for c, _ in balls])
+    assert np.all(L1 <= outer + 1e-9) and np.all(L1 >= inner - 1e-9)
+    assert 49 < L1.max() < 51                               # about a diameter; doubled: 87
+
+
+def test_one_body_of_one_piece_keeps_the_signed_sum_path(monkeypatch):
+    import xray_viz.tracing._raster as R
+
+    calls = []
+    multi = R.raster_multi
+
+    def spy(*args):
+        calls.append(1)
+        return multi(*args)
+
+    monkeypatch.setattr(R, "raster_multi", spy)
+    one = make_scene(_sphere(), pitch=1.5)
+    apart = make_scene(_pieces(_sphere(10, 2, (-30, 0, 0)), _sphere(10, 2, (30, 0, 0))), pitch=1.5)
+    for scene in (one, apart):
+        fast_path_lengths(scene, cache=False)
+    assert calls == []                                     # one piece, or disjoint pieces
+    nested = make_scene(_pieces(_sphere(), _sphere(20, 2)), pitch=1.5)
+    L = fast_path_lengths(nested, cache=False)[0]
+    assert calls == [1]                                    # nested pieces: sorted and swept
+    ref = ENGINES["numpy"](nested, supersample=1, keep_hits=False)[0]
+    assert np.abs(L - ref).max() <= 1e-9 * 80 and 79 < L.max() <= 80 + 1e-9
+
+
+@pytest.mark.parametrize("kind", ["point", "parallel"])
+def test_nested_and_hollow_pieces_of_one_body_agree_with_numpy(kind):
+    outer = _sphere(40, 3)
+    d = outer.vertices[0] / 40
+    touching = _sphere(20, 3, tuple(d * 20))               # shares outer's vertex 0
+    tangent = _pieces(outer, touching)
+    tangent.merge_vertices()
+    cavity = _sphere(20, 3)
+    hollow = _pieces(outer, trimesh.Trimesh(cavity.vertices, cavity.faces[:, ::-1],
+                                            process=False))
+    three = _pieces(_sphere(40, 3), _sphere(30, 3, (3, 0, 0)), _sphere(15, 3, (5, 2, 0)))
+    for mesh, longest in ((tangent, 80.0), (hollow, 80.0), (three, 80.0)):
+        scene = make_scene(mesh, kind=kind, pitch=1.0, shape=(91, 91))
+        for n in (1, 2):
+            L = fast_path_lengths(scene, supersample=n, cache=False)[0]
+            ref = ENGINES["numpy"](scene, supersample=n, keep_hits=False)[0]
+            assert np.abs(L - ref).max() <= 1e-9 * 80
+        assert ref.max() <= longest + 1e-9 and ref.min() >= 0

@@ -423,7 +423,7 @@ def test_check_mesh_reuses_its_report_until_the_mesh_changes():
 
 
 # --------------------------------------------------------------------------------------------
-# pieces of one body: each must be wound right for its nesting
+# pieces of one body: the nonzero rule (material where the winding number is positive)
 
 
 def ball_at(center, radius, *, inside_out=False, subdivisions=4):
@@ -436,9 +436,9 @@ def two_pieces(a, b):
     return trimesh.util.concatenate([a, b])
 
 
-def render_part(tmp_path, mesh):
+def render_part(tmp_path, mesh, *, engine="numpy"):
     """Load ``mesh`` as the one body of a parallel-beam scene (0.5 mm pixels over 96 x 64 mm)
-    and render it with the numpy engine. Returns (scene, image, rays)."""
+    and render it, with the numpy engine by default. Returns (scene, image, rays)."""
     import xray_viz
     from xray_viz.geometry import detector_rays
 
@@ -457,19 +457,49 @@ def render_part(tmp_path, mesh):
         mu = 0.2
         """))
     scene = scene_module.load_scene(tmp_path / "scene.toml")
-    image = xray_viz.render(scene, engine="numpy")
+    image = xray_viz.render(scene, engine=engine)
     return scene, image, detector_rays(scene)
 
 
+def assert_engines_agree(scene, image):
+    """The fast engine gives the numpy engine's path lengths (``image``) to 1e-9 relative."""
+    import xray_viz
+
+    fast = xray_viz.render(scene, engine="fast").total_path_length
+    ref = image.total_path_length
+    assert np.abs(fast - ref).max() <= 1e-9 * max(1.0, ref.max())
+
+
 def chords(rays, balls):
-    """Analytic path length of each ray through solid balls (cx, cy, cz, r, sign): a negative
-    sign is a cavity, subtracted."""
-    total = np.zeros(len(rays.origins))
-    for *c, r, sign in balls:
-        rel = np.asarray(c, float) - rays.origins
-        along = np.einsum("ij,ij->i", rel, rays.directions)
-        d2 = np.einsum("ij,ij->i", rel, rel) - along ** 2
-        total += sign * 2 * np.sqrt(np.clip(r * r - d2, 0, None))
+    """Analytic path length of each ray through balls ``(cx, cy, cz, r, sign)`` by the nonzero
+    rule: the union of the outward balls (sign +1) less the union of the cavities (sign -1)."""
+    def spans(sign):
+        lo, hi = [], []
+        for *c, r, s in balls:
+            if s != sign:
+                continue
+            rel = np.asarray(c, float) - rays.origins
+            along = np.einsum("ij,ij->i", rel, rays.directions)
+            d2 = np.einsum("ij,ij->i", rel, rel) - along ** 2
+            h = np.sqrt(np.clip(r * r - d2, 0, None))
+            lo.append(np.where(h > 0, along - h, np.inf))
+            hi.append(np.where(h > 0, along + h, -np.inf))
+        n = len(rays.origins)
+        return (np.array(lo).reshape(-1, n).T, np.array(hi).reshape(-1, n).T)
+
+    def union_length(lo, hi):
+        order = np.argsort(lo, axis=1)
+        lo, hi = np.take_along_axis(lo, order, 1), np.take_along_axis(hi, order, 1)
+        total, reach = np.zeros(len(lo)), np.full(len(lo), -np.inf)
+        for k in range(lo.shape[1]):
+            total += np.clip(hi[:, k] - np.maximum(lo[:, k], reach), 0, None)
+            reach = np.maximum(reach, hi[:, k])
+        return total
+
+    (slo, shi), (clo, chi) = spans(1), spans(-1)
+    total = union_length(slo, shi)
+    if clo.shape[1]:  # cavities lie inside the solid: take out the union of their spans
+        total -= union_length(clo, chi)
     return total.reshape(rays_shape(rays))
 
 
@@ -499,18 +529,24 @@ def test_check_flags_an_inside_out_piece_beside_a_good_one():
     report = check_mesh(mesh)
     assert report.watertight and report.winding_consistent and report.volume > 0
     assert not report.outward and report.misoriented == 1 and not report.traceable
-    assert "wound against its nesting (1 of 2 pieces" in report.problems()[0]
+    assert report.problems()[0].startswith("inside-out in 1 of 2 pieces")
 
 
-def test_check_flags_an_outward_shell_nested_in_another():
-    report = check_mesh(two_pieces(ball_at([0, 0, 0], 20), ball_at([3, 0, 0], 8)))
-    assert report.volume > 0 and report.misoriented == 1 and not report.traceable
+def test_check_accepts_outward_pieces_however_they_nest_or_overlap():
+    nested = two_pieces(ball_at([0, 0, 0], 20), ball_at([3, 0, 0], 8))
+    poking = two_pieces(ball_at([0, 0, 0], 20), ball_at([0, 17, 0], 6))
+    for mesh in (nested, poking):
+        report = check_mesh(mesh)
+        assert report.traceable and report.misoriented == report.crossing == 0
+        assert report.components == 2 and not report.simple  # the fast engine sweeps it
+    apart = check_mesh(two_pieces(ball_at([-20, 0, 0], 8), ball_at([20, 0, 0], 8)))
+    assert apart.traceable and apart.simple                   # disjoint: signed sums are exact
 
 
 def test_check_accepts_a_hollow_shell_and_an_island_in_its_cavity():
     hollow = two_pieces(ball_at([0, 0, 0], 20), ball_at([0, 0, 0], 14, inside_out=True))
     assert check_mesh(hollow).traceable
-    island = two_pieces(hollow, ball_at([2, 0, 0], 6))  # depth 2: outward again
+    island = two_pieces(hollow, ball_at([2, 0, 0], 6))  # outward inside the cavity: material
     assert check_mesh(island).traceable and check_mesh(island).misoriented == 0
 
 
@@ -520,20 +556,66 @@ def test_inside_out_piece_is_repaired_with_a_warning_and_renders_right(tmp_path)
         scene, image, rays = render_part(tmp_path, mesh)
     (warning,) = record
     text = str(warning.message)
-    assert "body 'part'" in text and "wound against its nesting" in text
-    assert "flipped 1 of 2 pieces" in text
+    assert "body 'part'" in text and "inside-out in 1 of 2 pieces" in text
+    assert "turned 1 of 2 inside-out pieces outward" in text
     assert check_mesh(scene.bodies[0].mesh).traceable
     L = assert_chords(image, rays, [(-20, 0, 0, 12, 1), (20, 0, 0, 8, 1)])
     assert L.max() == pytest.approx(24.0, abs=0.05)
+    assert_engines_agree(scene, image)
 
 
-def test_nested_outward_shell_becomes_a_cavity_with_a_warning(tmp_path):
-    # even-odd rule: a closed surface inside another bounds a cavity (no double counting)
+def test_nested_outward_ball_is_redundant_not_a_cavity(tmp_path):
+    # nonzero rule: a ball inside a ball adds nothing (no cavity, no double counting)
     mesh = two_pieces(ball_at([0, 0, 0], 30), ball_at([0, 0, 0], 10))
-    with pytest.warns(MeshRepairWarning, match=r"body 'part'.*flipped 1 of 2 pieces"):
-        scene, image, rays = render_part(tmp_path, mesh)
-    L = assert_chords(image, rays, [(0, 0, 0, 30, 1), (0, 0, 0, 10, -1)])
-    assert L[64, 96] == pytest.approx(40.0, abs=0.05)  # 60 mm of ball less the 20 mm cavity
+    scene, image, rays = render_part(tmp_path, mesh)  # filterwarnings=error: no repair
+    assert scene.bodies[0].mesh is not None and len(scene.bodies[0].mesh.faces) == len(mesh.faces)
+    L = assert_chords(image, rays, [(0, 0, 0, 30, 1)])
+    assert L[64, 96] == pytest.approx(60.0, abs=0.05)
+    assert_engines_agree(scene, image)
+
+
+def test_three_nested_outward_balls_give_the_outer_chord(tmp_path):
+    mesh = trimesh.util.concatenate([ball_at([0, 0, 0], 30), ball_at([2, 0, 0], 20),
+                                     ball_at([4, 1, 0], 8)])
+    scene, image, rays = render_part(tmp_path, mesh)
+    L = assert_chords(image, rays, [(0, 0, 0, 30, 1)])
+    assert L.max() == pytest.approx(60.0, abs=0.05)
+    assert_engines_agree(scene, image)
+
+
+def test_nested_outward_ball_sharing_a_vertex_is_two_pieces_and_redundant(tmp_path):
+    outer = ball_at([0, 0, 0], 30)
+    d = outer.vertices[0] / 30
+    inner = ball_at(d * 15, 15)                     # its vertex 0 lands on the outer's vertex 0
+    mesh = two_pieces(outer, inner)
+    mesh.merge_vertices()
+    assert mesh.body_count == 1                     # vertex-connected: one body for trimesh
+    report = check_mesh(mesh)
+    assert report.components == 2 and report.traceable and not report.simple
+    scene, image, rays = render_part(tmp_path, mesh)
+    assert_chords(image, rays, [(0, 0, 0, 30, 1)])
+    assert image.total_path_length.max() == pytest.approx(60.0, abs=0.05)
+    assert_engines_agree(scene, image)
+
+
+def test_small_ball_poking_out_of_a_big_one_renders_as_their_union(tmp_path):
+    # its bounding box is inside the big ball's, and most of it is inside: still not a cavity
+    balls = [(0, 0, 0, 30, 1), (18, 18, 0, 8, 1)]     # reaches r = 33.5 > 30
+    mesh = two_pieces(ball_at(balls[0][:3], 30), ball_at(balls[1][:3], 8))
+    scene, image, rays = render_part(tmp_path, mesh)  # no warning
+    assert len(scene.bodies[0].mesh.faces) == len(mesh.faces)
+    L = assert_chords(image, rays, balls)
+    assert L.min() >= 0
+    assert_engines_agree(scene, image)
+
+
+def test_overlapping_outward_balls_give_their_union(tmp_path):
+    balls = [(-10, 0, 0, 20, 1), (10, 0, 0, 20, 1)]
+    mesh = two_pieces(ball_at(balls[0][:3], 20), ball_at(balls[1][:3], 20))
+    scene, image, rays = render_part(tmp_path, mesh)
+    L = assert_chords(image, rays, balls)
+    assert L.max() == pytest.approx(40.0, abs=0.05)  # a diameter: the overlap not doubled
+    assert_engines_agree(scene, image)
 
 
 def test_hollow_shell_is_accepted_unchanged(tmp_path):
@@ -542,8 +624,65 @@ def test_hollow_shell_is_accepted_unchanged(tmp_path):
     assert len(scene.bodies[0].mesh.faces) == len(mesh.faces)
     assert scene.bodies[0].mesh.volume == pytest.approx(mesh.volume, rel=1e-6)
     assert_chords(image, rays, [(0, 0, 0, 30, 1), (0, 0, 0, 10, -1)])
+    assert_engines_agree(scene, image)
     fixed, report = repair_mesh(mesh)
     assert report.changes == ()
+
+
+def test_inside_out_hollow_shell_is_turned_over_as_a_whole(tmp_path):
+    mesh = two_pieces(ball_at([0, 0, 0], 30, inside_out=True), ball_at([0, 0, 0], 10))
+    report = check_mesh(mesh)
+    assert report.volume < 0 and report.misoriented == 2 and not report.traceable
+    with pytest.warns(MeshRepairWarning, match="body 'part'.*turned the inside-out mesh outward"):
+        scene, image, rays = render_part(tmp_path, mesh)
+    L = assert_chords(image, rays, [(0, 0, 0, 30, 1), (0, 0, 0, 10, -1)])  # still hollow
+    assert L[64, 96] == pytest.approx(40.0, abs=0.05)
+    assert_engines_agree(scene, image)
+
+
+def test_inside_out_piece_crossing_an_outward_one_is_refused_in_one_line(tmp_path):
+    mesh = two_pieces(ball_at([0, 0, 0], 20), ball_at([18, 0, 0], 10, inside_out=True))
+    report = check_mesh(mesh)
+    assert report.crossing == 1 and not report.traceable
+    with pytest.raises(MeshError) as info:
+        render_part(tmp_path, mesh)
+    text = str(info.value)
+    assert "\n" not in text and "'part'" in text and "1 of 2 pieces facing inward" in text
+    assert "mesh editor" in text
+    with pytest.raises(MeshError, match="crossing"):
+        ensure_traceable(mesh, name="part", repair=False)
+
+
+def test_nesting_check_of_many_cavities_is_fast():
+    import time
+
+    box = trimesh.creation.box(extents=[200, 200, 200])
+    small = trimesh.creation.icosphere(subdivisions=0, radius=0.5)
+    centres = np.random.default_rng(0).uniform(-90, 90, (2000, 3))
+    vertices = np.vstack([box.vertices] + [small.vertices + c for c in centres])
+    faces = np.vstack([box.faces] + [small.faces[:, ::-1] + 8 + 12 * k
+                                     for k in range(len(centres))])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    start = time.perf_counter()
+    report = check_mesh(mesh)
+    assert time.perf_counter() - start < 1.0
+    assert report.traceable and report.components == 2001
+    # one of them pushed through the wall: only that one is reported
+    moved = vertices.copy()
+    moved[8:20] += [99.8 - centres[0, 0], 0, 0]
+    report = check_mesh(trimesh.Trimesh(moved, faces, process=False))
+    assert report.crossing == 1 and report.misoriented == 0
+
+
+def test_repair_keeps_the_orientation_of_most_of_a_pieces_faces():
+    # a cavity with a few faces flipped: re-oriented to agree with the rest, still a cavity
+    inner = ball_at([0, 0, 0], 10, inside_out=True, subdivisions=3)
+    inner.faces[:3] = inner.faces[:3, ::-1]
+    mesh = two_pieces(ball_at([0, 0, 0], 30, subdivisions=3), inner)
+    fixed, report = repair_mesh(mesh)
+    assert report.after.traceable
+    outer, cavity = (ball_at([0, 0, 0], r, subdivisions=3).volume for r in (30, 10))
+    assert fixed.volume == pytest.approx(outer - cavity, rel=1e-9)
 
 
 def test_check_calls_a_zero_volume_mesh_flat_not_inside_out():
@@ -678,3 +817,34 @@ def test_repair_leaves_the_frog_skeleton_alone():
     assert report.changes == ()
     assert fixed.body_count == skeleton.body_count == 64
     assert len(fixed.faces) == len(skeleton.faces)
+
+
+def test_mesh_command_units(tmp_path):
+    # a ball of radius 4 cm stored in cm: the report and --max-error are in mm, OUT in cm
+    ball_cm = trimesh.creation.icosphere(subdivisions=4, radius=4.0)
+    ball_cm.export(tmp_path / "in.ply")
+    rc, text = run_mesh(tmp_path / "in.ply", "-o", tmp_path / "out.ply", "--units", "cm",
+                        "--max-error", 0.5)
+    assert rc == 0 and "coordinates in cm; the report in mm" in text
+    rows = {line.split()[0]: line.split()[1:] for line in text.splitlines()[2:10]}
+    assert float(rows["volume"][-3]) == pytest.approx(ball_cm.volume * 1000, rel=1e-5)
+    (line,) = [t for t in text.splitlines() if "Hausdorff distance" in t]
+    assert float(line.split()[-2]) <= 0.5  # mm, not cm
+    out = load_mesh(tmp_path / "out.ply")
+    assert out.bounds.max() == pytest.approx(4.0, abs=0.06)  # still cm
+    assert len(out.faces) < len(ball_cm.faces)
+    with pytest.raises(SystemExit):
+        run_mesh(tmp_path / "in.ply", "-o", tmp_path / "o.ply", "--units", "furlong")
+
+
+def test_mesh_command_notes_an_unreached_face_count_and_a_lost_volume(tmp_path):
+    torus = trimesh.creation.torus(major_radius=30, minor_radius=10)
+    torus.export(tmp_path / "torus.ply")
+    rc, text = run_mesh(tmp_path / "torus.ply", "-o", tmp_path / "t.ply", "--decimate", 4)
+    assert rc == 0
+    notes = [line for line in text.splitlines() if line.startswith("note: ")]
+    assert len(notes) == 2
+    assert notes[0].startswith("note: asked for 4 faces, got ")
+    assert "enclosed volume changed by -" in notes[1] and "%" in notes[1]
+    rc, text = run_mesh(tmp_path / "torus.ply", "-o", tmp_path / "t.ply", "--decimate", 1000)
+    assert rc == 0 and "note:" not in text  # reached, volume within 3 %

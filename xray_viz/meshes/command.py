@@ -1,4 +1,4 @@
-"""``xray-viz mesh IN -o OUT [--decimate FACES | --max-error MM]``: repair and decimate a mesh file.
+"""``xray-viz mesh IN -o OUT [--units U] [--decimate FACES | --max-error MM]``: repair, decimate.
 
 The command line (:mod:`xray_viz.cli`) registers it with :func:`add_mesh_parser`; the work is
 done by :func:`mesh_command`, which returns the exit status.
@@ -11,8 +11,8 @@ Examples
 >>> add_mesh_parser(sub)  # doctest: +ELLIPSIS
 ArgumentParser(prog='xray-viz mesh', ...)
 >>> args = parser.parse_args(["mesh", "in.stl", "-o", "out.ply", "--decimate", "5000"])
->>> args.func is mesh_command, args.decimate
-(True, 5000)
+>>> args.func is mesh_command, args.decimate, args.units
+(True, 5000, 'mm')
 """
 
 from __future__ import annotations
@@ -25,10 +25,13 @@ from pathlib import Path
 
 from xray_viz.errors import MeshError, SceneFileNotFoundError
 
-__all__ = ["mesh_command", "add_mesh_parser", "WRITE_SUFFIXES"]
+__all__ = ["mesh_command", "add_mesh_parser", "WRITE_SUFFIXES", "VOLUME_TOLERANCE"]
 
 #: Output formats written by ``xray-viz mesh`` (binary STL, binary PLY, OBJ, OFF).
 WRITE_SUFFIXES = (".stl", ".ply", ".obj", ".off")
+
+#: Relative change of the enclosed volume by decimation above which the report warns.
+VOLUME_TOLERANCE = 0.03
 
 _DESCRIPTION = """\
 Repair a triangle mesh so that it can be traced, optionally decimate it, and write it.
@@ -37,11 +40,18 @@ Repair always runs (pymeshlab): duplicate vertices are merged, and vertices on o
 closer than 0.01 % of the bounding box diagonal; duplicate and zero-area faces and
 unreferenced vertices removed, non-manifold edges and vertices split, small open stray pieces
 removed (closed pieces are kept, however small), holes closed, faces oriented coherently and
-each piece outward (inward where it is a cavity inside another piece).
+inside-out pieces turned outward (a piece facing inward inside an outward one is a cavity and
+is kept).
 
 Decimation (quadric edge collapse, keeping the mesh closed) is either to a face count
 (--decimate FACES) or to an error budget (--max-error MM: the fewest faces whose Hausdorff
-distance to the repaired mesh stays within MM millimetres).
+distance to the repaired mesh stays within MM millimetres). A note follows the report when
+the face count asked for could not be reached (the collapse keeps the mesh closed and its
+topology) or the enclosed volume changed by more than 3 %.
+
+Units: IN is read in --units (default mm, as in a scene file's body "units" key); the report's
+volumes, the Hausdorff distance and --max-error are in mm whatever the unit, and OUT is
+written in the same unit as IN, so that it can replace IN in a scene file unchanged.
 
 A report of the mesh before and after is printed; its "input" column is the file as stored
 (an STL keeps every triangle's corners separately, so its duplicate vertices show there and
@@ -57,6 +67,7 @@ examples:
   xray-viz mesh scan.stl -o scan_fixed.stl
   xray-viz mesh skull.ply -o skull_50k.ply --decimate 50000
   xray-viz mesh frog.vtp -o frog.stl --max-error 0.2
+  xray-viz mesh part_in_metres.stl -o part_fixed.stl --units m --max-error 0.05
 """
 
 
@@ -78,8 +89,13 @@ def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
         description=_DESCRIPTION, epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", metavar="IN", help="mesh file to read")
+    from xray_viz.scene import LENGTH_UNITS
+
     p.add_argument("-o", "--output", metavar="OUT", required=True,
-                   help="mesh file to write (.stl, .ply, .obj or .off)")
+                   help="mesh file to write (.stl, .ply, .obj or .off), in the unit of IN")
+    p.add_argument("--units", choices=tuple(LENGTH_UNITS), default="mm",
+                   help="length unit of IN's coordinates (default: mm); the report and "
+                        "--max-error are in mm, OUT keeps IN's unit")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--decimate", metavar="FACES", type=int, default=None,
                        help="decimate to this many triangles")
@@ -125,7 +141,9 @@ def mesh_command(args, *, stdout=None) -> int:
     Parameters
     ----------
     args : argparse.Namespace
-        ``input``, ``output``, ``decimate`` (int or None), ``max_error`` (float or None).
+        ``input``, ``output``, ``decimate`` (int or None), ``max_error`` (float or None, mm),
+        ``units`` (a key of :data:`xray_viz.scene.LENGTH_UNITS`, default ``"mm"``: the unit of
+        IN's coordinates; OUT is written in the same unit).
     stdout : file, optional
         Where the report goes (default ``sys.stdout``).
 
@@ -145,11 +163,16 @@ def mesh_command(args, *, stdout=None) -> int:
     from xray_viz.meshes.decimate import decimate
     from xray_viz.meshes.io import load_mesh
     from xray_viz.meshes.repair import check_mesh, format_reports, repair_mesh
+    from xray_viz.scene import LENGTH_UNITS
 
     out = sys.stdout if stdout is None else stdout
     src, dst = Path(args.input), Path(args.output)
     target = getattr(args, "decimate", None)
     max_error = getattr(args, "max_error", None)
+    units = getattr(args, "units", None) or "mm"
+    if units not in LENGTH_UNITS:
+        raise MeshError(f"--units must be one of {', '.join(LENGTH_UNITS)}, got {units!r}")
+    scale = LENGTH_UNITS[units]  # mm per unit of the file
     if target is not None and max_error is not None:
         raise MeshError("give --decimate or --max-error, not both")
     if target is not None and target < 4:
@@ -159,6 +182,8 @@ def mesh_command(args, *, stdout=None) -> int:
     _check_output(dst)  # before the work: a bad OUT fails at once, not after the repair
 
     mesh = load_mesh(src, process=False)  # as stored: the report's input column is the file
+    if scale != 1.0:
+        mesh.apply_scale(scale)           # work in mm: the report, Hausdorff and --max-error
     repaired, report = repair_mesh(mesh)
     if not report.after.traceable:
         print(report.table(), file=out)
@@ -166,13 +191,45 @@ def mesh_command(args, *, stdout=None) -> int:
                         f"{'; '.join(report.after.problems())}; close it in a mesh editor")
     columns = [("input", report.before), ("repaired", report.after)]
     changes = list(report.changes)
+    notes = []
     result = repaired
     if target is not None or max_error is not None:
         result, error = decimate(repaired, target_faces=target, max_error=max_error)
-        columns.append(("decimated", check_mesh(result)))
-        changes.append(f"decimated {len(repaired.faces)} -> {len(result.faces)} faces, "
-                       f"Hausdorff distance {error:.4g} mm")
-    print(f"{src} -> {dst}", file=out)
+        after = check_mesh(result)
+        columns.append(("decimated", after))
+        if result is repaired:
+            changes.append(f"not decimated: the repaired mesh has {len(repaired.faces)} faces"
+                           + (f", no more than {target}" if target is not None else
+                              f", and fewer would exceed {max_error:g} mm"))
+        else:
+            changes.append(f"decimated {len(repaired.faces)} -> {len(result.faces)} faces, "
+                           f"Hausdorff distance {error:.4g} mm")
+        notes = _decimation_notes(target, repaired, result, report.after.volume, after.volume)
+    print(f"{src} -> {dst}" + (f" (coordinates in {units}; the report in mm)"
+                               if units != "mm" else ""), file=out)
     print(format_reports(columns, changes=changes), file=out)
+    for note in notes:
+        print(f"note: {note}", file=out)
+    if scale != 1.0:
+        result = result.copy()
+        result.apply_scale(1.0 / scale)   # back to the unit of IN
     _write_atomic(result, dst)
     return 0
+
+
+def _decimation_notes(target, repaired, result, volume_before, volume_after) -> list[str]:
+    """What the report should point out about a decimation: the face count asked for was not
+    reached, or the enclosed volume changed by more than :data:`VOLUME_TOLERANCE`."""
+    notes = []
+    n = len(result.faces)
+    if target is not None and abs(n - target) > max(2, target // 100) and result is not repaired:
+        notes.append(f"asked for {target} faces, got {n}: quadric edge collapse keeps the mesh "
+                     "closed and its topology (holes, pieces), so it stops where a further "
+                     "collapse would break them")
+    if volume_before and result is not repaired:
+        change = volume_after / volume_before - 1.0
+        if abs(change) > VOLUME_TOLERANCE:
+            notes.append(f"the enclosed volume changed by {100 * change:+.0f} % "
+                         f"({volume_before:.6g} -> {volume_after:.6g} mm^3): too few faces for "
+                         "this shape; ask for more faces or use --max-error")
+    return notes

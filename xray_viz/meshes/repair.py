@@ -5,18 +5,36 @@ body must be *closed* (watertight: every edge shared by exactly two faces) and *
 (consistently wound, positive signed volume). One missing or extra hit is an error of a whole
 ray length, not a small one.
 
-A body of several closed pieces is outward when every piece is wound right *for its nesting*:
-outward where it is enclosed by an even number of other pieces (0: a solid; 2: an island in a
-cavity), inward where the number is odd (a cavity). An inside-out ball next to a good one, or
-an outward shell inside another, is not outward even when the total volume is positive: rays
-through it would get negative or doubled path lengths.
+A body of several closed pieces (edge-connected: pieces touching at a vertex are separate) is
+the region where the **winding number** of its surface is **positive** (the nonzero rule):
+along a ray, each entry into an outward piece adds one, each exit subtracts one, and the ray
+is in the material wherever the count is above zero. Both engines trace it so. Hence:
 
-* :func:`check_mesh` is fast (trimesh properties, plus a few inside/outside ray tests for a
-  closed mesh of several pieces) and is run on every body at load time.
+* outward pieces add material: overlapping outward pieces give their union, and an outward
+  piece inside another is redundant (it changes nothing), not a cavity;
+* an inward-facing (negative volume) piece wholly inside an outward piece carves a cavity
+  (a hollow shell); overlapping cavities carve their union; an outward piece inside a cavity
+  is an island of material again;
+* an inward piece inside no outward piece is an inside-out solid: :func:`check_mesh` flags it
+  and repair flips it outward (the scene loader warns, naming the body);
+* an inward piece crossing the surface of an outward piece (partly inside, partly outside) is
+  ambiguous - a cavity biting into the solid, or an inside-out solid joined to it - and is
+  refused with a :class:`~xray_viz.errors.MeshError`: fix it in a mesh editor;
+* a mesh that is inside-out as a whole (negative total volume, and turning every piece over
+  leaves no inward piece outside an outward one: an inside-out ball, an inside-out hollow
+  shell) is turned over as a whole.
+
+Containment is tested with a few face centres of each inward piece, by ray parity against
+each outward piece whose bounding box overlaps (sort and sweep on the boxes): near-linear in
+the number of pieces.
+
+* :func:`check_mesh` is fast (trimesh properties, plus a few inside/outside ray tests for
+  the inward pieces of a closed mesh of several pieces) and is run on every body at load time.
 * :func:`repair_mesh` runs the pymeshlab pipeline of FIELD-NOTES section 7: merge duplicate and
   close vertices, remove duplicate and zero-area faces and unreferenced vertices, split
   non-manifold edges, drop small open debris (never a closed piece), fix non-manifold vertices,
-  close holes, orient faces coherently and each piece outward or, for a cavity, inward.
+  close holes, orient faces coherently (each piece as most of its faces were) and turn
+  inside-out pieces outward (see above).
 * :func:`ensure_traceable` is what the scene loader calls: unchanged when the mesh is already
   closed and outward, repaired (with the list of what changed) otherwise, refused with a
   :class:`~xray_viz.errors.MeshError` when repair does not make it closed.
@@ -50,7 +68,7 @@ from xray_viz.errors import MeshError
 
 __all__ = [
     "MeshReport", "RepairReport", "MeshRepairWarning", "check_mesh", "repair_mesh",
-    "ensure_traceable", "format_reports", "remember_check",
+    "ensure_traceable", "format_reports", "remember_check", "simple_winding",
 ]
 
 
@@ -73,19 +91,27 @@ class MeshReport:
     boundary_edges : int
         Edges used by exactly one face (the rims of holes).
     components : int
-        Connected pieces (trimesh ``body_count``).
+        Edge-connected pieces (faces joined across shared edges; pieces touching only at a
+        vertex are separate).
     volume : float
         Signed volume in mm^3 (positive when the normals point outward).
     outward : bool
-        ``winding_consistent``, ``volume > 0`` and no piece wound against its nesting
-        (``misoriented == 0``).
+        ``winding_consistent``, ``volume > 0``, not ``flat``, and no inside-out or crossing
+        piece (``misoriented == crossing == 0``).
     changes : tuple of str
         What a repair changed to arrive at this mesh (empty for a plain check).
     misoriented : int
-        Closed pieces wound the wrong way for their nesting depth (see :func:`check_mesh`): an
-        inside-out ball next to a good one, or an outward shell inside another outward shell.
+        Pieces that repair turns outward (see :func:`check_mesh`): inward pieces inside no
+        outward piece (an inside-out ball beside a good one), or every piece when the mesh is
+        inside-out as a whole. 0 for a single piece (then ``volume < 0`` says inside-out).
     flat : bool
         The enclosed volume is zero (to rounding): a sheet, or faces folded onto each other.
+    crossing : int
+        Inward pieces partly inside and partly outside the outward pieces: ambiguous, not
+        repairable.
+    simple : bool
+        The winding number is provably 0 or 1 everywhere: one piece, or outward pieces with
+        pairwise disjoint bounding boxes (the fast engine's one-body signed sum is exact then).
     """
 
     faces: int
@@ -99,6 +125,8 @@ class MeshReport:
     changes: tuple[str, ...] = ()
     misoriented: int = 0
     flat: bool = False
+    crossing: int = 0
+    simple: bool = False
 
     @property
     def traceable(self) -> bool:
@@ -112,19 +140,17 @@ class MeshReport:
             out.append(f"not watertight ({self.boundary_edges} boundary edges)"
                        if self.boundary_edges else
                        "not watertight (edges shared by more than two faces)")
-        nesting = (f"wound against its nesting ({self.misoriented} of {self.components} pieces: "
-                   "each piece must face outward, or inward where it is a cavity inside "
-                   "another piece)")
         if not self.winding_consistent:
             out.append("inconsistent face winding")
         elif self.flat:
             out.append("flat (zero volume)")
+        elif self.crossing:
+            out.append(_crossing_text(self.crossing, self.components))
         elif 0 < self.misoriented < self.components:
-            out.append(nesting)
-        elif self.volume < 0:
+            out.append(f"inside-out in {self.misoriented} of {self.components} pieces (facing "
+                       "inward but inside no outward piece, so not a cavity)")
+        elif self.volume < 0 or self.misoriented:
             out.append("inside-out (negative volume)")
-        elif self.misoriented:
-            out.append(nesting)
         return out
 
 
@@ -151,9 +177,10 @@ class RepairReport:
 def check_mesh(mesh) -> MeshReport:
     """Report whether a mesh is closed and outward, using trimesh's cheap properties.
 
-    A closed mesh of several pieces is also tested for nesting: each piece must face outward
-    when an even number of other pieces enclose it, inward (a cavity) when the number is odd;
-    :attr:`MeshReport.misoriented` counts the pieces that do not.
+    A closed mesh of several pieces is read by the nonzero rule (see the module docstring):
+    each inward piece is tested for lying inside the outward pieces. One inside none is
+    inside-out (:attr:`MeshReport.misoriented`), one partly inside is ambiguous
+    (:attr:`MeshReport.crossing`); outward pieces are never wrong, whatever their nesting.
 
     Parameters
     ----------
@@ -216,26 +243,51 @@ def _check_mesh(mesh) -> MeshReport:
         boundary = len(trimesh.grouping.group_rows(edges, require_count=1))
         with np.errstate(all="ignore"):  # a flat mesh: zero volume, NaN centre of mass
             volume = float(mesh.volume)
-        components = int(mesh.body_count)
+        labels, components = _piece_labels(mesh)
     else:
         boundary, volume, components = 0, 0.0, 0
     watertight = bool(mesh.is_watertight) if len(faces) else False
     winding = bool(mesh.is_winding_consistent) if len(faces) else False
     flat = _is_flat(vertices, volume) if len(faces) else True
-    misoriented = 0
+    misoriented = crossing = 0
+    simple = components == 1
     if watertight and winding and components > 1:
-        labels, n = _piece_labels(mesh)
-        if n > 1:  # pieces may cancel (an inside-out copy beside a good one): not flat then
-            piece_volume, depth = _piece_orientation(vertices, faces, labels, n)
-            flat = _is_flat(vertices, float(np.abs(piece_volume).sum()))
-            expected = np.where(depth % 2 == 0, 1.0, -1.0)
-            misoriented = int(np.sum(np.sign(piece_volume) != expected))
+        # pieces may cancel (an inside-out copy beside a good one): not flat then
+        nest = _nesting(vertices, faces, labels, components)
+        flat = _is_flat(vertices, float(np.abs(nest.volume).sum()))
+        misoriented, crossing = int(nest.flip.sum()), int(nest.crossing.sum())
+        simple = nest.simple
     return MeshReport(
         faces=len(faces), vertices=len(mesh.vertices), watertight=watertight,
         winding_consistent=winding, boundary_edges=boundary, components=components,
-        volume=volume, outward=winding and volume > 0 and not flat and misoriented == 0,
-        misoriented=misoriented, flat=flat,
+        volume=volume, outward=(winding and volume > 0 and not flat and misoriented == 0
+                                and crossing == 0),
+        misoriented=misoriented, flat=flat, crossing=crossing, simple=simple,
     )
+
+
+def simple_winding(mesh) -> bool:
+    """Whether the winding number of a closed mesh is provably 0 or 1 everywhere.
+
+    True for a mesh of one edge-connected piece, or of outward pieces whose bounding boxes
+    are pairwise disjoint (:attr:`MeshReport.simple`). Then the signed sum of hit depths along
+    a ray is its length inside the body; otherwise the hits must be sorted and the winding
+    number tracked. From :func:`check_mesh`'s cached report.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+
+    Returns
+    -------
+    bool
+    """
+    return check_mesh(mesh).simple
+
+
+def _crossing_text(k, n) -> str:
+    return (f"{k} of {n} pieces facing inward but crossing the surface of an outward piece "
+            "(neither a cavity wholly inside it nor a separate inside-out solid)")
 
 
 def _is_flat(vertices, volume) -> bool:
@@ -248,8 +300,8 @@ def _is_flat(vertices, volume) -> bool:
 
 #: A fixed direction with no relation to the axes or diagonals, for inside/outside tests.
 _PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
-#: Points of each piece tested against the others for containment (the majority decides).
-_SAMPLES = 5
+#: Face centres of each inward piece tested for lying inside the outward pieces.
+_SAMPLES = 32
 
 
 def _piece_labels(mesh):
@@ -263,54 +315,128 @@ def _piece_labels(mesh):
     return np.asarray(labels, np.int64), int(labels.max()) + 1
 
 
-def _piece_orientation(vertices, faces, labels, n):
-    """Signed volume and nesting depth of each piece.
+@dataclass(frozen=True)
+class _Nesting:
+    """What the nonzero rule makes of the pieces of a closed mesh (see :func:`_nesting`).
 
-    The nesting depth of a piece is the number of other pieces that enclose it: a point on
-    the piece (the majority of a few face centres) is inside another closed piece when a ray
-    from it crosses that piece an odd number of times (watertight ray-triangle tests, so a ray
-    through an edge counts once). Parity does not depend on the pieces' winding.
-
-    Returns
-    -------
+    Attributes
+    ----------
     volume : (n,) float
-    depth : (n,) int
+        Signed volume of each piece.
+    flip : (n,) bool
+        Pieces to turn over.
+    crossing : (n,) bool
+        Inward pieces partly inside and partly outside the outward ones: ambiguous.
+    simple : bool
+        The winding number is provably 0 or 1 everywhere.
     """
-    from xray_viz.tracing.hits import trace_triangles
 
+    volume: np.ndarray
+    flip: np.ndarray
+    crossing: np.ndarray
+    simple: bool
+
+
+def _nesting(vertices, faces, labels, n) -> _Nesting:
+    """Classify the pieces of a closed, consistently wound mesh by the nonzero rule.
+
+    Outward pieces are always right. An inward piece is a cavity when all its sample points
+    (face centres) lie inside some outward piece, inside-out (to flip) when none does, and
+    ambiguous (crossing) otherwise. When the total volume is negative and turning every piece
+    over leaves every (then) inward piece a cavity, every piece is flipped instead.
+    """
     tris = vertices[faces] - vertices.mean(axis=0)  # near the origin: the volume sum stays exact
     six_v = np.einsum("ij,ij->i", tris[:, 0], np.cross(tris[:, 1], tris[:, 2]))
     volume = np.bincount(labels, weights=six_v, minlength=n) / 6.0
-    depth = np.zeros(n, np.int64)
+    none = np.zeros(n, bool)
+    diag = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
+    tol = 1e-9 * diag ** 3                            # as _is_flat: zero volume to rounding
+    inward, outward = volume < -tol, volume > tol
     if n < 2:
-        return volume, depth
-    lo = np.full((n, 3), np.inf)
-    hi = np.full((n, 3), -np.inf)
-    np.minimum.at(lo, labels, tris.min(axis=1))
-    np.maximum.at(hi, labels, tris.max(axis=1))
+        return _Nesting(volume, inward.copy(), none, True)
     order = np.argsort(labels, kind="stable")
     starts = np.searchsorted(labels[order], np.arange(n + 1))
-    members = [order[starts[k]:starts[k + 1]] for k in range(n)]
-    samples = []
-    for k in range(n):  # face centres spread over the piece
-        pick = members[k][np.linspace(0, len(members[k]) - 1, min(_SAMPLES, len(members[k])))
-                          .astype(int)]
-        samples.append(tris[pick].mean(axis=1))
-    for j in range(n):
-        # only a piece whose bounding box lies within j's can be inside j
-        inner = np.flatnonzero(np.all(lo >= lo[j], axis=1) & np.all(hi <= hi[j], axis=1))
-        inner = inner[inner != j]
-        if not len(inner):
-            continue
-        points = np.vstack([samples[k] for k in inner])
-        owner = np.repeat(np.arange(len(inner)), [len(samples[k]) for k in inner])
-        ray, *_ = trace_triangles(tris[members[j]], points,
-                                  np.broadcast_to(_PROBE, points.shape))
-        odd = np.bincount(ray, minlength=len(points)) % 2 == 1
-        votes = np.bincount(owner, weights=odd, minlength=len(inner))
-        counts = np.bincount(owner, minlength=len(inner))
-        depth[inner[votes * 2 > counts]] += 1
-    return volume, depth
+    corner_lo = tris.min(axis=1)[order]
+    corner_hi = tris.max(axis=1)[order]
+    lo = np.minimum.reduceat(corner_lo, starts[:-1], axis=0)
+    hi = np.maximum.reduceat(corner_hi, starts[:-1], axis=0)
+    if not inward.any():
+        simple = bool(outward.all()) and not len(_box_pairs(lo, hi, outward, outward)[0])
+        return _Nesting(volume, none, none, simple)
+    pieces = (tris, labels, order, starts, lo, hi)
+    inside, total = _inside_counts(pieces, inward, outward)
+    isolated = inward & (inside == 0)
+    crossing = inward & (inside > 0) & (inside < total)
+    if not (isolated.any() or crossing.any()):
+        return _Nesting(volume, none, none, False)
+    if volume.sum() < 0:
+        # inside-out as a whole? Turned over, the outward pieces become the inward ones
+        inside, total = _inside_counts(pieces, outward, inward)
+        if np.all(inside[outward] == total[outward]):
+            return _Nesting(volume, inward | outward, none, False)
+    return _Nesting(volume, isolated & ~crossing, crossing, False)
+
+
+def _box_pairs(lo, hi, a, b):
+    """Pairs ``(i, j)``, ``i`` in mask ``a``, ``j`` in mask ``b``, ``i != j``, whose boxes
+    ``[lo, hi]`` overlap (touching counts), by sort and sweep along the axis with the fewest
+    overlapping intervals."""
+    idx = np.flatnonzero(a | b)
+    best = None
+    for axis in range(3):
+        o = idx[np.argsort(lo[idx, axis], kind="stable")]
+        # boxes o[k+1 : stop[k]] start within box o[k]'s interval along this axis
+        stop = np.searchsorted(lo[o, axis], hi[o, axis], side="right")
+        count = np.maximum(stop - np.arange(len(o)) - 1, 0)
+        if best is None or count.sum() < best[2].sum():
+            best = (axis, o, count)
+    _, o, count = best
+    total = int(count.sum())
+    first = np.repeat(np.arange(len(o)), count)
+    second = first + 1 + np.arange(total) - np.repeat(np.cumsum(count) - count, count)
+    i, j = o[first], o[second]
+    meet = np.all((lo[i] <= hi[j]) & (lo[j] <= hi[i]), axis=1)
+    i, j = np.concatenate([i[meet], j[meet]]), np.concatenate([j[meet], i[meet]])
+    keep = a[i] & b[j] & (i != j)
+    return i[keep], j[keep]
+
+
+def _inside_counts(pieces, query, target):
+    """For each piece in mask ``query``: how many of its sample points (up to ``_SAMPLES``
+    face centres spread over it) lie inside some piece of mask ``target``, and how many were
+    tested. Ray parity against each target piece separately (watertight ray-triangle tests, so
+    a ray through an edge counts once), so the targets' winding does not matter; only targets
+    whose bounding box overlaps the query piece's are traced.
+
+    Returns
+    -------
+    inside, total : (n,) int
+    """
+    from xray_viz.tracing.hits import trace_triangles
+
+    tris, labels, order, starts, lo, hi = pieces
+    n = len(lo)
+    size = np.diff(starts)
+    total = np.where(query, np.minimum(size, _SAMPLES), 0)
+    inside = np.zeros(n, np.int64)
+    qi, tj = _box_pairs(lo, hi, query, target)
+    if not len(qi):
+        return inside, total
+    qs = np.unique(qi)
+    m = total[qs]
+    owner = np.repeat(qs, m)
+    k = np.arange(int(m.sum())) - np.repeat(np.cumsum(m) - m, m)
+    pos = starts[owner] + (k * (size[owner] - 1)) // np.maximum(total[owner] - 1, 1)
+    points = tris[order[pos]].mean(axis=1)
+    in_target = np.flatnonzero(np.isin(labels, np.unique(tj)))
+    ray, tri, *_ = trace_triangles(tris[in_target], points,
+                                   np.broadcast_to(_PROBE, points.shape))
+    key = np.unique(ray * n + labels[in_target[tri]], return_counts=True)
+    odd = key[0][key[1] % 2 == 1] // n          # points inside some target piece
+    inside_point = np.zeros(len(points), bool)
+    inside_point[odd] = True
+    inside += np.bincount(owner[inside_point], minlength=n)
+    return inside, total
 
 
 def format_reports(columns, *, changes=()) -> str:
@@ -362,15 +488,19 @@ def format_reports(columns, *, changes=()) -> str:
     return "\n".join(line.rstrip() for line in lines)
 
 
-def _orient_outward(vertices, faces):
-    """Flip every piece wound against its nesting (see :func:`_piece_orientation`).
+def _orient_outward(vertices, faces, reference=None):
+    """Turn the pieces the nonzero rule needs turned (see :func:`_nesting`).
+
+    With ``reference`` (the same faces before pymeshlab re-oriented them coherently), a piece
+    most of whose faces were reversed by that is first turned back: each piece keeps the
+    orientation most of its faces had, so a cavity stays a cavity.
 
     Returns
     -------
     faces : (F, 3) int
         A copy with the faces of those pieces reversed (``faces`` itself when none is).
     flipped : (k,) int
-        Indices of the flipped pieces.
+        Indices of the pieces flipped by the nonzero rule.
     n : int
         Number of pieces.
     """
@@ -380,13 +510,20 @@ def _orient_outward(vertices, faces):
     labels, n = _piece_labels(mesh)
     if n == 0:
         return faces, np.zeros(0, np.int64), 0
-    volume, depth = _piece_orientation(np.asarray(vertices, np.float64), faces, labels, n)
-    expected = np.where(depth % 2 == 0, 1.0, -1.0)
-    flipped = np.flatnonzero(np.sign(volume) == -expected)  # a flat piece cannot be fixed so
+    if reference is not None and reference.shape == faces.shape:
+        reversed_ = np.any(_canonical(faces) != _canonical(reference), axis=1)
+        back = np.bincount(labels, weights=reversed_, minlength=n) * 2 > np.bincount(labels,
+                                                                                  minlength=n)
+        if back.any():
+            faces = faces.copy()
+            sel = back[labels]
+            faces[sel] = faces[sel][:, ::-1]
+    nest = _nesting(np.asarray(vertices, np.float64), faces, labels, n)
+    flipped = np.flatnonzero(nest.flip)
     if not len(flipped):
         return faces, flipped, n
     faces = faces.copy()
-    sel = np.isin(labels, flipped)
+    sel = nest.flip[labels]
     faces[sel] = faces[sel][:, ::-1]
     return faces, flipped, n
 
@@ -400,8 +537,10 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
     faces and unreferenced vertices; split non-manifold edges and drop small *open* pieces (a stray fin,
     debris: pieces of fewer than ``min_component_faces`` faces with a boundary or non-manifold
     edge; closed pieces are kept however small); repair non-manifold vertices; close holes;
-    orient faces coherently; flip every piece wound against its nesting (outward, or inward
-    where the piece is a cavity inside another piece).
+    orient faces coherently, each piece as most of its faces were; turn outward every inward
+    piece that lies inside no outward piece (or the whole mesh, when it is inside-out as a
+    whole; see the module docstring). An inward piece crossing another is left as it is (the
+    report says so).
 
     Parameters
     ----------
@@ -498,7 +637,7 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
     ms.meshing_re_orient_faces_coherently()
     m = ms.current_mesh()
     vertices, faces = m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64)
-    faces, _, _ = _orient_outward(vertices, faces)
+    faces, _, _ = _orient_outward(vertices, faces, reference=faces_before)
     if faces.shape == faces_before.shape:
         changes += _orientation_changes(vertices, faces_before, faces)
     repaired = trimesh.Trimesh(vertices, faces, process=False)
@@ -524,8 +663,8 @@ def _orientation_changes(vertices, old, new) -> list[str]:
     out = []
     if whole.any():
         k = int(whole.sum())
-        out.append(f"flipped {k} of {n} pieces to match their nesting: outward, or inward for a "
-                   f"cavity inside another piece ({int(size[whole].sum())} faces)")
+        out.append(f"turned {k} of {n} inside-out pieces outward ({int(size[whole].sum())} "
+                   "faces)")
     partly = int(per_piece[~whole].sum())
     if partly:
         out.append(f"re-oriented {partly} faces to agree with their neighbours")
@@ -636,7 +775,8 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
     ------
     MeshError
         The mesh is not traceable and ``repair`` is False, or repair did not make it closed
-        and outward.
+        and outward, or an inward piece crosses another piece (no repair can tell a cavity
+        biting into the solid from an inside-out solid joined to it).
 
     Examples
     --------
@@ -649,13 +789,24 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
     report = check_mesh(body_mesh)
     if report.traceable:
         return body_mesh, []
+    if report.crossing:
+        raise _crossing_error(name, report)
     problems = "; ".join(report.problems())
     if not repair:
         raise MeshError(f"body {name!r}: mesh is {problems}; fix the file (e.g. `xray-viz mesh "
                         "IN -o OUT`) or allow repair at load time (repair = true)")
     repaired, rep = repair_mesh(body_mesh)
+    if rep.after.crossing:
+        raise _crossing_error(name, rep.after)
     if not rep.after.traceable:
         raise MeshError(f"body {name!r}: mesh is {problems} and automatic repair failed (still "
                         f"{'; '.join(rep.after.problems())}); close the surface in a mesh editor")
     changes = [f"was {problems}"] + list(rep.changes)
     return repaired, changes
+
+
+def _crossing_error(name, report) -> MeshError:
+    return MeshError(
+        f"body {name!r}: mesh has {_crossing_text(report.crossing, report.components)}; in a "
+        "mesh editor, turn such a piece outward (to add it to the solid) or keep it wholly "
+        "inside the outward piece (to carve a cavity)")

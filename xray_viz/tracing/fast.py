@@ -23,13 +23,19 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
 4. **Depth** of a covered ray: the exact ray-plane intersection in float64, from the unsnapped
    vertices, clamped to the triangle's depth range. The sign of the projected area tells entry
    (counter-clockwise seen from the source) from exit.
-5. **Path lengths**: one body: ``L = sum(exit depths) - sum(entry depths)`` (+ the detector depth
-   when the ray is still inside there), accumulated per ray in one parallel pass over the
-   triangles (one accumulator per thread; for very large detectors, per band of rows); no hit
-   list. Several bodies: per
-   band of detector rows, the hits of each ray are counted, stored, sorted and swept with the
-   reference semantics of :func:`xray_viz.attenuation.path_lengths` (highest precedence among
-   the bodies containing a point wins). Memory is O(triangles + rays + hits of one band).
+5. **Path lengths**: one body in the beam whose winding number is provably 0 or 1 (one
+   edge-connected piece, or outward pieces with disjoint bounding boxes:
+   :func:`xray_viz.meshes.repair.simple_winding`, cached per mesh):
+   ``L = sum(exit depths) - sum(entry depths)`` (+ the detector depth when the ray is still
+   inside there), accumulated per ray in one parallel pass over the triangles (one accumulator
+   per thread; for very large detectors, per band of rows); no hit list. Otherwise (several
+   bodies, or one body of overlapping, nested or hollow pieces): per band of detector rows,
+   the hits of each ray are counted, stored, sorted and swept with the reference semantics of
+   :func:`xray_viz.attenuation.path_lengths`: a body contains the stretches of ray where the
+   winding number of its surface is positive (the nonzero rule: overlapping pieces give
+   their union, an inward piece inside an outward one a cavity), and the highest precedence
+   among the bodies containing a stretch wins. Memory is O(triangles + rays + hits of one
+   band).
 
 The result is cached per (meshes, source, detector, supersampling): re-rendering the same
 geometry with other energies or materials costs nothing, and the per-mesh set-up (faces sorted
@@ -394,7 +400,7 @@ def _trace(scene, *, supersample):
         R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
         P0 = P00
     n_chunks = numba.get_num_threads()
-    if len(keep) == 1:
+    if len(keep) == 1 and _signed_sum_exact(scene.bodies[keep[0]]):
         L1 = _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
                            nW, nH, K, sides, status, box, B, n, W, H, scene)
         if nb == 1:
@@ -413,9 +419,21 @@ def _trace(scene, *, supersample):
     return L
 
 
+def _signed_sum_exact(body) -> bool:
+    """Is the signed depth sum the body's path length (winding number 0 or 1 everywhere)?
+
+    From the mesh check's report (:func:`xray_viz.meshes.repair.simple_winding`), cached per
+    mesh: every scene checks its bodies when it is built, so this is a dictionary look-up.
+    """
+    from xray_viz.meshes.repair import simple_winding
+
+    return simple_winding(body.mesh)
+
+
 def _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
                   K, sides, status, box, B, n, W, H, scene):
-    """Path lengths (n_rays, 1) of the one body left in the beam."""
+    """Path lengths (n_rays, 1) of the one body left in the beam, by signed depth sums
+    (exact only when its winding number is 0 or 1: see :func:`_signed_sum_exact`)."""
     L = np.zeros((W * H * n * n, 1))
     if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
         # A single pass over the triangles, one accumulator per thread.
