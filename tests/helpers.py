@@ -76,3 +76,32 @@ def write_scene(tmp: Path, text: str, meshes: dict | None = None) -> Path:
     path = tmp / "scene.toml"
     path.write_text(text)
     return path
+
+
+def ball_union_chord(origins, directions, balls) -> np.ndarray:
+    """Length of each ray ``origin + t * direction`` inside the union of balls ``(centre, r)``.
+
+    Exact: each ball's chord interval, then the union of the sorted intervals. Directions need
+    not be unit vectors (lengths are in the units of the origins).
+    """
+    origins = np.asarray(origins, float)
+    d = np.asarray(directions, float)
+    d = d / np.linalg.norm(d, axis=1)[:, None]
+    n = len(d)
+    if not balls:
+        return np.zeros(n)
+    lo, hi = [], []
+    for c, r in balls:
+        rel = np.asarray(c, float) - origins
+        along = np.einsum("ij,ij->i", rel, d)
+        h = np.sqrt(np.clip(r * r - (np.einsum("ij,ij->i", rel, rel) - along ** 2), 0, None))
+        lo.append(np.where(h > 0, along - h, np.inf))
+        hi.append(np.where(h > 0, along + h, -np.inf))
+    lo, hi = np.array(lo).T, np.array(hi).T
+    order = np.argsort(lo, axis=1)
+    lo, hi = np.take_along_axis(lo, order, 1), np.take_along_axis(hi, order, 1)
+    total, reach = np.zeros(n), np.full(n, -np.inf)
+    for k in range(lo.shape[1]):
+        total += np.clip(hi[:, k] - np.maximum(lo[:, k], reach), 0, None)
+        reach = np.maximum(reach, hi[:, k])
+    return total

@@ -15,7 +15,7 @@ from xray_viz.errors import SceneError
 from xray_viz.geometry import detector_rays
 from xray_viz.render import ENGINES, render
 from xray_viz.tracing.fast import clear_caches, fast_path_lengths, trace_once
-from helpers import box_chord, make_scene
+from helpers import ball_union_chord, box_chord, make_scene
 
 
 def _sphere(r=40.0, sub=3, at=(0, 0, 0)):
@@ -377,23 +377,8 @@ def _pieces(*meshes):
 
 
 def _union_chord(rays, balls):
-    """Length of each ray inside the union of balls ``(centre, r)`` (sorted interval union)."""
-    lo, hi = [], []
-    for c, r in balls:
-        rel = np.asarray(c, float) - rays.origins
-        d = rays.directions / np.linalg.norm(rays.directions, axis=1)[:, None]
-        along = np.einsum("ij,ij->i", rel, d)
-        h = np.sqrt(np.clip(r * r - (np.einsum("ij,ij->i", rel, rel) - along ** 2), 0, None))
-        lo.append(np.where(h > 0, along - h, np.inf))
-        hi.append(np.where(h > 0, along + h, -np.inf))
-    lo, hi = np.array(lo).T, np.array(hi).T
-    order = np.argsort(lo, axis=1)
-    lo, hi = np.take_along_axis(lo, order, 1), np.take_along_axis(hi, order, 1)
-    total, reach = np.zeros(len(lo)), np.full(len(lo), -np.inf)
-    for k in range(lo.shape[1]):
-        total += np.clip(hi[:, k] - np.maximum(lo[:, k], reach), 0, None)
-        reach = np.maximum(reach, hi[:, k])
-    return total
+    """Length of each ray inside the union of balls ``(centre, r)``."""
+    return ball_union_chord(rays.origins, rays.directions, balls)
 
 
 @pytest.mark.parametrize("kind", ["point", "parallel"])

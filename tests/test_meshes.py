@@ -25,6 +25,7 @@ from xray_viz.meshes import (
     repair_mesh,
 )
 from xray_viz.meshes.command import add_mesh_parser, mesh_command
+from helpers import ball_union_chord
 
 R = 40.0
 
@@ -473,33 +474,11 @@ def assert_engines_agree(scene, image):
 def chords(rays, balls):
     """Analytic path length of each ray through balls ``(cx, cy, cz, r, sign)`` by the nonzero
     rule: the union of the outward balls (sign +1) less the union of the cavities (sign -1)."""
-    def spans(sign):
-        lo, hi = [], []
-        for *c, r, s in balls:
-            if s != sign:
-                continue
-            rel = np.asarray(c, float) - rays.origins
-            along = np.einsum("ij,ij->i", rel, rays.directions)
-            d2 = np.einsum("ij,ij->i", rel, rel) - along ** 2
-            h = np.sqrt(np.clip(r * r - d2, 0, None))
-            lo.append(np.where(h > 0, along - h, np.inf))
-            hi.append(np.where(h > 0, along + h, -np.inf))
-        n = len(rays.origins)
-        return (np.array(lo).reshape(-1, n).T, np.array(hi).reshape(-1, n).T)
-
-    def union_length(lo, hi):
-        order = np.argsort(lo, axis=1)
-        lo, hi = np.take_along_axis(lo, order, 1), np.take_along_axis(hi, order, 1)
-        total, reach = np.zeros(len(lo)), np.full(len(lo), -np.inf)
-        for k in range(lo.shape[1]):
-            total += np.clip(hi[:, k] - np.maximum(lo[:, k], reach), 0, None)
-            reach = np.maximum(reach, hi[:, k])
-        return total
-
-    (slo, shi), (clo, chi) = spans(1), spans(-1)
-    total = union_length(slo, shi)
-    if clo.shape[1]:  # cavities lie inside the solid: take out the union of their spans
-        total -= union_length(clo, chi)
+    solid = [(c, r) for *c, r, s in balls if s == 1]
+    cavities = [(c, r) for *c, r, s in balls if s == -1]
+    # cavities lie inside the solid: take out the union of their spans
+    total = (ball_union_chord(rays.origins, rays.directions, solid)
+             - ball_union_chord(rays.origins, rays.directions, cavities))
     return total.reshape(rays_shape(rays))
 
 
