@@ -169,3 +169,14 @@ def test_unwritable_output_names_the_users_path_and_leaves_nothing(tmp_path, suf
         save_image(missing, np.eye(3))
     assert str(info.value).startswith(f"{missing}: cannot write") and "\n" not in str(info.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["not_a_folder"]
+
+
+def test_written_files_get_the_usual_permissions(tmp_path):
+    import os
+
+    mask = os.umask(0o022)
+    try:
+        out = save_image(tmp_path / "a.png", np.eye(3))
+    finally:
+        os.umask(mask)
+    assert out.stat().st_mode & 0o777 == 0o644          # not mkstemp's private 0600

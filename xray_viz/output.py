@@ -16,8 +16,8 @@ import numpy as np
 
 from xray_viz.errors import OutputError
 
-__all__ = ["save_image", "load_image", "to_uint16", "dicom_dataset", "dicom_values", "FORMATS",
-           "UNITS"]
+__all__ = ["save_image", "load_image", "to_uint16", "dicom_dataset", "dicom_values",
+           "atomic_write", "FORMATS", "UNITS"]
 
 #: Output suffixes and what they hold.
 FORMATS = {
@@ -47,7 +47,13 @@ def to_uint16(image, *, bright="high") -> np.ndarray:
     return np.round(np.clip(scaled, 0, 1) * 65535).astype(np.uint16)
 
 
-def _atomic_write(path: Path, write) -> None:
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def atomic_write(path: Path, write) -> None:
     """Write through a temporary file beside ``path``, then rename: never a half-written file.
 
     An operating-system error names ``path`` (not the temporary file) in an :class:`OutputError`.
@@ -60,6 +66,7 @@ def _atomic_write(path: Path, write) -> None:
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
         os.close(fd)
         write(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())    # mkstemp makes 0600; a new file gets the usual mode
         os.replace(tmp, path)
     except BaseException as exc:
         if tmp is not None and os.path.exists(tmp):
@@ -100,23 +107,23 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         raise OutputError(f"{path}: unknown output format {suffix or '(none)'!r}; use one of {known}")
     image = np.asarray(image)
     if suffix == ".npy":
-        _atomic_write(path, lambda tmp: np.save(tmp, image))
+        atomic_write(path, lambda tmp: np.save(tmp, image))
     elif suffix in (".tif", ".tiff"):
         from PIL import Image
 
-        _atomic_write(path, lambda tmp: Image.fromarray(image.astype(np.float32))
+        atomic_write(path, lambda tmp: Image.fromarray(image.astype(np.float32))
                       .save(tmp, format="TIFF"))
     elif suffix == ".png":
         from PIL import Image
 
         data = to_uint16(image, bright=bright)
-        _atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="PNG"))
+        atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="PNG"))
     elif suffix == ".dcm":
         if scene is None:
             raise OutputError(f"{path}: DICOM output needs the scene for its geometry: "
                               "save_image(path, image, scene=scene)")
         ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
-        _atomic_write(path, lambda tmp: _dcmwrite(tmp, ds))
+        atomic_write(path, lambda tmp: _dcmwrite(tmp, ds))
     return path
 
 

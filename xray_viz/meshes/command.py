@@ -18,9 +18,7 @@ ArgumentParser(prog='xray-viz mesh', ...)
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 from xray_viz.errors import MeshError, SceneFileNotFoundError
@@ -120,19 +118,10 @@ def _check_output(out: Path) -> Path:
 
 
 def _write_atomic(mesh, out: Path) -> None:
-    suffix = out.suffix.lower()
-    folder = _check_output(out)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=suffix, dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            mesh.export(fh, file_type=suffix[1:])
-        os.replace(tmp, out)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    from xray_viz.output import atomic_write
+
+    _check_output(out)
+    atomic_write(out, lambda tmp: mesh.export(tmp, file_type=out.suffix.lower()[1:]))
 
 
 def mesh_command(args, *, stdout=None) -> int:
