@@ -290,15 +290,18 @@ def test_importing_meshes_does_not_import_vtk():
 # scene loading: transforms, repair at load time
 
 
-def write_scene(tmp_path, body_lines: str, mesh) -> object:
+def write_scene(tmp_path, body_lines: str, mesh, *, kind="point", shape=(8, 8),
+                pitch=1.0) -> object:
+    """Write ``mesh`` as part.stl and a scene file with it as the one body ``part``."""
     mesh.export(tmp_path / "part.stl")
-    (tmp_path / "scene.toml").write_text(textwrap.dedent("""\
+    (tmp_path / "scene.toml").write_text(textwrap.dedent(f"""\
         [source]
         position = [0.0, 0.0, 1000.0]
+        kind = "{kind}"
         [detector]
         center = [0.0, 0.0, -500.0]
-        shape = [8, 8]
-        pitch = 1.0
+        shape = [{shape[0]}, {shape[1]}]
+        pitch = {pitch}
         [[body]]
         name = "part"
         mesh = "part.stl"
@@ -443,21 +446,8 @@ def render_part(tmp_path, mesh, *, engine="numpy"):
     import xray_viz
     from xray_viz.geometry import detector_rays
 
-    mesh.export(tmp_path / "part.stl")
-    (tmp_path / "scene.toml").write_text(textwrap.dedent("""\
-        [source]
-        position = [0.0, 0.0, 1000.0]
-        kind = "parallel"
-        [detector]
-        center = [0.0, 0.0, -500.0]
-        shape = [192, 128]
-        pitch = 0.5
-        [[body]]
-        name = "part"
-        mesh = "part.stl"
-        mu = 0.2
-        """))
-    scene = scene_module.load_scene(tmp_path / "scene.toml")
+    path = write_scene(tmp_path, "", mesh, kind="parallel", shape=(192, 128), pitch=0.5)
+    scene = scene_module.load_scene(path)
     image = xray_viz.render(scene, engine=engine)
     return scene, image, detector_rays(scene)
 

@@ -26,7 +26,7 @@ __all__ = ["path_lengths", "body_precedence", "remember_precedence", "check_sour
            "inside_counts", "mesh_bounds", "beam_planes", "boxes_outside_beam"]
 
 #: A fixed, irrational-looking direction for inside/outside tests (no axis, no diagonal).
-_PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
+PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
 
 
 def path_lengths(ray, t, body, entering, *, n_rays, n_bodies, precedence, t_max):
@@ -87,7 +87,7 @@ def path_lengths(ray, t, body, entering, *, n_rays, n_bodies, precedence, t_max)
     return flat.reshape(n_rays, n_bodies)
 
 
-def inside_counts(triangles, points, *, direction=_PROBE) -> np.ndarray:
+def inside_counts(triangles, points, *, direction=PROBE) -> np.ndarray:
     """Winding number of a closed mesh around points: exits minus entries along a probe ray.
 
     1 for a point inside an outward-oriented closed mesh, 0 outside.
@@ -312,7 +312,7 @@ def check_source_outside(scene) -> None:
 
 def _winding(tris, point) -> int:
     return max(inside_counts(tris, point, direction=d)[0]
-               for d in (_PROBE, np.array([-0.6, 0.48, -0.64])))
+               for d in (PROBE, np.array([-0.6, 0.48, -0.64])))
 
 
 def _crosses_within(body, rel, depth, eu, ev, hu, hv) -> bool:

@@ -298,8 +298,6 @@ def _is_flat(vertices, volume) -> bool:
     return abs(volume) <= 1e-9 * diag ** 3
 
 
-#: A fixed direction with no relation to the axes or diagonals, for inside/outside tests.
-_PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
 #: Face centres of each inward piece tested for lying inside the outward pieces.
 _SAMPLES = 32
 
@@ -412,6 +410,7 @@ def _inside_counts(pieces, query, target):
     -------
     inside, total : (n,) int
     """
+    from xray_viz.attenuation import PROBE
     from xray_viz.tracing.hits import trace_triangles
 
     tris, labels, order, starts, lo, hi = pieces
@@ -430,7 +429,7 @@ def _inside_counts(pieces, query, target):
     points = tris[order[pos]].mean(axis=1)
     in_target = np.flatnonzero(np.isin(labels, np.unique(tj)))
     ray, tri, *_ = trace_triangles(tris[in_target], points,
-                                   np.broadcast_to(_PROBE, points.shape))
+                                   np.broadcast_to(PROBE, points.shape))
     key = np.unique(ray * n + labels[in_target[tri]], return_counts=True)
     odd = key[0][key[1] % 2 == 1] // n          # points inside some target piece
     inside_point = np.zeros(len(points), bool)

@@ -371,6 +371,7 @@ def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
 
 
 def _trace(scene, *, supersample):
+    from xray_viz.meshes.repair import simple_winding
     from xray_viz.tracing import _raster as R
 
     n = int(supersample)
@@ -400,7 +401,9 @@ def _trace(scene, *, supersample):
         R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
         P0 = P00
     n_chunks = numba.get_num_threads()
-    if len(keep) == 1 and _signed_sum_exact(scene.bodies[keep[0]]):
+    # The signed depth sum is a body's path length only where its winding number is 0 or 1
+    # (cached per mesh by the mesh check every Scene runs: a dictionary look-up here).
+    if len(keep) == 1 and simple_winding(scene.bodies[keep[0]].mesh):
         L1 = _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
                            nW, nH, K, sides, status, box, B, n, W, H, scene)
         if nb == 1:
@@ -419,21 +422,11 @@ def _trace(scene, *, supersample):
     return L
 
 
-def _signed_sum_exact(body) -> bool:
-    """Is the signed depth sum the body's path length (winding number 0 or 1 everywhere)?
-
-    From the mesh check's report (:func:`xray_viz.meshes.repair.simple_winding`), cached per
-    mesh: every scene checks its bodies when it is built, so this is a dictionary look-up.
-    """
-    from xray_viz.meshes.repair import simple_winding
-
-    return simple_winding(body.mesh)
-
-
 def _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
                   K, sides, status, box, B, n, W, H, scene):
     """Path lengths (n_rays, 1) of the one body left in the beam, by signed depth sums
-    (exact only when its winding number is 0 or 1: see :func:`_signed_sum_exact`)."""
+    (exact only when its winding number is 0 or 1: see
+    :func:`xray_viz.meshes.repair.simple_winding`)."""
     L = np.zeros((W * H * n * n, 1))
     if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
         # A single pass over the triangles, one accumulator per thread.

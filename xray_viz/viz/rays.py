@@ -360,15 +360,8 @@ def effective_energy(scene, profile: AttenuationProfile, line_integral: float, *
     if not len(change):
         return None
     k = change[-1]                                # the highest energy that fits (K-edges)
-    a, b = grid[k], grid[k + 1]
-    da = d[k]
-    for _ in range(48):                           # bisection to ~1e-12 keV
-        m = (a + b) / 2
-        dm = float(excess(m)[0])
-        if dm == 0:
-            return float(m)
-        if np.sign(dm) == np.sign(da):
-            a, da = m, dm
-        else:
-            b = m
-    return float((a + b) / 2)
+    if d[k] == 0:
+        return float(grid[k])
+    from scipy.optimize import brentq
+
+    return float(brentq(lambda e: float(excess(e)[0]), grid[k], grid[k + 1], xtol=1e-12))
