@@ -184,28 +184,27 @@ def shepp_logan_ellipsoids():
 
 
 def ellipsoid_precedence(ells):
-    """The renderer's precedence rule (:func:`xray_viz.attenuation.body_precedence`: containment
-    depth first, innermost wins, then list order) applied to the exact ellipsoids: ``a`` is
-    inside ``b`` when its bounding box is inside ``b``'s and most of 162 points of its surface
-    are inside ``b``."""
+    """The renderer's precedence rule (:func:`xray_viz.attenuation.body_precedence`: a body
+    wholly inside another wins there, otherwise list order) applied to the exact ellipsoids:
+    ``a`` is inside ``b`` when all of 2562 points spread over its surface are inside ``b``
+    (for ellipsoids, whose surfaces are smooth and convex, a dense surface sample decides
+    containment)."""
     import trimesh
 
-    unit = trimesh.creation.icosphere(subdivisions=2, radius=1.0).vertices
+    from xray_viz.attenuation import rank_by_nesting
+
+    unit = trimesh.creation.icosphere(subdivisions=4, radius=1.0).vertices
     n = len(ells)
-    half = [np.sqrt((A ** 2).sum(axis=0)) for _, A, _ in ells]   # exact bounding box
-    depth = np.zeros(n, int)
+    containers = [[] for _ in range(n)]
     for a, (_, Aa, ca) in enumerate(ells):
         pts = unit @ Aa + ca
         for b, (_, Ab, cb) in enumerate(ells):
-            if a == b or np.any(ca - half[a] < cb - half[b]) or np.any(ca + half[a] > cb + half[b]):
+            if a == b:
                 continue
             u = (pts - cb) @ np.linalg.inv(Ab)
-            if np.mean(np.einsum("ij,ij->i", u, u) < 1.0) > 0.5:
-                depth[a] += 1
-    order = np.lexsort((np.arange(n), depth))
-    rank = np.empty(n, int)
-    rank[order] = np.arange(n)
-    return rank
+            if np.all(np.einsum("ij,ij->i", u, u) < 1.0):
+                containers[a].append(b)
+    return rank_by_nesting(containers)
 
 
 def ellipsoid_line_integrals(rays, ells, mu_mm, rank, *, chunk=1 << 17):

@@ -67,12 +67,17 @@ import numpy as np
 from xray_viz.errors import MeshError
 
 __all__ = [
-    "MeshReport", "RepairReport", "MeshRepairWarning", "check_mesh", "repair_mesh",
+    "MeshReport", "RepairReport", "MeshWarning", "MeshRepairWarning", "check_mesh", "repair_mesh",
     "ensure_traceable", "format_reports", "remember_check", "simple_winding",
+    "self_intersecting_faces", "surfaces_cross", "body_inside", "containers",
 ]
 
 
-class MeshRepairWarning(UserWarning):
+class MeshWarning(UserWarning):
+    """Something about a body's mesh that the user should know (it is still traced right)."""
+
+
+class MeshRepairWarning(MeshWarning):
     """A body's mesh was not closed or not outward and was repaired at load time."""
 
 
@@ -110,8 +115,15 @@ class MeshReport:
         Inward pieces partly inside and partly outside the outward pieces: ambiguous, not
         repairable.
     simple : bool
-        The winding number is provably 0 or 1 everywhere: one piece, or outward pieces with
-        pairwise disjoint bounding boxes (the fast engine's one-body signed sum is exact then).
+        The winding number is provably 0 or 1 everywhere: one piece whose surface does not pass
+        through itself, or such outward pieces with pairwise disjoint bounding boxes (the fast
+        engine's one-body signed sum is exact then).
+    self_intersections : int or None
+        None when not checked (a mesh that is not closed, consistently wound and solid).
+        Faces that cross another face of their own piece (the surface passes through itself:
+        two lobes overlapping inside one skin, a cap folded through the opposite side). Such a
+        body is traced by the nonzero winding rule in every engine (material wherever the
+        surface winds around a point at least once), never by the signed depth sum.
     """
 
     faces: int
@@ -127,6 +139,7 @@ class MeshReport:
     flat: bool = False
     crossing: int = 0
     simple: bool = False
+    self_intersections: int | None = 0
 
     @property
     def traceable(self) -> bool:
@@ -250,6 +263,7 @@ def _check_mesh(mesh) -> MeshReport:
     winding = bool(mesh.is_winding_consistent) if len(faces) else False
     flat = _is_flat(vertices, volume) if len(faces) else True
     misoriented = crossing = 0
+    self_crossing = None                     # not checked: only a closed surface is tested
     simple = components == 1
     if watertight and winding and components > 1:
         # pieces may cancel (an inside-out copy beside a good one): not flat then
@@ -257,13 +271,182 @@ def _check_mesh(mesh) -> MeshReport:
         flat = _is_flat(vertices, float(np.abs(nest.volume).sum()))
         misoriented, crossing = int(nest.flip.sum()), int(nest.crossing.sum())
         simple = nest.simple
+    if watertight and winding and not flat:
+        self_crossing = _self_crossing_faces(vertices, faces, labels, components)
+        simple = simple and self_crossing == 0
     return MeshReport(
         faces=len(faces), vertices=len(mesh.vertices), watertight=watertight,
         winding_consistent=winding, boundary_edges=boundary, components=components,
         volume=volume, outward=(winding and volume > 0 and not flat and misoriented == 0
                                 and crossing == 0),
         misoriented=misoriented, flat=flat, crossing=crossing, simple=simple,
+        self_intersections=self_crossing,
     )
+
+
+def self_intersecting_faces(vertices, faces) -> np.ndarray:
+    """Which faces cross another face of the same triangle set (pymeshlab's exact-predicate
+    triangle-triangle test; faces sharing a vertex or an edge are not tested against each
+    other).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (m, 3) int
+
+    Returns
+    -------
+    (m,) bool
+
+    Examples
+    --------
+    >>> import numpy as np, trimesh
+    >>> a = trimesh.creation.box(extents=[2, 2, 2])
+    >>> b = a.copy(); _ = b.apply_translation([1, 0.5, 0.25])
+    >>> both = trimesh.util.concatenate([a, b])
+    >>> int(self_intersecting_faces(a.vertices, a.faces).sum()), bool(
+    ...     self_intersecting_faces(both.vertices, both.faces).any())
+    (0, True)
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(faces) < 2:
+        return np.zeros(len(faces), bool)
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(vertices, dtype=np.float64),
+                               face_matrix=faces.astype(np.int32)))
+    ms.compute_selection_by_self_intersections_per_face()
+    return np.asarray(ms.current_mesh().face_selection_array(), dtype=bool)
+
+
+def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
+    """Faces that cross a face of their own piece (crossings between pieces do not count:
+    overlapping pieces are a union by the nonzero rule)."""
+    flagged = self_intersecting_faces(vertices, faces)
+    if not flagged.any() or n_pieces < 2:
+        return int(flagged.sum())
+    count = 0
+    for piece in np.unique(labels[flagged]):
+        own = faces[labels == piece]
+        count += int(self_intersecting_faces(vertices, own).sum())
+    return count
+
+
+def _faces_near(mesh, lo, hi):
+    """(vertices, faces) of the faces of ``mesh`` whose bounding boxes meet the box [lo, hi]."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    tri = v[f]
+    pad = 1e-9 * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo)))
+    meet = np.all((tri.min(axis=1) <= np.asarray(hi) + pad)
+                  & (tri.max(axis=1) >= np.asarray(lo) - pad), axis=1)
+    return v, f[meet]
+
+
+def surfaces_cross(mesh_a, mesh_b) -> bool:
+    """Whether a face of one mesh meets a face of the other (the surfaces cross or touch).
+
+    Only faces near the other mesh's bounding box are tested (pymeshlab's triangle-triangle
+    test on the two sets together; a crossing within one mesh alone does not count).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> big = trimesh.creation.box(extents=[10, 10, 10])
+    >>> small = trimesh.creation.box(extents=[2, 2, 2])
+    >>> poking = small.copy(); _ = poking.apply_translation([4.5, 0, 0])
+    >>> surfaces_cross(small, big), surfaces_cross(poking, big)
+    (False, True)
+    """
+    from xray_viz.attenuation import mesh_bounds
+
+    alo, ahi = mesh_bounds(mesh_a)
+    blo, bhi = mesh_bounds(mesh_b)
+    va, fa = _faces_near(mesh_a, blo, bhi)
+    vb, fb = _faces_near(mesh_b, alo, ahi)
+    if not len(fa) or not len(fb):
+        return False
+    vertices = np.concatenate([va, vb])
+    faces = np.concatenate([fa, fb + len(va)])
+    flagged = self_intersecting_faces(vertices, faces)
+    if not flagged.any():
+        return False
+    if not (check_mesh(mesh_a).self_intersections or check_mesh(mesh_b).self_intersections):
+        return True                  # (reports cached per mesh: a scene's bodies are checked)
+    alone = np.concatenate([self_intersecting_faces(va, fa), self_intersecting_faces(vb, fb)])
+    return bool(np.any(flagged & ~alone))
+
+
+def body_inside(mesh_a, mesh_b) -> bool:
+    """Whether closed mesh ``a`` lies wholly inside closed mesh ``b``: the surfaces do not
+    cross (:func:`surfaces_cross`) and a point of every piece of ``a`` is inside ``b``
+    (winding number > 0). Exact: no sampling vote.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> big = trimesh.creation.icosphere(radius=10.0)
+    >>> small = trimesh.creation.icosphere(radius=3.0)
+    >>> moved = small.copy(); _ = moved.apply_translation([8.0, 0, 0])   # pokes out of big
+    >>> body_inside(small, big), body_inside(moved, big), body_inside(big, small)
+    (True, False, False)
+    """
+    from xray_viz.attenuation import inside_counts
+
+    faces = np.asarray(mesh_a.faces, dtype=np.int64)
+    if not len(faces) or not len(mesh_b.faces):
+        return False
+    tris = np.asarray(mesh_b.vertices, dtype=np.float64)[np.asarray(mesh_b.faces)]
+    if not np.all(inside_counts(tris, _piece_points(mesh_a)) > 0):   # cheap: most pairs end here
+        return False
+    return not surfaces_cross(mesh_a, mesh_b)
+
+
+def _piece_points(mesh) -> np.ndarray:
+    """(pieces, 3) float: the centre of the first face of each edge-connected piece."""
+    labels, _ = _piece_labels(mesh)
+    first = np.unique(labels, return_index=True)[1]
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    return v[np.asarray(mesh.faces, dtype=np.int64)[first]].mean(axis=1)
+
+
+def containers(meshes) -> list[list[int]]:
+    """For each closed mesh, the indices of the meshes it lies wholly inside
+    (:func:`body_inside`), tested only where its bounding box is inside theirs, with one
+    inside/outside trace per containing candidate.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> big = trimesh.creation.box(extents=[20, 20, 20])
+    >>> small = trimesh.creation.box(extents=[4, 4, 4])
+    >>> poking = small.copy(); _ = poking.apply_translation([9, 0, 0])
+    >>> containers([small, big, poking])
+    [[1], [], []]
+    """
+    from xray_viz.attenuation import inside_counts, mesh_bounds
+
+    n = len(meshes)
+    boxes = [mesh_bounds(m) for m in meshes]
+    points = {}
+    out = [[] for _ in range(n)]
+    for b in range(n):
+        blo, bhi = boxes[b]
+        cand = [a for a in range(n) if a != b and len(meshes[a].faces)
+                and np.all(boxes[a][0] >= blo) and np.all(boxes[a][1] <= bhi)]
+        if not cand or not len(meshes[b].faces):
+            continue
+        for a in cand:
+            if a not in points:
+                points[a] = _piece_points(meshes[a])
+        tris = np.asarray(meshes[b].vertices, dtype=np.float64)[np.asarray(meshes[b].faces)]
+        inside = inside_counts(tris, np.concatenate([points[a] for a in cand])) > 0
+        splits = np.cumsum([len(points[a]) for a in cand])[:-1]
+        for a, ok in zip(cand, np.split(inside, splits)):
+            if ok.all() and not surfaces_cross(meshes[a], meshes[b]):
+                out[a].append(b)
+    return out
 
 
 def simple_winding(mesh) -> bool:
@@ -461,8 +644,11 @@ def format_reports(columns, *, changes=()) -> str:
     components               1
     outward                yes
     volume (mm^3)            1
+    self-intersecting faces  0
     """
     def fmt(value):
+        if value is None:
+            return "-"
         if isinstance(value, bool):
             return "yes" if value else "no"
         if isinstance(value, float):
@@ -471,7 +657,8 @@ def format_reports(columns, *, changes=()) -> str:
 
     rows = [("faces", "faces"), ("vertices", "vertices"), ("watertight", "watertight"),
             ("winding consistent", "winding_consistent"), ("boundary edges", "boundary_edges"),
-            ("components", "components"), ("outward", "outward"), ("volume (mm^3)", "volume")]
+            ("components", "components"), ("outward", "outward"), ("volume (mm^3)", "volume"),
+            ("self-intersecting faces", "self_intersections")]
     cells = [[title for title, _ in columns]]
     cells += [[fmt(getattr(r, attr)) for _, r in columns] for _, attr in rows]
     labels = [""] + [label for label, _ in rows]
@@ -787,6 +974,7 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
     """
     report = check_mesh(body_mesh)
     if report.traceable:
+        _warn_self_intersections(name, report)
         return body_mesh, []
     if report.crossing:
         raise _crossing_error(name, report)
@@ -801,7 +989,19 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
         raise MeshError(f"body {name!r}: mesh is {problems} and automatic repair failed (still "
                         f"{'; '.join(rep.after.problems())}); close the surface in a mesh editor")
     changes = [f"was {problems}"] + list(rep.changes)
+    _warn_self_intersections(name, rep.after)
     return repaired, changes
+
+
+def _warn_self_intersections(name, report) -> None:
+    if report.self_intersections:
+        import warnings
+
+        warnings.warn(
+            f"body {name!r}: the surface passes through itself ({report.self_intersections} "
+            "faces cross others of the same piece); traced by the nonzero winding rule, "
+            "material wherever the surface winds around a point (overlapping lobes count "
+            "once); see `xray-viz mesh FILE`", MeshWarning, stacklevel=3)
 
 
 def _crossing_error(name, report) -> MeshError:
