@@ -29,6 +29,6 @@ fi
 echo "== numba compile cost"
 "$PY" benchmarks/compile_cost.py --cold
 echo "== suites"
-"$PY" -m xray_viz.bench bench --out benchmarks/results/full "$@"
+"$PY" benchmarks/suites.py --out benchmarks/results/full "$@"
 echo "== interactive preview"
 "$PY" benchmarks/interactive.py

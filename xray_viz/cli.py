@@ -89,6 +89,28 @@ def _phantoms_command(args) -> int:
     return 0
 
 
+def bench_suites() -> Path | None:
+    """``benchmarks/suites.py`` of the source checkout this package runs from, if any."""
+    import xray_viz
+
+    path = Path(xray_viz.__file__).resolve().parents[1] / "benchmarks" / "suites.py"
+    return path if path.is_file() else None
+
+
+def _bench_command(args) -> int:
+    """``xray-viz bench ARGS``: the benchmark suites (a thin entry: they are not installed)."""
+    suites = bench_suites()
+    if suites is None:
+        raise XrayVizError(
+            "the benchmarks are not part of the installed package: they live in the source "
+            "repository's benchmarks/ folder; clone it, run `pip install -e '.[bench]'` and "
+            "`bash benchmarks/setup.sh` there, then `xray-viz bench` (see BENCHMARKS.md)")
+    import runpy
+
+    module = runpy.run_path(str(suites), run_name="xray_viz_bench_suites")
+    return module["main"](list(args.bench_args))
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line, like every other error of the CLI."""
 
@@ -132,9 +154,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_show_parser(sub)
     add_mesh_parser(sub)
-    from xray_viz.bench import add_bench_parser
-
-    add_bench_parser(sub)
+    p = sub.add_parser(
+        "bench", help="benchmark the engines: time vs error, peers, scaling (source checkout)",
+        add_help=False, description="Runs benchmarks/suites.py of the source repository.")
+    p.set_defaults(func=_bench_command, bench_args=[])
     from xray_viz.walkthroughs import add_walkthrough_parser
 
     add_walkthrough_parser(sub)
@@ -156,7 +179,11 @@ def main(argv=None) -> int:
 
     warnings.showwarning = _show_warning
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra and getattr(args, "command", None) == "bench":
+        args.bench_args = extra              # the suites' own options (see `xray-viz bench --help`)
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -1,4 +1,8 @@
-"""Benchmarks (``xray-viz bench``): run time against error, peers side by side, scaling.
+"""Benchmarks (``xray-viz bench``, or ``python benchmarks/suites.py``): run time against error,
+peers side by side, scaling.
+
+They live in the source repository, not in the installed package (they generate phantoms and
+import the peers: ``pip install -e '.[bench]'`` and ``bash benchmarks/setup.sh``).
 
 Not timed tests: figures depend on the machine. Every peer runs on the *same rays* in the same
 process, so ratios are meaningful even on a noisy machine. Three suites:
@@ -40,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["bench_command", "add_bench_parser"]
+__all__ = ["bench_command", "add_bench_parser", "main"]
 
 RADIUS = 40.0
 
@@ -1077,10 +1081,15 @@ def bench_command(args) -> int:
     return 0
 
 
-if __name__ == "__main__":  # pragma: no cover
+def main(argv=None) -> int:
+    """``python benchmarks/suites.py [--suite ...]``: parse ``argv`` and run the suites."""
     import argparse
 
     parser = argparse.ArgumentParser(prog="xray-viz")
     add_bench_parser(parser.add_subparsers(dest="command", required=True))
-    ns = parser.parse_args()
-    raise SystemExit(ns.func(ns))
+    ns = parser.parse_args(["bench", *(argv if argv is not None else __import__("sys").argv[1:])])
+    return int(ns.func(ns))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
