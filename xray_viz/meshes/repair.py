@@ -344,11 +344,19 @@ def _faces_near(mesh, lo, hi):
     return v, f[meet]
 
 
-def surfaces_cross(mesh_a, mesh_b) -> bool:
+def surfaces_cross(mesh_a, mesh_b, *, bounds=None, self_intersecting=None) -> bool:
     """Whether a face of one mesh meets a face of the other (the surfaces cross or touch).
 
     Only faces near the other mesh's bounding box are tested (pymeshlab's triangle-triangle
     test on the two sets together; a crossing within one mesh alone does not count).
+
+    Parameters
+    ----------
+    mesh_a, mesh_b : trimesh.Trimesh
+    bounds : ((lo, hi), (lo, hi)), optional
+        The meshes' bounding boxes, when known.
+    self_intersecting : (bool, bool), optional
+        Whether each mesh crosses itself (:attr:`MeshReport.self_intersections`), when known.
 
     Examples
     --------
@@ -359,10 +367,8 @@ def surfaces_cross(mesh_a, mesh_b) -> bool:
     >>> surfaces_cross(small, big), surfaces_cross(poking, big)
     (False, True)
     """
-    from xray_viz.attenuation import mesh_bounds
-
-    alo, ahi = mesh_bounds(mesh_a)
-    blo, bhi = mesh_bounds(mesh_b)
+    (alo, ahi), (blo, bhi) = bounds if bounds is not None else (
+        _bounds(mesh_a), _bounds(mesh_b))
     va, fa = _faces_near(mesh_a, blo, bhi)
     vb, fb = _faces_near(mesh_b, alo, ahi)
     if not len(fa) or not len(fb):
@@ -372,8 +378,11 @@ def surfaces_cross(mesh_a, mesh_b) -> bool:
     flagged = self_intersecting_faces(vertices, faces)
     if not flagged.any():
         return False
-    if not (check_mesh(mesh_a).self_intersections or check_mesh(mesh_b).self_intersections):
-        return True                  # (reports cached per mesh: a scene's bodies are checked)
+    if self_intersecting is None:
+        self_intersecting = (check_mesh(mesh_a).self_intersections,
+                             check_mesh(mesh_b).self_intersections)
+    if not any(self_intersecting):
+        return True
     alone = np.concatenate([self_intersecting_faces(va, fa), self_intersecting_faces(vb, fb)])
     return bool(np.any(flagged & ~alone))
 
@@ -411,10 +420,23 @@ def _piece_points(mesh) -> np.ndarray:
     return v[np.asarray(mesh.faces, dtype=np.int64)[first]].mean(axis=1)
 
 
-def containers(meshes) -> list[list[int]]:
+def _bounds(mesh):
+    v = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+    return (v.min(axis=0), v.max(axis=0)) if len(v) else (np.full(3, np.inf), np.full(3, -np.inf))
+
+
+def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
     """For each closed mesh, the indices of the meshes it lies wholly inside
     (:func:`body_inside`), tested only where its bounding box is inside theirs, with one
     inside/outside trace per containing candidate.
+
+    Parameters
+    ----------
+    meshes : sequence of trimesh.Trimesh
+    bounds : (n, 2, 3) float, optional
+        Their bounding boxes, when known.
+    reports : sequence of MeshReport, optional
+        Their :func:`check_mesh` reports, when known.
 
     Examples
     --------
@@ -425,10 +447,11 @@ def containers(meshes) -> list[list[int]]:
     >>> containers([small, big, poking])
     [[1], [], []]
     """
-    from xray_viz.attenuation import inside_counts, mesh_bounds
+    from xray_viz.attenuation import inside_counts
 
     n = len(meshes)
-    boxes = [mesh_bounds(m) for m in meshes]
+    boxes = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
+    crossing = [bool(r.self_intersections) for r in reports] if reports is not None else None
     points = {}
     out = [[] for _ in range(n)]
     for b in range(n):
@@ -444,7 +467,9 @@ def containers(meshes) -> list[list[int]]:
         inside = inside_counts(tris, np.concatenate([points[a] for a in cand])) > 0
         splits = np.cumsum([len(points[a]) for a in cand])[:-1]
         for a, ok in zip(cand, np.split(inside, splits)):
-            if ok.all() and not surfaces_cross(meshes[a], meshes[b]):
+            if ok.all() and not surfaces_cross(
+                    meshes[a], meshes[b], bounds=(boxes[a], boxes[b]),
+                    self_intersecting=None if crossing is None else (crossing[a], crossing[b])):
                 out[a].append(b)
     return out
 
