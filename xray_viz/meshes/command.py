@@ -137,8 +137,11 @@ def _write_atomic(mesh, out: Path) -> None:
 
     _check_output(out)
     file_type = out.suffix.lower()[1:]
-    atomic_write(out, lambda tmp: mesh.export(tmp, file_type=file_type),
-                 verify=lambda tmp: _check_written_mesh(tmp, mesh, file_type))
+    def write(tmp):
+        with open(tmp, "wb") as fh:   # closed on a failed write too (trimesh's own is not)
+            mesh.export(fh, file_type=file_type)
+
+    atomic_write(out, write, verify=lambda tmp: _check_written_mesh(tmp, mesh, file_type))
 
 
 def mesh_command(args, *, stdout=None) -> int:

@@ -88,8 +88,8 @@ def _reason(exc: BaseException) -> str:
 #: VTK messages reworded: (a regular expression, what to say instead).
 _VTK_REWORDING = (
     (re.compile(r"^Unrecognized file type: (.*?)(?: for file: .*)?$", re.S),
-     lambda m: ("its header is not that of a legacy VTK file ('# vtk DataFile Version x.y', "
-                f"a title, ASCII or BINARY): found '{one_line(m.group(1), limit=40)}'")),
+     lambda m: ("not a legacy VTK header ('# vtk DataFile Version x.y', a title, ASCII or "
+                f"BINARY): found '{one_line(m.group(1), limit=40)}'")),
     (re.compile(r"did not create output .*REQUEST_DATA_OBJECT", re.S),
      lambda m: "its header names no dataset type VTK can read (a line such as "
                "'DATASET POLYDATA')"),
