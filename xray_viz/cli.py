@@ -175,7 +175,15 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv=None) -> int:
+    """Run the command line; return the exit status.
+
+    0 on success; 2 for bad input (one line ``xray-viz: error: ...`` on stderr); 130 after
+    Ctrl-C; ``128 + signum`` when SIGTERM or SIGHUP interrupted the writing of an output file
+    (:func:`xray_viz.output.atomic_write` removed its temporary file first; one line says so).
+    """
     import warnings
+
+    from xray_viz.errors import WriteInterrupted, one_line
 
     warnings.showwarning = _show_warning
     parser = build_parser()
@@ -190,11 +198,18 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except (XrayVizError, OSError) as exc:
-        msg = str(exc) if isinstance(exc, XrayVizError) else f"{exc.filename or ''}: {exc.strerror}"
-        print(f"xray-viz: error: {msg}", file=sys.stderr)
+        if isinstance(exc, XrayVizError):
+            msg = str(exc)
+        else:
+            reason = exc.strerror or one_line(exc) or type(exc).__name__
+            msg = f"{exc.filename}: {reason}" if exc.filename else reason
+        print(f"xray-viz: error: {' '.join(msg.splitlines())}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("xray-viz: interrupted", file=sys.stderr)
+    except WriteInterrupted as exc:
+        print(f"xray-viz: error: {exc}", file=sys.stderr)
+        return exc.code
+    except KeyboardInterrupt as exc:
+        print(f"xray-viz: interrupted{f': {exc}' if str(exc) else ''}", file=sys.stderr)
         return 130
 
 

@@ -34,3 +34,68 @@ class OutputError(XrayVizError, ValueError):
 
 class SceneFileNotFoundError(XrayVizError, FileNotFoundError):
     """A file named by the user (scene, mesh, spectrum) does not exist."""
+
+
+class WriteInterrupted(SystemExit):
+    """A termination signal (SIGTERM, SIGHUP) arrived while an output file was being written.
+
+    Raised by :func:`xray_viz.output.atomic_write` after it removed its temporary file; the
+    previous file at the target, if any, is untouched. A ``SystemExit`` with the status a
+    process killed by the signal reports, ``128 + signum``, so an uncaught one ends the program
+    as the signal would have (but after the clean-up); ``except Exception`` does not catch it.
+    """
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(128 + int(signum))
+        self.message = message
+        self.signum = int(signum)
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def excerpt(text, limit: int = 40) -> str:
+    """A short, escaped quotation of untrusted text (a line of a user's file) for a message.
+
+    The first ``limit`` characters, quoted and escaped as :func:`repr` does (control
+    characters, newlines and other unprintable characters become ``\\x01``, ``\\n``, ...;
+    printable non-ASCII text stays readable), followed by ``...`` and the full length when
+    the text was cut. Bytes are quoted as bytes (``b'...'``). The result is one line of bounded
+    length (at most ``10 * limit + 30`` characters, the longest escape being ``\\U0001xxxx``),
+    whatever the input.
+
+    Examples
+    --------
+    >>> excerpt("0.5x")
+    "'0.5x'"
+    >>> excerpt("A" * 100 + "\\x1b[31m", limit=5)
+    "'AAAAA'... (105 characters)"
+    >>> excerpt("tab\\there")
+    "'tab\\\\there'"
+    """
+    if not isinstance(text, (str, bytes)):
+        text = str(text)
+    if len(text) <= limit:
+        return repr(text)
+    unit = "bytes" if isinstance(text, bytes) else "characters"
+    return f"{text[:limit]!r}... ({len(text)} {unit})"
+
+
+def one_line(text, limit: int = 200) -> str:
+    """Another library's error message made safe to print as part of one line.
+
+    Runs of white space (newlines, tabs) become one space, other unprintable characters are
+    escaped as :func:`repr` escapes them, and the result is cut to ``limit`` characters with
+    ``...``: a reader's message that quotes a whole line of a file (or a multi-line traceback
+    embedded in an exception) cannot flood the terminal or move its cursor.
+
+    Examples
+    --------
+    >>> one_line("bad token\\n  at line 3:\\x07 " + "x" * 300, limit=30)
+    'bad token at line 3:\\\\x07 xx...'
+    """
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", errors="backslashreplace")
+    text = " ".join(str(text).split())
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[:limit - 3].rstrip() + "..."

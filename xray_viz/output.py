@@ -2,22 +2,27 @@
 DICOM ``.dcm`` (a 16-bit DX image with the geometry of the scene; the physical values through a
 Real World Value Mapping).
 
-Files are written to a temporary name beside the target and renamed into place, so a failed
-write never leaves a half-written file.
+Files are written to a temporary name beside the target, read back, and renamed into place
+(:func:`atomic_write`), so a failed or interrupted write never leaves a half-written file and
+never loses the previous one.
 """
 
 from __future__ import annotations
 
 import os
+import signal
+import stat
 import tempfile
+import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import OutputError
+from xray_viz.errors import OutputError, WriteInterrupted, one_line
 
 __all__ = ["save_image", "load_image", "to_uint16", "dicom_dataset", "dicom_values",
-           "atomic_write", "FORMATS", "UNITS"]
+           "atomic_write", "check_target", "FORMATS", "UNITS"]
 
 #: Output suffixes and what they hold.
 FORMATS = {
@@ -30,7 +35,12 @@ FORMATS = {
 
 
 def to_uint16(image, *, bright="high") -> np.ndarray:
-    """Window an image to its own range and scale it to 0..65535.
+    """Window an image to the range of its finite values and scale it to 0..65535.
+
+    Non-finite values do not stretch the window: it spans the finite values only, ``+inf`` is
+    drawn at its top (the largest value; white with ``bright="high"``, so a line integral
+    through a body that stops every photon is white), ``-inf`` and NaN at its bottom (as
+    :func:`dicom_dataset` stores them). A ``RuntimeWarning`` says how many pixels were not finite.
 
     Parameters
     ----------
@@ -38,13 +48,42 @@ def to_uint16(image, *, bright="high") -> np.ndarray:
     bright : {"high", "low"}
         ``"high"``: the largest value is white (line integrals, path lengths);
         ``"low"``: the smallest value is white (intensities, so attenuation shows bright).
+
+    Examples
+    --------
+    >>> import warnings
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore")
+    ...     to_uint16(np.array([[0.0, 1.0], [np.inf, np.nan]])).tolist()
+    [[0, 65535], [65535, 0]]
     """
+    data, bad = _window(image, bright=bright)
+    if bad:
+        warnings.warn(_nonfinite_message(bad, data.size), RuntimeWarning, stacklevel=2)
+    return data
+
+
+def _nonfinite_message(bad: int, total: int, where: str = "") -> str:
+    return (f"{where}{bad} of {total} pixels are not finite (inf or NaN); the 16-bit window "
+            "spans the finite values, +inf is drawn at its top, -inf and NaN at its bottom")
+
+
+def _window(image, *, bright="high") -> tuple[np.ndarray, int]:
+    """(the 16-bit windowed image, the number of non-finite pixels): see :func:`to_uint16`."""
+    if bright not in ("high", "low"):
+        raise OutputError(f"bright must be 'high' or 'low', got {bright!r}")
     a = np.asarray(image, dtype=np.float64)
-    lo, hi = np.nanmin(a), np.nanmax(a)
-    scaled = np.zeros_like(a) if hi <= lo else (a - lo) / (hi - lo)
+    finite = np.isfinite(a)
+    bad = int(a.size - np.count_nonzero(finite))
+    lo, hi = (float(a[finite].min()), float(a[finite].max())) if bad < a.size else (0.0, 0.0)
+    if hi > lo:
+        scaled = (np.where(finite, a, lo) - lo) / (hi - lo)
+    else:
+        scaled = np.zeros_like(a)
+    scaled[a == np.inf] = 1.0           # the top of the window; -inf and NaN stay at 0
     if bright == "low":
-        scaled = 1.0 - scaled if hi > lo else scaled
-    return np.round(np.clip(scaled, 0, 1) * 65535).astype(np.uint16)
+        scaled = 1.0 - scaled
+    return np.round(np.clip(scaled, 0, 1) * 65535).astype(np.uint16), bad
 
 
 def _umask() -> int:
@@ -53,31 +92,344 @@ def _umask() -> int:
     return mask
 
 
-def atomic_write(path: Path, write) -> None:
+def _write_protected(path: Path, st: os.stat_result) -> bool:
+    """Whether the current user may not overwrite ``path`` in place (as ``cp`` would refuse).
+
+    The rule reads the mode bits of the class that applies: the owner's write bit for the
+    file's owner, else the group's for a member of its group, else the others'. For root,
+    whom the kernel lets write anything (``os.access`` says yes), a file is write-protected
+    when it has no write bit at all (GNU ``rm`` and ``mv`` call such a file "write-protected").
+    """
+    mode = st.st_mode
+    if not hasattr(os, "geteuid"):  # pragma: no cover - Windows: the read-only attribute
+        return not os.access(path, os.W_OK)
+    euid = os.geteuid()
+    if euid == 0:
+        return not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH)
+    if st.st_uid == euid:
+        return not mode & stat.S_IWUSR
+    if st.st_gid == os.getegid() or st.st_gid in os.getgroups():
+        return not mode & stat.S_IWGRP
+    return not mode & stat.S_IWOTH
+
+
+def check_target(path) -> Path:
+    """Check that an output file may be written at ``path``; return the file that will be
+    replaced (``path``, or the file a symbolic link ``path`` points to).
+
+    Raises
+    ------
+    OutputError
+        ``path`` is a folder, not a regular file (a device, a pipe), or read-only (see
+        :func:`atomic_write`), or its folder is a file.
+    """
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    if target.parent.exists() and not target.parent.is_dir():
+        raise OutputError(f"{path}: cannot write: {target.parent} is a file, not a folder")
+    try:
+        st = target.stat()
+    except FileNotFoundError:
+        return target
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or one_line(exc)}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise OutputError(f"{path}: is a folder; give a file name to write")
+    if not stat.S_ISREG(st.st_mode):
+        raise OutputError(f"{path}: is not a regular file (a device, pipe or socket); "
+                          "choose another output")
+    if _write_protected(target, st):
+        raise OutputError(f"{path}: is read-only (mode {stat.S_IMODE(st.st_mode):04o}); "
+                          "remove it or choose another output")
+    return target
+
+
+class _Signalled(BaseException):
+    """A termination signal, raised inside :func:`atomic_write` to run its clean-up."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: The signals :func:`atomic_write` turns into a clean-up (those whose handler is the default).
+_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGINT", "SIGHUP")
+                 if hasattr(signal, name))
+
+
+class _SignalGuard:
+    """Handlers of SIGTERM, SIGINT and SIGHUP for the duration of one write (main thread only).
+
+    Only signals left at their default disposition are taken over (an ignored signal stays
+    ignored, an application's own handler stays in charge). While ``armed`` a signal raises
+    :class:`_Signalled` at once; otherwise (creating the temporary file, renaming it into
+    place) it is remembered and acted on by :meth:`arm` or :meth:`pending`.
+    """
+
+    def __init__(self):
+        self.signum = None
+        self.armed = False
+        self.previous = {}
+
+    def _handler(self, signum, frame):
+        if self.signum is None:
+            self.signum = signum
+        if self.armed:
+            self.armed = False
+            raise _Signalled(signum)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in _SIGNALS:
+                old = signal.getsignal(sig)
+                if old is signal.SIG_DFL or old is signal.default_int_handler:
+                    self.previous[sig] = old
+                    signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        self.armed = False
+        for sig, old in self.previous.items():
+            signal.signal(sig, old)
+        return False
+
+    def arm(self):
+        if self.signum is not None:
+            raise _Signalled(self.signum)
+        self.armed = True
+
+    def disarm(self):
+        self.armed = False
+
+
+def _signal_exception(signum: int, text: str) -> BaseException:
+    """What a signal becomes once the clean-up is done: ``KeyboardInterrupt`` for SIGINT (as
+    Python's default handler), :class:`WriteInterrupted` (exit status 128 + signum) otherwise."""
+    name = signal.Signals(signum).name
+    if signum == getattr(signal, "SIGINT", None):
+        return KeyboardInterrupt(text)
+    return WriteInterrupted(f"interrupted by {name}: {text}", signum)
+
+
+def _os_error(exc: BaseException):
+    """The operating-system error behind ``exc``: itself, or one that a writer wrapped (pydicom
+    re-raises an ``OSError`` as a new one whose message embeds a traceback)."""
+    seen = set()
+    found = None
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError):
+            found = exc
+            if exc.errno is not None:
+                return exc
+        exc = exc.__cause__ or exc.__context__
+    return found
+
+
+def _strays(tmp: str) -> list[str]:
+    """Files that a writer made beside the temporary file by appending to its name (as
+    ``np.save`` appends ``.npy``)."""
+    folder, name = os.path.split(tmp)
+    try:
+        return [os.path.join(folder, f) for f in os.listdir(folder or ".")
+                if f.startswith(name) and f != name]
+    except OSError:
+        return []
+
+
+def _remove(names) -> None:
+    for name in names:
+        try:
+            os.unlink(name)
+        except FileNotFoundError:
+            pass
+        except OSError:  # pragma: no cover - nothing better to do while failing already
+            pass
+
+
+def _fsync(path, *, folder=False) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY | (getattr(os, "O_DIRECTORY", 0) if folder else 0))
+    except OSError:
+        if folder:
+            return
+        raise
+    try:
+        os.fsync(fd)
+    except OSError:
+        if not folder:
+            raise
+    finally:
+        os.close(fd)
+
+
+def _copy_owner_and_mode(tmp: str, st: os.stat_result | None) -> None:
+    """Give the temporary file the permission bits (and, where allowed, the owner and group)
+    of the file it replaces; a new file gets ``0o666 & ~umask`` (mkstemp makes 0600)."""
+    if st is None:
+        os.chmod(tmp, 0o666 & ~_umask())
+        return
+    if hasattr(os, "chown") and (st.st_uid, st.st_gid) != (os.geteuid(), os.getegid()):
+        try:
+            os.chown(tmp, st.st_uid, st.st_gid)
+        except OSError:
+            pass  # not allowed (not root): the file becomes the writer's, as cp's new files
+    os.chmod(tmp, stat.S_IMODE(st.st_mode) & 0o777)
+
+
+def atomic_write(path, write, *, verify=None) -> None:
     """Write through a temporary file beside ``path``, then rename: never a half-written file.
 
-    An operating-system error names ``path`` (not the temporary file) in an :class:`OutputError`.
+    ``write(tmp)`` writes the file at ``tmp`` (a path string, in the same folder as the
+    target, whose suffix is the lower-case suffix of ``path``). Then ``verify(tmp)``, if given,
+    reads it back and raises if it is not what was meant to be written. Only then is the file
+    renamed over ``path``; on any failure the temporary file (and anything the writer made by
+    appending to its name) is removed and the previous file at ``path`` is untouched.
+
+    * **Permissions**: a replaced file keeps its permission bits (and, for root, its owner and
+      group); a new file gets ``0o666 & ~umask``. A symbolic link is followed: the file it
+      points to is replaced, the link stays. (A file with several hard links is replaced by a
+      new file: the other links keep the old contents.)
+    * **Read-only targets are refused**, as ``cp`` refuses them, although the rename could
+      replace them: the file's owner is refused when the owner's write bit is clear, a member
+      of its group when the group's is, anyone else when the others' is; root (who may write
+      anything, ``os.access`` says yes) is refused when the file has no write bit at all, the
+      files GNU ``rm``/``mv`` call "write-protected".
+    * **Signals**: in the main thread, SIGTERM, SIGINT and SIGHUP (those left at their default
+      handling) are caught while writing: the temporary file is removed, then SIGINT raises
+      ``KeyboardInterrupt`` and the others :class:`~xray_viz.errors.WriteInterrupted`, a
+      ``SystemExit`` with status ``128 + signum``. A signal during the final rename waits until
+      the file is in place.
+    * **Operating-system errors** (no space left, quota, I/O error), also those a writer
+      wraps in another exception, become one line: ``PATH: cannot write: No space left on
+      device``.
+
+    Parameters
+    ----------
+    path : path-like
+    write : callable
+        ``write(tmp)`` writes the file.
+    verify : callable, optional
+        ``verify(tmp)`` raises (any exception) if the written file is wrong; its message
+        becomes that of an :class:`OutputError`.
+
+    Raises
+    ------
+    OutputError
+        The target is read-only, a folder or not a regular file; the file could not be
+        written or failed verification.
     """
-    tmp = None
-    if path.parent.exists() and not path.parent.is_dir():
-        raise OutputError(f"{path}: cannot write: {path.parent} is a file, not a folder")
+    path = Path(path)
+    target = check_target(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-        os.close(fd)
-        write(tmp)
-        os.chmod(tmp, 0o666 & ~_umask())    # mkstemp makes 0600; a new file gets the usual mode
-        os.replace(tmp, path)
-    except BaseException as exc:
-        if tmp is not None and os.path.exists(tmp):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise OutputError(f"{path}: cannot write: {exc.strerror or exc}") from None
-        raise
+        st = target.stat()
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write: {exc.strerror or one_line(exc)}") from None
+    tmp = None
+    with _SignalGuard() as guard:
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
+                                       suffix=target.suffix.lower())
+            os.close(fd)
+            guard.arm()
+            write(tmp)
+            if verify is not None:
+                try:
+                    verify(tmp)
+                except OutputError:
+                    raise
+                except Exception as exc:
+                    error = _os_error(exc)
+                    if error is not None and error.errno is not None:
+                        raise               # reading back failed: an operating-system error
+                    raise OutputError(f"{path}: cannot write: the written file does not read "
+                                      f"back correctly: {one_line(exc)}") from None
+            guard.disarm()
+            _copy_owner_and_mode(tmp, st)
+            _fsync(tmp)
+            os.replace(tmp, target)
+            tmp_done, tmp = tmp, None
+            _remove(_strays(tmp_done))
+            _fsync(target.parent, folder=True)
+        except BaseException as exc:
+            guard.disarm()
+            if tmp is not None:
+                _remove([tmp, *_strays(tmp)])
+            if isinstance(exc, _Signalled):
+                raise _signal_exception(exc.signum, f"{path} not written; nothing was "
+                                        "changed there") from None
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            if isinstance(exc, OutputError):
+                raise OutputError(str(exc)) from None
+            error = _os_error(exc)
+            if error is not None:
+                reason = error.strerror or one_line(error)
+                raise OutputError(f"{path}: cannot write: {reason}") from None
+            raise
+    if guard.signum is not None:     # arrived while the finished file was renamed into place
+        raise _signal_exception(guard.signum, f"{path} was written completely")
+
+
+def _check_image_file(tmp, *, size, mode, values=None) -> None:
+    """Open a written TIFF/PNG with PIL and compare its size, mode and pixels."""
+    from PIL import Image
+
+    with Image.open(tmp) as im:
+        if im.size != size or im.mode != mode:
+            raise OutputError(f"it holds a {im.size[0]}x{im.size[1]} {im.mode} image, "
+                              f"not {size[0]}x{size[1]} {mode}")
+        got = np.asarray(im)
+    if values is not None and not np.array_equal(got, values, equal_nan=True):
+        raise OutputError("its pixels differ from the image")
+
+
+def _check_npy(tmp, image) -> None:
+    got = np.load(tmp, mmap_mode=None if image.dtype.hasobject else "r",
+                  allow_pickle=image.dtype.hasobject)
+    if got.shape != image.shape or got.dtype != image.dtype:
+        raise OutputError(f"it holds a {got.shape} {got.dtype} array, not {image.shape} "
+                          f"{image.dtype}")
+    if not image.dtype.hasobject and not np.array_equal(
+            got, image, equal_nan=image.dtype.kind in "fc"):
+        raise OutputError("its values differ from the image")
+
+
+def _write_npy(tmp, image) -> None:
+    with open(tmp, "wb") as fh:
+        # through write(): an operating-system error keeps its errno (ndarray.tofile, which
+        # np.save uses on a real file, reports only "N requested and M written")
+        np.save(_Writer(fh), image)
+
+
+class _Writer:
+    """A file seen only through its ``write`` method."""
+
+    def __init__(self, fh):
+        self.write = fh.write
+
+
+def _check_dicom(tmp, ds) -> None:
+    import pydicom
+
+    got = pydicom.dcmread(tmp)
+    if (int(got.Rows), int(got.Columns)) != (int(ds.Rows), int(ds.Columns)):
+        raise OutputError(f"it holds a {got.Columns}x{got.Rows} image, not "
+                          f"{ds.Columns}x{ds.Rows}")
+    if bytes(got.PixelData) != bytes(ds.PixelData):
+        raise OutputError("its pixel data differ from the image")
 
 
 def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path:
-    """Save an (H, W) image; the format follows the suffix (see :data:`FORMATS`).
+    """Save an (H, W) image; the format follows the suffix (see :data:`FORMATS`), in any case
+    (``.NPY``, ``.Tiff``).
+
+    The file is written by :func:`atomic_write` and read back before it replaces a previous
+    file: ``np.load`` for ``.npy`` (shape, dtype, values), PIL for ``.tiff``/``.png`` (size,
+    mode, pixels), ``pydicom.dcmread`` for ``.dcm`` (rows, columns, pixel data).
 
     Parameters
     ----------
@@ -91,6 +443,17 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     quantity : str, optional
         What the image holds (``"intensity"``, ``"line-integral"``, ``"path-length"``), written
         to the DICOM header.
+
+    Raises
+    ------
+    OutputError
+        Unknown suffix, a read-only or otherwise unwritable target, a failed write or
+        read-back (the previous file is kept).
+
+    Warns
+    -----
+    RuntimeWarning
+        A ``.png`` of an image with non-finite values (see :func:`to_uint16`).
 
     Examples
     --------
@@ -107,23 +470,35 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         raise OutputError(f"{path}: unknown output format {suffix or '(none)'!r}; use one of {known}")
     image = np.asarray(image)
     if suffix == ".npy":
-        atomic_write(path, lambda tmp: np.save(tmp, image))
-    elif suffix in (".tif", ".tiff"):
+        atomic_write(path, lambda tmp: _write_npy(tmp, image),
+                     verify=lambda tmp: _check_npy(tmp, image))
+        return path
+    if image.ndim != 2:
+        raise OutputError(f"{path}: {suffix} output needs an (H, W) image, got shape "
+                          f"{image.shape}")
+    size = (image.shape[1], image.shape[0])
+    if suffix in (".tif", ".tiff"):
         from PIL import Image
 
-        atomic_write(path, lambda tmp: Image.fromarray(image.astype(np.float32))
-                      .save(tmp, format="TIFF"))
+        data = image.astype(np.float32)
+        atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="TIFF"),
+                     verify=lambda tmp: _check_image_file(tmp, size=size, mode="F", values=data))
     elif suffix == ".png":
         from PIL import Image
 
-        data = to_uint16(image, bright=bright)
-        atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="PNG"))
+        data, bad = _window(image, bright=bright)
+        if bad:
+            warnings.warn(_nonfinite_message(bad, data.size, f"{path}: "), RuntimeWarning,
+                          stacklevel=2)
+        atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="PNG"),
+                     verify=lambda tmp: _check_image_file(tmp, size=size, mode="I;16",
+                                                          values=data))
     elif suffix == ".dcm":
         if scene is None:
             raise OutputError(f"{path}: DICOM output needs the scene for its geometry: "
                               "save_image(path, image, scene=scene)")
         ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
-        atomic_write(path, lambda tmp: _dcmwrite(tmp, ds))
+        atomic_write(path, lambda tmp: _dcmwrite(tmp, ds), verify=lambda tmp: _check_dicom(tmp, ds))
     return path
 
 

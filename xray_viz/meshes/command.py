@@ -104,8 +104,10 @@ def add_mesh_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _check_output(out: Path) -> Path:
-    """OUT's folder, after checking that OUT can be written: a known suffix, an existing
-    folder, not a folder itself."""
+    """OUT's folder, after checking that OUT can be written: a known suffix (in any case), an
+    existing folder, not a folder itself, not read-only (:func:`xray_viz.output.check_target`)."""
+    from xray_viz.output import check_target
+
     if out.suffix.lower() not in WRITE_SUFFIXES:
         raise MeshError(f"{out}: cannot write {out.suffix or 'files without an extension'!r}; "
                         f"use one of {', '.join(WRITE_SUFFIXES)}")
@@ -114,14 +116,32 @@ def _check_output(out: Path) -> Path:
         raise SceneFileNotFoundError(f"{out}: folder {folder} does not exist; create it first")
     if out.is_dir():
         raise MeshError(f"{out}: is a folder; give a file name to write")
+    check_target(out)
     return folder
 
 
+def _check_written_mesh(tmp: str, mesh, file_type: str) -> None:
+    """Read a written mesh back (trimesh) and compare its triangle count with ``mesh``'s."""
+    import trimesh
+
+    back = trimesh.load(tmp, file_type=file_type, force="mesh", process=False)
+    n = len(getattr(back, "faces", ()))
+    if n != len(mesh.faces):
+        raise MeshError(f"it holds {n} triangles, not {len(mesh.faces)}")
+
+
 def _write_atomic(mesh, out: Path) -> None:
+    """Write ``mesh`` to OUT through :func:`xray_viz.output.atomic_write`: a temporary file,
+    read back and checked, renamed into place (the previous OUT is kept on any failure)."""
     from xray_viz.output import atomic_write
 
     _check_output(out)
-    atomic_write(out, lambda tmp: mesh.export(tmp, file_type=out.suffix.lower()[1:]))
+    file_type = out.suffix.lower()[1:]
+    def write(tmp):
+        with open(tmp, "wb") as fh:   # closed on a failed write too (trimesh's own is not)
+            mesh.export(fh, file_type=file_type)
+
+    atomic_write(out, write, verify=lambda tmp: _check_written_mesh(tmp, mesh, file_type))
 
 
 def mesh_command(args, *, stdout=None) -> int:

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import MeshError, SceneFileNotFoundError
+from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line
 
 __all__ = ["load_mesh", "MESH_SUFFIXES"]
 
@@ -43,26 +44,87 @@ def _quiet_vtk_read(pv, path: Path):
             reader.Update()
             output = reader.GetOutputDataObject(0)
     except Exception as exc:
-        raise MeshError(f"{path}: cannot read mesh: {exc}") from None
+        raise MeshError(f"{path}: cannot read mesh: {_reason(exc)}") from None
     finally:
         vtkOutputWindow.SetInstance(previous)
     errors = _vtk_errors(buffer.GetOutput())
     if errors or output is None:
         reason = errors[0] if errors else "the VTK reader produced nothing"
         raise MeshError(f"{path}: cannot read mesh (corrupt or not a {path.suffix} file): "
-                        f"{reason}")
+                        f"{one_line(reason)}")
     return pv.wrap(output)
 
 
-def _vtk_errors(text: str) -> list[str]:
-    """The messages of VTK's ``ERROR: In file, line N`` / ``vtkClass (0x...): message`` blocks."""
-    out = []
+#: A quoted stretch of a message: 'text', "text" or `text` (or unterminated, to the end).
+_QUOTED = re.compile(r"""'([^']*)(?:'|$)|"([^"]*)(?:"|$)|`([^`]*)(?:`|$)""")
+
+
+def _shorten_quotes(text: str, limit: int = 40) -> str:
+    """Cut every quoted stretch of ``text`` longer than ``limit`` characters (a reader's
+    message quoting a line of the file) to its first ``limit`` characters and ``...``."""
+    def cut(match):
+        inner = next(g for g in match.groups() if g is not None)
+        if len(inner) <= limit:
+            return match.group(0)
+        quote = match.group(0)[0]
+        return f"{quote}{inner[:limit]}{quote}..."
+    return _QUOTED.sub(cut, text)
+
+
+def _reason(exc: BaseException) -> str:
+    """A reader's exception as a short, escaped part of one line: readers quote file contents
+    (a line of a corrupt file, a whole binary header), so quoted stretches are cut to 40
+    characters, control characters escaped and the whole cut to 160 characters. Its type is
+    named when the message alone says nothing (a ``KeyError`` prints just the missing key)."""
+    text = one_line(_shorten_quotes(one_line(str(exc), limit=2000)), limit=160)
+    if isinstance(exc, FileNotFoundError):
+        return f"it refers to a file that does not exist: {excerpt(text, 80)}"
+    if not text or isinstance(exc, (KeyError, IndexError, AttributeError, TypeError, NameError,
+                                    OSError)):
+        return f"{type(exc).__name__}" + (f": {text}" if text else "")
+    return text
+
+
+#: VTK messages reworded: (a regular expression, what to say instead).
+_VTK_REWORDING = (
+    (re.compile(r"^Unrecognized file type: (.*?)(?: for file: .*)?$", re.S),
+     lambda m: ("not a legacy VTK header ('# vtk DataFile Version x.y', a title, ASCII or "
+                f"BINARY): found '{one_line(m.group(1), limit=40)}'")),
+    (re.compile(r"did not create output .*REQUEST_DATA_OBJECT", re.S),
+     lambda m: "its header names no dataset type VTK can read (a line such as "
+               "'DATASET POLYDATA')"),
+)
+
+
+def _vtk_errors(text) -> list[str]:
+    """The messages of VTK's ``ERROR: In file, line N`` / ``vtkClass (0x...): message`` blocks,
+    and of its warnings that report a read error (a truncated binary file is only a
+    "Generic Warning: ... Error reading binary data!"), errors first.
+
+    VTK's string output window hands back ``bytes`` when a message quotes bytes that are not
+    UTF-8 (a binary file read as a legacy header): they are decoded with escapes. Messages
+    are reworded where VTK's own words do not help (:data:`_VTK_REWORDING`), stripped of
+    object addresses, and quote at most a short escaped excerpt of the file."""
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", errors="backslashreplace")
+    errors, warnings = [], []
     lines = text.splitlines()
     for k, line in enumerate(lines):
-        if line.startswith("ERROR") and k + 1 < len(lines):
-            message = lines[k + 1]
-            out.append(message.split("): ", 1)[1].strip() if "): " in message else message.strip())
-    return out
+        if k + 1 >= len(lines) or not (line.startswith("ERROR") or "Warning" in line):
+            continue
+        message = lines[k + 1]
+        message = (message.split("): ", 1)[1] if "): " in message else message).strip()
+        message = re.sub(r"\s*\(0x[0-9a-fA-F]+\)", "", message)
+        for pattern, say in _VTK_REWORDING:
+            match = pattern.search(message)
+            if match:
+                message = say(match)
+                break
+        if line.startswith("ERROR"):
+            errors.append(one_line(message, limit=160))
+        elif re.search(r"error|premature|eof|cannot|unable", message, re.I):
+            warnings.append(one_line(message, limit=160))
+    return errors + warnings
 
 
 def _read_vtk(path: Path):
@@ -80,7 +142,7 @@ def _read_vtk(path: Path):
             data = data.extract_surface()
         except Exception as exc:
             raise MeshError(f"{path}: not a surface mesh and no surface could be extracted "
-                            f"({type(data).__name__}): {exc}") from None
+                            f"({type(data).__name__}): {_reason(exc)}") from None
     if data.n_cells and not data.is_all_triangles:
         data = data.triangulate()
     if data.faces.size == 0:
@@ -138,7 +200,7 @@ def load_mesh(path: str | Path, *, process: bool = True):
         try:
             loaded = trimesh.load(path, force="mesh", process=False)
         except Exception as exc:  # trimesh raises many types on corrupt files
-            raise MeshError(f"{path}: cannot read mesh: {exc}") from None
+            raise MeshError(f"{path}: cannot read mesh: {_reason(exc)}") from None
         vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
         faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(faces) == 0 or len(vertices) == 0:

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import SceneFileNotFoundError, SpectrumError
+from xray_viz.errors import SceneFileNotFoundError, SpectrumError, excerpt
 
 __all__ = ["Spectrum", "tube_spectrum", "read_spectrum_csv", "spectrum_from_dict",
            "source_spectrum", "SPECTRUM_KEYS", "ANODES", "KVP_RANGE"]
@@ -279,7 +279,9 @@ def _read_csv_cached(path: str, mtime_ns: int, size: int) -> Spectrum:
                 continue
             why = ("only one header line is allowed, before the data" if len(bad) == len(parts)
                    else "expected two numbers: keV, relative fluence")
-            raise SpectrumError(f"{path}: line {lineno}: {bad[0]!r} is not a number ({why})")
+            # the file may be anything a scene names: quote a short escaped excerpt only
+            raise SpectrumError(f"{path}: line {lineno}: {excerpt(bad[0])} is not a number "
+                                f"({why})")
         if len(parts) != 2:
             raise SpectrumError(f"{path}: line {lineno}: expected two columns (keV, fluence), "
                                 f"got {len(parts)}")
