@@ -45,6 +45,11 @@ QUANTITIES = ("intensity", "line-integral", "path-length")
 #: always at least one pixel row): the band size of :func:`render`.
 BAND_BYTES = 64 << 20
 
+#: Bytes of path lengths per call of :func:`~xray_viz.physics.imaging.log_transmission` (whole
+#: image rows, at least one, in blocks counted from the top row whatever the bands: see
+#: :class:`_LogBlocks`).
+LOG_BLOCK_BYTES = 16 << 20
+
 #: The NumPy engine's working memory per ray of a band besides its path lengths (rays, hits,
 #: the sweep's temporaries), for choosing its bands.
 NUMPY_RAY_BYTES = 2048
@@ -188,29 +193,82 @@ def _windows(scene, engine, n, keep_hits=False):
         yield r0, r1, L, None
 
 
+class _LogBlocks:
+    """ln(I / I0) per pixel, computed by fixed blocks of image rows whatever the bands.
+
+    :func:`~xray_viz.physics.imaging.log_transmission` multiplies path lengths by the bodies'
+    attenuation through BLAS, whose rounding depends on how many rays a call holds (its
+    threads and unrolled loops split them differently), so the same ray could differ in the
+    last bit between bands of different sizes. Every call therefore holds one block of
+    :data:`LOG_BLOCK_BYTES` of whole image rows, counted from row 0 whatever the bands are: a
+    band's rows that do not fill their block wait in a buffer of one block for the next band.
+    The image is then the same bit for bit for any band size.
+    """
+
+    def __init__(self, scene, n, log_t):
+        w, h = scene.detector.shape
+        self.scene, self.nn, self.w, self.h, self.out = scene, n * n, w, h, log_t
+        nb = max(1, len(scene.bodies))
+        self.rows = max(1, min(h, LOG_BLOCK_BYTES // (w * self.nn * nb * 8)))
+        self.per_row = w * self.nn
+        self.carry = None               # rows [c0, c0 + filled) of the block starting at c0
+        self.c0 = self.filled = 0
+
+    def _block(self, r0, L):
+        """Write the log-transmission image rows of the block starting at row ``r0``."""
+        from xray_viz.physics.imaging import log_transmission, pixel_log_mean
+
+        r1 = r0 + len(L) // self.per_row
+        self.out[r0:r1] = pixel_log_mean(log_transmission(L, self.scene),
+                                         self.nn).reshape(r1 - r0, self.w)
+
+    def add(self, r0, r1, L):
+        """The path lengths ``L`` of image rows ``r0 .. r1 - 1`` (bands come in row order)."""
+        R, per_row = self.rows, self.per_row
+        r = r0
+        while r < r1:
+            b0 = (r // R) * R                       # the block holding row r
+            b1 = min(self.h, b0 + R)
+            take = min(r1, b1)
+            part = L[(r - r0) * per_row:(take - r0) * per_row]
+            if r == b0 and take == b1:              # the whole block is in this band
+                self._block(b0, part)
+            else:                                   # a piece: gather it
+                if self.carry is None:
+                    self.carry = np.empty((R * per_row, L.shape[1]))
+                if r == b0:
+                    self.c0, self.filled = b0, 0
+                assert self.c0 == b0 and self.filled == (r - b0) * per_row
+                self.carry[self.filled:self.filled + len(part)] = part
+                self.filled += len(part)
+                if take == b1:
+                    self._block(b0, self.carry[:self.filled])
+            r = take
+
+
 def _band_loop(scene, engine, n, *, log_t=None, total=None, per_body=None, keep_hits=False):
     """Trace the scene band by band into the (H, W) images given (any may be None).
 
     Returns the seconds spent tracing and in the per-band image work, and the hits (or None).
     """
-    from xray_viz.physics.imaging import log_transmission, pixel_log_mean
-
     w = scene.detector.shape[0]
     nb = len(scene.bodies)
     nn = n * n
     t_trace = t_image = 0.0
     hits = None
+    blocks = _LogBlocks(scene, n, log_t) if log_t is not None else None
     t0 = time.perf_counter()
     for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
         t1 = time.perf_counter()
         t_trace += t1 - t0
         hits = band_hits if band_hits is not None else hits
-        if log_t is not None:
+        if blocks is not None:
             # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the
             # log domain.
-            log_t[r0:r1] = pixel_log_mean(log_transmission(L, scene), nn).reshape(r1 - r0, w)
+            blocks.add(r0, r1, L)
         if total is not None or per_body is not None:
-            mean = L.reshape((r1 - r0) * w, nn, nb).mean(axis=1)       # (pixels, bodies)
+            # (pixels, bodies): the mean over each pixel's rays (one ray: the same numbers).
+            mean = L if nn == 1 else L.reshape((r1 - r0) * w, nn, nb).mean(axis=1)
             if total is not None:
                 total[r0:r1] = mean.sum(axis=1).reshape(r1 - r0, w)
             if per_body is not None:
@@ -344,12 +402,14 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
     if need["total"] <= available:
         return
     w, h = scene.detector.shape
+    nb = len(scene.bodies)
     what = [name for name, key in (("the output images", "images"),
-                                   (f"the path lengths of {len(scene.bodies)} bodies",
+                                   (f"the path lengths of {nb} bod{'y' if nb == 1 else 'ies'}",
                                     "path_lengths")) if need[key]]
     fix = "use a smaller shape"
     if need["path_lengths"] and need["path_lengths"] >= need["images"]:
-        fix += " or leave out the per-body path lengths (path_lengths=False)"
+        fix += (", or do without the per-body path lengths (path_lengths=False; "
+                "Radiograph.total_path_length has their sum)")
     raise SceneError(
         f"[detector] shape {w} x {h} needs about {_gib(need['total'])} for "
         f"{' and '.join(what) or 'the job'} (this machine has {_gib(available)} available): {fix}")
