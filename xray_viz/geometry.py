@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Viewport", "viewport", "detector_axes", "beam_direction", "pixel_coordinates", "detector_rays", "Rays"]
+__all__ = ["Viewport", "viewport", "detector_axes", "beam_direction", "pixel_coordinates",
+           "detector_rays", "Rays", "check_supersample"]
 
 
 def beam_direction(source_position, detector_center) -> np.ndarray:
@@ -170,7 +171,53 @@ class Rays:
         return self.origins + self.t_max[:, None] * self.directions
 
 
-def detector_rays(scene, *, supersample: int = 1) -> Rays:
+def check_supersample(value, *, name: str = "supersample") -> int:
+    """``value`` as an int if it is a whole number >= 1 (a Python or NumPy integer).
+
+    Floats (``2.7``, even ``2.0``), strings and booleans are refused, not coerced.
+
+    Raises
+    ------
+    SceneError
+        (a ``ValueError``) naming the value and its type.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> check_supersample(np.int64(3))
+    3
+    """
+    import numbers
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) \
+            or value < 1:
+        from xray_viz.errors import SceneError
+
+        raise SceneError(f"{name} must be a whole number >= 1 (an int), got {value!r} "
+                         f"({type(value).__name__})")
+    return int(value)
+
+
+def _row_range(rows, h):
+    """``(start, stop)`` of a range of image rows given as None, (start, stop), range or slice."""
+    if rows is None:
+        return 0, h
+    if isinstance(rows, slice):
+        if rows.step not in (None, 1):
+            raise ValueError(f"rows must be a contiguous range of image rows, got {rows!r}")
+        start, stop, _ = rows.indices(h)
+    elif isinstance(rows, range):
+        if rows.step != 1:
+            raise ValueError(f"rows must be a contiguous range of image rows, got {rows!r}")
+        start, stop = rows.start, rows.stop
+    else:
+        start, stop = (int(r) for r in rows)
+    if not 0 <= start <= stop <= h:
+        raise ValueError(f"rows {start}..{stop} are not within the detector's {h} rows")
+    return start, stop
+
+
+def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
     """The rays of a scene's detector grid, in image order.
 
     Parameters
@@ -180,6 +227,11 @@ def detector_rays(scene, *, supersample: int = 1) -> Rays:
     supersample : int, optional
         ``n`` gives ``n x n`` rays per pixel on a regular sub-grid centred on the pixel's ray
         (ray ``k * n * n + s`` is sub-ray ``s`` of pixel ``k``). The default, 1, is the thesis grid.
+    rows : (int, int), range or slice, optional
+        Only the rays of image rows ``start .. stop - 1`` (row 0 at the top of the detector), in
+        the same order and with the same values as in the whole grid: ray ``k`` of the result is
+        ray ``start * W * n * n + k`` of ``detector_rays(scene, supersample=n)``. Default: every
+        row. Memory is O(rays returned).
 
     Returns
     -------
@@ -192,13 +244,20 @@ def detector_rays(scene, *, supersample: int = 1) -> Rays:
     >>> rays = detector_rays(xray_viz.load_scene("sphere"))
     >>> rays.origins.shape
     (65536, 3)
+    >>> band = detector_rays(xray_viz.load_scene("sphere"), rows=(10, 12))
+    >>> bool((band.directions == rays.directions[10 * 256:12 * 256]).all())
+    True
     """
+    n = check_supersample(supersample)
     vp = viewport(scene.source.position, scene.detector)
-    u, v = pixel_coordinates(vp.shape)
+    w, h = vp.shape
+    start, stop = _row_range(rows, h)
+    # The rows of pixel_coordinates(vp.shape), computed for these rows only (same values).
+    ui = np.arange(w) / (w - 1) if w > 1 else np.array([0.5])
+    vj = np.arange(h) / (h - 1) if h > 1 else np.array([0.5])
+    u, v = np.meshgrid(ui, vj[::-1][start:stop])
     u, v = u.ravel(), v.ravel()
-    if supersample > 1:
-        w, h = vp.shape
-        n = int(supersample)
+    if n > 1:
         du = 1.0 / max(w - 1, 1)
         dv = 1.0 / max(h - 1, 1)
         offs = (np.arange(n) + 0.5) / n - 0.5

@@ -2,6 +2,25 @@
 
 scene -> rays (:mod:`~xray_viz.geometry`) -> hits (:mod:`~xray_viz.tracing`) -> path lengths
 (:mod:`~xray_viz.attenuation`) -> image (:mod:`~xray_viz.physics`).
+
+Memory
+------
+A render works in *bands* of detector rows: the engine gives the path lengths of one band's
+rays through every body, ``(rays in band, n_bodies)``, which become ``ln(I / I0)`` per ray
+(:func:`~xray_viz.physics.imaging.log_transmission`), averaged over each pixel's rays
+(:func:`~xray_viz.physics.imaging.pixel_log_mean`) into the band's rows of an ``(H, W)``
+log-transmission image and an ``(H, W)`` total-path-length image. The detector model
+(:func:`~xray_viz.physics.imaging.detect_log`: focal-spot blur, noise) then runs once on the
+whole image. A band holds about :data:`BAND_BYTES` of path lengths (``rays x bodies x 8``
+bytes; at least one pixel row), so peak memory is O(output + meshes), not O(pixels x bodies):
+about 48 bytes per pixel for the images and the detector model's temporaries (more with a
+focal spot, fall-off or noise; see :func:`memory_needed`), plus the meshes, plus a few bands.
+A job whose output cannot fit in the memory this machine has available is refused before any
+work (:func:`check_memory`).
+
+Per-body path lengths ``(H, W, n_bodies)`` are computed only when asked for:
+``render(scene, path_lengths=True)``, or on first access of :attr:`Radiograph.path_length`
+(a second trace).
 """
 
 from __future__ import annotations
@@ -11,14 +30,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from xray_viz.attenuation import path_lengths
-from xray_viz.geometry import detector_rays, viewport
+from xray_viz.attenuation import path_lengths as _sweep_path_lengths
+from xray_viz.errors import SceneError
+from xray_viz.geometry import check_supersample, detector_rays, viewport
 from xray_viz.tracing.hits import Hits, trace_rays
 
-__all__ = ["Radiograph", "render", "ENGINES", "QUANTITIES"]
+__all__ = ["Radiograph", "render", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
+           "check_memory", "available_memory"]
 
 #: Names accepted by ``--quantity`` and :meth:`Radiograph.quantity`.
 QUANTITIES = ("intensity", "line-integral", "path-length")
+
+#: Bytes of path lengths (``rays x bodies x 8``) that one band of a render holds at most (but
+#: always at least one pixel row): the band size of :func:`render`.
+BAND_BYTES = 64 << 20
+
+#: Bytes of path lengths per call of :func:`~xray_viz.physics.imaging.log_transmission` (whole
+#: image rows, at least one, in blocks counted from the top row whatever the bands: see
+#: :class:`_LogBlocks`).
+LOG_BLOCK_BYTES = 16 << 20
+
+#: The NumPy engine's working memory per ray of a band besides its path lengths (rays, hits,
+#: the sweep's temporaries), for choosing its bands.
+NUMPY_RAY_BYTES = 2048
 
 
 @dataclass(frozen=True, eq=False)
@@ -34,29 +68,54 @@ class Radiograph:
         Detected intensity, ``I0 exp(-line_integral)`` for a monochromatic beam.
     line_integral : (H, W) float
         ``sum_b mu_b L_b`` (dimensionless), ``-ln(I / I0)``.
-    path_length : (H, W, n_bodies) float
-        Millimetres of each pixel's ray in each body's material (innermost / later body wins).
+    total_path_length : (H, W) float
+        Millimetres of each pixel's rays inside any body (the mean over its supersampled rays).
     body_names : list of str
     timing : dict
         Seconds spent in ``trace`` (rays, hits, path lengths), ``image`` and ``total``.
     engine : str
+    scene : Scene
     hits : Hits or None
         Every hit of every ray, when asked for with ``keep_hits=True`` (numpy engine).
+    supersample : int
+        Rays per pixel along each axis.
     """
 
     intensity: np.ndarray
     line_integral: np.ndarray
-    path_length: np.ndarray
+    total_path_length: np.ndarray
     body_names: list
     timing: dict
     engine: str
     scene: object = field(repr=False, default=None)
     hits: Hits | None = field(repr=False, default=None)
+    supersample: int = 1
+    _path_length: np.ndarray | None = field(repr=False, default=None)
 
     @property
-    def total_path_length(self) -> np.ndarray:
-        """(H, W) float: millimetres of each ray inside any body."""
-        return self.path_length.sum(axis=2)
+    def path_length(self) -> np.ndarray:
+        """(H, W, n_bodies) float: millimetres of each pixel's rays in each body's material
+        (innermost / later body wins; the mean over a pixel's supersampled rays).
+
+        Filled by ``render(..., path_lengths=True)``; otherwise computed on first access by
+        tracing the scene again with the same engine and supersampling (the cost of the trace
+        part of :attr:`timing`, and ``8 x n_bodies`` bytes per pixel), then kept.
+
+        Raises
+        ------
+        SceneError
+            If the ``(H, W, n_bodies)`` array cannot fit in the memory available.
+        """
+        if self._path_length is None:
+            if self.scene is None:
+                raise ValueError("this Radiograph has no scene to trace its path lengths from")
+            n = self.supersample
+            check_memory(self.scene, supersample=n, path_lengths=True, images=False)
+            w, h = self.scene.detector.shape
+            out = np.empty((h, w, len(self.scene.bodies)))
+            _band_loop(self.scene, self.engine, n, per_body=out)
+            object.__setattr__(self, "_path_length", out)
+        return self._path_length
 
     def quantity(self, name: str) -> np.ndarray:
         """The (H, W) image of ``"intensity"``, ``"line-integral"`` or ``"path-length"``."""
@@ -69,13 +128,14 @@ class Radiograph:
         raise ValueError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
 
 
-def _numpy_path_lengths(scene, *, supersample=1, keep_hits=False):
-    rays = detector_rays(scene, supersample=supersample)
+def _numpy_path_lengths(scene, *, supersample=1, keep_hits=False, rows=None):
+    rays = detector_rays(scene, supersample=supersample, rows=rows)
     vp = viewport(scene.source.position, scene.detector)
     hits = trace_rays(scene, rays.origins, rays.directions, t_min=0.0, t_max=rays.t_max,
                       axis=vp.forward)
-    L = path_lengths(hits.ray, hits.t, hits.body, hits.entering, n_rays=len(rays),
-                     n_bodies=len(scene.bodies), precedence=scene.precedence, t_max=rays.t_max)
+    L = _sweep_path_lengths(hits.ray, hits.t, hits.body, hits.entering, n_rays=len(rays),
+                            n_bodies=len(scene.bodies), precedence=scene.precedence,
+                            t_max=rays.t_max)
     return L, (hits if keep_hits else None)
 
 
@@ -88,11 +148,278 @@ def _fast_path_lengths(scene, *, supersample=1, keep_hits=False):
 #: Rendering engines by name. ``fn(scene, *, supersample, keep_hits) -> (L, hits or None)`` where
 #: ``L`` is ``(W * H * supersample**2, n_bodies)``: effective path lengths (mm) of the rays of
 #: :func:`~xray_viz.geometry.detector_rays` ``(scene, supersample=supersample)``, in that order.
+#: (:func:`render` itself traces by bands of rows: :func:`_numpy_rows`,
+#: :func:`xray_viz.tracing.fast.trace_rows`.)
 ENGINES = {"fast": _fast_path_lengths, "numpy": _numpy_path_lengths}
 
 
+def _numpy_rows(scene, *, supersample=1, rows=None):
+    """The NumPy engine by windows of ``rows`` image rows: yields ``(r0, r1, L)`` as
+    :func:`xray_viz.tracing.fast.trace_rows` does."""
+    h = scene.detector.shape[1]
+    step = h if rows is None else max(1, int(rows))
+    for r0 in range(0, h, step):
+        r1 = min(h, r0 + step)
+        yield r0, r1, _numpy_path_lengths(scene, supersample=supersample, rows=(r0, r1))[0]
+
+
+def _band_rows(scene, engine, n) -> int:
+    """Image rows per band: ``rows x W x n^2`` rays of path lengths fill :data:`BAND_BYTES`
+    (with the NumPy engine's working memory per ray), at least one row."""
+    w = scene.detector.shape[0]
+    per_ray = 8 * max(1, len(scene.bodies)) + (NUMPY_RAY_BYTES if engine == "numpy" else 0)
+    return max(1, BAND_BYTES // (w * n * n * per_ray))
+
+
+def _windows(scene, engine, n, keep_hits=False):
+    """``(r0, r1, L, hits)`` for consecutive windows of image rows covering the detector."""
+    h = scene.detector.shape[1]
+    rows = _band_rows(scene, engine, n)
+    if keep_hits:                      # the hits of every ray, with global ray numbers
+        L, hits = ENGINES[engine](scene, supersample=n, keep_hits=True)
+        yield 0, h, L, hits
+        return
+    if rows >= h and engine == "fast":
+        # It fits in one band: the whole frame, through the fast engine's result cache.
+        yield 0, h, ENGINES["fast"](scene, supersample=n, keep_hits=False)[0], None
+        return
+    if engine == "fast":
+        from xray_viz.tracing.fast import trace_rows
+
+        parts = trace_rows(scene, supersample=n, rows=rows)
+    else:
+        parts = _numpy_rows(scene, supersample=n, rows=rows)
+    for r0, r1, L in parts:
+        yield r0, r1, L, None
+
+
+class _LogBlocks:
+    """ln(I / I0) per pixel, computed by fixed blocks of image rows whatever the bands.
+
+    :func:`~xray_viz.physics.imaging.log_transmission` multiplies path lengths by the bodies'
+    attenuation through BLAS, whose rounding depends on how many rays a call holds (its
+    threads and unrolled loops split them differently), so the same ray could differ in the
+    last bit between bands of different sizes. Every call therefore holds one block of
+    :data:`LOG_BLOCK_BYTES` of whole image rows, counted from row 0 whatever the bands are: a
+    band's rows that do not fill their block wait in a buffer of one block for the next band.
+    The image is then the same bit for bit for any band size.
+    """
+
+    def __init__(self, scene, n, log_t):
+        w, h = scene.detector.shape
+        self.scene, self.nn, self.w, self.h, self.out = scene, n * n, w, h, log_t
+        nb = max(1, len(scene.bodies))
+        self.rows = max(1, min(h, LOG_BLOCK_BYTES // (w * self.nn * nb * 8)))
+        self.per_row = w * self.nn
+        self.carry = None               # rows [c0, c0 + filled) of the block starting at c0
+        self.c0 = self.filled = 0
+
+    def _block(self, r0, L):
+        """Write the log-transmission image rows of the block starting at row ``r0``."""
+        from xray_viz.physics.imaging import log_transmission, pixel_log_mean
+
+        r1 = r0 + len(L) // self.per_row
+        self.out[r0:r1] = pixel_log_mean(log_transmission(L, self.scene),
+                                         self.nn).reshape(r1 - r0, self.w)
+
+    def add(self, r0, r1, L):
+        """The path lengths ``L`` of image rows ``r0 .. r1 - 1`` (bands come in row order)."""
+        R, per_row = self.rows, self.per_row
+        r = r0
+        while r < r1:
+            b0 = (r // R) * R                       # the block holding row r
+            b1 = min(self.h, b0 + R)
+            take = min(r1, b1)
+            part = L[(r - r0) * per_row:(take - r0) * per_row]
+            if r == b0 and take == b1:              # the whole block is in this band
+                self._block(b0, part)
+            else:                                   # a piece: gather it
+                if self.carry is None:
+                    self.carry = np.empty((R * per_row, L.shape[1]))
+                if r == b0:
+                    self.c0, self.filled = b0, 0
+                assert self.c0 == b0 and self.filled == (r - b0) * per_row
+                self.carry[self.filled:self.filled + len(part)] = part
+                self.filled += len(part)
+                if take == b1:
+                    self._block(b0, self.carry[:self.filled])
+            r = take
+
+
+def _band_loop(scene, engine, n, *, log_t=None, total=None, per_body=None, keep_hits=False):
+    """Trace the scene band by band into the (H, W) images given (any may be None).
+
+    Returns the seconds spent tracing and in the per-band image work, and the hits (or None).
+    """
+    w = scene.detector.shape[0]
+    nb = len(scene.bodies)
+    nn = n * n
+    t_trace = t_image = 0.0
+    hits = None
+    blocks = _LogBlocks(scene, n, log_t) if log_t is not None else None
+    t0 = time.perf_counter()
+    for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
+        t1 = time.perf_counter()
+        t_trace += t1 - t0
+        hits = band_hits if band_hits is not None else hits
+        if blocks is not None:
+            # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the
+            # log domain.
+            blocks.add(r0, r1, L)
+        if total is not None or per_body is not None:
+            # (pixels, bodies): the mean over each pixel's rays (one ray: the same numbers).
+            mean = L if nn == 1 else L.reshape((r1 - r0) * w, nn, nb).mean(axis=1)
+            if total is not None:
+                total[r0:r1] = mean.sum(axis=1).reshape(r1 - r0, w)
+            if per_body is not None:
+                per_body[r0:r1] = mean.reshape(r1 - r0, w, nb)
+            del mean
+        del L
+        t0 = time.perf_counter()
+        t_image += t0 - t1
+    return t_trace, t_image, hits
+
+
+# ------------------------------------------------------------------------------------------
+# memory
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new job (``MemAvailable`` of ``/proc/meminfo``), or None
+    where that is not known (not Linux)."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _mesh_bytes(scene) -> int:
+    """What the engines allocate per mesh (copies in spatial order, projections, per-triangle
+    set-up), about 100 bytes per vertex and 320 per face."""
+    total = 0
+    for body in scene.bodies:
+        total += 100 * len(body.vertices) + 320 * len(body.faces)
+    return total
+
+
+def _image_bytes_per_pixel(scene) -> int:
+    """Bytes per pixel that a render allocates for its (H, W) images, at the peak.
+
+    The log-transmission and total-path-length images (8 + 8), the intensity and line
+    integral (8 + 8) and the detector model's temporaries (the flat field and one exponential,
+    8 + 8); a focal-spot blur adds about 40 (log-domain blur), the fall-off of a point source
+    about 80 (the pixels' positions), noise about 40. The output file's array (a float32 TIFF
+    and its copy, or a 16-bit PNG's scaling, at most 24) is made after the log-transmission
+    image and the temporaries are freed, so it fits under that peak.
+    """
+    from xray_viz.physics.imaging import _blur_sigmas
+
+    det = scene.detector
+    per = 48
+    if _blur_sigmas(scene) is not None:
+        per += 40
+    if getattr(det, "falloff", False) and scene.source.kind != "parallel":
+        per += 80
+    if getattr(det, "noise", False):
+        per += 40
+    return per
+
+
+def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast",
+                  path_lengths: bool = False, images: bool = True) -> dict:
+    """Estimated peak memory of :func:`render` (bytes), by part.
+
+    Parameters
+    ----------
+    scene : Scene
+    supersample : int, optional
+        Default: the scene's.
+    engine : str
+    path_lengths : bool
+        Count the per-body path lengths ``(H, W, n_bodies)`` (8 bytes each).
+    images : bool
+        Count the output images (see :func:`_image_bytes_per_pixel`).
+
+    Returns
+    -------
+    dict
+        ``images`` (the (H, W) images and the detector model's temporaries), ``path_lengths``,
+        ``bands`` (a few bands of path lengths), ``meshes`` and ``total``.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> need = memory_needed(xray_viz.load_scene("sphere"))
+    >>> need["images"] == 256 * 256 * 48
+    True
+    """
+    n = check_supersample(scene.detector.supersample if supersample is None else supersample)
+    w, h = scene.detector.shape
+    pixels = w * h
+    nb = len(scene.bodies)
+    rows = min(h, _band_rows(scene, engine, n))
+    per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if engine == "numpy" else 0)
+    need = {
+        "images": pixels * _image_bytes_per_pixel(scene) if images else 0,
+        "path_lengths": pixels * nb * 8 if path_lengths else 0,
+        # A band's path lengths, their per-pixel means and the per-ray log-transmissions.
+        "bands": 3 * rows * w * n * n * per_ray,
+        "meshes": _mesh_bytes(scene),
+    }
+    need["total"] = sum(need.values())
+    return need
+
+
+def _gib(nbytes: float) -> str:
+    for unit, size in (("TiB", 1 << 40), ("GiB", 1 << 30), ("MiB", 1 << 20)):
+        if nbytes >= size or unit == "MiB":
+            v = nbytes / size
+            return f"{v:.0f} {unit}" if v >= 10 else f"{v:.1f} {unit}"
+    raise AssertionError  # pragma: no cover
+
+
+def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
+                 path_lengths: bool = False, images: bool = True) -> None:
+    """Refuse, in one line, a job whose output cannot fit in the memory available.
+
+    Compares :func:`memory_needed` with :func:`available_memory` (Linux's ``MemAvailable``;
+    no check elsewhere).
+
+    Raises
+    ------
+    SceneError
+        Saying how much the job needs and how much is available, and what to change.
+    """
+    available = available_memory()
+    if available is None:
+        return
+    need = memory_needed(scene, supersample=supersample, engine=engine,
+                         path_lengths=path_lengths, images=images)
+    if need["total"] <= available:
+        return
+    w, h = scene.detector.shape
+    nb = len(scene.bodies)
+    what = [name for name, key in (("the output images", "images"),
+                                   (f"the path lengths of {nb} bod{'y' if nb == 1 else 'ies'}",
+                                    "path_lengths")) if need[key]]
+    fix = "use a smaller shape"
+    if need["path_lengths"] and need["path_lengths"] >= need["images"]:
+        fix += (", or do without the per-body path lengths (path_lengths=False; "
+                "Radiograph.total_path_length has their sum)")
+    raise SceneError(
+        f"[detector] shape {w} x {h} needs about {_gib(need['total'])} for "
+        f"{' and '.join(what) or 'the job'} (this machine has {_gib(available)} available): {fix}")
+
+
+# ------------------------------------------------------------------------------------------
+
+
 def render(scene, *, engine: str = "fast", supersample: int | None = None,
-           keep_hits: bool = False) -> Radiograph:
+           keep_hits: bool = False, path_lengths: bool = False) -> Radiograph:
     """Render the radiograph of a scene.
 
     Parameters
@@ -105,13 +432,29 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         (watertight Moller-Trumbore on culled ray-triangle pairs).
     supersample : int, optional
         ``n`` traces ``n x n`` rays per pixel and averages their intensities (anti-aliasing).
-        Defaults to the scene's ``[detector] supersample`` (1 unless set).
+        Defaults to the scene's ``[detector] supersample`` (1 unless set). A Python or NumPy
+        integer; floats, strings and booleans are refused.
     keep_hits : bool
-        Keep every hit of every ray in :attr:`Radiograph.hits` (numpy engine).
+        Keep every hit of every ray in :attr:`Radiograph.hits` (numpy engine). The whole
+        detector is then traced at once (memory O(rays x bodies + hits)).
+    path_lengths : bool
+        Also fill :attr:`Radiograph.path_length`, ``(H, W, n_bodies)`` (``8 x n_bodies``
+        bytes per pixel). Without it that array is computed on first access (a second trace).
 
     Returns
     -------
     Radiograph
+
+    Raises
+    ------
+    SceneError
+        For an unknown engine, a supersampling that is not a whole number >= 1, or a job whose
+        output cannot fit in the memory available (:func:`check_memory`).
+
+    Notes
+    -----
+    Rendered by bands of detector rows (see the module docstring): peak memory is about
+    :func:`memory_needed`, O(output + meshes).
 
     Examples
     --------
@@ -122,29 +465,34 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     >>> round(float(image.total_path_length.max()), 1)      # the diameter, 80 mm
     80.0
     """
-    if engine not in ENGINES:
-        raise ValueError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
-    from xray_viz.physics.imaging import detect_log, log_transmission, pixel_log_mean
+    if not isinstance(engine, str) or engine not in ENGINES:
+        raise SceneError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
+    from xray_viz.physics.imaging import _blur_sigmas, detect_log
 
-    n = int(scene.detector.supersample if supersample is None else supersample)
-    if n < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample}")
+    n = check_supersample(scene.detector.supersample if supersample is None else supersample)
+    _blur_sigmas(scene)                # a focal spot wider than the detector: refused now
+    check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths)
     w, h = scene.detector.shape
     t0 = time.perf_counter()
-    L, hits = ENGINES[engine](scene, supersample=n, keep_hits=keep_hits)
+    log_t = np.empty((h, w))
+    total = np.empty((h, w))
+    per_body = np.empty((h, w, len(scene.bodies))) if path_lengths else None
+    t_trace, t_bands, hits = _band_loop(scene, engine, n, log_t=log_t, total=total,
+                                        per_body=per_body, keep_hits=keep_hits)
     t1 = time.perf_counter()
-    # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the log domain.
-    log_t = pixel_log_mean(log_transmission(L, scene), n * n).reshape(h, w)
     intensity, line_integral = detect_log(log_t, scene)
+    del log_t
     t2 = time.perf_counter()
-    timing = {"trace": t1 - t0, "image": t2 - t1, "total": t2 - t0}
+    timing = {"trace": t_trace, "image": t_bands + (t2 - t1), "total": t2 - t0}
     return Radiograph(
         intensity=intensity,
         line_integral=line_integral,
-        path_length=L.reshape(h * w, n * n, -1).mean(axis=1).reshape(h, w, len(scene.bodies)),
+        total_path_length=total,
         body_names=scene.body_names,
         timing=timing,
         engine=engine,
         scene=scene,
         hits=hits,
+        supersample=n,
+        _path_length=per_body,
     )

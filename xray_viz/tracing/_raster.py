@@ -329,7 +329,7 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
            S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
     """Visit the samples of compact triangle ``m`` in rows ``y0..y1`` that it covers.
 
-    mode 0: ``S[Y, X] += sign * W`` and ``N[Y, X] += entering`` (one body).
+    mode 0: ``S[Y - row0, X] += sign * W`` and ``N[Y - row0, X] += entering`` (one body).
     mode 1: count hits per sample of the band (``cnt``). mode 2: fill the band's hit buffers.
     Hits beyond the detector (depth > FL) are dropped.
     """
@@ -400,8 +400,8 @@ def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW,
     if W > FL:
         return
     if mode == 0:
-        S[Y, X] += sgn * W
-        N[Y, X] += dn
+        S[Y - row0, X] += sgn * W
+        N[Y - row0, X] += dn
     elif mode == 1:
         cnt[(Y - row0) * nW + X] += 1
     else:
@@ -414,8 +414,12 @@ def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW,
 
 @njit(cache=True, parallel=True)
 def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-                  orient, coef, wrange, tri_body, FL, S, N):
-    """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid."""
+                  orient, coef, wrange, tri_body, FL, S, N, row0):
+    """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid.
+
+    Only the bands ``order`` are rastered; ``S[Y - row0, X]`` and ``N[Y - row0, X]`` receive
+    sample (X, Y), so ``S`` and ``N`` need only hold the rows of those bands (a window).
+    """
     for k in prange(order.shape[0]):
         dummy_i = np.zeros(1, np.int64)
         dummy_f = np.zeros(1, np.float64)
@@ -428,18 +432,21 @@ def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY,
             y0 = max(cbox[m, 2], r0)
             y1 = min(cbox[m, 3], r1)
             _cover(m, y0, y1, 0, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
-                   S, N, dummy_i, 0, nW, dummy_i, dummy_f, dummy_b)
+                   S, N, dummy_i, row0, nW, dummy_i, dummy_f, dummy_b)
 
 
 @njit(cache=True, parallel=True)
 def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                  orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
-                 H, L):
+                 H, L, ray0):
     """Several bodies: per band, count then store every hit, then sort and sweep each sample.
 
-    ``L[ray, b]`` receives the length (mm) of the ray of sample (X, Y) whose material is body
-    ``b``: the body of highest ``precedence`` among those the ray is inside (entries minus exits
-    > 0), up to the detector (depth FL). Rays are in image order (see :func:`finish`).
+    ``L[ray - ray0, b]`` receives the length (mm) of the ray of sample (X, Y) whose material is
+    body ``b``: the body of highest ``precedence`` among those the ray is inside (entries minus
+    exits > 0), up to the detector (depth FL). Rays are in image order (see :func:`finish`).
+    Only the bands ``order`` are rastered, so ``L`` need only hold their rays (a window of
+    image rows starting at ray ``ray0``). A sample's hits and their order (by triangle, then a
+    stable sort by depth) do not depend on which bands are rastered together.
     """
     nb = precedence.shape[0]
     for k in prange(order.shape[0]):
@@ -517,33 +524,34 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
                     nxt = bw[i + 1] if i + 1 < hi else FL
                     seg = nxt - bw[i]
                     if seg > 0.0:
-                        L[ray, win] += seg * scale
+                        L[ray - ray0, win] += seg * scale
 
 
 @njit(cache=True, parallel=True)
-def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
+def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
 
-    ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis.
+    ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis; sample (X, Y) is
+    ``S[Y - s_row0, X]``. Only the fine rows ``y0 <= Y < y1`` are done (a window of whole pixel
+    rows), into ``L[ray - ray0]``.
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
     ``((H - 1 - j) W + i) n n + r n + c``. A point-source ray's length is its depth span times
     ``|D| / FL`` (D from the source to the sample's detector point).
     """
-    nH = H * n
     nW = W * n
     nb = L.shape[1]
-    for Y in prange(nH):
+    for Y in prange(y0, y1):
         j = Y // n
         r = n - 1 - (Y - j * n)
         for X in range(nW):
             if single:
-                v = S[Y, X]
+                v = S[Y - s_row0, X]
                 if v == 0.0:
                     continue
             i = X // n
             c = X - i * n
-            ray = ((H - 1 - j) * W + i) * n * n + r * n + c
+            ray = ((H - 1 - j) * W + i) * n * n + r * n + c - ray0
             scale = 1.0
             if perspective:
                 dx = P00[0] + X * Ex[0] + Y * Ey[0]
@@ -554,7 +562,7 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L):
                 L[ray, 0] = v * scale
             else:
                 for q in range(nb):
-                    L[ray, q] = Lf[Y, X, q] * scale
+                    L[ray, q] = Lf[Y - s_row0, X, q] * scale
 
 
 @njit(cache=True, inline="always")

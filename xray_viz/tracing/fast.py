@@ -37,7 +37,13 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    among the bodies containing a stretch wins. Memory is O(triangles + rays + hits of one
    band).
 
-The result is cached per (meshes, source, detector, supersampling): re-rendering the same
+6. **Windows** (:func:`trace_rows`, used by :func:`xray_viz.render`): after the set-up above
+   (done once), the bands are rastered a window of whole pixel rows at a time, into path
+   lengths of that window's rays only, so a big job needs O(meshes + one window) memory, not
+   O(rays x bodies). A ray's result does not depend on the windows (bit for bit).
+
+The result of :func:`fast_path_lengths` is cached per (meshes, source, detector,
+supersampling) when it is small (64 MiB at most, 128 MiB in all): re-rendering the same
 geometry with other energies or materials costs nothing, and the per-mesh set-up (faces sorted
 along the Morton order of their vertices, vertices numbered in order of first use by those faces,
 concatenated over the bodies in the beam) is cached per mesh.
@@ -72,10 +78,11 @@ import numba
 import numpy as np
 
 from xray_viz.errors import SceneError
-from xray_viz.geometry import detector_axes
+from xray_viz.geometry import check_supersample, detector_axes
 from xray_viz.tracing._raster import FRAC_BITS
 
-__all__ = ["fast_path_lengths", "trace_once", "clear_caches", "visible_bodies", "FRAC_BITS"]
+__all__ = ["fast_path_lengths", "trace_once", "trace_rows", "clear_caches", "visible_bodies",
+           "FRAC_BITS"]
 
 _PREP_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
 _MESH_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
@@ -84,6 +91,10 @@ _PREP_CACHE_SIZE = 64
 _PREP_CACHE_BYTES = 512 << 20
 _MESH_CACHE_SIZE = 8
 _L_CACHE_SIZE = 4
+#: Results larger than this are not cached (render() traces them window by window anyway), and
+#: the cache holds at most ``_L_CACHE_BYTES`` in all: it costs a bounded, predictable memory.
+_L_CACHE_ENTRY_BYTES = 64 << 20
+_L_CACHE_BYTES = 128 << 20
 
 
 def clear_caches() -> None:
@@ -303,7 +314,9 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
         returns one.
     cache : bool, optional
         Reuse the result of an earlier call on the same meshes, source, detector and
-        supersampling (the default). The returned array is then shared and read-only.
+        supersampling (the default). The returned array is then shared and read-only. Only
+        results of at most 64 MiB are kept (at most 128 MiB in all, 4 results); larger ones are
+        returned writable and not kept.
 
     Returns
     -------
@@ -325,9 +338,7 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
     >>> L.shape, round(float(L.max()), 1)
     ((65536, 1), 80.0)
     """
-    n = int(supersample)
-    if n < 1:
-        raise ValueError(f"supersample must be >= 1, got {supersample}")
+    n = check_supersample(supersample)
     W, H = scene.detector.shape
     if keep_hits or (n > 1 and (W == 1 or H == 1)):
         from xray_viz.render import _numpy_path_lengths
@@ -344,10 +355,11 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
             _L_CACHE.move_to_end(key)
             return hit, None
     L = trace_once(scene, supersample=n)
-    if cache:
+    if cache and L.nbytes <= _L_CACHE_ENTRY_BYTES:
         L.setflags(write=False)
         _L_CACHE[key] = L
-        while len(_L_CACHE) > _L_CACHE_SIZE:
+        while len(_L_CACHE) > _L_CACHE_SIZE or \
+                sum(a.nbytes for a in _L_CACHE.values()) > _L_CACHE_BYTES:
             _L_CACHE.popitem(last=False)
     return L, None
 
@@ -366,96 +378,201 @@ def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
         Effective path lengths (mm), rays in the order of
         :func:`~xray_viz.geometry.detector_rays`.
     """
-    with _LOCK:
-        return _trace(scene, supersample=supersample)
+    return _trace(scene, supersample=supersample)
 
 
 def _trace(scene, *, supersample):
-    from xray_viz.meshes.repair import simple_winding
-    from xray_viz.tracing import _raster as R
-
-    n = int(supersample)
+    n = check_supersample(supersample)
     W, H = scene.detector.shape
-    nb = len(scene.bodies)
-    n_rays = W * H * n * n
-    if nb == 0:
-        return np.zeros((n_rays, 0))
-    frame = _frame(scene, n)
-    r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = frame
-    planes = _beam(scene, frame)
-    keep = visible_bodies(scene, planes)
-    if not keep:
-        return np.zeros((n_rays, nb))
-    V, F, B = _geometry(scene, keep)[1]
-    if len(F) == 0:
-        return np.zeros((n_rays, nb))
-    sides = np.ascontiguousarray(planes[:4])
-    perspective = scene.source.kind != "parallel"
-    nW, nH = W * n, H * n
-    XY, w, huge, status, box, K = _workspace(len(V), len(F))
-    if perspective:
-        R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge,
-                           nW, nH, K)
-        P0 = (center + P00) - r0
-    else:
-        R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
-        P0 = P00
-    n_chunks = numba.get_num_threads()
-    # The signed depth sum is a body's path length only where its winding number is 0 or 1
-    # (cached per mesh by the mesh check every Scene runs: a dictionary look-up here).
-    if len(keep) == 1 and simple_winding(scene.bodies[keep[0]].mesh):
-        L1 = _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
-                           nW, nH, K, sides, status, box, B, n, W, H, scene)
-        if nb == 1:
-            return L1
-        L = np.zeros((n_rays, nb))
-        L[:, keep[0]] = L1[:, 0]
-        return L
-    tri, kind, orient, cbox, coef, wrange, order, band_start, band_tris, band_height = \
-        _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides,
-               status, box, B, scene)
-    L = np.zeros((n_rays, nb))
-    prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
-    R.raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                   cbox, orient, coef, wrange, B, FL, prec, perspective, P0, Ex, Ey, n, W,
-                   H, L)
-    return L
+    with _LOCK:
+        plan = _Plan(scene, n, None)
+        return plan.window(0, plan.n_bands)[2]
 
 
-def _trace_single(R, n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                  K, sides, status, box, B, n, W, H, scene):
-    """Path lengths (n_rays, 1) of the one body left in the beam, by signed depth sums
-    (exact only when its winding number is 0 or 1: see
-    :func:`xray_viz.meshes.repair.simple_winding`)."""
-    L = np.zeros((W * H * n * n, 1))
-    if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
-        # A single pass over the triangles, one accumulator per thread.
-        Sc, Nc = _accumulators(n_chunks, nH, nW)
-        err = np.empty(n_chunks, np.int64)
-        depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
-        R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH,
-                        depth_ok, Sc, Nc, err, K, sides)
-        if err.max() >= 0:
-            _refuse(scene, B, int(err.max()), r0, w, F)
-        S = np.empty((nH, nW))
-        R.reduce_chunks(Sc, Nc, FL, S)
-    else:
-        tri, kind, orient, cbox, coef, wrange, order, band_start, band_tris, band_height = \
-            _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides,
-                   status, box, B, scene)
-        Sd = np.zeros((nH, nW))
-        N = np.zeros((nH, nW), np.int32)
-        R.raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                        cbox, orient, coef, wrange, B, FL, Sd, N)
-        S = np.empty((nH, nW))
-        R.reduce_chunks(Sd[None], N[None], FL, S)
-    R.finish(S, np.zeros((1, 1, 1)), True, FL, perspective, P0, Ex, Ey, n, W, H, L)
-    return L
+def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
+    """Trace a scene's detector rays with the fast engine window by window of image rows.
+
+    The per-scene set-up (culling, projection, triangle set-up and binning) is done once; then
+    each window of about ``rows`` image rows is rastered on its own, so memory is O(meshes +
+    rays of one window x bodies) instead of O(rays x bodies). Windows are whole pixel rows and
+    whole bands of the banded rasters; every ray's path lengths are exactly (bit for bit) those
+    of :func:`trace_once`, whatever the windows.
+
+    Parameters
+    ----------
+    scene : Scene
+    supersample : int, optional
+    rows : int, optional
+        Image rows per window, at least 1 (default: the whole detector, one window). Windows
+        are rounded to whole bands of the raster, so they may hold a few rows less.
+
+    Yields
+    ------
+    r0, r1 : int
+        The window's image rows ``r0 .. r1 - 1`` (row 0 at the top), from the top down.
+    L : (W * (r1 - r0) * supersample**2, n_bodies) float
+        Path lengths (mm) of rays ``r0 * W * n * n`` up to ``r1 * W * n * n`` of
+        :func:`~xray_viz.geometry.detector_rays`.
+
+    Examples
+    --------
+    >>> import numpy as np, xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> parts = list(trace_rows(scene, rows=100))
+    >>> parts[0][0], parts[-1][1], all(0 < r1 - r0 <= 100 for r0, r1, _ in parts)
+    (0, 256, True)
+    >>> bool(np.array_equal(np.concatenate([L for *_, L in parts]), trace_once(scene)))
+    True
+    """
+    n = check_supersample(supersample)
+    W, H = scene.detector.shape
+    if n > 1 and (W == 1 or H == 1):       # as fast_path_lengths: the NumPy engine's rays
+        from xray_viz.render import _numpy_rows
+
+        yield from _numpy_rows(scene, supersample=n, rows=rows)
+        return
+    window = None if rows is None or rows >= H else n * max(1, int(rows))
+    with _LOCK:
+        plan = _Plan(scene, n, window)
+        plan.detach()
+    # Windows from the top of the image down: the bands from the last one down.
+    for b1 in range(plan.n_bands, 0, -plan.per_window):
+        with _LOCK:
+            part = plan.window(max(0, b1 - plan.per_window), b1)
+        yield part
+
+
+#: Fine-grid samples in one band of the banded rasters at most: bounds the hit buffers of
+#: a band (counts, offsets and every hit of its samples), of which each thread has one.
+_BAND_SAMPLES = 1 << 20
+
+
+def _band_height(nH, nW, n, window):
+    """Fine rows per band: a multiple of ``n`` (bands are whole pixel rows), at most
+    :data:`_BAND_SAMPLES` samples, and with a window of ``window`` fine rows, small enough to
+    give each thread two bands of a window."""
+    n_bands = int(min(nH, max(2, 16 * (os.cpu_count() or 2))))
+    bh = int(math.ceil(nH / n_bands))
+    bh = min(bh, max(1, _BAND_SAMPLES // max(nW, 1)))
+    if window is not None:
+        bh = min(bh, max(1, window // (2 * numba.get_num_threads())))
+    return n * max(1, bh // n)
+
+
+class _Plan:
+    """The fast engine's per-scene set-up, then path lengths window by window of bands.
+
+    Construct and call :meth:`window` under ``_LOCK`` (the scratch arrays are shared); after
+    :meth:`detach` the plan holds its own copies of them and only the kernels need the lock.
+    """
+
+    def __init__(self, scene, n, window):
+        from xray_viz.meshes.repair import simple_winding
+        from xray_viz.tracing import _raster as R
+
+        self.R = R
+        self.scene = scene
+        self.n = n
+        W, H = self.shape = scene.detector.shape
+        self.nb = nb = len(scene.bodies)
+        nW, nH = self.nW, self.nH = W * n, H * n
+        self.band_height = bh = _band_height(nH, nW, n, window)
+        self.n_bands = int(math.ceil(nH / bh))
+        self.per_window = self.n_bands if window is None else max(1, window // bh)
+        self.mode = "empty"
+        if nb == 0:
+            return
+        frame = _frame(scene, n)
+        r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = frame
+        planes = _beam(scene, frame)
+        keep = self.keep = visible_bodies(scene, planes)
+        if not keep:
+            return
+        V, F, B = _geometry(scene, keep)[1]
+        if len(F) == 0:
+            return
+        sides = np.ascontiguousarray(planes[:4])
+        perspective = scene.source.kind != "parallel"
+        XY, w, huge, status, box, K = _workspace(len(V), len(F))
+        if perspective:
+            R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge,
+                               nW, nH, K)
+            P0 = (center + P00) - r0
+        else:
+            R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
+            P0 = P00
+        self.FL, self.perspective, self.P0, self.Ex, self.Ey = FL, perspective, P0, Ex, Ey
+        self.F, self.XY, self.B = F, XY, B
+        n_chunks = numba.get_num_threads()
+        # The signed depth sum is a body's path length only where its winding number is 0 or 1
+        # (cached per mesh by the mesh check every Scene runs: a dictionary look-up here).
+        if len(keep) == 1 and simple_winding(scene.bodies[keep[0]].mesh):
+            if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
+                # A single pass over the triangles, one accumulator per thread: the depth
+                # spans S of every sample now (O(samples), at most _DIRECT_MAX_SAMPLES).
+                self.mode = "direct"
+                Sc, Nc = _accumulators(n_chunks, nH, nW)
+                err = np.empty(n_chunks, np.int64)
+                depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
+                R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
+                                nW, nH, depth_ok, Sc, Nc, err, K, sides)
+                if err.max() >= 0:
+                    _refuse(scene, B, int(err.max()), r0, w, F)
+                self.S = np.empty((nH, nW))
+                R.reduce_chunks(Sc, Nc, FL, self.S)
+                return
+            self.mode = "single"
+        else:
+            self.mode = "multi"
+            self.prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
+        (self.tri, self.kind, self.orient, self.cbox, self.coef, self.wrange, self.band_start,
+         self.band_tris) = _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW,
+                                  nH, sides, status, box, B, scene, bh, self.n_bands)
+
+    def detach(self):
+        """Own copies of the shared scratch arrays still needed by :meth:`window`."""
+        if self.mode in ("single", "multi"):
+            self.XY = self.XY.copy()
+
+    def window(self, b0, b1):
+        """``(r0, r1, L)``: path lengths of the image rows of bands ``b0 .. b1 - 1``."""
+        R, n = self.R, self.n
+        W, H = self.shape
+        bh, nH, nW = self.band_height, self.nH, self.nW
+        y0, y1 = b0 * bh, min(nH, b1 * bh)             # fine rows (Y up), whole pixel rows
+        r0, r1 = H - y1 // n, H - y0 // n              # image rows (row 0 at the top)
+        ray0 = r0 * W * n * n
+        n_rays = (r1 - r0) * W * n * n
+        L = np.zeros((n_rays, self.nb))
+        if self.mode == "empty":
+            return r0, r1, L
+        args = (self.FL, self.perspective, self.P0, self.Ex, self.Ey, n, W, H)
+        order = _band_order(b1 - b0) + b0
+        if self.mode == "multi":
+            R.raster_multi(order, self.band_start, self.band_tris, bh, nH, nW, self.tri,
+                           self.F, self.XY, self.kind, self.cbox, self.orient, self.coef,
+                           self.wrange, self.B, self.FL, self.prec, *args[1:], L, ray0)
+            return r0, r1, L
+        if self.mode == "direct":
+            S, s_row0 = self.S, 0
+        else:
+            Sd = np.zeros((y1 - y0, nW))
+            N = np.zeros((y1 - y0, nW), np.int32)
+            R.raster_single(order, self.band_start, self.band_tris, bh, nH, nW, self.tri, self.F,
+                            self.XY, self.kind, self.cbox, self.orient, self.coef, self.wrange,
+                            self.B, self.FL, Sd, N, y0)
+            S, s_row0 = np.empty((y1 - y0, nW)), y0
+            R.reduce_chunks(Sd[None], N[None], self.FL, S)
+        L1 = L if self.nb == 1 else np.zeros((n_rays, 1))
+        R.finish(S, np.zeros((1, 1, 1)), True, *args, L1, y0, y1, s_row0, ray0)
+        if self.nb > 1:
+            L[:, self.keep[0]] = L1[:, 0]
+        return r0, r1, L
 
 
 def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides, status,
-           box, B, scene):
-    """Cull, set up and bin the triangles by bands of detector rows (banded rasters)."""
+           box, B, scene, band_height, n_bands):
+    """Cull, set up and bin the triangles by bands of ``band_height`` detector rows."""
     R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides)
     if status.min() <= R.ERR_STRADDLE:
         _refuse(scene, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
@@ -468,9 +585,5 @@ def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sid
     wrange = np.empty((M, 2))
     R.setup_planes(tri, V, F, w, status, box, perspective, r0, P0, Ex, Ey, f, FL,
                    kind, orient, cbox, coef, wrange)
-    n_bands = int(min(nH, max(2, 16 * (os.cpu_count() or 2))))
-    band_height = int(math.ceil(nH / n_bands))
-    n_bands = int(math.ceil(nH / band_height))
     band_start, band_tris = R.bin_triangles(cbox, band_height, n_bands)
-    order = _band_order(n_bands)
-    return tri, kind, orient, cbox, coef, wrange, order, band_start, band_tris, band_height
+    return tri, kind, orient, cbox, coef, wrange, band_start, band_tris
