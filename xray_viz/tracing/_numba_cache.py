@@ -2,36 +2,40 @@
 
 The fast engine's kernels (:mod:`xray_viz.tracing._raster`, ``@njit(cache=True)``) are
 compiled by numba on first use (10-30 s) and cached on disk, so that later processes load them
-in a fraction of a second. ``_raster`` imports this module before its kernels are defined; from
-then on every cached numba function of xray_viz gets the cache described here (other packages'
-numba functions are left to numba).
+in a fraction of a second. ``_raster`` imports this module before its kernels are defined; this
+module wraps numba's ``Dispatcher.enable_caching`` (what ``cache=True`` calls when a function is
+decorated) so that every cached numba function of xray_viz gets the cache described here; other
+packages' numba functions are left to numba.
 
-Where kernels are cached: the first usable directory of
+Where kernels are cached, decided when each kernel is decorated (``_raster`` imported): the
+first usable directory of
 
-1. ``$NUMBA_CACHE_DIR`` (``numba.config.CACHE_DIR``), if set;
+1. ``$NUMBA_CACHE_DIR`` (``numba.config.CACHE_DIR``, read by numba when it is imported), if set;
 2. the package's own ``__pycache__`` beside ``_raster.py``;
 3. numba's user-wide cache, ``$XDG_CACHE_HOME/numba`` or ``~/.cache/numba``;
 4. a private per-user directory ``<tmp>/xray_viz-numba-<uid>``, ``<tmp>`` being
    :func:`tempfile.gettempdir` (``$TMPDIR``, else ``/tmp``, ...). It is created with mode 0700
    and used only if it is a directory owned by the user and writable by nobody else (cached
-   kernels are code that is loaded and run);
+   kernels are machine code that gets loaded and run);
 5. nowhere: kernels are compiled again by every process.
 
-Items 1-3 are numba's own choice, in numba's order; "usable" is numba's test (the directory
-exists or can be made, and a file can be written in it), and under ``1``-``3`` the kernels sit in
-a sub-directory named after the package's folder. A read-only install (a system or container
-image, a shared environment) with an unwritable home therefore caches in ``<tmp>``. When the
-cache is not where numba alone would have put it (4, 5, or an unusable ``$NUMBA_CACHE_DIR``), one
-:class:`KernelCacheWarning` says where it is; set ``NUMBA_CACHE_DIR`` to choose the place.
+Places 1-3 are numba's own, in numba's order (``numba.core.caching``: the user-provided, in-tree
+and user-wide locators); "usable" is numba's test: the directory exists or can be made, and a
+file can be written in it. In 1, 3 and 4 the kernels sit in a sub-directory named after the
+package's folder (numba's scheme), so several installs can share one place. A read-only install
+(a system or container image, a shared environment) with an unwritable home thus caches in
+``<tmp>``. When the cache is not where numba alone would have put it (4, 5, or an unusable
+``$NUMBA_CACHE_DIR``), one :class:`KernelCacheWarning` (one line) says where it is; set
+``NUMBA_CACHE_DIR`` to choose the place. ``NUMBA_CACHE_LOCATOR_CLASSES``, if set, replaces the
+list of places 1-4 as it does for numba. :func:`cache_path` tells where a kernel is cached, and
+:func:`on_first_compile` when one is compiled rather than loaded (the CLI's notice).
 
 What is read back is checked: every data file (``.nbc``) written here starts with a header and
 the SHA-256 of its content, so a truncated, garbled or foreign file is detected before numba
 unpickles it or LLVM loads its machine code. An index (``.nbi``) or data file that cannot be read
-or rebuilt into a kernel gives one :class:`KernelCacheWarning` naming it, and the kernel is
-compiled again and its cache rewritten; a cache that cannot be written gives one warning and
-the kernel stays compiled for the process. A broken cache never stops a render.
-
-``NUMBA_CACHE_LOCATOR_CLASSES``, if set, replaces the list of places 1-4 as it does for numba.
+or rebuilt into a kernel gives one warning naming it, and the kernel is compiled again and its
+files rewritten; a cache that cannot be written gives one warning and the kernel stays compiled
+for the process. A broken cache never stops a render. Deleting the cache is always safe.
 """
 
 from __future__ import annotations
@@ -269,7 +273,9 @@ def _say_where(cache: KernelCache, py_func, py_file) -> None:
                    f"engine's compiled kernels are cached in {cache.cache_path}")
 
 
-_numba_enable_caching = dispatcher.Dispatcher.enable_caching
+# numba's own (also when this module is imported again: the wrapper keeps it).
+_numba_enable_caching = getattr(dispatcher.Dispatcher.enable_caching, "__wrapped__",
+                                dispatcher.Dispatcher.enable_caching)
 
 
 def _enable_caching(self):
@@ -291,9 +297,8 @@ def _enable_caching(self):
     _say_where(cache, self.py_func, py_file)
 
 
-_enable_caching.xray_viz = True
-if not getattr(dispatcher.Dispatcher.enable_caching, "xray_viz", False):
-    dispatcher.Dispatcher.enable_caching = _enable_caching
+_enable_caching.__wrapped__ = _numba_enable_caching
+dispatcher.Dispatcher.enable_caching = _enable_caching
 
 
 def cache_path(kernel) -> str | None:
