@@ -41,12 +41,23 @@ Run `xray-viz COMMAND --help` for the options of each command.
 """
 
 
-def _numba_cache_warm() -> bool:
-    """Whether numba has cached compiled kernels of the fast engine beside its module."""
-    from xray_viz.tracing import _raster
+def _compile_notice(engine: str):
+    """A context in which numba's first compilation of a fast-engine kernel prints one line
+    on stderr, saying where numba will cache the kernels (numba's own answer, see
+    :mod:`xray_viz.tracing._numba_cache`). Kernels loaded from the cache are not compiled, so
+    a warm cache prints nothing, wherever it is."""
+    import contextlib
 
-    cache = Path(_raster.__file__).parent / "__pycache__"
-    return any(cache.glob("_raster.*.nbi"))
+    if engine != "fast":
+        return contextlib.nullcontext()
+    from xray_viz.tracing import _numba_cache
+
+    def notice(where):
+        then = f"cached in {where} afterwards" if where else "not cached: no writable place"
+        print(f"xray-viz: compiling the fast engine on first use (10-30 s, {then})...",
+              file=sys.stderr, flush=True)
+
+    return _numba_cache.on_first_compile(notice)
 
 
 def _render_command(args) -> int:
@@ -65,10 +76,8 @@ def _render_command(args) -> int:
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
     scene = xray_viz.load_scene(args.scene)
-    if args.engine == "fast" and not _numba_cache_warm():
-        print("xray-viz: compiling the fast engine on first use (10-30 s, cached afterwards)...",
-              file=sys.stderr, flush=True)
-    image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
+    with _compile_notice(args.engine):
+        image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
     data = image.quantity(args.quantity)
     save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
                quantity=args.quantity)

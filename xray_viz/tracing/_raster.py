@@ -16,6 +16,8 @@ import numba
 import numpy as np
 from numba import njit, prange
 
+from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
+
 # An old TBB (Open3D brings one) makes numba warn when it tries its TBB threading layer first;
 # OpenMP or numba's own work queue serve these kernels equally well. A user's choice wins.
 if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & set(os.environ):
