@@ -156,3 +156,45 @@ def test_cli_line_integral_of_an_opaque_body_is_finite(tmp_path):
     assert main(["render", str(scene), "-o", str(out), "--quantity", "line-integral"]) == 0
     li = np.load(out)
     assert np.all(np.isfinite(li)) and li.max() > 2000
+
+
+# --------------------------------------------------------------------------------------------
+# invariants checked on every engine's output: never a silent wrong image
+
+
+def _faulty_windows(value):
+    def windows(scene, engine, n, keep_hits=False):
+        w, h = scene.detector.shape
+        L = np.full((w * h * n * n, len(scene.bodies)), 3.0)
+        L[7, 0] = value
+        yield 0, h, L, None
+    return windows
+
+
+@pytest.mark.parametrize("value", [-1.0, np.nan, np.inf])
+def test_a_negative_or_non_finite_path_length_is_refused(monkeypatch, tmp_path, capsys, value):
+    import importlib
+
+    render_module = importlib.import_module("xray_viz.render")
+    from xray_viz.errors import EngineError
+
+    monkeypatch.setattr(render_module, "_windows", _faulty_windows(value))
+    scene = _ball_scene(0.2)
+    with pytest.raises(EngineError, match="internal error.*'ball'.*row 0"):
+        xray_viz.render(scene)
+    out = tmp_path / "x.npy"
+    np.save(out, np.zeros(3))                              # a previous good file
+    assert main(["render", "sphere", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("xray-viz: error: internal error") and "\n" not in err
+    assert np.load(out).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_rounding_level_negatives_read_as_zero(monkeypatch):
+    import importlib
+
+    render_module = importlib.import_module("xray_viz.render")
+
+    monkeypatch.setattr(render_module, "_windows", _faulty_windows(-1e-12))
+    image = xray_viz.render(_ball_scene(0.2), path_lengths=True)
+    assert image.path_length.min() == 0.0 and image.intensity.max() <= 1.0

@@ -32,6 +32,12 @@ class OutputError(XrayVizError, ValueError):
     """An output file name or format is not supported."""
 
 
+class EngineError(XrayVizError, RuntimeError):
+    """An engine produced a result that breaks an invariant of the physics (a negative or
+    non-finite path length, a transmission above 1): refused rather than written, never a
+    silent wrong image. A bug: the message says how to report it and which engine to use."""
+
+
 class SceneFileNotFoundError(XrayVizError, FileNotFoundError):
     """A file named by the user (scene, mesh, spectrum) does not exist."""
 

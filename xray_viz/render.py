@@ -261,6 +261,7 @@ def _band_loop(scene, engine, n, *, log_t=None, total=None, per_body=None, keep_
     for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
         t1 = time.perf_counter()
         t_trace += t1 - t0
+        L = _checked(L, scene, engine, r0)
         hits = band_hits if band_hits is not None else hits
         if blocks is not None:
             # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the
@@ -278,6 +279,51 @@ def _band_loop(scene, engine, n, *, log_t=None, total=None, per_body=None, keep_
         t0 = time.perf_counter()
         t_image += t0 - t1
     return t_trace, t_image, hits
+
+
+#: Path lengths down to this fraction of the source-detector distance below zero are rounding
+#: (a ray grazing a silhouette: entry and exit depths equal to the last bits) and read as 0.
+NEGATIVE_TOLERANCE = 1e-9
+
+
+def _checked(L, scene, engine, r0):
+    """The band's path lengths, after checking the invariants every engine must keep: finite
+    and non-negative (a negative one would give I > I0). Rounding-level negatives are read as
+    0; anything else raises :class:`~xray_viz.errors.EngineError` instead of writing a wrong
+    image."""
+    if not L.size:
+        return L
+    low = float(L.min())
+    if low >= 0.0 and np.isfinite(L).all():
+        return L
+    from xray_viz.errors import EngineError
+
+    sid = float(np.linalg.norm(scene.source.position - scene.detector.center))
+    bad = ~np.isfinite(L) | (L < -NEGATIVE_TOLERANCE * sid)
+    if bad.any():
+        ray, body = np.argwhere(bad)[0]
+        w = scene.detector.shape[0]
+        raise EngineError(
+            f"internal error: engine {engine!r} gave path length {L[ray, body]!r} mm for body "
+            f"{scene.bodies[int(body)].name!r} on image row {r0 + int(ray) // w}; the image is "
+            "not written. Please report it with the scene; engine "
+            f"{'numpy' if engine != 'numpy' else 'fast'!r} may trace it meanwhile")
+    if not L.flags.writeable:
+        L = L.copy()
+    np.maximum(L, 0.0, out=L)
+    return L
+
+
+def _check_transmission(log_t, scene):
+    """No pixel may transmit more than the open beam (I <= I0): mu >= 0 and L >= 0 make every
+    energy bin's ``exp(-sum mu L) <= 1``."""
+    top = float(np.max(log_t)) if log_t.size else 0.0
+    if top > 1e-9 or not np.isfinite(log_t).all():
+        from xray_viz.errors import EngineError
+
+        raise EngineError(f"internal error: a pixel's transmission ln(I/I0) = {top!r} (> 0, or "
+                          "not finite); the image is not written. Please report it with the "
+                          "scene")
 
 
 # ------------------------------------------------------------------------------------------
@@ -480,6 +526,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     t_trace, t_bands, hits = _band_loop(scene, engine, n, log_t=log_t, total=total,
                                         per_body=per_body, keep_hits=keep_hits)
     t1 = time.perf_counter()
+    _check_transmission(log_t, scene)
     intensity, line_integral = detect_log(log_t, scene)
     del log_t
     t2 = time.perf_counter()
