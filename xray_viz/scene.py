@@ -52,12 +52,27 @@ DETECTOR_RESPONSES = ("energy", "counting")
 #: Length units accepted by a body's ``units`` key, in millimetres.
 LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
 
+#: Largest coordinate (mm) of a source, a detector centre or a body's vertex: 1000 km. Rays
+#: from that far keep their path lengths to 1e-7 mm (float64 rounds a distance d to 1e-16 d);
+#: squared distances overflow float64 only beyond 1e154 mm.
+COORDINATE_LIMIT = 1e9
+
+#: Largest focal spot (FWHM, mm): no X-ray tube comes near it, and the blur kernel's length
+#: grows with it (in pixels: focal spot x (M - 1) / pitch).
+FOCAL_SPOT_MAX = 100.0
+
+#: Largest ``I0`` (photons per pixel) with ``noise``: NumPy's Poisson sampler refuses means
+#: above about 9.2e18, and at 1e18 photons the relative noise is 1e-9 anyway.
+NOISE_I0_MAX = 1e18
+
 #: Smallest and largest detector pitch (mm between neighbouring rays). The fast engine maps the
 #: detector onto a fixed-point grid: projected positions are snapped to ``2**-22`` of a (sub-ray)
 #: pitch and the grid spans ``2**35`` pitches each way (``FRAC_BITS`` and ``COORD_LIMIT`` of
-#: :mod:`xray_viz.tracing._raster`). At 1e-6 mm (1 nm) it spans +-34 mm, so a triangle across
-#: the beam must still be smaller than that; at 1e6 mm (1 km) a snapped ray position is only
-#: good to 0.2 mm. Every real detector lies far inside (0.5 um to a few mm).
+#: :mod:`xray_viz.tracing._raster`); a triangle across the beam with a vertex beyond it cannot
+#: be traced. At 1e-6 mm (1 nm) the grid spans +-34 m (over the supersampling factor), room for
+#: any triangle; it shrinks with the pitch (+-34 mm at 1e-9 mm, 0.03 mm at 1e-12 mm, where the
+#: sphere phantom's 2 mm facets no longer fit). At 1e6 mm (1 km) a snapped ray is placed only
+#: to 0.12 mm (``2**-23`` pitch). Real detectors lie far inside (0.5 um to a few mm).
 PITCH_RANGE = (1e-6, 1e6)
 
 #: A pitch must be at least this fraction of the detector centre's distance from the origin
@@ -133,8 +148,12 @@ def _numbers(value, name: str, n: int) -> np.ndarray:
     return np.broadcast_to(arr, (n,)).copy() if arr.size == 1 else arr
 
 
-def _vec3(value, *, name: str = "vector") -> np.ndarray:
-    """A finite 3-vector of numbers (read-only float64), or SceneError naming ``name``."""
+def _vec3(value, *, name: str = "vector", position: bool = True) -> np.ndarray:
+    """A finite 3-vector of numbers (read-only float64), or SceneError naming ``name``.
+
+    A ``position`` (mm) must lie within :data:`COORDINATE_LIMIT` of the origin; a direction
+    (``position=False``) must have a length between 1e-150 and 1e150, so that its square is an
+    ordinary float64 number."""
     if isinstance(value, (list, tuple)):
         ok = len(value) == 3 and all(_is_number(v) for v in value)
     else:
@@ -147,6 +166,14 @@ def _vec3(value, *, name: str = "vector") -> np.ndarray:
         arr = np.full(3, math.inf)
     if not np.all(np.isfinite(arr)):
         raise SceneError(f"{name} must be finite, got {np.asarray(value).tolist()}")
+    big = float(np.max(np.abs(arr)))
+    if position and big > COORDINATE_LIMIT:
+        raise SceneError(f"{name} {arr.tolist()} is {big:g} mm from the origin: coordinates must "
+                         f"be within {COORDINATE_LIMIT:g} mm (1000 km), where float64 still keeps "
+                         f"path lengths to 1e-7 mm; check the units (mm)")
+    if not position and big > 0 and not 1e-150 < big < 1e150:
+        raise SceneError(f"{name} {arr.tolist()} has no usable length: give a direction of "
+                         f"ordinary size, such as [0, 1, 0]")
     arr = arr + 0.0                            # -0.0 -> 0.0, and a copy the caller cannot change
     arr.setflags(write=False)
     return arr
@@ -182,12 +209,14 @@ def check_pitch(pitch, center, *, what: str = "pitch") -> tuple[float, float]:
     return px
 
 
-def check_body_size(vertices, *, where: str, cause: str = "the mesh") -> None:
-    """Validate a body's size in the scene (mm): finite, within :data:`BODY_SIZE_RANGE`, and at
-    least :data:`BODY_MIN_RELATIVE` of its distance from the origin across.
+def check_body_size(vertices, *, where: str, cause: str | None = None) -> None:
+    """Validate a body's size in the scene (mm): finite, within :data:`BODY_SIZE_RANGE`, within
+    :data:`COORDINATE_LIMIT` of the origin, and at least :data:`BODY_MIN_RELATIVE` of its
+    distance from the origin across.
 
-    ``where`` starts the message (``"body 'ball': "``), ``cause`` says what gave the size
-    (``"scale 1e-200"``). A mesh with no extent at all (a point) is left to the mesh check.
+    ``where`` starts the message (``"body 'ball': "``), ``cause`` says what gave the mesh its
+    place and size (``"scale 1e-200"``), if anything did. A mesh with no extent at all (a point)
+    is left to the mesh check.
 
     Raises
     ------
@@ -197,25 +226,31 @@ def check_body_size(vertices, *, where: str, cause: str = "the mesh") -> None:
     if not len(v):
         return
     lo, hi = BODY_SIZE_RANGE
+    makes, puts = (f"{cause} makes the mesh", f"{cause} puts the mesh") if cause else \
+        ("the mesh is", "the mesh is")
     if not np.all(np.isfinite(v)):
-        raise SceneError(f"{where}{cause} puts mesh vertices beyond float64 (1.8e308 mm): a "
-                         f"body must be between {lo:g} and {hi:g} mm across; check scale and "
-                         f"units")
+        what = f"{makes} overflow float64 (coordinates beyond 1.8e308 mm)" if cause else \
+            "the mesh has non-finite vertices"
+        raise SceneError(f"{where}{what}: a body must be between {lo:g} and {hi:g} mm across; "
+                         f"check scale and units")
     with np.errstate(over="ignore", invalid="ignore"):
         size = float(np.max(np.ptp(v, axis=0)))
         far = float(np.max(np.abs(v)))
+    if size > 0 and not lo <= size <= hi:
+        raise SceneError(f"{where}{makes} {size:.3g} mm across: a body must be between {lo:g} "
+                         f"and {hi:g} mm across (the engines multiply several lengths, which "
+                         f"float64 holds only between 1e-308 and 1e308); check scale and units")
+    if far > COORDINATE_LIMIT:
+        raise SceneError(f"{where}{puts} {far:.3g} mm from the origin: coordinates must be "
+                         f"within {COORDINATE_LIMIT:g} mm (1000 km); check position, scale and "
+                         f"units")
     if size == 0:
         return
-    if not lo <= size <= hi:
-        raise SceneError(f"{where}{cause} makes the mesh {size:.3g} mm across: a body must be "
-                         f"between {lo:g} and {hi:g} mm across (the engines multiply several "
-                         f"lengths, which float64 holds only between 1e-308 and 1e308); check "
-                         f"scale and units")
     if size < BODY_MIN_RELATIVE * far:
-        raise SceneError(f"{where}{cause} puts the mesh ({size:.3g} mm across) {far:.3g} mm from "
-                         f"the origin, where float64 places vertices only to "
-                         f"{far * 2.0 ** -52:.2g} mm: a body must be at least 2**-30 of its "
-                         f"distance from the origin across; move the scene nearer the origin")
+        raise SceneError(f"{where}{puts} ({size:.3g} mm across) {far:.3g} mm from the origin, "
+                         f"where float64 places vertices only to {far * 2.0 ** -52:.2g} mm: a "
+                         f"body must be at least 2**-30 of its distance from the origin across; "
+                         f"move the scene nearer the origin")
 
 
 @dataclass(frozen=True)
@@ -282,14 +317,16 @@ class Detector:
     pitch : (float, float)
         Distance in mm between neighbouring rays along HO and VE. ``|HO| = (W - 1) * pitch[0]``.
         Between 1e-6 and 1e6 mm (:data:`PITCH_RANGE`: the fast engine's fixed-point grid snaps
-        projected positions to ``2**-22`` of a pitch and spans ``2**35`` pitches), and at
+        projected positions to ``2**-22`` of a pitch and spans ``2**35`` pitches, +-34 m at
+        the smallest pitch, and places rays to 0.12 mm at the largest), and at
         least ``2**-30`` of the largest coordinate of ``center`` (:data:`PITCH_MIN_RELATIVE`:
         finer than that float64 cannot place the rays).
     response : {"energy", "counting"}
         Energy-integrating (signal ~ sum fluence * E * transmission) or photon counting.
     i0 : float
         Unattenuated photons per pixel (at the detector centre). With noise off the image is just
-        ``i0 * I / I0``; with noise on it sets the photon statistics.
+        ``i0 * I / I0``; with noise on it sets the photon statistics (then at most 1e18,
+        :data:`NOISE_I0_MAX`).
     noise : bool
         Poisson noise.
     seed : int or None
@@ -299,7 +336,8 @@ class Detector:
     supersample : int
         ``n x n`` rays per pixel, averaged in intensity.
     focal_spot : float
-        Focal spot size in mm (FWHM of a Gaussian); 0 for an ideal point.
+        Focal spot size in mm (FWHM of a Gaussian); 0 for an ideal point; at most 100 mm
+        (:data:`FOCAL_SPOT_MAX`).
 
     Numbers must be numbers and flags bools: ``pitch=True``, ``i0="1e4"`` or ``noise="no"``
     are refused, not converted. See :mod:`xray_viz.physics` for what these model and what they
@@ -325,13 +363,13 @@ class Detector:
 
     def __post_init__(self):
         object.__setattr__(self, "center", _vec3(self.center, name="[detector] center"))
-        object.__setattr__(self, "up", _vec3(self.up, name="[detector] up"))
+        object.__setattr__(self, "up", _vec3(self.up, name="[detector] up", position=False))
         shape = _shape(self.shape)
         pitch = _numbers(self.pitch, "[detector] pitch (mm)", 2)
         if not np.all(pitch > 0):
             raise SceneError(f"[detector] pitch must be > 0 mm, got {pitch.tolist()}")
         pitch = check_pitch(pitch, self.center)
-        if np.linalg.norm(self.up) == 0:
+        if not np.any(self.up):
             raise SceneError("[detector] up must be a non-zero vector")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "pitch", pitch)
@@ -341,19 +379,26 @@ class Detector:
         i0 = _real(self.i0, "[detector] I0 (photons per pixel)")
         if not i0 > 0:
             raise SceneError(f"[detector] I0 must be > 0 photons per pixel, got {i0:g}")
+        noise = _flag(self.noise, "[detector] noise")
+        if noise and i0 > NOISE_I0_MAX:
+            raise SceneError(f"[detector] I0 {i0:g} is too many photons per pixel for noise: at "
+                             f"most {NOISE_I0_MAX:g} with noise = true (NumPy's Poisson sampler "
+                             f"stops near 9.2e18, and the relative noise is then 1e-9); set "
+                             f"noise = false")
         if not _is_integer(self.supersample) or self.supersample < 1:
             raise SceneError(f"[detector] supersample must be an integer >= 1, "
                              f"got {self.supersample!r}")
         focal_spot = _real(self.focal_spot, "[detector] focal_spot (mm)")
-        if not focal_spot >= 0:
-            raise SceneError(f"[detector] focal_spot must be >= 0 mm, got {focal_spot:g}")
+        if not 0 <= focal_spot <= FOCAL_SPOT_MAX:
+            raise SceneError(f"[detector] focal_spot must be between 0 and {FOCAL_SPOT_MAX:g} mm "
+                             f"(FWHM), got {focal_spot:g}")
         if self.seed is not None and (not _is_integer(self.seed) or self.seed < 0):
             raise SceneError(f"[detector] seed must be an integer >= 0, got {self.seed!r}")
         object.__setattr__(self, "i0", i0)
         object.__setattr__(self, "supersample", int(self.supersample))
         object.__setattr__(self, "focal_spot", focal_spot)
         object.__setattr__(self, "seed", None if self.seed is None else int(self.seed))
-        object.__setattr__(self, "noise", _flag(self.noise, "[detector] noise"))
+        object.__setattr__(self, "noise", noise)
         object.__setattr__(self, "falloff", _flag(self.falloff, "[detector] falloff"))
 
     @property
@@ -866,6 +911,17 @@ def _place_mesh(mesh, transform, *, where: str, cause: str):
             raise SceneError(f"{where}{cause} merges {before - after} of the mesh's {before} "
                              f"vertices (they round to the same float64 point): the mesh would "
                              f"collapse; use a larger scale or move it nearer the origin")
+    m3 = transform[:3, :3]
+    gram = m3.T @ m3
+    if not np.allclose(gram, gram[0, 0] * np.eye(3), rtol=1e-9, atol=0):
+        # a scale of different factors per axis can flatten a good mesh to zero volume
+        from xray_viz.meshes.repair import _is_flat
+
+        volume = float(mesh.volume)
+        if not _is_flat(v0, volume) and _is_flat(v, volume * float(np.linalg.det(m3))):
+            dims = " x ".join(f"{d:.3g}" for d in np.ptp(v, axis=0))
+            raise SceneError(f"{where}{cause} flattens the mesh to {dims} mm, zero volume to "
+                             f"rounding: scale the axes by similar factors")
     mesh = mesh.copy()
     mesh.apply_transform(transform)
     return mesh
@@ -946,7 +1002,10 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
         mesh = load_mesh(path)
     except XrayVizError as exc:
         raise type(exc)(f"{where}body {name!r}: {exc}") from None
-    transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
+    try:
+        transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
+    except SceneError as exc:
+        t.fail(f"{label} {exc}")
     mesh = _place_mesh(mesh, transform, where=f"{where}{t.where} {label} ",
                        cause=_transform_cause(scale if t.has("scale") else None, units, position))
     from xray_viz.meshes.repair import MeshRepairWarning, ensure_traceable
@@ -1041,7 +1100,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         det.fail("gives both 'pitch' and 'size'; use one")
     if not det.has("pitch") and not det.has("size"):
         det.fail("is missing the required key 'pitch' (mm between rays) or 'size' ([|HO|, |VE|] mm)")
-    if np.linalg.norm(up) == 0:
+    if not np.any(up):
         det.fail("up must be a non-zero vector")
     if det.has("size"):
         size = det.vector("size", 2, positive=True)

@@ -70,10 +70,21 @@ def material_key(material):
     """
     if isinstance(material, str):
         return material
+    pairs = None
     if isinstance(material, Mapping):
-        return tuple(sorted((str(k), float(v)) for k, v in material.items()))
-    if isinstance(material, tuple) and all(isinstance(p, tuple) and len(p) == 2 for p in material):
-        return tuple(sorted((str(k), float(v)) for k, v in material))
+        pairs = list(material.items())
+    elif isinstance(material, tuple) and all(isinstance(p, tuple) and len(p) == 2
+                                             for p in material):
+        pairs = list(material)
+    if pairs is not None:
+        for name, frac in pairs:
+            if not isinstance(name, str):
+                raise MaterialError(f"mixture component names must be strings, got {name!r}")
+            if isinstance(frac, (bool, np.bool_)) or not isinstance(
+                    frac, (int, float, np.integer, np.floating)):
+                raise MaterialError(f"mixture component {name!r} has mass fraction {frac!r}; "
+                                    "fractions must be numbers")
+        return tuple(sorted((k, float(v)) for k, v in pairs))
     raise MaterialError(f"material must be a name, a formula or a table of mass fractions, "
                         f"got {material!r}")
 
