@@ -42,8 +42,8 @@ import numpy as np
 
 from xray_viz.errors import MaterialError
 
-__all__ = ["ENERGY_RANGE", "mass_attenuation", "linear_attenuation", "material_density", "check_material",
-           "nist_compounds", "material_key", "suggest_materials"]
+__all__ = ["ENERGY_RANGE", "mass_attenuation", "linear_attenuation", "material_density",
+           "check_material", "nist_compounds", "material_key", "suggest_materials"]
 
 
 def _xraylib():
@@ -312,7 +312,8 @@ def _energies(energies_kev) -> np.ndarray:
     try:
         e = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
     except (TypeError, ValueError, OverflowError):
-        raise MaterialError(f"photon energies must be numbers in keV, got {energies_kev!r}") from None
+        raise MaterialError(f"photon energies must be numbers in keV, "
+                            f"got {energies_kev!r}"[:200]) from None
     if e.ndim != 1 or not np.all(np.isfinite(e)) or np.any(e <= 0):
         raise MaterialError(f"photon energies must be finite and > 0 keV, got {e.tolist()[:5]}")
     lo, hi = ENERGY_RANGE
