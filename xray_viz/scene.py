@@ -52,13 +52,210 @@ DETECTOR_RESPONSES = ("energy", "counting")
 #: Length units accepted by a body's ``units`` key, in millimetres.
 LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
 
+#: Largest coordinate (mm) of a source, a detector centre or a body's vertex: 1000 km. Rays
+#: from that far keep their path lengths to 1e-7 mm (float64 rounds a distance d to 1e-16 d);
+#: squared distances overflow float64 only beyond 1e154 mm.
+COORDINATE_LIMIT = 1e9
 
-def _vec3(value, *, name: str = "vector") -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64).reshape(3)
+#: Smallest and largest detector pitch (mm between neighbouring rays). The fast engine maps the
+#: detector onto a fixed-point grid: projected positions are snapped to ``2**-22`` of a (sub-ray)
+#: pitch and the grid spans ``2**35`` pitches each way (``FRAC_BITS`` and ``COORD_LIMIT`` of
+#: :mod:`xray_viz.tracing._raster`); a triangle across the beam with a vertex beyond it cannot
+#: be traced. At 1e-6 mm (1 nm) the grid spans +-34 m (over the supersampling factor), room for
+#: any triangle; it shrinks with the pitch (+-34 mm at 1e-9 mm, 0.03 mm at 1e-12 mm, where the
+#: sphere phantom's 2 mm facets no longer fit). At 1e6 mm (1 km) a snapped ray is placed only
+#: to 0.12 mm (``2**-23`` pitch). Real detectors lie far inside (0.5 um to a few mm).
+PITCH_RANGE = (1e-6, 1e6)
+
+#: A pitch must be at least this fraction of the detector centre's distance from the origin
+#: (its largest coordinate): float64 places points there to ``2**-52`` of that distance, so the
+#: rays are then placed to ``2**-22`` of a pitch, as finely as the fast engine snaps them.
+PITCH_MIN_RELATIVE = 2.0 ** -30
+
+#: Smallest and largest body (the largest side of its bounding box in the scene, mm). The mesh
+#: check and the engines multiply up to four lengths (volumes, determinants, the fast engine's
+#: plane coefficients, with the detector pitch and the source distance), and float64 holds only
+#: 1e-308 to 1e308 (1e-324 with lost precision): 1 pm to 1000 km keeps every such product many
+#: orders of magnitude inside. (The sphere phantom scaled as a whole, pitch and distances too,
+#: rendered wrong in the fast engine at 1e+-100, right in both engines at 1e+-60.)
+BODY_SIZE_RANGE = (1e-9, 1e9)
+
+#: A body must be at least this fraction of its distance from the origin across (its largest
+#: coordinate): float64 then places its vertices to ``2**-22`` of its size.
+BODY_MIN_RELATIVE = 2.0 ** -30
+
+
+def _shown(value) -> str:
+    """A user's value quoted for a one-line message: short, escaped (see
+    :func:`xray_viz.errors.excerpt`)."""
+    from xray_viz.errors import excerpt
+
+    if isinstance(value, (str, bytes)):
+        return excerpt(value)
+    text = repr(value).replace("\n", " ")
+    return text if len(text) <= 80 else f"{text[:80]}... ({len(text)} characters)"
+
+
+def _is_number(value) -> bool:
+    """A real number (Python or NumPy int or float), not a bool, string or complex."""
+    return (isinstance(value, (int, float, np.integer, np.floating))
+            and not isinstance(value, (bool, np.bool_)))
+
+
+def _is_integer(value) -> bool:
+    """A Python or NumPy integer, not a bool (nor a float, even an integral one)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _real(value, name: str, *, positive=False, nonnegative=False, optional=False):
+    """``value`` as a finite float, or SceneError naming ``name`` (refuses bools and strings)."""
+    if value is None and optional:
+        return None
+    if not _is_number(value):
+        raise SceneError(f"{name} must be a number, got {_shown(value)} ({type(value).__name__})")
+    try:
+        x = float(value)
+    except OverflowError:                      # a Python int beyond float64
+        x = math.inf
+    if not math.isfinite(x):
+        raise SceneError(f"{name} must be finite, got {_shown(value)}")
+    if positive and not x > 0:
+        raise SceneError(f"{name} must be > 0, got {x:g}")
+    if nonnegative and not x >= 0:
+        raise SceneError(f"{name} must be >= 0, got {x:g}")
+    return x
+
+
+def _flag(value, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise SceneError(f"{name} must be True or False, got {_shown(value)} "
+                         f"({type(value).__name__})")
+    return bool(value)
+
+
+def _numbers(value, name: str, n: int) -> np.ndarray:
+    """A number or ``n`` numbers as a finite (n,) float array, or SceneError naming ``name`` (no
+    coercion of strings or bools; NumPy arrays of integers or floats are fine)."""
+    if isinstance(value, (list, tuple)):
+        ok = all(_is_number(v) for v in value)
+    else:
+        ok = _is_number(value) or (isinstance(value, np.ndarray) and value.dtype.kind in "iuf")
+    size = np.size(value) if ok else 0
+    if not ok or size not in (1, n):
+        raise SceneError(f"{name} must be {'a number or ' if n > 1 else ''}{n} numbers, "
+                         f"got {_shown(value)}")
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except OverflowError:                      # a Python int beyond float64
+        arr = np.array([math.inf])
     if not np.all(np.isfinite(arr)):
-        raise SceneError(f"{name} must be finite, got {arr.tolist()}")
+        raise SceneError(f"{name} must be finite, got {_shown(value)}")
+    return np.broadcast_to(arr, (n,)).copy() if arr.size == 1 else arr
+
+
+def _vec3(value, *, name: str = "vector", position: bool = True) -> np.ndarray:
+    """A finite 3-vector of numbers (read-only float64), or SceneError naming ``name``.
+
+    A ``position`` (mm) must lie within :data:`COORDINATE_LIMIT` of the origin; a direction
+    (``position=False``) must have a length between 1e-150 and 1e150, so that its square is an
+    ordinary float64 number."""
+    if isinstance(value, (list, tuple)):
+        ok = len(value) == 3 and all(_is_number(v) for v in value)
+    else:
+        ok = isinstance(value, np.ndarray) and value.dtype.kind in "iuf" and value.size == 3
+    if not ok:
+        raise SceneError(f"{name} must be 3 numbers (x, y, z in mm), got {_shown(value)}")
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(3)
+    except OverflowError:                      # a Python int beyond float64
+        arr = np.full(3, math.inf)
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(f"{name} must be finite, got {np.asarray(value).tolist()}")
+    big = float(np.max(np.abs(arr)))
+    if position and big > COORDINATE_LIMIT:
+        raise SceneError(f"{name} {arr.tolist()} is {big:g} mm from the origin: coordinates must "
+                         f"be within {COORDINATE_LIMIT:g} mm (1000 km), where float64 still keeps "
+                         f"path lengths to 1e-7 mm; check the units (mm)")
+    if not position and big > 0 and not 1e-150 < big < 1e150:
+        raise SceneError(f"{name} {arr.tolist()} has no usable length: give a direction of "
+                         f"ordinary size, such as [0, 1, 0]")
+    arr = arr + 0.0                            # -0.0 -> 0.0, and a copy the caller cannot change
     arr.setflags(write=False)
     return arr
+
+
+def check_pitch(pitch, center, *, what: str = "pitch") -> tuple[float, float]:
+    """Validate a detector pitch (mm) for the detector centre ``center``; return it as a pair.
+
+    A pitch must lie in :data:`PITCH_RANGE` (1e-6 to 1e6 mm) and be at least
+    :data:`PITCH_MIN_RELATIVE` (``2**-30``) of the detector centre's largest coordinate.
+
+    Raises
+    ------
+    SceneError
+        Naming ``what`` (``"pitch"``, or a sentence about ``size``) and the limit.
+    """
+    px = tuple(float(p) for p in pitch)
+    lo, hi = PITCH_RANGE
+    for p in px:
+        if not lo <= p <= hi:
+            raise SceneError(
+                f"[detector] {what} {p:g} mm: out of range, a pitch must be between {lo:g} and "
+                f"{hi:g} mm (the fast engine's fixed-point grid snaps rays to 2**-22 of a pitch "
+                f"and spans 2**35 pitches); check the units (mm)")
+    far = float(np.max(np.abs(center)))
+    floor = PITCH_MIN_RELATIVE * far
+    if min(px) < floor:
+        raise SceneError(
+            f"[detector] {what} {min(px):g} mm: too fine for a detector centred {far:g} mm from "
+            f"the origin: float64 places points there only to 2**-52 of that distance, so the "
+            f"pitch must be >= 2**-30 of it ({floor:.3g} mm); use a coarser pitch or move the "
+            f"scene nearer the origin")
+    return px
+
+
+def check_body_size(vertices, *, where: str, cause: str | None = None) -> None:
+    """Validate a body's size in the scene (mm): finite, within :data:`BODY_SIZE_RANGE`, within
+    :data:`COORDINATE_LIMIT` of the origin, and at least :data:`BODY_MIN_RELATIVE` of its
+    distance from the origin across.
+
+    ``where`` starts the message (``"body 'ball': "``), ``cause`` says what gave the mesh its
+    place and size (``"scale 1e-200"``), if anything did. A mesh with no extent at all (a point)
+    is left to the mesh check.
+
+    Raises
+    ------
+    SceneError
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    if not len(v):
+        return
+    lo, hi = BODY_SIZE_RANGE
+    makes, puts = (f"{cause} makes the mesh", f"{cause} puts the mesh") if cause else \
+        ("the mesh is", "the mesh is")
+    if not np.all(np.isfinite(v)):
+        what = f"{makes} overflow float64 (coordinates beyond 1.8e308 mm)" if cause else \
+            "the mesh has non-finite vertices"
+        raise SceneError(f"{where}{what}: a body must be between {lo:g} and {hi:g} mm across; "
+                         f"check scale and units")
+    with np.errstate(over="ignore", invalid="ignore"):
+        size = float(np.max(np.ptp(v, axis=0)))
+        far = float(np.max(np.abs(v)))
+    if size > 0 and not lo <= size <= hi:
+        raise SceneError(f"{where}{makes} {size:.3g} mm across: a body must be between {lo:g} "
+                         f"and {hi:g} mm across (the engines multiply several lengths, which "
+                         f"float64 holds only between 1e-308 and 1e308); check scale and units")
+    if far > COORDINATE_LIMIT:
+        raise SceneError(f"{where}{puts} {far:.3g} mm from the origin: coordinates must be "
+                         f"within {COORDINATE_LIMIT:g} mm (1000 km); check position, scale and "
+                         f"units")
+    if size == 0:
+        return
+    if size < BODY_MIN_RELATIVE * far:
+        raise SceneError(f"{where}{puts} ({size:.3g} mm across) {far:.3g} mm from the origin, "
+                         f"where float64 places vertices only to {far * 2.0 ** -52:.2g} mm: a "
+                         f"body must be at least 2**-30 of its distance from the origin across; "
+                         f"move the scene nearer the origin")
 
 
 @dataclass(frozen=True)
@@ -73,11 +270,19 @@ class Source:
         A point source (cone beam, rays fan out from ``position``) or a parallel beam (every ray
         along ``position -> detector centre``, one ray per pixel).
     energy : float or None
-        Photon energy in keV of a monochromatic beam.
+        Photon energy in keV of a monochromatic beam (any energy > 0 for bodies of constant
+        ``mu``; bodies of a ``material`` need 0.1 to 800 keV, the range of xraylib's tables).
     spectrum : dict, Spectrum or None
         Tube or CSV spectrum (see :mod:`xray_viz.physics.spectra`; the parser stores the
         validated table of :func:`~xray_viz.physics.spectra.spectrum_from_dict`); when set it
         replaces ``energy``.
+
+    Numbers must be numbers: a string (``energy="60"``) or a bool is refused, not converted.
+
+    Raises
+    ------
+    SceneError
+        On a value of the wrong type or out of range.
     """
 
     position: np.ndarray
@@ -86,11 +291,20 @@ class Source:
     spectrum: dict | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "position", _vec3(self.position, name="source position"))
-        if self.kind not in ("point", "parallel"):
-            raise SceneError(f"[source] kind must be 'point' or 'parallel', got {self.kind!r}")
-        if self.energy is not None and not (math.isfinite(self.energy) and self.energy > 0):
-            raise SceneError(f"[source] energy must be > 0 keV, got {self.energy}")
+        object.__setattr__(self, "position", _vec3(self.position, name="[source] position"))
+        if not isinstance(self.kind, str) or self.kind not in ("point", "parallel"):
+            raise SceneError(f"[source] kind must be 'point' or 'parallel', "
+                             f"got {_shown(self.kind)}")
+        energy = _real(self.energy, "[source] energy (keV)", positive=True, optional=True)
+        object.__setattr__(self, "energy", energy)
+        if self.spectrum is not None:
+            from collections.abc import Mapping
+
+            from xray_viz.physics.spectra import Spectrum
+
+            if not isinstance(self.spectrum, (Mapping, Spectrum)):
+                raise SceneError(f"[source] spectrum must be a table such as {{'kvp': 80.0}} or "
+                                 f"a Spectrum, got {_shown(self.spectrum)}")
 
 
 @dataclass(frozen=True)
@@ -105,8 +319,14 @@ class Detector:
         Approximate up direction; ``VE`` is the part of it orthogonal to the beam.
     shape : (int, int)
         ``(W, H)``: W rays along ``HO`` (image columns), H rays along ``VE`` (image rows).
+        Integers (Python or NumPy); a float, even ``256.0``, is refused.
     pitch : (float, float)
         Distance in mm between neighbouring rays along HO and VE. ``|HO| = (W - 1) * pitch[0]``.
+        Between 1e-6 and 1e6 mm (:data:`PITCH_RANGE`: the fast engine's fixed-point grid snaps
+        projected positions to ``2**-22`` of a pitch and spans ``2**35`` pitches, +-34 m at
+        the smallest pitch, and places rays to 0.12 mm at the largest), and at
+        least ``2**-30`` of the largest coordinate of ``center`` (:data:`PITCH_MIN_RELATIVE`:
+        finer than that float64 cannot place the rays).
     response : {"energy", "counting"}
         Energy-integrating (signal ~ sum fluence * E * transmission) or photon counting.
     i0 : float
@@ -123,7 +343,14 @@ class Detector:
     focal_spot : float
         Focal spot size in mm (FWHM of a Gaussian); 0 for an ideal point.
 
-    See :mod:`xray_viz.physics` for what these model and what they do not.
+    Numbers must be numbers and flags bools: ``pitch=True``, ``i0="1e4"`` or ``noise="no"``
+    are refused, not converted. See :mod:`xray_viz.physics` for what these model and what they
+    do not.
+
+    Raises
+    ------
+    SceneError
+        On a value of the wrong type or out of range.
     """
 
     center: np.ndarray
@@ -139,37 +366,38 @@ class Detector:
     focal_spot: float = 0.0
 
     def __post_init__(self):
-        object.__setattr__(self, "center", _vec3(self.center, name="detector center"))
-        object.__setattr__(self, "up", _vec3(self.up, name="detector up"))
-        shape = tuple(int(s) for s in np.broadcast_to(self.shape, (2,)))
-        if any(s < 1 for s in shape):
-            raise SceneError(f"[detector] shape must be >= 1 pixel each way, got {list(shape)}")
-        pitch = tuple(float(p) for p in np.broadcast_to(np.asarray(self.pitch, float), (2,)))
-        if not all(math.isfinite(p) and p > 0 for p in pitch):
-            raise SceneError(f"[detector] pitch must be > 0 mm, got {list(pitch)}")
-        if np.linalg.norm(self.up) == 0:
+        object.__setattr__(self, "center", _vec3(self.center, name="[detector] center"))
+        object.__setattr__(self, "up", _vec3(self.up, name="[detector] up", position=False))
+        shape = _shape(self.shape)
+        pitch = _numbers(self.pitch, "[detector] pitch (mm)", 2)
+        if not np.all(pitch > 0):
+            raise SceneError(f"[detector] pitch must be > 0 mm, got {pitch.tolist()}")
+        pitch = check_pitch(pitch, self.center)
+        if not np.any(self.up):
             raise SceneError("[detector] up must be a non-zero vector")
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "pitch", pitch)
-        if self.response not in DETECTOR_RESPONSES:
+        if not isinstance(self.response, str) or self.response not in DETECTOR_RESPONSES:
             raise SceneError(f"[detector] response must be 'energy' or 'counting', "
-                             f"got {self.response!r}")
-        if not (math.isfinite(self.i0) and self.i0 > 0):
-            raise SceneError(f"[detector] I0 must be > 0 photons per pixel, got {self.i0}")
-        if isinstance(self.supersample, bool) or int(self.supersample) != self.supersample \
-                or self.supersample < 1:
+                             f"got {_shown(self.response)}")
+        i0 = _real(self.i0, "[detector] I0 (photons per pixel)")
+        if not i0 > 0:
+            raise SceneError(f"[detector] I0 must be > 0 photons per pixel, got {i0:g}")
+        noise = _flag(self.noise, "[detector] noise")
+        if not _is_integer(self.supersample) or self.supersample < 1:
             raise SceneError(f"[detector] supersample must be an integer >= 1, "
-                             f"got {self.supersample!r}")
-        if not (math.isfinite(self.focal_spot) and self.focal_spot >= 0):
-            raise SceneError(f"[detector] focal_spot must be >= 0 mm, got {self.focal_spot}")
-        if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int)
-                                      or self.seed < 0):
-            raise SceneError(f"[detector] seed must be an integer >= 0, got {self.seed!r}")
-        object.__setattr__(self, "i0", float(self.i0))
+                             f"got {_shown(self.supersample)}")
+        focal_spot = _real(self.focal_spot, "[detector] focal_spot (mm)")
+        if not focal_spot >= 0:
+            raise SceneError(f"[detector] focal_spot must be >= 0 mm, got {focal_spot:g}")
+        if self.seed is not None and (not _is_integer(self.seed) or self.seed < 0):
+            raise SceneError(f"[detector] seed must be an integer >= 0, got {_shown(self.seed)}")
+        object.__setattr__(self, "i0", i0)
         object.__setattr__(self, "supersample", int(self.supersample))
-        object.__setattr__(self, "focal_spot", float(self.focal_spot))
-        object.__setattr__(self, "noise", bool(self.noise))
-        object.__setattr__(self, "falloff", bool(self.falloff))
+        object.__setattr__(self, "focal_spot", focal_spot)
+        object.__setattr__(self, "seed", None if self.seed is None else int(self.seed))
+        object.__setattr__(self, "noise", noise)
+        object.__setattr__(self, "falloff", _flag(self.falloff, "[detector] falloff"))
 
     @property
     def size(self) -> tuple[float, float]:
@@ -181,14 +409,34 @@ class Detector:
     def from_size(cls, center, up, shape, size, **options) -> "Detector":
         """Make a detector from its size ``[|HO|, |VE|]`` in mm instead of its pitch.
 
-        ``options`` are the other fields (``response``, ``i0``, ``noise``, ...).
+        ``options`` are the other fields (``response``, ``i0``, ``noise``, ...). The pitch,
+        ``size / (shape - 1)``, must meet the limits of :class:`Detector`.
         """
-        shape = tuple(int(s) for s in np.broadcast_to(shape, (2,)))
-        size = np.broadcast_to(np.asarray(size, float), (2,))
-        if not np.all(np.isfinite(size)) or np.any(size <= 0):
+        shape = _shape(shape)
+        size = _numbers(size, "[detector] size (mm)", 2)
+        if np.any(size <= 0):
             raise SceneError(f"[detector] size must be > 0 mm, got {size.tolist()}")
         pitch = tuple(float(s / max(n - 1, 1)) for s, n in zip(size, shape))
         return cls(center=center, up=up, shape=shape, pitch=pitch, **options)
+
+
+def _shape(value) -> tuple[int, int]:
+    """``(W, H)`` from an integer or two integers (Python or NumPy), or SceneError."""
+    if isinstance(value, np.ndarray):
+        items = value.reshape(-1).tolist() if value.dtype.kind in "iu" else None
+    elif isinstance(value, (list, tuple)):
+        items = list(value)
+    else:
+        items = [value]
+    if items is None or len(items) not in (1, 2) or not all(_is_integer(s) for s in items):
+        raise SceneError(f"[detector] shape must be two integers [W, H] (pixels), got "
+                         f"{_shown(value)}" + (" (a float: write it without the decimal point)"
+                                         if items and any(isinstance(s, (float, np.floating))
+                                                          for s in items) else ""))
+    shape = tuple(int(s) for s in np.broadcast_to(np.array(items, dtype=object), (2,)))
+    if any(s < 1 for s in shape):
+        raise SceneError(f"[detector] shape must be >= 1 pixel each way, got {list(shape)}")
+    return shape
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,18 +446,29 @@ class Body:
     Parameters
     ----------
     name : str
-        Unique name of the body.
+        Unique name of the body: not empty, no control characters (it appears in one-line
+        messages).
     mesh : trimesh.Trimesh
         Closed, outward-oriented surface, in scene coordinates (mm), transforms applied.
+        Between 1 pm and 1000 km across (:data:`BODY_SIZE_RANGE`) and at least ``2**-30`` of
+        its distance from the origin (:data:`BODY_MIN_RELATIVE`), so that float64 holds it.
     mu : float or None
-        Linear attenuation coefficient in 1/cm (energy independent).
+        Linear attenuation coefficient in 1/cm (energy independent: any photon energy).
     material : str, dict or None
         A NIST compound name, chemical formula or element, or a dict of mass fractions (see
-        :mod:`xray_viz.physics.materials`); used instead of ``mu`` when set.
+        :mod:`xray_viz.physics.materials`); used instead of ``mu``. Its attenuation is
+        tabulated from 0.1 to 800 keV (:data:`~xray_viz.physics.materials.ENERGY_RANGE`).
     density : float or None
         Density in g/cm^3 for ``material``.
     source_file : Path or None
         File the mesh was read from, for messages.
+
+    Raises
+    ------
+    SceneError
+        A bad name, ``mu``, density or mesh size; both or neither of ``mu`` and ``material``.
+    MaterialError
+        An unknown material, a bad mixture, or a formula without a density.
     """
 
     name: str
@@ -220,10 +479,41 @@ class Body:
     source_file: Path | None = None
 
     def __post_init__(self):
+        check_name(self.name)
+        where = f"body {self.name!r}: "
         if self.mu is None and self.material is None:
-            raise SceneError(f"body {self.name!r}: give 'mu' (1/cm) or 'material'")
-        if self.mu is not None and not (math.isfinite(self.mu) and self.mu >= 0):
-            raise SceneError(f"body {self.name!r}: mu must be >= 0 (1/cm), got {self.mu}")
+            raise SceneError(f"{where}give 'mu' (1/cm) or 'material'")
+        if self.mu is not None and self.material is not None:
+            raise SceneError(f"{where}gives both 'mu' and 'material'; use one")
+        mu = _real(self.mu, f"{where}mu (1/cm)", optional=True)
+        if mu is not None and not mu >= 0:
+            raise SceneError(f"{where}mu must be >= 0 (1/cm), got {mu:g}")
+        density = _real(self.density, f"{where}density (g/cm3)", optional=True)
+        if density is not None and not density > 0:
+            raise SceneError(f"{where}density must be > 0 g/cm3, got {density:g}")
+        if density is not None and mu is not None:
+            raise SceneError(f"{where}gives 'density' with 'mu'; density goes with 'material'")
+        object.__setattr__(self, "mu", mu)
+        object.__setattr__(self, "density", density)
+        if self.material is not None:
+            from collections.abc import Mapping
+
+            from xray_viz.errors import MaterialError
+            from xray_viz.physics.materials import check_material
+
+            if not isinstance(self.material, (str, Mapping)):
+                raise SceneError(f"{where}material must be a name or formula string, or a "
+                                 f"mapping of mass fractions; got {_shown(self.material)}")
+            try:
+                check_material(self.material, density=density)
+            except MaterialError as exc:
+                raise MaterialError(f"{where}{exc}") from None
+        if not (hasattr(self.mesh, "vertices") and hasattr(self.mesh, "faces")):
+            raise SceneError(f"{where}mesh must be a triangle mesh (trimesh.Trimesh), got "
+                             f"{type(self.mesh).__name__}")
+        vertices = np.asarray(self.mesh.vertices)
+        if vertices.dtype.kind in "iuf" and np.all(np.isfinite(vertices)):
+            check_body_size(vertices, where=where)   # non-finite: the mesh check's message
 
     @property
     def vertices(self) -> np.ndarray:
@@ -234,6 +524,24 @@ class Body:
     def faces(self) -> np.ndarray:
         """(m, 3) int vertex indices of each triangle, counter-clockwise seen from outside."""
         return np.asarray(self.mesh.faces, dtype=np.int64)
+
+
+#: Longest body name (characters): names appear in one-line messages and file metadata.
+NAME_MAX = 256
+
+
+def check_name(name) -> str:
+    """A body name: a non-empty string of at most :data:`NAME_MAX` characters without control
+    characters (it appears in one-line messages and file metadata), or SceneError."""
+    import unicodedata
+
+    if not isinstance(name, str) or not name.strip():
+        raise SceneError(f"a body name must be a non-empty string, got {_shown(name)}")
+    if any(unicodedata.category(c) in ("Cc", "Zl", "Zp") for c in name):
+        raise SceneError(f"body name {_shown(name)} has a control character; use printable text")
+    if len(name) > NAME_MAX:
+        raise SceneError(f"body name {_shown(name)} is longer than {NAME_MAX} characters")
+    return name
 
 
 @dataclass(frozen=True, eq=False)
@@ -431,8 +739,11 @@ class _Table:
         if value is None or key not in self.data:
             return value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(f"{key} must be a number, got {value!r}")
-        value = float(value)
+            self.fail(f"{key} must be a number, got {_shown(value)}")
+        try:
+            value = float(value)
+        except OverflowError:                  # an integer beyond float64
+            value = math.inf
         if not math.isfinite(value):
             self.fail(f"{key} must be finite, got {value}")
         if positive and value <= 0:
@@ -446,9 +757,9 @@ class _Table:
         if key not in self.data:
             return value
         if not isinstance(value, str):
-            self.fail(f"{key} must be a string, got {value!r}")
+            self.fail(f"{key} must be a string, got {_shown(value)}")
         if choices is not None and value not in choices:
-            self.fail(f"{key} must be one of {', '.join(map(repr, choices))}; got {value!r}")
+            self.fail(f"{key} must be one of {', '.join(map(repr, choices))}; got {_shown(value)}")
         return value
 
     def vector(self, key, n, *, required=False, default=None, positive=False, integer=False):
@@ -462,12 +773,17 @@ class _Table:
             ok = ok and all(isinstance(v, int) for v in value)
         if not ok:
             kind = "integers" if integer else "numbers"
-            self.fail(f"{key} must be a list of {n} {kind}, got {value!r}")
-        arr = np.asarray(value, dtype=np.int64 if integer else np.float64)
+            self.fail(f"{key} must be a list of {n} {kind}, got {_shown(value)}")
+        if integer and any(abs(v) >= 2**63 for v in value):
+            self.fail(f"{key} must be integers below 2**63, got {_shown(value)}")
+        try:
+            arr = np.asarray(value, dtype=np.int64 if integer else np.float64)
+        except OverflowError:                  # an integer beyond float64
+            self.fail(f"{key} must be finite, got {_shown(value)}")
         if not np.all(np.isfinite(arr)):
-            self.fail(f"{key} must be finite, got {value!r}")
+            self.fail(f"{key} must be finite, got {_shown(value)}")
         if positive and np.any(arr <= 0):
-            self.fail(f"{key} must be > 0, got {value!r}")
+            self.fail(f"{key} must be > 0, got {_shown(value)}")
         return arr
 
     def scalar_or_vector(self, key, n, *, default=None, positive=False):
@@ -521,26 +837,104 @@ def body_transform(*, position=None, rotation=None, scale=None, units="mm") -> n
     The mesh is scaled (``units`` then ``scale``), then rotated (degrees about x, y, z in
     that order, fixed axes, or a 3x3 matrix), then translated to ``position``.
 
+    Raises
+    ------
+    SceneError
+        Unknown ``units``, a ``scale`` that is not one or three numbers > 0, a ``position``
+        that is not three finite numbers, or a ``rotation`` that is neither three finite
+        angles nor a 3 x 3 rotation matrix.
+
     Examples
     --------
     >>> body_transform(position=[1, 2, 3])[:3, 3].tolist()
     [1.0, 2.0, 3.0]
     """
+    if not isinstance(units, str) or units not in LENGTH_UNITS:
+        raise SceneError(f"units must be one of {', '.join(map(repr, LENGTH_UNITS))}; "
+                         f"got {units!r}")
     m = np.eye(4)
     s = np.ones(3) * LENGTH_UNITS[units]
     if scale is not None:
-        s = s * np.broadcast_to(np.asarray(scale, float), (3,))
-    r = np.eye(3) if rotation is None else _rotation_matrix(rotation)
+        factor = _numbers(scale, "scale", 3)
+        if not np.all(factor > 0):
+            raise SceneError(f"scale must be > 0 (a negative one would mirror the mesh "
+                             f"inside out), got {np.asarray(scale).tolist()}")
+        s = s * factor
+    if rotation is None:
+        r = np.eye(3)
+    else:
+        rot = np.asarray(rotation)
+        if rot.shape == (3, 3) and rot.dtype.kind in "iuf" and np.all(np.isfinite(rot)):
+            r = _rotation_matrix(rot)
+        else:
+            r = _rotation_matrix(_numbers(rotation, "rotation (degrees)", 3)
+                                 if rot.shape == (3,) else
+                                 _numbers(rotation, "rotation (3 angles or a 3 x 3 matrix)", 3))
     m[:3, :3] = r @ np.diag(s)
     if position is not None:
-        m[:3, 3] = position
+        m[:3, 3] = _vec3(position, name="position")
     return m
+
+
+def _transform_cause(scale, units, position) -> str:
+    """What made a body its size in the scene, for messages: ``"scale 1e-200"``, ..."""
+    parts = []
+    if scale is not None:
+        sc = np.asarray(scale, dtype=np.float64)
+        parts.append(f"scale {sc[0]:g}" if np.all(sc == sc[0]) else f"scale {sc.tolist()}")
+    if units != "mm":
+        parts.append(f"units {units!r}")
+    if position is not None:
+        parts.append(f"position {np.asarray(position, dtype=np.float64).tolist()}")
+    return " with ".join(parts) if parts else "the mesh file's coordinates"
+
+
+def _distinct_rows(v: np.ndarray) -> int:
+    """How many distinct rows (vertices) ``v`` has, exactly (``-0.0 == 0.0``)."""
+    if len(v) < 2:
+        return len(v)
+    v = np.ascontiguousarray(v + 0.0)
+    order = np.lexsort(v.T[::-1])
+    s = v[order]
+    return 1 + int(np.count_nonzero(np.any(s[1:] != s[:-1], axis=1)))
+
+
+def _place_mesh(mesh, transform, *, where: str, cause: str):
+    """The mesh moved by ``transform`` (mm), refusing a result float64 cannot hold: a size out of
+    :data:`BODY_SIZE_RANGE`, too small for its distance from the origin, or vertices that the
+    transform merged. The mesh itself when ``transform`` is the identity."""
+    v0 = np.asarray(mesh.vertices, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        v = v0 @ transform[:3, :3].T + transform[:3, 3]
+    check_body_size(v, where=where, cause=cause)
+    if np.array_equal(v, v0):
+        return mesh
+    if len(v) and np.ptp(v, axis=0).max() > 0:
+        before, after = _distinct_rows(v0), _distinct_rows(v)
+        if after < before:
+            raise SceneError(f"{where}{cause} merges {before - after} of the mesh's {before} "
+                             f"vertices (they round to the same float64 point): the mesh would "
+                             f"collapse; use a larger scale or move it nearer the origin")
+    m3 = transform[:3, :3]
+    gram = m3.T @ m3
+    if not np.allclose(gram, gram[0, 0] * np.eye(3), rtol=1e-9, atol=0):
+        # a scale of different factors per axis can flatten a good mesh to zero volume
+        from xray_viz.meshes.repair import _is_flat
+
+        volume = float(mesh.volume)
+        if not _is_flat(v0, volume) and _is_flat(v, volume * float(np.linalg.det(m3))):
+            dims = " x ".join(f"{d:.3g}" for d in np.ptp(v, axis=0))
+            raise SceneError(f"{where}{cause} flattens the mesh to {dims} mm, zero volume to "
+                             f"rounding: scale the axes by similar factors")
+    mesh = mesh.copy()
+    mesh.apply_transform(transform)
+    return mesh
 
 
 def _boolean(t: _Table, key: str, default: bool = False) -> bool:
     value = t.raw(key, default=default)
     if not isinstance(value, bool):
-        t.fail(f"{key} must be true or false, got {value!r}")
+        t.fail(f"{key} must be true or false, got {_shown(value)}")
     return value
 
 
@@ -549,7 +943,7 @@ def _integer(t: _Table, key: str, *, minimum: int, default=None):
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        t.fail(f"{key} must be an integer >= {minimum}, got {value!r}")
+        t.fail(f"{key} must be an integer >= {minimum}, got {_shown(value)}")
     return value
 
 
@@ -558,7 +952,14 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
 
     t.expect(BODY_KEYS)
     name = t.string("name", default=f"body{index}")
+    try:
+        check_name(name)
+    except SceneError as exc:
+        t.fail(f"name: {exc}")
+    label = f"(name {name!r})"
     mesh_name = t.string("mesh", required=True)
+    if not mesh_name.strip():
+        t.fail(f"{label} mesh must name a mesh file, got {mesh_name!r}")
     mu = t.number("mu", nonnegative=True)
     material = t.raw("material")
     if material is not None and not isinstance(material, (str, dict)):
@@ -578,16 +979,17 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
         try:
             check_material(material, density=density)
         except MaterialError as exc:
-            t.fail(f"(name {name!r}): {exc}")
+            t.fail(f"{label}: {exc}")
     position = t.vector("position", 3)
     rotation = None
     if t.has("rotation"):
         raw = t.data["rotation"]
         if isinstance(raw, list) and raw and all(isinstance(r, list) for r in raw):
             t.used.add("rotation")
-            rot = np.asarray(raw, dtype=float) if all(len(r) == 3 for r in raw) else None
-            if rot is None or rot.shape != (3, 3) or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) \
-                    or np.linalg.det(rot) < 0:
+            ok = len(raw) == 3 and all(len(r) == 3 and all(_is_number(x) for x in r) for r in raw)
+            rot = np.asarray(raw, dtype=float) if ok else None
+            if rot is None or not np.all(np.isfinite(rot)) \
+                    or not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
                 t.fail(f"rotation must be 3 angles in degrees or a 3x3 rotation matrix, got {raw!r}")
             rotation = rot
         else:
@@ -604,10 +1006,12 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
         mesh = load_mesh(path)
     except XrayVizError as exc:
         raise type(exc)(f"{where}body {name!r}: {exc}") from None
-    transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
-    if not np.allclose(transform, np.eye(4)):
-        mesh = mesh.copy()
-        mesh.apply_transform(transform)
+    try:
+        transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
+    except SceneError as exc:
+        t.fail(f"{label} {exc}")
+    mesh = _place_mesh(mesh, transform, where=f"{where}{t.where} {label} ",
+                       cause=_transform_cause(scale if t.has("scale") else None, units, position))
     from xray_viz.meshes.repair import MeshRepairWarning, ensure_traceable
 
     try:
@@ -620,6 +1024,35 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
         warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
                       MeshRepairWarning, stacklevel=2)
     return Body(name=name, mesh=mesh, mu=mu, material=material, density=density, source_file=path)
+
+
+def _check_material_energies(src: _Table, energy, spectrum, bodies) -> None:
+    """Fail when a body of a ``material`` meets photon energies outside the tabulated range of
+    the material data (bodies of constant ``mu`` take any energy)."""
+    from xray_viz.physics.materials import ENERGY_RANGE
+
+    named = [b for b in bodies if b.material is not None]
+    if not named:
+        return
+    lo, hi = ENERGY_RANGE
+    first = named[0]
+    who = (f"body {first.name!r} (material {first.material!r})"
+           + (f" and {len(named) - 1} more" if len(named) > 1 else ""))
+    why = (f"outside {lo:g}-{hi:g} keV, the range of xraylib's attenuation tables that {who} "
+           f"needs")
+    if spectrum is None:
+        e = 60.0 if energy is None else energy
+        if not lo <= e <= hi:
+            src.fail(f"energy {e:g} keV is {why}; use an energy in that range, or give such "
+                     f"bodies a constant mu (1/cm)")
+    elif "file" in spectrum:
+        from xray_viz.physics.spectra import read_spectrum_csv
+
+        spec = read_spectrum_csv(spectrum["file"])
+        e0, e1 = float(spec.energies[0]), float(spec.energies[-1])
+        if e0 < lo or e1 > hi:
+            src.fail(f"spectrum file {Path(spectrum['file']).name} spans {e0:g}-{e1:g} keV, "
+                     f"{why}; remove its rows outside that range")
 
 
 def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None = None) -> Scene:
@@ -671,13 +1104,19 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         det.fail("gives both 'pitch' and 'size'; use one")
     if not det.has("pitch") and not det.has("size"):
         det.fail("is missing the required key 'pitch' (mm between rays) or 'size' ([|HO|, |VE|] mm)")
-    if np.linalg.norm(up) == 0:
+    if not np.any(up):
         det.fail("up must be a non-zero vector")
     if det.has("size"):
         size = det.vector("size", 2, positive=True)
         pitch = size / np.maximum(shape - 1, 1)
+        what = f"size {size.tolist()} over shape {shape.tolist()} gives a pitch of"
     else:
         pitch = det.scalar_or_vector("pitch", 2, positive=True)
+        what = "pitch"
+    try:
+        check_pitch(pitch, center, what=what)
+    except SceneError as exc:
+        raise SceneError(f"{det.file}: {exc}" if det.file else str(exc)) from None
     options = {
         "response": det.string("response", default="energy", choices=DETECTOR_RESPONSES),
         "noise": _boolean(det, "noise"),
@@ -700,6 +1139,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     for k, raw in enumerate(raw_bodies):
         bt = _Table(raw, f"[[body]] #{k + 1}", file)
         bodies.append(_parse_body(bt, base_dir, k))
+    _check_material_energies(src, energy, spectrum, bodies)
     try:
         scene = Scene(
             source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum),

@@ -42,8 +42,8 @@ import numpy as np
 
 from xray_viz.errors import MaterialError
 
-__all__ = ["mass_attenuation", "linear_attenuation", "material_density", "check_material",
-           "nist_compounds", "material_key", "suggest_materials"]
+__all__ = ["ENERGY_RANGE", "mass_attenuation", "linear_attenuation", "material_density",
+           "check_material", "nist_compounds", "material_key", "suggest_materials"]
 
 
 def _xraylib():
@@ -70,10 +70,21 @@ def material_key(material):
     """
     if isinstance(material, str):
         return material
+    pairs = None
     if isinstance(material, Mapping):
-        return tuple(sorted((str(k), float(v)) for k, v in material.items()))
-    if isinstance(material, tuple) and all(isinstance(p, tuple) and len(p) == 2 for p in material):
-        return tuple(sorted((str(k), float(v)) for k, v in material))
+        pairs = list(material.items())
+    elif isinstance(material, tuple) and all(isinstance(p, tuple) and len(p) == 2
+                                             for p in material):
+        pairs = list(material)
+    if pairs is not None:
+        for name, frac in pairs:
+            if not isinstance(name, str):
+                raise MaterialError(f"mixture component names must be strings, got {name!r}")
+            if isinstance(frac, (bool, np.bool_)) or not isinstance(
+                    frac, (int, float, np.integer, np.floating)):
+                raise MaterialError(f"mixture component {name!r} has mass fraction {frac!r}; "
+                                    "fractions must be numbers")
+        return tuple(sorted((k, float(v)) for k, v in pairs))
     raise MaterialError(f"material must be a name, a formula or a table of mass fractions, "
                         f"got {material!r}")
 
@@ -289,12 +300,30 @@ def check_material(material, *, density=None) -> float:
     return tabulated
 
 
+#: Photon energies (keV) at which xraylib has the cross sections of every element Z = 1..98:
+#: its photoelectric, Rayleigh and Compton tables are splines in ln E that refuse to
+#: extrapolate ("Spline extrapolation is not allowed", xraylib >= 4.0); the scattering tables
+#: run from 100 eV to 800 keV (measured with xraylib 4.3: 0.1 and 800 keV are accepted for
+#: every Z, 0.09999 and 800.03 keV refused; tests/test_validation.py checks it).
+ENERGY_RANGE = (0.1, 800.0)
+
+
 def _energies(energies_kev) -> np.ndarray:
-    e = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
+    try:
+        e = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
+    except (TypeError, ValueError, OverflowError):
+        raise MaterialError(f"photon energies must be numbers in keV, "
+                            f"got {energies_kev!r}"[:200]) from None
     if e.ndim != 1 or not np.all(np.isfinite(e)) or np.any(e <= 0):
         raise MaterialError(f"photon energies must be finite and > 0 keV, got {e.tolist()[:5]}")
-    if np.any(e > 1e5):  # xraylib's tables end at 100 MeV
-        raise MaterialError(f"photon energies must be <= 100000 keV, got max {e.max():g}")
+    lo, hi = ENERGY_RANGE
+    if e.min() < lo or e.max() > hi:
+        out = e[(e < lo) | (e > hi)]
+        raise MaterialError(
+            f"photon energ{'y' if len(out) == 1 else 'ies'} {', '.join(f'{x:g}' for x in out[:3])}"
+            f"{' ...' if len(out) > 3 else ''} keV outside {lo:g}-{hi:g} keV, the range of "
+            f"xraylib's attenuation tables: use energies in that range for bodies of a material "
+            f"(a body of constant mu takes any energy)")
     return e
 
 

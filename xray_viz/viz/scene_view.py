@@ -89,9 +89,21 @@ def material_label(body) -> str:
     >>> import xray_viz
     >>> material_label(xray_viz.load_scene("sphere").bodies[0])
     'mu = 0.2 /cm'
+    >>> from xray_viz.scene import Body
+    >>> ball = xray_viz.load_scene("sphere").bodies[0].mesh
+    >>> mix = {"Water, Liquid": 0.7, "Bone, Cortical (ICRP)": 0.3}
+    >>> material_label(Body("b", ball, material=mix, density=1.25))
+    '70% Water, Liquid + 30% Bone, Cortical (ICRP), 1.25 g/cm3'
     """
     if body.material is not None:
-        return body.material + (f" {body.density:g} g/cm3" if body.density else "")
+        density = f" {body.density:g} g/cm3" if body.density else ""
+        if isinstance(body.material, str):
+            return body.material + density
+        from xray_viz.physics.materials import material_key
+
+        parts = sorted(material_key(body.material), key=lambda p: (-p[1], p[0]))
+        mixture = " + ".join(f"{100 * w:.3g}% {name}" for name, w in parts)
+        return mixture + density.replace(" ", ", ", 1)
     return f"mu = {body.mu:g} /cm"
 
 

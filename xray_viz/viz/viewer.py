@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -131,8 +132,17 @@ class Viewer:
         self.rotation = 0.0
         self.energy = float(scene.source.energy) if scene.source.energy is not None else 60.0
         self.kvp = None
-        if scene.source.spectrum is not None and "kvp" in scene.source.spectrum:
-            self.kvp = float(scene.source.spectrum["kvp"])
+        #: The source's spectrum when it is fixed (a CSV file's, or a Spectrum given through
+        #: the API): no energy or kVp control then. None for a tube spectrum (the kVp slider)
+        #: or a monochromatic beam (the energy slider).
+        self.fixed_spectrum = None
+        spec = scene.source.spectrum
+        if isinstance(spec, Mapping) and "kvp" in spec:
+            self.kvp = float(spec["kvp"])
+        elif spec is not None:
+            from xray_viz.physics.spectra import source_spectrum
+
+            self.fixed_spectrum = source_spectrum(scene.source)
         self.resolution = int(resolution or max(scene.detector.shape))
         self.profile = None
         self._shots = itertools.count()
@@ -166,7 +176,7 @@ class Viewer:
         source = dataclasses.replace(base.source,
                                      position=center + self.source_distance * self.axis)
         if self.kvp is not None:
-            source = dataclasses.replace(source, spectrum={**base.source.spectrum,
+            source = dataclasses.replace(source, spectrum={**dict(base.source.spectrum),
                                                            "kvp": self.kvp})
         elif base.source.spectrum is None:
             source = dataclasses.replace(source, energy=self.energy)
@@ -223,7 +233,16 @@ class Viewer:
         self.update()
 
     def set_energy(self, kev: float) -> None:
-        """Set the photon energy of a monochromatic source (keV)."""
+        """Set the photon energy of a monochromatic source (keV).
+
+        Raises
+        ------
+        ValueError
+            When the source has a spectrum (set its kVp with :meth:`set_kvp` if it is a tube's).
+        """
+        if self.kvp is not None or self.fixed_spectrum is not None:
+            raise ValueError(f"the source has a spectrum ({self._beam_text()}), not one energy"
+                             + ("; use set_kvp" if self.kvp is not None else ""))
         if float(kev) == self.energy:
             return
         self.energy = float(kev)
@@ -372,8 +391,15 @@ class Viewer:
         self.plotter.close()
 
     # ------------------------------------------------------------------ widgets
+    def _beam_text(self) -> str:
+        if self.kvp is not None:
+            return f"{self.kvp:g} kVp"
+        if self.fixed_spectrum is not None:
+            return f"spectrum, mean {self.fixed_spectrum.mean_energy:.1f} keV"
+        return f"{self.energy:g} keV"
+
     def _update_status(self) -> None:
-        beam = f"{self.kvp:g} kVp" if self.kvp is not None else f"{self.energy:g} keV"
+        beam = self._beam_text()
         self.view.status = (f"source {self.source_distance:.0f} mm from the detector, bodies "
                             f"turned {self.rotation:.0f} deg, {beam}")
         self.view.set_radiograph(self.radiograph, window=self.view.window,
@@ -424,7 +450,7 @@ class Viewer:
             ("rotation", self.set_body_rotation, (-180.0, 180.0), 0.0,
              "body rotation (deg)", "%.0f"),
             ("kvp", self.set_kvp, (20.0, 150.0), self.kvp, "kVp", "%.0f")
-            if self.kvp is not None else
+            if self.kvp is not None else None if self.fixed_spectrum is not None else
             ("energy", self.set_energy, (10.0, 150.0), self.energy, "energy (keV)", "%.0f"),
             ("resolution", self.set_resolution, (16, max(512, self.resolution)),
              self.resolution, "preview resolution (px)", "%.0f"),
@@ -432,7 +458,10 @@ class Viewer:
             ("level", self.set_level, l_rng, level, f"level L ({unit})", wl_fmt),
         ]
         self.sliders = {}
-        for k, (key, callback, rng, value, title, fmt) in enumerate(specs):
+        for k, spec in enumerate(specs):
+            if spec is None:                 # a fixed spectrum: no energy control, a gap
+                continue
+            key, callback, rng, value, title, fmt = spec
             y = rows[k // 3]
             x0, x1 = cols[k % 3]
             rng = (min(rng[0], value), max(rng[1], value))
