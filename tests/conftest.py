@@ -13,3 +13,21 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
 def pytest_configure(config):
     if hasattr(config.option, "image_cache_dir") and config.option.image_cache_dir is None:
         config.option.image_cache_dir = "tests/image_cache"
+
+
+# Hypothesis (tests/test_properties.py): the default profile is derandomized (the same examples
+# on every run and machine) and keeps no example database, so CI is reproducible and leaves no
+# .hypothesis folder; HYPOTHESIS_PROFILE=slow runs many more, random examples (failures are
+# saved in .hypothesis/, which git ignores, and printed with a @reproduce_failure blob).
+try:
+    from hypothesis import HealthCheck, settings as _hypothesis_settings
+except ImportError:            # the test extra is not installed: test_properties.py says so
+    pass
+else:
+    _hypothesis_settings.register_profile(
+        "xray_viz", max_examples=12, deadline=None, derandomize=True, database=None,
+        print_blob=True, suppress_health_check=[HealthCheck.too_slow])
+    _hypothesis_settings.register_profile(
+        "slow", max_examples=300, deadline=None, print_blob=True,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+    _hypothesis_settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "xray_viz"))
