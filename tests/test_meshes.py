@@ -622,9 +622,8 @@ def test_inside_out_piece_crossing_an_outward_one_is_refused_in_one_line(tmp_pat
         ensure_traceable(mesh, name="part", repair=False)
 
 
-def test_nesting_check_of_many_cavities_is_fast():
-    import time
-
+def test_nesting_check_of_many_cavities():
+    # (its speed is a benchmark figure, not a timed assertion: BENCHMARKS.md)
     box = trimesh.creation.box(extents=[200, 200, 200])
     small = trimesh.creation.icosphere(subdivisions=0, radius=0.5)
     centres = np.random.default_rng(0).uniform(-90, 90, (2000, 3))
@@ -632,9 +631,7 @@ def test_nesting_check_of_many_cavities_is_fast():
     faces = np.vstack([box.faces] + [small.faces[:, ::-1] + 8 + 12 * k
                                      for k in range(len(centres))])
     mesh = trimesh.Trimesh(vertices, faces, process=False)
-    start = time.perf_counter()
     report = check_mesh(mesh)
-    assert time.perf_counter() - start < 1.0
     assert report.traceable and report.components == 2001
     # one of them pushed through the wall: only that one is reported
     moved = vertices.copy()

@@ -326,10 +326,29 @@ def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
     flagged = self_intersecting_faces(vertices, faces)
     if not flagged.any() or n_pieces < 2:
         return int(flagged.sum())
+    # Test the flagged pieces again in groups whose bounding boxes are pairwise disjoint (a
+    # greedy colouring of the box-overlap graph): within a group only a piece's own faces can
+    # meet, so one call per group counts the crossings within pieces.
+    pieces = np.unique(labels[flagged])
+    tri = vertices[faces]
+    lo = np.full((n_pieces, 3), np.inf)
+    hi = np.full((n_pieces, 3), -np.inf)
+    np.minimum.at(lo, labels, tri.min(axis=1))
+    np.maximum.at(hi, labels, tri.max(axis=1))
+    mask = np.zeros(n_pieces, bool)
+    mask[pieces] = True
+    i, j = _box_pairs(lo, hi, mask, mask)
+    neighbours = {int(p): set() for p in pieces}
+    for a, b in zip(i.tolist(), j.tolist()):
+        neighbours[a].add(b)
+    colour = {}
+    for p in sorted(neighbours, key=lambda q: -len(neighbours[q])):
+        used = {colour[q] for q in neighbours[p] if q in colour}
+        colour[p] = next(c for c in range(len(used) + 1) if c not in used)
     count = 0
-    for piece in np.unique(labels[flagged]):
-        own = faces[labels == piece]
-        count += int(self_intersecting_faces(vertices, own).sum())
+    for c in set(colour.values()):
+        group = np.array([p for p, k in colour.items() if k == c])
+        count += int(self_intersecting_faces(vertices, faces[np.isin(labels, group)]).sum())
     return count
 
 
