@@ -47,7 +47,7 @@ from xray_viz.errors import SceneError, SceneFileNotFoundError, XrayVizError
 __all__ = ["Source", "Detector", "Body", "Scene", "load_scene", "scene_from_dict"]
 
 #: Values of ``[detector] response``.
-DETECTOR_RESPONSES = ("energy", "counting")
+DETECTOR_RESPONSES = ("energy", "counting", "kerma")
 
 #: Length units accepted by a body's ``units`` key, in millimetres.
 LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
@@ -78,12 +78,17 @@ class Source:
         Tube or CSV spectrum (see :mod:`xray_viz.physics.spectra`; the parser stores the
         validated table of :func:`~xray_viz.physics.spectra.spectrum_from_dict`); when set it
         replaces ``energy``.
+    mas : float or None
+        Tube current-time product (mAs) of a tube spectrum: the scene file then derives the
+        detector's ``I0`` from it (:func:`~xray_viz.physics.dosimetry.photons_per_pixel`), and
+        :func:`~xray_viz.physics.dosimetry.air_kerma` reports the exposure.
     """
 
     position: np.ndarray
     kind: str = "point"
     energy: float | None = 60.0
     spectrum: dict | None = None
+    mas: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "position", _vec3(self.position, name="source position"))
@@ -91,6 +96,9 @@ class Source:
             raise SceneError(f"[source] kind must be 'point' or 'parallel', got {self.kind!r}")
         if self.energy is not None and not (math.isfinite(self.energy) and self.energy > 0):
             raise SceneError(f"[source] energy must be > 0 keV, got {self.energy}")
+        if self.mas is not None and (isinstance(self.mas, bool) or not math.isfinite(self.mas)
+                                     or self.mas <= 0):
+            raise SceneError(f"[source] mas must be > 0 (mAs), got {self.mas!r}")
 
 
 @dataclass(frozen=True)
@@ -107,8 +115,9 @@ class Detector:
         ``(W, H)``: W rays along ``HO`` (image columns), H rays along ``VE`` (image rows).
     pitch : (float, float)
         Distance in mm between neighbouring rays along HO and VE. ``|HO| = (W - 1) * pitch[0]``.
-    response : {"energy", "counting"}
-        Energy-integrating (signal ~ sum fluence * E * transmission) or photon counting.
+    response : {"energy", "counting", "kerma"}
+        Energy-integrating (signal ~ sum fluence * E * transmission), photon counting, or air
+        kerma (``fluence * E * (mu_en/rho)_air``, an ideal dosemeter).
     i0 : float
         Unattenuated photons per pixel (at the detector centre). With noise off the image is just
         ``i0 * I / I0``; with noise on it sets the photon statistics.
@@ -152,7 +161,7 @@ class Detector:
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "pitch", pitch)
         if self.response not in DETECTOR_RESPONSES:
-            raise SceneError(f"[detector] response must be 'energy' or 'counting', "
+            raise SceneError(f"[detector] response must be 'energy', 'counting' or 'kerma', "
                              f"got {self.response!r}")
         if not (math.isfinite(self.i0) and self.i0 > 0):
             raise SceneError(f"[detector] I0 must be > 0 photons per pixel, got {self.i0}")
@@ -393,7 +402,7 @@ def _traceable(body: Body, where: str = "") -> Body:
 # TOML parsing and validation
 
 #: Every key each table of a scene file accepts (an unknown key is an error that lists these).
-SOURCE_KEYS = ("position", "kind", "energy", "spectrum")
+SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas")
 DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
                  "falloff", "supersample", "focal_spot")
 BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
@@ -646,6 +655,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     energy = src.number("energy", default=None if spectrum is not None else 60.0, positive=True)
     if spectrum is not None and src.has("energy"):
         src.fail("gives both 'energy' and 'spectrum'; use one")
+    mas = src.number("mas", positive=True)
     src.done()
     if spectrum is not None:
         from xray_viz.errors import SpectrumError
@@ -681,15 +691,27 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     options = {
         "response": det.string("response", default="energy", choices=DETECTOR_RESPONSES),
         "noise": _boolean(det, "noise"),
-        "falloff": _boolean(det, "falloff"),
+        "falloff": _boolean(det, "falloff", default=mas is not None),
         "seed": _integer(det, "seed", minimum=0),
         "supersample": _integer(det, "supersample", minimum=1, default=1),
         "focal_spot": det.number("focal_spot", default=0.0, nonnegative=True),
     }
-    if options["noise"] and not det.has("I0"):
+    if options["noise"] and not det.has("I0") and mas is None:
         det.fail("sets noise = true without 'I0': give the unattenuated photons per pixel, "
-                 "e.g. I0 = 10000.0")
+                 "e.g. I0 = 10000.0, or [source] mas")
+    if mas is not None and det.has("I0"):
+        det.fail("gives 'I0' and [source] gives 'mas': use one (with mas, I0 follows from the "
+                 "tube output)")
     options["i0"] = det.number("I0", default=1.0, positive=True)
+    if mas is not None:
+        from xray_viz.errors import SpectrumError
+        from xray_viz.physics.dosimetry import centre_pixel_photons
+
+        try:
+            options["i0"] = centre_pixel_photons(spectrum, mas, kind=kind, source=position,
+                                                 center=center, pitch=pitch)
+        except SpectrumError as exc:
+            src.fail(str(exc))
     det.done()
 
     raw_bodies = top.raw("body", default=[])
@@ -702,7 +724,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         bodies.append(_parse_body(bt, base_dir, k))
     try:
         scene = Scene(
-            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum),
+            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas),
             detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch),
                               **options),
             bodies=tuple(bodies),
