@@ -64,9 +64,9 @@ __all__ = ["MUEN_AIR_NIST", "AIR_K_EDGE_KEV", "KEV_TO_JOULE", "SCATTER_NOT_MODEL
 #: What the simulator leaves out, for result metadata (``Radiograph``) and documentation.
 SCATTER_NOT_MODELLED = (
     "primary radiation only: scattered photons (Compton and Rayleigh) are removed from the beam "
-    "but never detected; at 80 kVp without a grid scatter would add 0.1 to 4 times the primary "
-    "signal depending on object thickness and field size (see BENCHMARKS.md, 'Scatter not "
-    "modelled')")
+    "but never detected; at 80 kVp without a grid scatter would add 1-40 % of the primary "
+    "signal for the bundled phantoms and about 3 times the primary behind 20 cm of water in a "
+    "30 x 30 cm field (see BENCHMARKS.md, 'Scatter not modelled')")
 
 #: Joules per keV (exact, SI 2019).
 KEV_TO_JOULE = 1.602176634e-16
@@ -94,13 +94,18 @@ MUEN_AIR_NIST = (
 )
 
 
+def _kev(mev) -> np.ndarray:
+    """MeV -> keV, rounded to the table's digits (3.20290e-03 MeV is 3.2029 keV, exactly)."""
+    return np.round(np.asarray(mev, dtype=np.float64) * 1000.0, 9)
+
+
 @lru_cache(maxsize=1)
 def _muen_splines():
     """The two cubic splines in (ln E, ln mu_en): below and above the Ar K edge."""
     from scipy.interpolate import CubicSpline
 
     table = np.asarray(MUEN_AIR_NIST, dtype=np.float64)
-    e_kev, muen = table[:, 0] * 1000.0, table[:, 1]
+    e_kev, muen = _kev(table[:, 0]), table[:, 1]
     edge = int(np.flatnonzero(np.diff(e_kev) == 0)[0])          # last node below the edge
     below = CubicSpline(np.log(e_kev[:edge + 1]), np.log(muen[:edge + 1]))
     above = CubicSpline(np.log(e_kev[edge + 1:]), np.log(muen[edge + 1:]))
@@ -152,7 +157,7 @@ def air_mass_energy_absorption(energies_kev) -> np.ndarray:
 def _muen_nodes():
     """The table's energies (keV, each once; the value above the K edge) and values."""
     table = np.asarray(MUEN_AIR_NIST, dtype=np.float64)
-    e, v = table[:, 0] * 1000.0, table[:, 1]
+    e, v = _kev(table[:, 0]), table[:, 1]
     keep = np.append(e[1:] != e[:-1], True)                     # the later of a repeated energy
     return e[keep], v[keep]
 
@@ -165,7 +170,7 @@ def kerma_weights(spectrum) -> np.ndarray:
     >>> from xray_viz.physics.spectra import Spectrum
     >>> w = kerma_weights(Spectrum([20.0, 60.0], [1.0, 1.0]))
     >>> round(float(w[0]), 4)                     # 20 * 0.5389 / (20 * 0.5389 + 60 * 0.03041)
-    0.8553
+    0.8552
     """
     e = np.asarray(spectrum.energies, dtype=np.float64)
     w = np.asarray(spectrum.weights, dtype=np.float64) * e * air_mass_energy_absorption(e)
@@ -314,7 +319,7 @@ def hvl(spectrum, material="Al", *, density: float | None = None) -> HalfValueLa
     >>> from xray_viz.physics.spectra import Spectrum
     >>> h = hvl(Spectrum.monochromatic(60.0))       # ln 2 / mu of Al at 60 keV
     >>> round(h.hvl1, 3), round(h.homogeneity, 12)
-    (9.244, 1.0)
+    (9.245, 1.0)
     """
     from xray_viz.physics.materials import check_material, linear_attenuation
     from xray_viz.physics.spectra import Spectrum, source_spectrum
