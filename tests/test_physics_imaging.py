@@ -100,8 +100,10 @@ def _flat_scene(tmp_path, *, shape=(128, 128), **detector):
 
 @pytest.mark.parametrize("source, response", [({"energy": 60.0}, "counting"),
                                               ({"energy": 60.0}, "energy"),
-                                              ({"spectrum": {"kvp": 100.0}}, "energy"),
-                                              ({"spectrum": {"kvp": 100.0}}, "counting")])
+                                              ({"spectrum": {"kvp": 100.0,
+                                                             "filters": {"Al": 2.5}}}, "energy"),
+                                              ({"spectrum": {"kvp": 100.0,
+                                                             "filters": {"Al": 2.5}}}, "counting")])
 def test_poisson_flat_field_mean_and_variance(tmp_path, source, response):
     i0 = 400.0
     scene = _flat_scene(tmp_path, source=source, I0=i0, noise=True, seed=7, response=response)

@@ -83,8 +83,15 @@ def _render_command(args) -> int:
                quantity=args.quantity)
     w, h = scene.detector.shape
     n = len(scene.bodies)
+    dose = ""
+    if getattr(scene.source, "mas", None) is not None:
+        from xray_viz.physics.dosimetry import air_kerma
+
+        k = air_kerma(scene)
+        dose = (f", {k.mas:g} mAs: air kerma " + (f"{k.entrance_uGy:.4g} uGy at entrance, "
+                if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
     print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
-          f"engine {image.engine}, {image.timing['total'] * 1000:.0f} ms)")
+          f"engine {image.engine}, {image.timing['total'] * 1000:.0f} ms{dose})")
     return 0
 
 

@@ -47,7 +47,7 @@ from xray_viz.errors import SceneError, SceneFileNotFoundError, XrayVizError
 __all__ = ["Source", "Detector", "Body", "Scene", "load_scene", "scene_from_dict"]
 
 #: Values of ``[detector] response``.
-DETECTOR_RESPONSES = ("energy", "counting")
+DETECTOR_RESPONSES = ("energy", "counting", "kerma")
 
 #: Length units accepted by a body's ``units`` key, in millimetres.
 LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
@@ -276,6 +276,10 @@ class Source:
         Tube or CSV spectrum (see :mod:`xray_viz.physics.spectra`; the parser stores the
         validated table of :func:`~xray_viz.physics.spectra.spectrum_from_dict`); when set it
         replaces ``energy``.
+    mas : float or None
+        Tube current-time product (mAs) of a tube spectrum: the scene file then derives the
+        detector's ``I0`` from it (:func:`~xray_viz.physics.dosimetry.photons_per_pixel`), and
+        :func:`~xray_viz.physics.dosimetry.air_kerma` reports the exposure.
 
     Numbers must be numbers: a string (``energy="60"``) or a bool is refused, not converted.
 
@@ -289,6 +293,7 @@ class Source:
     kind: str = "point"
     energy: float | None = 60.0
     spectrum: dict | None = None
+    mas: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "position", _vec3(self.position, name="[source] position"))
@@ -305,6 +310,8 @@ class Source:
             if not isinstance(self.spectrum, (Mapping, Spectrum)):
                 raise SceneError(f"[source] spectrum must be a table such as {{'kvp': 80.0}} or "
                                  f"a Spectrum, got {_shown(self.spectrum)}")
+        mas = _real(self.mas, "[source] mas (mAs)", positive=True, optional=True)
+        object.__setattr__(self, "mas", mas)
 
 
 @dataclass(frozen=True)
@@ -327,8 +334,9 @@ class Detector:
         the smallest pitch, and places rays to 0.12 mm at the largest), and at
         least ``2**-30`` of the largest coordinate of ``center`` (:data:`PITCH_MIN_RELATIVE`:
         finer than that float64 cannot place the rays).
-    response : {"energy", "counting"}
-        Energy-integrating (signal ~ sum fluence * E * transmission) or photon counting.
+    response : {"energy", "counting", "kerma"}
+        Energy-integrating (signal ~ sum fluence * E * transmission), photon counting, or air
+        kerma (``fluence * E * (mu_en/rho)_air``, an ideal dosemeter).
     i0 : float
         Unattenuated photons per pixel (at the detector centre). With noise off the image is just
         ``i0 * I / I0``; with noise on it sets the photon statistics.
@@ -378,7 +386,7 @@ class Detector:
         object.__setattr__(self, "shape", shape)
         object.__setattr__(self, "pitch", pitch)
         if not isinstance(self.response, str) or self.response not in DETECTOR_RESPONSES:
-            raise SceneError(f"[detector] response must be 'energy' or 'counting', "
+            raise SceneError(f"[detector] response must be 'energy', 'counting' or 'kerma', "
                              f"got {_shown(self.response)}")
         i0 = _real(self.i0, "[detector] I0 (photons per pixel)")
         if not i0 > 0:
@@ -701,7 +709,7 @@ def _traceable(body: Body, where: str = "") -> Body:
 # TOML parsing and validation
 
 #: Every key each table of a scene file accepts (an unknown key is an error that lists these).
-SOURCE_KEYS = ("position", "kind", "energy", "spectrum")
+SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas")
 DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
                  "falloff", "supersample", "focal_spot")
 BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
@@ -1079,6 +1087,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     energy = src.number("energy", default=None if spectrum is not None else 60.0, positive=True)
     if spectrum is not None and src.has("energy"):
         src.fail("gives both 'energy' and 'spectrum'; use one")
+    mas = src.number("mas", positive=True)
     src.done()
     if spectrum is not None:
         from xray_viz.errors import SpectrumError
@@ -1120,15 +1129,27 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     options = {
         "response": det.string("response", default="energy", choices=DETECTOR_RESPONSES),
         "noise": _boolean(det, "noise"),
-        "falloff": _boolean(det, "falloff"),
+        "falloff": _boolean(det, "falloff", default=mas is not None),
         "seed": _integer(det, "seed", minimum=0),
         "supersample": _integer(det, "supersample", minimum=1, default=1),
         "focal_spot": det.number("focal_spot", default=0.0, nonnegative=True),
     }
-    if options["noise"] and not det.has("I0"):
+    if options["noise"] and not det.has("I0") and mas is None:
         det.fail("sets noise = true without 'I0': give the unattenuated photons per pixel, "
-                 "e.g. I0 = 10000.0")
+                 "e.g. I0 = 10000.0, or [source] mas")
+    if mas is not None and det.has("I0"):
+        det.fail("gives 'I0' and [source] gives 'mas': use one (with mas, I0 follows from the "
+                 "tube output)")
     options["i0"] = det.number("I0", default=1.0, positive=True)
+    if mas is not None:
+        from xray_viz.errors import SpectrumError
+        from xray_viz.physics.dosimetry import centre_pixel_photons
+
+        try:
+            options["i0"] = centre_pixel_photons(spectrum, mas, kind=kind, source=position,
+                                                 center=center, pitch=pitch)
+        except SpectrumError as exc:
+            src.fail(str(exc))
     det.done()
 
     raw_bodies = top.raw("body", default=[])
@@ -1142,7 +1163,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     _check_material_energies(src, energy, spectrum, bodies)
     try:
         scene = Scene(
-            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum),
+            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas),
             detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch),
                               **options),
             bodies=tuple(bodies),

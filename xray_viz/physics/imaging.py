@@ -72,7 +72,8 @@ def _response(scene) -> str:
 def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
     """Weight of each energy bin in the detector signal, summing to 1.
 
-    ``"counting"``: the photon fluence ``phi_k``; ``"energy"``: ``phi_k E_k / sum phi E``.
+    ``"counting"``: the photon fluence ``phi_k``; ``"energy"``: ``phi_k E_k / sum phi E``;
+    ``"kerma"``: air kerma, ``phi_k E_k (mu_en/rho)_air(E_k)`` (:mod:`~xray_viz.physics.dosimetry`).
 
     Examples
     --------
@@ -83,8 +84,13 @@ def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
     w = np.asarray(spectrum.weights, dtype=np.float64)
     if response == "energy":
         w = w * spectrum.energies
+    elif response == "kerma":
+        from xray_viz.physics.dosimetry import air_mass_energy_absorption
+
+        w = w * spectrum.energies * air_mass_energy_absorption(spectrum.energies)
     elif response != "counting":
-        raise ValueError(f"detector response must be 'energy' or 'counting', got {response!r}")
+        raise ValueError(f"detector response must be 'energy', 'counting' or 'kerma', got "
+                         f"{response!r}")
     return w / w.sum()
 
 

@@ -1,0 +1,511 @@
+"""Dosimetry: air kerma, half-value layers, photons per mAs and entrance air kerma.
+
+Air kerma
+---------
+The air kerma of a photon fluence ``Phi_k`` (photons per area) at energies ``E_k`` is
+
+    K = sum_k Phi_k E_k (mu_en / rho)_air(E_k)
+
+with ``(mu_en/rho)_air`` the mass energy-absorption coefficient of dry air
+(:func:`air_mass_energy_absorption`). Its values are NIST's: Hubbell J. H. and Seltzer S. M.,
+*Tables of X-Ray Mass Attenuation Coefficients and Mass Energy-Absorption Coefficients from 1 keV
+to 20 MeV for Elements Z = 1 to 92 and 48 Additional Substances of Dosimetric Interest*, NIST
+Standard Reference Database 126 (NISTIR 5632, 1995, updated 2004), Table 4, "Air, Dry (near sea
+level)" (:data:`MUEN_AIR_NIST`). xraylib's own energy-absorption coefficients (``CS_Energy_CP``)
+are not used: for air they are 34 % low at 20 keV, 18 % at 15 keV, 9 % at 50 keV and 11 % high
+at 1 MeV (measured in the tests; xraylib issues #176, #255). Between the tabulated energies the
+table is interpolated by a cubic spline in ``log E``-``log mu_en`` on each side of argon's K edge
+(3.2029 keV): linear log-log interpolation, as SpekPy does, bulges by up to 3-4 % between the
+coarse nodes around the minimum of ``mu_en`` (35 and 70 keV), where the spline stays within a
+fraction of a per cent of the fine-grid PENELOPE table SpekPy ships (checked in the tests).
+
+Half-value layers
+-----------------
+:func:`hvl` gives the first and second half-value layers and the homogeneity coefficient of a
+spectrum, defined on air kerma (as the IEC standards and every dosimetry protocol define them;
+HVLs of the energy fluence or of the photon count are 1.3-1.9 times larger for RQR beams), with
+the attenuation coefficients of :mod:`~xray_viz.physics.materials` (xraylib), the data set the
+bodies and the tube filters use.
+
+Dose and photon numbers
+-----------------------
+A SpekPy tube spectrum carries its absolute output: photons per mm^2 per mAs at 1 m from the
+focal spot (:attr:`~xray_viz.physics.spectra.Spectrum.fluence_per_mas`). With ``[source] mas``
+the unattenuated photons per pixel follow from it by the inverse square law and the pixel area
+(:func:`photons_per_pixel`), and :func:`air_kerma` reports the incident air kerma (free in air,
+no backscatter) at the body surface nearest to the focal spot and at the detector.
+
+What is not modelled
+--------------------
+:data:`SCATTER_NOT_MODELLED`: scattered radiation never reaches the detector in this simulator
+(see BENCHMARKS.md, "Scatter not modelled", for what fraction of the signal it would be).
+
+Examples
+--------
+>>> float(air_mass_energy_absorption(60.0)[0])        # NIST Table 4, dry air, 60 keV
+0.03041
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from xray_viz.errors import SpectrumError
+
+__all__ = ["MUEN_AIR_NIST", "AIR_K_EDGE_KEV", "KEV_TO_JOULE", "SCATTER_NOT_MODELLED",
+           "air_mass_energy_absorption", "kerma_weights", "air_kerma_per_mas",
+           "HalfValueLayers", "hvl", "photons_per_pixel", "centre_pixel_photons", "AirKerma",
+           "air_kerma"]
+
+#: What the simulator leaves out, for result metadata (``Radiograph``) and documentation.
+SCATTER_NOT_MODELLED = (
+    "primary radiation only: scattered photons (Compton and Rayleigh) are removed from the beam "
+    "but never detected; at 80 kVp without a grid scatter would add 1-40 % of the primary "
+    "signal for the bundled phantoms and about 3 times the primary behind 20 cm of water in a "
+    "30 x 30 cm field (see BENCHMARKS.md, 'Scatter not modelled')")
+
+#: Joules per keV (exact, SI 2019).
+KEV_TO_JOULE = 1.602176634e-16
+
+#: Argon K-shell edge in dry air, keV (the table gives mu_en just below and just above it).
+AIR_K_EDGE_KEV = 3.2029
+
+#: NIST mass energy-absorption coefficients of dry air (near sea level), Hubbell and Seltzer,
+#: NIST SRD 126, Table 4: (photon energy in MeV, mu_en/rho in cm^2/g). The Ar K edge appears
+#: twice, below then above it.
+MUEN_AIR_NIST = (
+    (1.00000e-03, 3.599e+03), (1.50000e-03, 1.188e+03), (2.00000e-03, 5.262e+02),
+    (3.00000e-03, 1.614e+02), (3.20290e-03, 1.330e+02), (3.20290e-03, 1.460e+02),
+    (4.00000e-03, 7.636e+01), (5.00000e-03, 3.931e+01), (6.00000e-03, 2.270e+01),
+    (8.00000e-03, 9.446e+00), (1.00000e-02, 4.742e+00), (1.50000e-02, 1.334e+00),
+    (2.00000e-02, 5.389e-01), (3.00000e-02, 1.537e-01), (4.00000e-02, 6.833e-02),
+    (5.00000e-02, 4.098e-02), (6.00000e-02, 3.041e-02), (8.00000e-02, 2.407e-02),
+    (1.00000e-01, 2.325e-02), (1.50000e-01, 2.496e-02), (2.00000e-01, 2.672e-02),
+    (3.00000e-01, 2.872e-02), (4.00000e-01, 2.949e-02), (5.00000e-01, 2.966e-02),
+    (6.00000e-01, 2.953e-02), (8.00000e-01, 2.882e-02), (1.00000e+00, 2.789e-02),
+    (1.25000e+00, 2.666e-02), (1.50000e+00, 2.547e-02), (2.00000e+00, 2.345e-02),
+    (3.00000e+00, 2.057e-02), (4.00000e+00, 1.870e-02), (5.00000e+00, 1.740e-02),
+    (6.00000e+00, 1.647e-02), (8.00000e+00, 1.525e-02), (1.00000e+01, 1.450e-02),
+    (1.50000e+01, 1.353e-02), (2.00000e+01, 1.311e-02),
+)
+
+
+def _kev(mev) -> np.ndarray:
+    """MeV -> keV, rounded to the table's digits (3.20290e-03 MeV is 3.2029 keV, exactly)."""
+    return np.round(np.asarray(mev, dtype=np.float64) * 1000.0, 9)
+
+
+@lru_cache(maxsize=1)
+def _muen_splines():
+    """The two cubic splines in (ln E, ln mu_en): below and above the Ar K edge."""
+    from scipy.interpolate import CubicSpline
+
+    table = np.asarray(MUEN_AIR_NIST, dtype=np.float64)
+    e_kev, muen = _kev(table[:, 0]), table[:, 1]
+    edge = int(np.flatnonzero(np.diff(e_kev) == 0)[0])          # last node below the edge
+    below = CubicSpline(np.log(e_kev[:edge + 1]), np.log(muen[:edge + 1]))
+    above = CubicSpline(np.log(e_kev[edge + 1:]), np.log(muen[edge + 1:]))
+    return below, above, float(e_kev[0]), float(e_kev[-1])
+
+
+def air_mass_energy_absorption(energies_kev) -> np.ndarray:
+    """``(mu_en/rho)`` of dry air in cm^2/g, from NIST's table (see the module docstring).
+
+    Parameters
+    ----------
+    energies_kev : float or (n,) float
+        Photon energies, 1 keV to 20 MeV. At exactly the Ar K edge the value above it is given.
+
+    Returns
+    -------
+    (n,) float
+        Equal to the table at its energies; a cubic spline in log-log between them.
+
+    Raises
+    ------
+    SpectrumError
+        Energies outside the table's 1 keV - 20 MeV.
+
+    Examples
+    --------
+    >>> air_mass_energy_absorption([20.0, 100.0]).tolist()
+    [0.5389, 0.02325]
+    """
+    e = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
+    below, above, lo, hi = _muen_splines()
+    if e.ndim != 1 or not np.all(np.isfinite(e)) or np.any(e < lo) or np.any(e > hi):
+        bad = e[~((e >= lo) & (e <= hi))] if e.ndim == 1 else e.ravel()
+        raise SpectrumError(f"air kerma needs photon energies from {lo:g} keV to {hi:g} keV "
+                            f"(NIST's mu_en/rho table of air), got {bad.tolist()[:3]} keV")
+    out = np.empty_like(e)
+    low = e < AIR_K_EDGE_KEV
+    out[low] = np.exp(below(np.log(e[low])))
+    out[~low] = np.exp(above(np.log(e[~low])))
+    # the spline passes through the nodes up to rounding: return the table's values there
+    node_e, node_v = _muen_nodes()
+    i = np.clip(np.searchsorted(node_e, e), 0, len(node_e) - 1)
+    at_node = node_e[i] == e
+    out[at_node] = node_v[i[at_node]]
+    return out
+
+
+@lru_cache(maxsize=1)
+def _muen_nodes():
+    """The table's energies (keV, each once; the value above the K edge) and values."""
+    table = np.asarray(MUEN_AIR_NIST, dtype=np.float64)
+    e, v = _kev(table[:, 0]), table[:, 1]
+    keep = np.append(e[1:] != e[:-1], True)                     # the later of a repeated energy
+    return e[keep], v[keep]
+
+
+def kerma_weights(spectrum) -> np.ndarray:
+    """Air-kerma weight of each bin, ``phi_k E_k (mu_en/rho)_air(E_k)``, normalised to sum 1.
+
+    Examples
+    --------
+    >>> from xray_viz.physics.spectra import Spectrum
+    >>> w = kerma_weights(Spectrum([20.0, 60.0], [1.0, 1.0]))
+    >>> round(float(w[0]), 4)                     # 20 * 0.5389 / (20 * 0.5389 + 60 * 0.03041)
+    0.8552
+    """
+    e = np.asarray(spectrum.energies, dtype=np.float64)
+    w = np.asarray(spectrum.weights, dtype=np.float64) * e * air_mass_energy_absorption(e)
+    return w / w.sum()
+
+
+def _kerma_uGy(energies_kev, fluence_per_mm2, muen=None) -> float:
+    """Air kerma in uGy of a fluence spectrum given in photons per mm^2 per bin."""
+    e = np.asarray(energies_kev, dtype=np.float64)
+    muen = air_mass_energy_absorption(e) if muen is None else np.asarray(muen, dtype=np.float64)
+    # photons/mm^2 -> /cm^2 (x 100); keV -> J; cm^2/g -> cm^2/kg (x 1000); Gy -> uGy (x 1e6)
+    return float(np.sum(np.asarray(fluence_per_mm2) * 100.0 * e * KEV_TO_JOULE * muen * 1e3)
+                 * 1e6)
+
+
+def _absolute_spectrum(spectrum):
+    """``spectrum`` as a :class:`Spectrum` that knows its photons per mAs, or SpectrumError."""
+    from xray_viz.physics.spectra import Spectrum, source_spectrum
+
+    if not isinstance(spectrum, Spectrum):
+        spectrum = source_spectrum(_AsSource(spectrum))
+    if spectrum.fluence_per_mas is None:
+        raise SpectrumError(f"the spectrum ({spectrum.description or 'user spectrum'}) has no "
+                            "absolute output: photons per mAs come from SpekPy tube spectra "
+                            "(spectrum = { kvp = ... } or { quality = ... }); give [detector] "
+                            "I0 instead")
+    return spectrum
+
+
+@dataclass(frozen=True)
+class _AsSource:
+    spectrum: object
+    energy: float | None = None
+
+
+def air_kerma_per_mas(spectrum, *, distance_mm: float = 1000.0) -> float:
+    """Incident air kerma in uGy per mAs at ``distance_mm`` from the focal spot.
+
+    ``fluence_per_mas * (1000 / distance)^2`` photons per mm^2 with the spectrum's weights,
+    weighted by ``E (mu_en/rho)_air``; free in air (no backscatter, no air attenuation).
+
+    Parameters
+    ----------
+    spectrum : Spectrum or spectrum table
+        A SpekPy tube spectrum (or a table such as ``{"kvp": 80, "filters": {"Al": 2.5}}``).
+    distance_mm : float
+
+    Returns
+    -------
+    float
+    """
+    s = _absolute_spectrum(spectrum)
+    if not (math.isfinite(distance_mm) and distance_mm > 0):
+        raise SpectrumError(f"distance must be > 0 mm, got {distance_mm!r}")
+    fluence = s.weights * s.fluence_per_mas * (1000.0 / distance_mm) ** 2
+    return _kerma_uGy(s.energies, fluence)
+
+
+# --------------------------------------------------------------------------------------------
+# half-value layers
+
+
+@dataclass(frozen=True)
+class HalfValueLayers:
+    """First and second half-value layers of a spectrum, on air kerma.
+
+    Attributes
+    ----------
+    hvl1 : float
+        mm of ``material`` that halve the air kerma.
+    hvl2 : float
+        mm more that halve it again (``QVL - HVL1``).
+    homogeneity : float
+        ``hvl1 / hvl2`` (1 for a monochromatic beam, < 1 for a beam that hardens).
+    material : str
+    density : float
+        g/cm^3 used.
+    """
+
+    hvl1: float
+    hvl2: float
+    homogeneity: float
+    material: str
+    density: float
+
+
+def _attenuation_to_half(kerma_w, mu_per_mm, fraction: float) -> float:
+    """Thickness (mm) at which ``sum_k w_k exp(-mu_k t) / sum_k w_k`` equals ``fraction``."""
+    from scipy.optimize import brentq
+
+    w = np.asarray(kerma_w, dtype=np.float64)
+    mu = np.asarray(mu_per_mm, dtype=np.float64)
+    keep = w > 0
+    w, mu = w[keep] / w[keep].sum(), mu[keep]
+    log_w, target = np.log(w), math.log(fraction)
+
+    def f(t):                                           # log of the transmitted fraction
+        a = log_w - mu * t
+        top = a.max()
+        return top + math.log(np.exp(a - top).sum()) - target
+
+    hi = -target / max(float(mu.min()), 1e-300)          # f(hi) <= 0: the softest weight fits
+    hi = min(hi, 1e9)
+    while f(hi) > 0:                                    # pragma: no cover - mu.min() bounds it
+        hi *= 2.0
+    return float(brentq(f, 0.0, hi, xtol=1e-13 * max(hi, 1.0), rtol=1e-14, maxiter=500))
+
+
+def _half_value_layers(energies_kev, fluence, mu_per_mm, muen=None):
+    """``(hvl1, hvl2)`` in mm for given attenuation (1/mm) and mu_en/rho of air (cm^2/g)."""
+    e = np.asarray(energies_kev, dtype=np.float64)
+    muen = air_mass_energy_absorption(e) if muen is None else np.asarray(muen, dtype=np.float64)
+    w = np.asarray(fluence, dtype=np.float64) * e * muen
+    h1 = _attenuation_to_half(w, mu_per_mm, 0.5)
+    q = _attenuation_to_half(w, mu_per_mm, 0.25)
+    return h1, q - h1
+
+
+def hvl(spectrum, material="Al", *, density: float | None = None) -> HalfValueLayers:
+    """First and second half-value layers and the homogeneity coefficient, on air kerma.
+
+    Parameters
+    ----------
+    spectrum : Spectrum or spectrum table
+        Any :class:`~xray_viz.physics.spectra.Spectrum`, or a table such as
+        ``{"kvp": 80, "filters": {"Al": 2.5}}`` or ``{"quality": "RQR5"}``.
+    material : str or mapping, default "Al"
+        Any material of :mod:`~xray_viz.physics.materials`.
+    density : float, optional
+        g/cm^3; default the tabulated density: a NIST compound's own, or xraylib's density of
+        the solid element for an element symbol (Al: 2.699, NIST's value).
+
+    Returns
+    -------
+    HalfValueLayers
+
+    Notes
+    -----
+    Narrow-beam geometry: ``K(t) = sum_k phi_k E_k (mu_en/rho)_air(E_k) exp(-mu(E_k) t)``;
+    ``HVL1`` solves ``K(HVL1) = K(0) / 2`` and ``HVL1 + HVL2`` solves ``K = K(0) / 4`` (Brent's
+    method to 1e-13 relative). The attenuation is xraylib's (:mod:`~xray_viz.physics.materials`),
+    the same data as the bodies' and the tube filters'.
+
+    Examples
+    --------
+    >>> from xray_viz.physics.spectra import Spectrum
+    >>> h = hvl(Spectrum.monochromatic(60.0))       # ln 2 / mu of Al at 60 keV
+    >>> round(h.hvl1, 3), round(h.homogeneity, 12)
+    (9.245, 1.0)
+    """
+    from xray_viz.physics.materials import check_material, linear_attenuation
+    from xray_viz.physics.spectra import Spectrum, source_spectrum
+
+    s = spectrum if isinstance(spectrum, Spectrum) else source_spectrum(_AsSource(spectrum))
+    rho = _default_density(material) if density is None else float(density)
+    rho = check_material(material, density=rho)
+    mu = linear_attenuation(material, s.energies, density=rho) / 10.0        # 1/mm
+    h1, h2 = _half_value_layers(s.energies, s.weights, mu)
+    name = material if isinstance(material, str) else str(dict(material))
+    return HalfValueLayers(hvl1=h1, hvl2=h2, homogeneity=h1 / h2, material=name, density=rho)
+
+
+def _default_density(material) -> float | None:
+    """A NIST compound's density, or the solid element's (xraylib ``ElementDensity``)."""
+    from xray_viz.physics.materials import material_density
+
+    rho = material_density(material)
+    if rho is None and isinstance(material, str):
+        import xraylib
+
+        try:
+            rho = float(xraylib.ElementDensity(xraylib.SymbolToAtomicNumber(material)))
+        except ValueError:
+            rho = None
+    return rho
+
+
+# --------------------------------------------------------------------------------------------
+# photons per pixel and air kerma of a scene
+
+
+def photons_per_pixel(spectrum, mas: float, *, distance_mm: float, pixel_area_mm2: float) -> float:
+    """Unattenuated photons on one pixel of ``pixel_area_mm2`` facing the focal spot.
+
+    ``fluence_per_mas * mas * (1000 / distance)^2 * pixel_area``: the tube output per mAs at
+    1 m (SpekPy's reference distance), the inverse square law and the pixel area. Off-axis
+    pixels also see the obliquity ``cos(theta)``; the scene's ``falloff`` applies both, as
+    ``cos^3(theta)``, relative to the detector centre.
+
+    Examples
+    --------
+    >>> from xray_viz.physics.spectra import Spectrum
+    >>> s = Spectrum([50.0], [1.0], fluence_per_mas=2.0e4)     # photons/mm^2/mAs at 1 m
+    >>> photons_per_pixel(s, 10.0, distance_mm=2000.0, pixel_area_mm2=0.25)
+    12500.0
+    """
+    s = _absolute_spectrum(spectrum)
+    for name, value in (("mas", mas), ("distance", distance_mm), ("pixel area", pixel_area_mm2)):
+        if isinstance(value, bool) or not (math.isfinite(value) and value > 0):
+            raise SpectrumError(f"{name} must be > 0, got {value!r}")
+    return float(s.fluence_per_mas * mas * (1000.0 / distance_mm) ** 2 * pixel_area_mm2)
+
+
+def centre_pixel_photons(spectrum, mas: float, *, kind: str, source, center, pitch) -> float:
+    """The ``I0`` of a detector for ``mas``: unattenuated photons on its centre pixel.
+
+    :func:`photons_per_pixel` at the source-detector distance with the pixel area
+    ``pitch[0] * pitch[1]``; the scene file sets ``[detector] I0`` to it when ``[source]``
+    gives ``mas`` (and turns ``falloff`` on unless told otherwise, so that every other pixel
+    gets its inverse square and obliquity).
+
+    Parameters
+    ----------
+    spectrum : Spectrum, spectrum table or None
+        A SpekPy tube spectrum (None, a monochromatic beam, has no tube output).
+    mas : float
+    kind : {"point", "parallel"}
+    source, center : (3,) float
+        Focal spot and detector centre (mm).
+    pitch : (2,) float
+        mm.
+
+    Raises
+    ------
+    SpectrumError
+        A parallel beam, no tube spectrum, or a CSV spectrum (no absolute output).
+    """
+    if kind != "point":
+        raise SpectrumError("mas needs a point source (kind = \"point\"): the tube output per "
+                            "mAs falls off with distance from a focal spot")
+    if spectrum is None:
+        raise SpectrumError("mas needs a tube spectrum, spectrum = { kvp = ..., filters = ... } "
+                            "or { quality = \"RQA5\" }: a monochromatic energy has no tube "
+                            "output per mAs; give [detector] I0 instead")
+    sid = float(np.linalg.norm(np.asarray(source, float) - np.asarray(center, float)))
+    px, py = (float(p) for p in np.broadcast_to(np.asarray(pitch, float), (2,)))
+    return photons_per_pixel(spectrum, mas, distance_mm=sid, pixel_area_mm2=px * py)
+
+
+@dataclass(frozen=True)
+class AirKerma:
+    """Incident air kerma of a scene's exposure (free in air: no backscatter, no air).
+
+    Attributes
+    ----------
+    entrance_uGy : float or None
+        At the point of the bodies' surfaces nearest to the focal spot (None without bodies).
+    detector_uGy : float
+        At the detector centre, without the bodies (the unattenuated beam).
+    entrance_distance_mm, detector_distance_mm : float or None, float
+        Distances from the focal spot.
+    mas : float
+    per_mas_at_1m_uGy : float
+        The tube's output, uGy per mAs at 1 m.
+    """
+
+    entrance_uGy: float | None
+    detector_uGy: float
+    entrance_distance_mm: float | None
+    detector_distance_mm: float
+    mas: float
+    per_mas_at_1m_uGy: float
+
+
+def _closest_distance(points_source, tris) -> float:
+    """Smallest distance from a point to a set of (T, 3, 3) triangles (Ericson's regions)."""
+    p = np.asarray(points_source, dtype=np.float64)
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v = np.where(denom != 0, vb / denom, 0.0)
+        w = np.where(denom != 0, vc / denom, 0.0)
+        q = a + ab * v[:, None] + ac * w[:, None]                       # inside the face
+        t_ab = np.clip(d1 / (d1 - d3), 0, 1)
+        t_ac = np.clip(d2 / (d2 - d6), 0, 1)
+        t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
+    q = np.where(((vc <= 0) & (d1 >= 0) & (d3 <= 0))[:, None], a + ab * t_ab[:, None], q)
+    q = np.where(((vb <= 0) & (d2 >= 0) & (d6 <= 0))[:, None], a + ac * t_ac[:, None], q)
+    q = np.where(((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0))[:, None],
+                 b + (c - b) * t_bc[:, None], q)
+    q = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, q)
+    q = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, q)
+    q = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, q)
+    return float(np.sqrt(np.min(np.einsum("ij,ij->i", p - q, p - q))))
+
+
+def air_kerma(scene) -> AirKerma:
+    """Incident air kerma at the bodies' nearest surface and at the detector, for ``mas``.
+
+    Parameters
+    ----------
+    scene : Scene
+        A point source with ``mas`` and a SpekPy tube spectrum.
+
+    Returns
+    -------
+    AirKerma
+
+    Raises
+    ------
+    SpectrumError
+        Without ``mas``, for a parallel beam, or a spectrum without absolute output.
+
+    Notes
+    -----
+    ``K(d) = K_1m * mas * (1000 / d)^2`` with ``K_1m`` from :func:`air_kerma_per_mas`; ``d`` is
+    the distance from the focal spot to the nearest point of any body's surface (exact over the
+    triangles), and the source-detector distance along the beam axis. No backscatter factor (an
+    entrance *surface* air kerma would be 1.2-1.5 times larger), no heel effect, no attenuation
+    by air.
+    """
+    from xray_viz.physics.imaging import source_detector_distance
+    from xray_viz.physics.spectra import source_spectrum
+
+    src = scene.source
+    mas = getattr(src, "mas", None)
+    if mas is None:
+        raise SpectrumError("air kerma needs [source] mas (the tube current-time product, mAs)")
+    if src.kind == "parallel":
+        raise SpectrumError("air kerma needs a point source: a parallel beam has no focal spot "
+                            "to fall off from")
+    spectrum = source_spectrum(src)
+    per_1m = air_kerma_per_mas(spectrum)
+    sid = source_detector_distance(scene)
+    entrance_d = None
+    if scene.bodies:
+        entrance_d = _closest_distance(src.position, scene.triangles)
+    k = lambda d: per_1m * mas * (1000.0 / d) ** 2                      # noqa: E731
+    return AirKerma(entrance_uGy=None if entrance_d is None else k(entrance_d),
+                    detector_uGy=k(sid), entrance_distance_mm=entrance_d,
+                    detector_distance_mm=sid, mas=float(mas), per_mas_at_1m_uGy=per_1m)
