@@ -124,7 +124,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     """
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
-    from xray_viz.physics.imaging import detect_log, log_transmission, pixel_log_mean
+    from xray_viz.physics.imaging import detect_log, pixel_log_transmission
 
     n = int(scene.detector.supersample if supersample is None else supersample)
     if n < 1:
@@ -133,9 +133,10 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     t0 = time.perf_counter()
     L, hits = ENGINES[engine](scene, supersample=n, keep_hits=keep_hits)
     t1 = time.perf_counter()
-    # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the log domain.
-    log_t = pixel_log_mean(log_transmission(L, scene), n * n).reshape(h, w)
-    intensity, line_integral = detect_log(log_t, scene)
+    # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the log domain;
+    # with the variance's sum when the noise needs it (a band of rows: rows=(start, stop)).
+    log_t, log_v = pixel_log_transmission(L, scene, supersample=n)
+    intensity, line_integral = detect_log(log_t, scene, log_variance=log_v)
     t2 = time.perf_counter()
     timing = {"trace": t1 - t0, "image": t2 - t1, "total": t2 - t0}
     return Radiograph(
