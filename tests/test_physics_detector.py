@@ -182,7 +182,8 @@ def test_edge_method_without_blur_measures_the_pixel_aperture(tmp_path):
     np.testing.assert_allclose(m, np.abs(np.sinc(FREQ * EDGE_PITCH)), rtol=0.01)
 
 
-@pytest.mark.parametrize("mtf, sigma", [({"sigma": 0.1}, 0.1), ({"fwhm": 0.15 * 2.354820045}, 0.15)])
+@pytest.mark.parametrize("mtf, sigma", [({"sigma": 0.1}, 0.1),
+                                        ({"fwhm": 0.15 * 2 * np.sqrt(2 * np.log(2))}, 0.15)])
 def test_presampled_mtf_of_a_gaussian_blur_from_a_slanted_edge(tmp_path, mtf, sigma):
     m = _presampled_mtf(_edge_image(tmp_path, mtf), FREQ)
     want = np.exp(-2 * np.pi**2 * sigma**2 * FREQ**2) * np.abs(np.sinc(FREQ * EDGE_PITCH))

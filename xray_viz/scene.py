@@ -210,7 +210,7 @@ class Detector:
             raise SceneError(f"[detector] {exc}") from None
         if self.mtf is not None and "sigma" in self.mtf:
             extent = max(self.shape[0] * self.pitch[0], self.shape[1] * self.pitch[1])
-            if not 2.3548 * self.mtf["sigma"] <= extent:
+            if not 2.0 * math.sqrt(2.0 * math.log(2.0)) * self.mtf["sigma"] <= extent:   # FWHM
                 raise SceneError(f"[detector] mtf sigma = {self.mtf['sigma']:g} mm blurs more "
                                  f"than the detector's {extent:.3g} mm: give it in mm (a "
                                  "converter's light spread is ~0.05-0.3 mm)")

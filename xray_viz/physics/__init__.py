@@ -63,8 +63,8 @@ water at 80 kVp, 2.5 mm Al, the unattenuated beam's Swank factor would give a va
 too low). Then the detector blur, electronic noise (Gaussian, per pixel) and the gain, in this
 order (:mod:`~xray_viz.physics.detector`).
 The heel effect and off-axis spectra (``heel``): SpekPy's spectrum towards each pixel,
-interpolated from a 9 x 5 grid of directions (within 0.07 % of SpekPy's detected intensity over
-a 30 x 30 cm field at 1 m; :mod:`~xray_viz.physics.heel`), including the filters' oblique
+interpolated from a 13 x 5 grid of directions (within 0.07 % of SpekPy's detected intensity
+over a 30 x 30 cm field at 1 m; :mod:`~xray_viz.physics.heel`), including the filters' oblique
 paths; the anode side is darker and harder.
 
 What is NOT modelled

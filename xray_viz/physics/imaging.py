@@ -140,16 +140,14 @@ def _counts_photons(scene) -> bool:
 
 
 def _heel(scene, keep):
-    """The heel effect's ``pixels -> (n, K)`` log fluence ratios over the bins ``keep``, or
-    None (``[source] heel`` off)."""
+    """The heel effect's interpolation and its grid spectra over the bins ``keep`` as
+    ``(interpolation, ratio (N, K))``, or None (``[source] heel`` off)."""
     from xray_viz.physics.heel import heel_interpolator, heel_side
 
     if heel_side(getattr(scene.source, "heel", None)) is None:
         return None
-    interpolate = heel_interpolator(scene)
-    if np.all(keep):
-        return interpolate
-    return lambda pixels: interpolate(pixels)[:, keep]
+    interpolation = heel_interpolator(scene)
+    return interpolation, np.ascontiguousarray(interpolation.ratio[:, keep])
 
 
 def _row_range(scene, rows) -> tuple[int, int]:
@@ -205,21 +203,28 @@ def _log_sums(path_length, scene, *, rows=None, variance=False) -> list[np.ndarr
     # a ray through no body transmits everything (its weights sum to 1): ln T = 0
     inside = np.flatnonzero(np.any(L != 0, axis=1)) if L.shape[1] else np.zeros(0, np.int64)
     if heel is not None:
-        log_u = [np.log(u) for u in moments]
+        # a pixel's weights are u_k times a bilinear combination of the grid's spectra, so
+        # its sum is the same combination of the grid spectra's sums (one small product)
+        interpolation, ratio = heel
+        levels = [ratio @ u for u in moments]                         # (N,) per grid spectrum
     chunk = max(16, CHUNK_BYTES // (8 * len(mu)))
     for start in range(0, len(inside), chunk):
         idx = inside[start:start + chunk]
         base = L[idx] @ minus_mu_t                                   # (rays, K)
         if heel is not None:
-            ratio = heel(first_pixel + idx // per_pixel)                # (rays, K)
+            corners, coef = interpolation.corners(first_pixel + idx // per_pixel)
         for m, out in enumerate(outs):
             if heel is None:
-                work = base + log_w[m]
-            else:
-                lw = log_u[m] + ratio
-                lw -= _logsumexp_rows(lw.copy())[:, None]
-                work = base + lw
-            out[idx] = _logsumexp_rows(work)
+                out[idx] = _logsumexp_rows(base + log_w[m])
+                continue
+            work = base + log_w[m]
+            top = work.max(axis=1)
+            work -= top[:, None]
+            np.exp(work, out=work)
+            sums = work @ ratio.T                                      # (rays, N)
+            total = (np.take_along_axis(sums, corners, axis=1) * coef).sum(axis=1)
+            level = (levels[m][corners] * coef).sum(axis=1) / moments[m].sum()
+            out[idx] = top + np.log(total / level)
     return outs
 
 
@@ -388,9 +393,8 @@ def ray_weights(scene, rows=None, *, supersample: int = 1, variance: bool = Fals
     if heel is None:
         out = np.broadcast_to(u / u.sum(), (len(pixels), len(u)))
     else:
-        lw = np.log(u) + heel(pixels)
-        lw -= _logsumexp_rows(lw.copy())[:, None]
-        out = np.exp(lw)
+        out = u * heel[0](pixels)[:, keep]
+        out /= out.sum(axis=1, keepdims=True)
     return np.repeat(out, int(supersample) ** 2, axis=0)
 
 
@@ -406,15 +410,11 @@ def _levels(scene):
     heel = _heel(scene, keep)
     if heel is None:
         return float(u1.sum()), float(u2.sum())
+    interpolation, ratio = heel
     w, h = scene.detector.shape
-    A, B = np.empty(w * h), np.empty(w * h)
-    lu1, lu2 = np.log(u1[keep]), np.log(u2[keep])
-    step = max(16, CHUNK_BYTES // (8 * int(keep.sum())))
-    for start in range(0, w * h, step):
-        pix = np.arange(start, min(start + step, w * h))
-        ratio = heel(pix)
-        A[pix] = np.exp(_logsumexp_rows(lu1 + ratio))
-        B[pix] = np.exp(_logsumexp_rows(lu2 + ratio))
+    corners, coef = interpolation.corners(np.arange(w * h))
+    A = ((ratio @ u1[keep])[corners] * coef).sum(axis=1)
+    B = ((ratio @ u2[keep])[corners] * coef).sum(axis=1)
     return A.reshape(h, w), B.reshape(h, w)
 
 
@@ -707,7 +707,8 @@ def detect(transmitted, scene, *, i0: float | None = None, rng=None):
     transmitted : (H, W) float
         ``I / I0`` per pixel, from :func:`transmission` averaged over each pixel's rays.
     scene : Scene
-        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise`` and ``seed``.
+        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise``, ``seed`` and
+        the detector model (see :func:`detect_log`).
     i0 : float, optional
         Unattenuated photons per pixel at the detector centre; default ``scene.detector.i0``.
     rng : numpy.random.Generator, optional
