@@ -219,6 +219,20 @@ def test_sub_pixel_blur_is_the_kernel_that_the_grid_can_carry(tmp_path):
     assert np.abs(applied - gauss).max() <= err + 1e-6
 
 
+@pytest.mark.parametrize("sigma_px, bound", [(1.0, 0.002), (0.7, 0.012), (0.5, 0.065),
+                                             (0.2, 0.03), (2.0, 1e-4)])
+def test_mtf_kernel_error_is_as_documented(sigma_px, bound):
+    pitch = 0.14
+    kernel, err = mtf_kernel({"sigma": sigma_px * pitch}, pitch)
+    nu = np.linspace(0, 0.5, 1001)                                  # finer than the fit's grid
+    r = np.arange(len(kernel)) - len(kernel) // 2
+    response = np.cos(2 * np.pi * nu[:, None] * r[None, :]) @ kernel
+    gauss = np.exp(-2 * np.pi**2 * sigma_px**2 * nu**2)
+    assert np.abs(response - gauss).max() < bound
+    assert err == pytest.approx(np.abs(response - gauss).max(), abs=2e-3)
+    assert np.all(kernel >= 0) and np.allclose(kernel, kernel[::-1])
+
+
 def test_mtf_and_lsf_tables_give_the_gaussian_kernel(tmp_path):
     sigma, pitch = 0.12, 0.1
     f = np.linspace(0, 6.0, 121)

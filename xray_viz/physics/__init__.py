@@ -15,7 +15,8 @@ The ``[detector]`` keys of a scene file::
     response = "energy"     # or "counting"
     I0 = 1.0                # unattenuated photons per pixel (at the detector centre); required
                             # with noise; with noise off the image is simply I0 * I/I0
-    noise = false           # Poisson noise ...
+                            # (times gain and the scintillator's absorbed fraction)
+    noise = false           # quantum noise (and electronic noise, if given) ...
     seed = 1                # ... reproducible with a seed (fresh randomness without one)
     falloff = false         # inverse square and obliquity, cos^3(theta), for a point source
     supersample = 1         # n x n rays per pixel, averaged in intensity (anti-aliasing)
@@ -52,7 +53,7 @@ the object plane through the centre of the bodies' bounding box
 is exact also for blurs far below a pixel (:func:`~xray_viz.physics.imaging.gaussian_kernel`).
 The detector blur (``mtf``), separate from and after the focal spot's, in the detector plane:
 a non-negative kernel on the pixel grid fitted to the MTF up to the Nyquist frequency (exact to
-0.0013 for a Gaussian of 1 pixel sigma, 0.011 at 0.7 pixel, ~0.06 at 0.3-0.6 pixel, where the
+0.0013 for a Gaussian of 1 pixel sigma, 0.011 at 0.7, ~0.06 at 0.3-0.6, 0.03 at 0.2, where the
 pixel grid cannot carry the Gaussian; :func:`~xray_viz.physics.detector.mtf_kernel`); the pixel
 aperture comes from the supersampled rays (``supersample``), so the presampled MTF measured
 from a slanted edge is the blur's MTF times the aperture's sinc.
@@ -76,9 +77,9 @@ What is NOT modelled
 * Depth-dependent focal-spot blur (one kernel for the object plane, not per body depth), the
   focal spot's real shape, and extra-focal radiation.
 * Detector physics beyond absorption, blur, electronic noise and gain: the converter's
-  obliquity (its thickness is taken along the ray as if normal) and depth-dependent light
+  obliquity (every ray crosses its thickness as at normal incidence), depth-dependent light
   spread, the Swank noise of the light yield (each absorbed photon scores its whole energy),
-  K-fluorescence and Compton escape, blur below ~0.7 pixel exactly (see above), anisotropic
+  K-fluorescence and Compton escape, a blur of ~0.2-0.7 pixel exactly (see above), anisotropic
   or non-separable blur, noise aliasing from the pixel aperture, dark current, lag, gain
   non-uniformity, pile-up and energy thresholds of counting detectors.
 * Air attenuation between source and detector (unless a body of air is in the scene), refraction

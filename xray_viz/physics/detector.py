@@ -35,8 +35,8 @@ MTF
     whose frequency response matches the MTF up to the Nyquist frequency as closely as a
     non-negative kernel on the pixel grid can (a linear programme, minimax). For a Gaussian of
     ``sigma >= 0.7`` pixel that is within 0.011 of the MTF (0.0013 at 1 pixel); a blur of
-    0.3-0.6 pixel cannot be carried by the pixel grid better than ~0.06 (the kernel's own
-    error is returned by :func:`mtf_kernel`).
+    0.3-0.6 pixel cannot be carried by the pixel grid better than ~0.06 (0.03 at 0.2 pixel;
+    the kernel's own error is returned by :func:`mtf_kernel`).
 Noise and gain
     The order of operations of :func:`~xray_viz.physics.imaging.detect_log`: mean signal
     (photon-equivalents) -> focal-spot blur -> quantum noise (compound Poisson, exact mean and
