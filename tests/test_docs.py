@@ -10,7 +10,8 @@ import pytest
 MODULES = [
     "xray_viz", "xray_viz.scene", "xray_viz.geometry", "xray_viz.tracing.intersect",
     "xray_viz.tracing.hits", "xray_viz.attenuation", "xray_viz.render", "xray_viz.output",
-    "xray_viz.phantoms", "xray_viz.physics.imaging",
+    "xray_viz.phantoms", "xray_viz.physics.imaging", "xray_viz.physics.detector",
+    "xray_viz.physics.heel",
 ]
 
 

@@ -84,8 +84,9 @@ BAD = [
     ("mu = 0.2", "mu = 0.2\nrotaton = [0, 0, 90]",
      "unknown key 'rotaton' (did you mean 'rotation'?); known keys: density, material, mesh, mu, "
      "name, position, repair, rotation, scale, units"),
-    ("pitch = 2.0", "pitch = 2.0\npich = 2.0", "known keys: I0, center, falloff, focal_spot, "
-     "noise, pitch, response, seed, shape, size, supersample, up"),
+    ("pitch = 2.0", "pitch = 2.0\npich = 2.0", "known keys: I0, center, electronic_noise, "
+     "falloff, focal_spot, gain, mtf, noise, pitch, response, scintillator, seed, shape, size, "
+     "supersample, up"),
 ]
 
 

@@ -205,9 +205,10 @@ class _LogBlocks:
     The image is then the same bit for bit for any band size.
     """
 
-    def __init__(self, scene, n, log_t):
+    def __init__(self, scene, n, log_t, log_v=None):
         w, h = scene.detector.shape
         self.scene, self.nn, self.w, self.h, self.out = scene, n * n, w, h, log_t
+        self.n, self.out_v = n, log_v
         nb = max(1, len(scene.bodies))
         self.rows = max(1, min(h, LOG_BLOCK_BYTES // (w * self.nn * nb * 8)))
         self.per_row = w * self.nn
@@ -216,11 +217,14 @@ class _LogBlocks:
 
     def _block(self, r0, L):
         """Write the log-transmission image rows of the block starting at row ``r0``."""
-        from xray_viz.physics.imaging import log_transmission, pixel_log_mean
+        from xray_viz.physics.imaging import pixel_log_transmission
 
         r1 = r0 + len(L) // self.per_row
-        self.out[r0:r1] = pixel_log_mean(log_transmission(L, self.scene),
-                                         self.nn).reshape(r1 - r0, self.w)
+        log_t, log_v = pixel_log_transmission(L, self.scene, supersample=self.n, rows=(r0, r1),
+                                              variance=self.out_v is not None)
+        self.out[r0:r1] = log_t
+        if self.out_v is not None:
+            self.out_v[r0:r1] = log_v
 
     def add(self, r0, r1, L):
         """The path lengths ``L`` of image rows ``r0 .. r1 - 1`` (bands come in row order)."""
@@ -246,7 +250,8 @@ class _LogBlocks:
             r = take
 
 
-def _band_loop(scene, engine, n, *, log_t=None, total=None, per_body=None, keep_hits=False):
+def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body=None,
+               keep_hits=False):
     """Trace the scene band by band into the (H, W) images given (any may be None).
 
     Returns the seconds spent tracing and in the per-band image work, and the hits (or None).
@@ -256,7 +261,7 @@ def _band_loop(scene, engine, n, *, log_t=None, total=None, per_body=None, keep_
     nn = n * n
     t_trace = t_image = 0.0
     hits = None
-    blocks = _LogBlocks(scene, n, log_t) if log_t is not None else None
+    blocks = _LogBlocks(scene, n, log_t, log_v) if log_t is not None else None
     t0 = time.perf_counter()
     for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
         t1 = time.perf_counter()
@@ -513,7 +518,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     """
     if not isinstance(engine, str) or engine not in ENGINES:
         raise SceneError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
-    from xray_viz.physics.imaging import _blur_sigmas, detect_log
+    from xray_viz.physics.imaging import _blur_sigmas, _needs_variance, detect_log
 
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
     _blur_sigmas(scene)                # a focal spot wider than the detector: refused now
@@ -521,14 +526,16 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     w, h = scene.detector.shape
     t0 = time.perf_counter()
     log_t = np.empty((h, w))
+    # the variance's sum of an energy-integrating detector's noise (see detect_log)
+    log_v = np.empty((h, w)) if _needs_variance(scene) else None
     total = np.empty((h, w))
     per_body = np.empty((h, w, len(scene.bodies))) if path_lengths else None
-    t_trace, t_bands, hits = _band_loop(scene, engine, n, log_t=log_t, total=total,
+    t_trace, t_bands, hits = _band_loop(scene, engine, n, log_t=log_t, log_v=log_v, total=total,
                                         per_body=per_body, keep_hits=keep_hits)
     t1 = time.perf_counter()
     _check_transmission(log_t, scene)
-    intensity, line_integral = detect_log(log_t, scene)
-    del log_t
+    intensity, line_integral = detect_log(log_t, scene, log_variance=log_v)
+    del log_t, log_v
     t2 = time.perf_counter()
     timing = {"trace": t_trace, "image": t_bands + (t2 - t1), "total": t2 - t0}
     return Radiograph(

@@ -276,6 +276,10 @@ class Source:
         Tube or CSV spectrum (see :mod:`xray_viz.physics.spectra`; the parser stores the
         validated table of :func:`~xray_viz.physics.spectra.spectrum_from_dict`); when set it
         replaces ``energy``.
+    heel : bool or str
+        The heel effect and off-axis spectra (:mod:`xray_viz.physics.heel`): true puts the anode
+        at the top of the image, or name its side, ``"top"``, ``"bottom"``, ``"left"`` or
+        ``"right"``; needs a point source and a tube spectrum.
     mas : float or None
         Tube current-time product (mAs) of a tube spectrum: the scene file then derives the
         detector's ``I0`` from it (:func:`~xray_viz.physics.dosimetry.photons_per_pixel`), and
@@ -294,6 +298,7 @@ class Source:
     energy: float | None = 60.0
     spectrum: dict | None = None
     mas: float | None = None
+    heel: bool | str = False
 
     def __post_init__(self):
         object.__setattr__(self, "position", _vec3(self.position, name="[source] position"))
@@ -312,6 +317,9 @@ class Source:
                                  f"a Spectrum, got {_shown(self.spectrum)}")
         mas = _real(self.mas, "[source] mas (mAs)", positive=True, optional=True)
         object.__setattr__(self, "mas", mas)
+        from xray_viz.physics.heel import heel_side
+
+        heel_side(self.heel)
 
 
 @dataclass(frozen=True)
@@ -350,6 +358,16 @@ class Detector:
         ``n x n`` rays per pixel, averaged in intensity.
     focal_spot : float
         Focal spot size in mm (FWHM of a Gaussian); 0 for an ideal point.
+    scintillator : dict or None
+        The converter's absorption, ``{"material", "thickness" (mm), "fill", "density"}``
+        (:func:`~xray_viz.physics.detector.scintillator_from_dict`); None: an ideal detector.
+    mtf : dict or None
+        The detector blur, ``{"sigma": mm}`` or a table (:func:`~xray_viz.physics.detector.
+        mtf_from_dict`); None: no blur.
+    electronic_noise : float
+        Additive Gaussian noise, photon-equivalents rms (needs ``noise``).
+    gain : float
+        Detected units per photon-equivalent.
 
     Numbers must be numbers and flags bools: ``pitch=True``, ``i0="1e4"`` or ``noise="no"``
     are refused, not converted. See :mod:`xray_viz.physics` for what these model and what they
@@ -372,6 +390,10 @@ class Detector:
     falloff: bool = False
     supersample: int = 1
     focal_spot: float = 0.0
+    scintillator: dict | None = None
+    mtf: dict | None = None
+    electronic_noise: float = 0.0
+    gain: float = 1.0
 
     def __post_init__(self):
         object.__setattr__(self, "center", _vec3(self.center, name="[detector] center"))
@@ -406,6 +428,38 @@ class Detector:
         object.__setattr__(self, "seed", None if self.seed is None else int(self.seed))
         object.__setattr__(self, "noise", noise)
         object.__setattr__(self, "falloff", _flag(self.falloff, "[detector] falloff"))
+        self._check_detector_physics()
+
+    def _check_detector_physics(self):
+        """Validate and canonicalise ``scintillator``, ``mtf``, ``electronic_noise``, ``gain``."""
+        from xray_viz.physics import detector as phys
+
+        try:
+            if self.scintillator is not None:
+                object.__setattr__(self, "scintillator",
+                                   phys.scintillator_from_dict(self.scintillator))
+            if self.mtf is not None:
+                mtf = phys.mtf_from_dict(self.mtf)
+                phys.check_mtf_reaches_nyquist(mtf, self.pitch)
+                object.__setattr__(self, "mtf", mtf)
+        except SceneError as exc:
+            raise SceneError(f"[detector] {exc}") from None
+        if self.mtf is not None and "sigma" in self.mtf:
+            extent = max(self.shape[0] * self.pitch[0], self.shape[1] * self.pitch[1])
+            if not 2.0 * math.sqrt(2.0 * math.log(2.0)) * self.mtf["sigma"] <= extent:   # FWHM
+                raise SceneError(f"[detector] mtf sigma = {self.mtf['sigma']:g} mm blurs more "
+                                 f"than the detector's {extent:.3g} mm: give it in mm (a "
+                                 "converter's light spread is ~0.05-0.3 mm)")
+        for key, low in (("electronic_noise", None), ("gain", 0.0)):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                    or not math.isfinite(value) or (value <= low if low is not None else value < 0):
+                raise SceneError(f"[detector] {key} must be a number "
+                                 f"{'> 0' if low is not None else '>= 0'}, got {value!r}")
+            object.__setattr__(self, key, float(value))
+        if self.electronic_noise > 0 and not self.noise:
+            raise SceneError(f"[detector] electronic_noise = {self.electronic_noise:g} needs "
+                             "noise = true (electronic noise is part of the noise model)")
 
     @property
     def size(self) -> tuple[float, float]:
@@ -591,6 +645,9 @@ class Scene:
         from xray_viz.attenuation import check_source_outside
 
         check_source_outside(self)
+        from xray_viz.physics.heel import check_heel
+
+        check_heel(self)
 
     def _where(self) -> str:
         return f"{self.path}: " if self.path else ""
@@ -709,9 +766,10 @@ def _traceable(body: Body, where: str = "") -> Body:
 # TOML parsing and validation
 
 #: Every key each table of a scene file accepts (an unknown key is an error that lists these).
-SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas")
+SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas", "heel")
 DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
-                 "falloff", "supersample", "focal_spot")
+                 "falloff", "supersample", "focal_spot", "scintillator", "mtf",
+                 "electronic_noise", "gain")
 BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
              "units", "repair")
 
@@ -1088,6 +1146,9 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     if spectrum is not None and src.has("energy"):
         src.fail("gives both 'energy' and 'spectrum'; use one")
     mas = src.number("mas", positive=True)
+    heel = src.raw("heel", default=False)
+    if not isinstance(heel, (bool, str)):
+        src.fail(f"heel must be true, false or the anode's side of the image, got {heel!r}")
     src.done()
     if spectrum is not None:
         from xray_viz.errors import SpectrumError
@@ -1133,7 +1194,20 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         "seed": _integer(det, "seed", minimum=0),
         "supersample": _integer(det, "supersample", minimum=1, default=1),
         "focal_spot": det.number("focal_spot", default=0.0, nonnegative=True),
+        "electronic_noise": det.number("electronic_noise", default=0.0, nonnegative=True),
+        "gain": det.number("gain", default=1.0, positive=True),
     }
+    from xray_viz.physics import detector as phys
+
+    for key, parse in (("scintillator", phys.scintillator_from_dict),
+                       ("mtf", lambda raw: phys.mtf_from_dict(raw, base_dir=base_dir))):
+        try:
+            options[key] = None if not det.has(key) else parse(det.raw(key))
+        except SceneFileNotFoundError as exc:
+            raise SceneFileNotFoundError(f"{det.file}: [detector] {key}: {exc}" if det.file
+                                         else f"[detector] {key}: {exc}") from None
+        except SceneError as exc:
+            det.fail(str(exc))
     if options["noise"] and not det.has("I0") and mas is None:
         det.fail("sets noise = true without 'I0': give the unattenuated photons per pixel, "
                  "e.g. I0 = 10000.0, or [source] mas")
@@ -1163,7 +1237,8 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     _check_material_energies(src, energy, spectrum, bodies)
     try:
         scene = Scene(
-            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas),
+            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas,
+                          heel=heel),
             detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch),
                               **options),
             bodies=tuple(bodies),

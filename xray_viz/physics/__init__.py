@@ -9,8 +9,11 @@
   (:func:`hvl`), photons per pixel from the tube current-time product, entrance air kerma
   (:func:`air_kerma`).
 * :mod:`~xray_viz.physics.imaging` - Beer-Lambert over the spectrum, detector response
-  (energy-integrating or counting), inverse-square/obliquity fall-off, focal-spot blur, Poisson
-  noise, line integrals.
+  (energy-integrating or counting), inverse-square/obliquity fall-off, focal-spot blur, quantum
+  and electronic noise, line integrals.
+* :mod:`~xray_viz.physics.detector` - the scintillator's absorption efficiency, the detector
+  blur (MTF), the order of noise and gain.
+* :mod:`~xray_viz.physics.heel` - the heel effect: SpekPy's off-axis spectra across the field.
 
 The ``[source]`` keys of the physics (beside ``position`` and ``kind``)::
 
@@ -28,24 +31,58 @@ The ``[detector]`` keys of a scene file::
     I0 = 1.0                # unattenuated photons per pixel (at the detector centre); required
                             # with noise unless [source] gives mas (then I0 is not allowed);
                             # with noise off the image is simply I0 * I/I0
-    noise = false           # Poisson noise ...
+                            # (times gain and the scintillator's absorbed fraction)
+    noise = false           # quantum noise (and electronic noise, if given) ...
     seed = 1                # ... reproducible with a seed (fresh randomness without one)
     falloff = false         # inverse square and obliquity, cos^3(theta), for a point source
     supersample = 1         # n x n rays per pixel, averaged in intensity (anti-aliasing)
     focal_spot = 0.0        # mm; Gaussian focal spot of this FWHM
+    scintillator = { material = "CsI", thickness = 0.6, fill = 0.8 }   # mm; fill default 1;
+                            # "Gd2O2S" too; density = ... g/cm3 (CsI 4.51, Gd2O2S 7.32 default)
+    mtf = { sigma = 0.1 }   # mm, Gaussian detector blur; or fwhm = ...; or a measured table,
+                            # { file = "mtf.csv" } (cycles/mm, MTF) or { lsf = "lsf.csv" }
+                            # (mm, LSF), presampled = true (default: includes the pixel aperture)
+    electronic_noise = 0.0  # photon-equivalents rms, Gaussian, per pixel; needs noise = true
+    gain = 1.0              # detected units per photon-equivalent (scales the intensity)
+
+and in ``[source]``::
+
+    heel = false            # true: the heel effect, anode at the top of the image; or the
+                            # anode's side, "top", "bottom", "left", "right"; needs a SpekPy
+                            # spectrum = { kvp = ... } and a point source
 
 What is modelled
 ----------------
 Narrow-beam (primary) attenuation along straight rays, ``exp(-sum_b mu_b(E) L_b)``, summed over
 the spectrum's energy bins with fluence (counting) or fluence x energy (energy-integrating)
 weights, which reproduces beam hardening. An ideal detector absorbs every photon (quantum
-efficiency 1 at all energies). Point-source fall-off ``cos^3(theta)`` (inverse square times
-obliquity) relative to the detector centre, evaluated at pixel centres. Focal-spot unsharpness as
-one Gaussian kernel of FWHM ``focal_spot * (SID - SOD) / SOD`` for the object plane through the
-centre of the bodies' bounding box (:func:`~xray_viz.physics.imaging.source_object_distance`);
-a discrete Gaussian whose variance is exact also for blurs far below a pixel
-(:func:`~xray_viz.physics.imaging.gaussian_kernel`).
-Quantum noise: Poisson counts; for energy-integrating detectors via the Swank factor.
+efficiency 1 at all energies); with ``scintillator`` the converter absorbs the fraction
+``eta(E) = fill * (1 - exp(-mu(E) t))`` of the photons (the same xraylib data as the bodies),
+which hardens the detected beam a little more: behind 20 cm of water at 80 kVp (W anode, 12
+degrees) a 0.6 mm CsI converter raises the line integral by 1.38 % (energy-integrating; 1.28 %
+counting) without added filtration, and by 1.07 % (0.95 %) with 2.5 mm Al; the fill factor
+scales the signal, not the line integral. Point-source fall-off ``cos^3(theta)`` (inverse
+square times obliquity) relative to the detector centre, evaluated at pixel centres.
+Focal-spot unsharpness as one Gaussian kernel of FWHM ``focal_spot * (SID - SOD) / SOD`` for
+the object plane through the centre of the bodies' bounding box
+(:func:`~xray_viz.physics.imaging.source_object_distance`); a discrete Gaussian whose variance
+is exact also for blurs far below a pixel (:func:`~xray_viz.physics.imaging.gaussian_kernel`).
+The detector blur (``mtf``), separate from and after the focal spot's, in the detector plane:
+a non-negative kernel on the pixel grid fitted to the MTF up to the Nyquist frequency (exact to
+0.0013 for a Gaussian of 1 pixel sigma, 0.011 at 0.7, ~0.06 at 0.3-0.6, 0.03 at 0.2, where the
+pixel grid cannot carry the Gaussian; :func:`~xray_viz.physics.detector.mtf_kernel`); the pixel
+aperture comes from the supersampled rays (``supersample``), so the presampled MTF measured
+from a slanted edge is the blur's MTF times the aperture's sinc.
+Quantum noise: Poisson counts for a counting detector; an energy-integrating detector's
+compound Poisson signal with the exact mean and variance of each pixel's *transmitted*
+spectrum (the variance is a second log-domain sum with weights ``phi eta E^2``; behind 20 cm of
+water at 80 kVp, 2.5 mm Al, the unattenuated beam's Swank factor would give a variance 18 %
+too low). Then the detector blur, electronic noise (Gaussian, per pixel) and the gain, in this
+order (:mod:`~xray_viz.physics.detector`).
+The heel effect and off-axis spectra (``heel``): SpekPy's spectrum towards each pixel,
+interpolated from a 13 x 5 grid of directions (within 0.07 % of SpekPy's detected intensity
+over a 30 x 30 cm field at 1 m; :mod:`~xray_viz.physics.heel`), including the filters' oblique
+paths; the anode side is darker and harder.
 
 Dosimetry (:mod:`~xray_viz.physics.dosimetry`): an air-kerma detector response, fluence x energy x
 (mu_en/rho)_air with NIST's mu_en/rho of dry air; first and second half-value layers on air kerma
@@ -61,13 +98,16 @@ What is NOT modelled
   (:data:`SCATTER_NOT_MODELLED`; BENCHMARKS.md, "Scatter not modelled", estimates how much
   signal that is: at 80 kVp without a grid, 1-40 % of the primary for the bundled phantoms,
   0.24 of it behind 2 cm of water and 3.2 times it behind 20 cm, in a 30 x 30 cm field).
-* The heel effect and off-axis spectral changes of the tube (SpekPy gives the central-axis
-  spectrum); the anode angle changes the spectrum only through self-filtration.
+* The heel effect for a CSV or monochromatic spectrum (it needs SpekPy's tube model), and
+  the heel effect's own dependence on the focal spot's size and shape.
 * Depth-dependent focal-spot blur (one kernel for the object plane, not per body depth), the
   focal spot's real shape, and extra-focal radiation.
-* Detector physics: energy-dependent absorption efficiency, the converter layer's thickness and
-  obliquity, light spread or charge sharing (MTF), electronic noise, dark current, gain and
-  lag, K-fluorescence escape, pile-up and energy thresholds of counting detectors.
+* Detector physics beyond absorption, blur, electronic noise and gain: the converter's
+  obliquity (every ray crosses its thickness as at normal incidence), depth-dependent light
+  spread, the Swank noise of the light yield (each absorbed photon scores its whole energy),
+  K-fluorescence and Compton escape, a blur of ~0.2-0.7 pixel exactly (see above), anisotropic
+  or non-separable blur, noise aliasing from the pixel aperture, dark current, lag, gain
+  non-uniformity, pile-up and energy thresholds of counting detectors.
 * Air attenuation between source and detector (unless a body of air is in the scene), refraction
   and phase contrast, polarisation, and secondary electrons.
 * Patient dose: only the incident air kerma is reported (no backscatter factor, no organ or
@@ -76,5 +116,5 @@ What is NOT modelled
 
 from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED, air_kerma, hvl
 
-__all__ = ["dosimetry", "imaging", "materials", "spectra", "hvl", "air_kerma",
-           "SCATTER_NOT_MODELLED"]
+__all__ = ["detector", "dosimetry", "heel", "imaging", "materials", "spectra", "hvl",
+           "air_kerma", "SCATTER_NOT_MODELLED"]

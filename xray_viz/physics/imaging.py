@@ -8,15 +8,21 @@ where ``L_b`` is the effective path length (mm) of the ray in body b's material 
 linear attenuation coefficient (1/cm; hence the factor 1/10). A spectrum of photon-fluence
 weights ``phi_k`` at energies ``E_k`` is detected as
 
-    counting detector:           T = sum_k phi_k T(E_k)
-    energy-integrating detector: T = sum_k phi_k E_k T(E_k) / sum_k phi_k E_k
+    counting detector:           T = sum_k phi_k eta_k T(E_k) / sum_k phi_k eta_k
+    energy-integrating detector: T = sum_k phi_k eta_k E_k T(E_k) / sum_k phi_k eta_k E_k
 
-(:func:`transmission`; one matrix product over (rays x bodies) per chunk of rays gives every
-energy bin at once, so the geometry is traced once whatever the number of bins). The detector
-then reads ``I = I0 * F * T`` (:func:`detect`), with ``F`` the optional inverse-square and
-obliquity fall-off, blurred by the focal spot and, if asked, with Poisson noise. The *line
-integral* is the flat-field corrected ``-ln(I / (I0 F))``; for a polychromatic beam it is no
-longer proportional to path length (beam hardening).
+with ``eta_k`` the scintillator's absorption efficiency (1 for an ideal detector;
+:mod:`xray_viz.physics.detector`) and, with the heel effect, ``phi_k`` the spectrum towards each
+pixel (:mod:`xray_viz.physics.heel`). :func:`log_transmission` computes ``ln T`` in the log
+domain; one matrix product over (rays x bodies) per chunk of rays gives every energy bin at
+once, so the geometry is traced once whatever the number of bins. The variance of an
+energy-integrating detector's signal is one more such sum, with weights ``phi_k eta_k E_k^2``
+(:func:`log_variance_transmission`). The detector then reads ``I = gain * I0 * F * A * T``
+(:func:`detect_log`), with ``F`` the optional inverse-square and obliquity fall-off and ``A``
+the unattenuated beam's detected fraction (:func:`flat_field`), blurred by the focal spot and
+the detector's MTF and, if asked, with quantum and electronic noise. The *line integral* is the
+flat-field corrected ``-ln(I / flat_field)``; for a polychromatic beam it is no longer
+proportional to path length (beam hardening).
 """
 
 from __future__ import annotations
@@ -25,7 +31,9 @@ import math
 
 import numpy as np
 
-__all__ = ["body_mu", "log_transmission", "transmission", "pixel_log_mean", "detect", "detect_log", "detector_weights", "falloff_factor",
+__all__ = ["body_mu", "log_transmission", "log_variance_transmission", "transmission",
+           "pixel_log_mean", "pixel_log_transmission", "ray_weights", "detect", "detect_log",
+           "flat_field", "detector_weights", "falloff_factor",
            "source_object_distance", "source_detector_distance", "magnification",
            "focal_spot_blur_mm", "gaussian_kernel", "MM_PER_CM"]
 
@@ -94,7 +102,147 @@ def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
     return w / w.sum()
 
 
-def log_transmission(path_length, scene) -> np.ndarray:
+def _beam(scene):
+    """The detector's energy weights at the detector centre, for the signal and its variance.
+
+    Each bin's photons (fluence ``phi_k``, summing to 1) score ``q_k`` each in the detector
+    (``q = E / <E>`` energy-integrating, 1 counting; :func:`detector_weights` gives
+    ``phi_k q_k``, so that an ideal detector's flat field reads 1 per photon) and are absorbed
+    with probability ``eta_k`` (:func:`~xray_viz.physics.detector.absorption_efficiency`). The
+    signal is ``sum_k u1_k T_k`` per incident photon and, a compound Poisson sum, its variance
+    ``sum_k u2_k T_k``, with
+
+        u1_k = phi_k q_k eta_k,        u2_k = phi_k q_k^2 eta_k.
+
+    Returns
+    -------
+    spectrum : Spectrum
+    keep : (n,) bool
+        Bins with a non-zero weight.
+    u1, u2 : (n,) float
+    """
+    from xray_viz.physics.detector import absorption_efficiency
+    from xray_viz.physics.spectra import source_spectrum
+
+    spectrum = source_spectrum(scene.source)
+    dw = detector_weights(spectrum, _response(scene))
+    eta = absorption_efficiency(getattr(scene.detector, "scintillator", None), spectrum.energies)
+    keep = dw > 0
+    u1 = dw * eta
+    if not _counts_photons(scene):
+        u2 = np.zeros_like(u1)
+        u2[keep] = dw[keep] ** 2 / spectrum.weights[keep] * eta[keep]
+    else:
+        u2 = u1.copy()                     # q = 1: the variance is the mean
+    return spectrum, keep, u1, u2
+
+
+def _counts_photons(scene) -> bool:
+    """Whether every detected photon scores the same (a counting detector or one energy), so
+    that the signal is a plain photon count: its variance is its mean."""
+    from xray_viz.physics.spectra import source_spectrum
+
+    return _response(scene) == "counting" or len(source_spectrum(scene.source)) == 1
+
+
+def _heel(scene, keep):
+    """The heel effect's interpolation and its grid spectra over the bins ``keep`` as
+    ``(interpolation, ratio (N, K))``, or None (``[source] heel`` off)."""
+    from xray_viz.physics.heel import heel_interpolator, heel_side
+
+    if heel_side(getattr(scene.source, "heel", None)) is None:
+        return None
+    interpolation = heel_interpolator(scene)
+    return interpolation, np.ascontiguousarray(interpolation.ratio[:, keep])
+
+
+def _row_range(scene, rows) -> tuple[int, int]:
+    """``(start, stop)`` of a block of image rows (None: all of them)."""
+    h = scene.detector.shape[1]
+    if rows is None:
+        return 0, h
+    if isinstance(rows, slice):
+        if rows.step not in (None, 1):
+            raise ValueError(f"rows must be consecutive image rows, got step {rows.step}")
+        start, stop, _ = rows.indices(h)
+    elif isinstance(rows, range):
+        if rows.step != 1:
+            raise ValueError(f"rows must be consecutive image rows, got step {rows.step}")
+        start, stop = rows.start, rows.stop
+    else:
+        start, stop = (int(r) for r in rows)
+    if not 0 <= start < stop <= h:
+        raise ValueError(f"rows {start}:{stop} are not a block of the detector's {h} rows")
+    return start, stop
+
+
+def _rays_per_pixel(scene, rows, n_rays) -> tuple[int, int]:
+    """``(first pixel index, rays per pixel)`` of the rays of a block of rows."""
+    start, stop = _row_range(scene, rows)
+    w = scene.detector.shape[0]
+    n_pixels = (stop - start) * w
+    if n_rays % n_pixels:
+        raise ValueError(f"{n_rays} rays do not cover image rows {start}:{stop} ({n_pixels} "
+                         "pixels) in detector_rays order")
+    return start * w, n_rays // n_pixels
+
+
+def _log_sums(path_length, scene, *, rows=None, variance=False) -> list[np.ndarray]:
+    """``ln(sum_k w_k T_k / sum_k w_k)`` per ray for the signal weights (and the variance's).
+
+    One product ``L @ -mu`` per chunk of rays serves both sums; with the heel effect the
+    weights of each chunk's rays are interpolated from SpekPy's grid.
+    """
+    L = np.asarray(path_length, dtype=np.float64)
+    spectrum, keep, u1, u2 = _beam(scene)
+    mu = body_mu(scene, spectrum.energies[keep]) / MM_PER_CM          # (K, B) 1/mm
+    moments = [u1[keep]] + ([u2[keep]] if variance else [])
+    heel = _heel(scene, keep)
+    if rows is not None or heel is not None:
+        first_pixel, per_pixel = _rays_per_pixel(scene, rows, len(L))
+    if len(mu) == 1 and heel is None:
+        line = -(L @ mu[0])
+        return [line] + ([line.copy()] if variance else [])
+    log_w = [np.log(u) - np.log(u.sum()) for u in moments]
+    minus_mu_t = np.ascontiguousarray(-mu.T)                           # (B, K)
+    outs = [np.zeros(len(L)) for _ in moments]
+    # a ray through no body transmits everything (its weights sum to 1): ln T = 0
+    inside = np.flatnonzero(np.any(L != 0, axis=1)) if L.shape[1] else np.zeros(0, np.int64)
+    if heel is not None:
+        # a pixel's weights are u_k times a bilinear combination of the grid's spectra, so
+        # its sum is the same combination of the grid spectra's sums (one small product)
+        interpolation, ratio = heel
+        levels = [ratio @ u for u in moments]                         # (N,) per grid spectrum
+    chunk = max(16, CHUNK_BYTES // (8 * len(mu)))
+    for start in range(0, len(inside), chunk):
+        idx = inside[start:start + chunk]
+        base = L[idx] @ minus_mu_t                                   # (rays, K)
+        if heel is not None:
+            corners, coef = interpolation.corners(first_pixel + idx // per_pixel)
+        for m, out in enumerate(outs):
+            if heel is None:
+                out[idx] = _logsumexp_rows(base + log_w[m])
+                continue
+            work = base + log_w[m]
+            top = work.max(axis=1)
+            work -= top[:, None]
+            np.exp(work, out=work)
+            sums = work @ ratio.T                                      # (rays, N)
+            total = (np.take_along_axis(sums, corners, axis=1) * coef).sum(axis=1)
+            level = (levels[m][corners] * coef).sum(axis=1) / moments[m].sum()
+            out[idx] = top + np.log(total / level)
+    return outs
+
+
+def _logsumexp_rows(work: np.ndarray) -> np.ndarray:
+    """``ln sum_k exp(work[:, k])`` per row, the largest term factored out (overwrites work)."""
+    top = work.max(axis=1)
+    work -= top[:, None]
+    np.exp(work, out=work)
+    return top + np.log(work.sum(axis=1))
+
+
+def log_transmission(path_length, scene, *, rows=None) -> np.ndarray:
     """Natural log of the detected fraction of the beam along each ray, ``ln(I / I0)``.
 
     Computed in the log domain, so it stays finite however thick or dense the bodies are
@@ -102,7 +250,9 @@ def log_transmission(path_length, scene) -> np.ndarray:
     integral directly, ``-sum_b mu_b L_b``; a spectrum gives
     ``ln sum_k w_k exp(-sum_b mu_b(E_k) L_b)`` by the log-sum-exp rule (the largest term is
     factored out before the exponentials), with ``w_k`` the detector weights
-    (:func:`detector_weights`).
+    (:func:`detector_weights`) times the scintillator's absorption efficiency, normalised to
+    sum to 1. With the heel effect (``[source] heel``) each ray has its pixel's weights
+    (:func:`ray_weights`).
 
     Parameters
     ----------
@@ -110,6 +260,11 @@ def log_transmission(path_length, scene) -> np.ndarray:
         Millimetres of each ray in each body's material.
     scene : Scene
         Gives the bodies' materials, the source spectrum and the detector response.
+    rows : slice, range or (start, stop), optional
+        The block of image rows the rays belong to, in
+        :func:`~xray_viz.geometry.detector_rays` order (``n`` consecutive sub-rays per pixel),
+        so that a renderer can work in bands of rows; default: the whole detector. Only the
+        heel effect needs it.
 
     Returns
     -------
@@ -123,32 +278,153 @@ def log_transmission(path_length, scene) -> np.ndarray:
     >>> log_transmission(np.array([[50.0], [1e5]]), scene).tolist()   # 1e5 mm: exp underflows
     [-1.0, -2000.0]
     """
-    from xray_viz.physics.spectra import source_spectrum
-
-    L = np.asarray(path_length, dtype=np.float64)
-    spectrum = source_spectrum(scene.source)
-    mu = body_mu(scene, spectrum.energies) / MM_PER_CM          # (K, B) 1/mm
-    if len(spectrum) == 1:
-        return -(L @ mu[0])
-    weights = detector_weights(spectrum, _response(scene))
-    keep = weights > 0
-    log_w = np.log(weights[keep])
-    minus_mu_t = np.ascontiguousarray(-mu[keep].T)              # (B, K)
-    out = np.zeros(len(L))
-    inside = np.flatnonzero(np.any(L != 0, axis=1)) if L.shape[1] else np.zeros(0, np.int64)
-    chunk = max(16, CHUNK_BYTES // (8 * int(keep.sum())))
-    for start in range(0, len(inside), chunk):
-        rows = inside[start:start + chunk]
-        work = L[rows] @ minus_mu_t                             # (rows, K): -sum_b mu_b L_b
-        work += log_w
-        top = work.max(axis=1)
-        work -= top[:, None]
-        np.exp(work, out=work)
-        out[rows] = top + np.log(work.sum(axis=1))
-    return out
+    return _log_sums(path_length, scene, rows=rows)[0]
 
 
-def transmission(path_length, scene) -> np.ndarray:
+def log_variance_transmission(path_length, scene, *, rows=None) -> np.ndarray:
+    """``ln`` of the transmitted fraction of the signal's variance along each ray.
+
+    An energy-integrating detector's signal is a compound Poisson sum of the absorbed photons'
+    energies: its variance is ``N0 sum_k phi_k q_k^2 eta_k T_k`` (weights ``phi E^2`` for an
+    ideal detector), which hardening changes differently from the mean. This is
+    ``ln(sum_k u2_k T_k / sum_k u2_k)`` in the log domain, the companion of
+    :func:`log_transmission` (which has ``u1_k = phi_k q_k eta_k``); for a counting detector
+    or a single energy the two are equal.
+
+    Parameters
+    ----------
+    path_length : (n_rays, n_bodies) float
+    scene : Scene
+    rows : optional
+        As for :func:`log_transmission`.
+
+    Returns
+    -------
+    (n_rays,) float
+
+    Examples
+    --------
+    >>> import numpy as np, xray_viz
+    >>> log_variance_transmission(np.array([[50.0]]), xray_viz.load_scene("sphere")).tolist()
+    [-1.0]
+    """
+    return _log_sums(path_length, scene, rows=rows, variance=True)[1]
+
+
+def _needs_variance(scene) -> bool:
+    """Whether the noise needs the variance sum: noise on, an energy-weighted polychromatic
+    signal (for counting detectors and single energies the variance is the mean)."""
+    return bool(getattr(scene.detector, "noise", False)) and not _counts_photons(scene)
+
+
+def pixel_log_transmission(path_length, scene, *, supersample: int = 1, rows=None,
+                           variance: bool | None = None):
+    """Per-pixel ``ln(I / I0)`` (and the variance's) from the rays of a block of image rows.
+
+    :func:`log_transmission` of every ray, averaged over each pixel's ``supersample**2`` rays by
+    :func:`pixel_log_mean`; with ``variance`` the same for :func:`log_variance_transmission`,
+    from the same product over (rays x bodies). This is what a renderer hands to
+    :func:`detect_log`.
+
+    Parameters
+    ----------
+    path_length : (n_rays, n_bodies) float
+        In :func:`~xray_viz.geometry.detector_rays` order for the rows.
+    scene : Scene
+    supersample : int
+        Rays per pixel along each axis.
+    rows : slice, range or (start, stop), optional
+        The image rows the rays cover (default: all).
+    variance : bool, optional
+        Also the variance's sum; default: when the scene's noise needs it (noise on, an
+        energy-integrating detector, a spectrum).
+
+    Returns
+    -------
+    log_t : (n_rows, W) float
+    log_v : (n_rows, W) float or None
+
+    Examples
+    --------
+    >>> import numpy as np, xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> log_t, log_v = pixel_log_transmission(np.zeros((256 * 256, 1)), scene)
+    >>> log_t.shape, bool(log_t.max() == 0), log_v is None
+    ((256, 256), True, True)
+    """
+    n = int(supersample)
+    w = scene.detector.shape[0]
+    if variance is None:
+        variance = _needs_variance(scene)
+    sums = _log_sums(path_length, scene, rows=rows, variance=variance)
+    log_t = pixel_log_mean(sums[0], n * n).reshape(-1, w)
+    log_v = pixel_log_mean(sums[1], n * n).reshape(-1, w) if variance else None
+    return log_t, log_v
+
+
+def ray_weights(scene, rows=None, *, supersample: int = 1, variance: bool = False) -> np.ndarray:
+    """The energy weights of each ray of a block of image rows, each row summing to 1.
+
+    The signal's weights ``u1_k = phi_k q_k eta_k`` (or the variance's, ``u2_k``; see
+    :func:`log_variance_transmission`) over the bins of the scene's spectrum with a non-zero
+    weight, normalised per ray; with the heel effect each pixel has its own spectrum
+    (:mod:`xray_viz.physics.heel`), the same for all of its sub-rays. ``log_transmission`` of
+    a ray is ``ln sum_k w_k exp(-sum_b mu_b(E_k) L_b)`` with these weights.
+
+    Parameters
+    ----------
+    scene : Scene
+    rows : slice, range or (start, stop), optional
+        Image rows (default: all).
+    supersample : int
+        Rays per pixel along each axis (``supersample**2`` consecutive rays per pixel).
+    variance : bool
+
+    Returns
+    -------
+    (n_rays, K) float
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> ray_weights(xray_viz.load_scene("sphere"), rows=(0, 1)).shape      # 256 rays, 1 bin
+    (256, 1)
+    """
+    start, stop = _row_range(scene, rows)
+    w = scene.detector.shape[0]
+    pixels = np.arange(start * w, stop * w)
+    _, keep, u1, u2 = _beam(scene)
+    u = (u2 if variance else u1)[keep]
+    heel = _heel(scene, keep)
+    if heel is None:
+        out = np.broadcast_to(u / u.sum(), (len(pixels), len(u)))
+    else:
+        out = u * heel[0](pixels)[:, keep]
+        out /= out.sum(axis=1, keepdims=True)
+    return np.repeat(out, int(supersample) ** 2, axis=0)
+
+
+def _levels(scene):
+    """The unattenuated signal and variance per incident photon at each pixel, relative to
+    an ideal detector at the centre: ``A = sum_k u1_k``, ``B = sum_k u2_k`` (heel included).
+
+    Returns
+    -------
+    A, B : float or (H, W) float
+    """
+    _, keep, u1, u2 = _beam(scene)
+    heel = _heel(scene, keep)
+    if heel is None:
+        return float(u1.sum()), float(u2.sum())
+    interpolation, ratio = heel
+    w, h = scene.detector.shape
+    corners, coef = interpolation.corners(np.arange(w * h))
+    A = ((ratio @ u1[keep])[corners] * coef).sum(axis=1)
+    B = ((ratio @ u2[keep])[corners] * coef).sum(axis=1)
+    return A.reshape(h, w), B.reshape(h, w)
+
+
+def transmission(path_length, scene, *, rows=None) -> np.ndarray:
     """Detected fraction of the beam along each ray, ``I / I0`` (see the module docstring).
 
     ``exp`` of :func:`log_transmission`; it underflows to 0 behind more than ~745 attenuation
@@ -160,6 +436,8 @@ def transmission(path_length, scene) -> np.ndarray:
         Millimetres of each ray in each body's material.
     scene : Scene
         Gives the bodies' materials, the source spectrum and the detector response.
+    rows : optional
+        As for :func:`log_transmission`.
 
     Returns
     -------
@@ -172,7 +450,7 @@ def transmission(path_length, scene) -> np.ndarray:
     >>> float(transmission(np.array([[50.0]]), scene)[0]) == float(np.exp(-1.0))
     True
     """
-    return np.exp(log_transmission(path_length, scene))
+    return np.exp(log_transmission(path_length, scene, rows=rows))
 
 
 def pixel_log_mean(log_values, n_per_pixel: int) -> np.ndarray:
@@ -337,21 +615,68 @@ def _blur_sigmas(scene) -> tuple[float, float] | None:
     return sigma_mm / py, sigma_mm / px
 
 
+def _focal_kernels(scene):
+    sigmas = _blur_sigmas(scene)
+    return None if sigmas is None else tuple(gaussian_kernel(s) for s in sigmas)
+
+
+def _mtf_kernels(scene):
+    """The detector blur's kernels along the rows and columns (:func:`~xray_viz.physics.
+    detector.mtf_kernel`), or None without ``[detector] mtf``."""
+    mtf = getattr(scene.detector, "mtf", None)
+    if mtf is None:
+        return None
+    from xray_viz.physics.detector import mtf_kernel
+
+    px, py = scene.detector.pitch
+    return mtf_kernel(mtf, py)[0], mtf_kernel(mtf, px)[0]
+
+
+def _convolve(image, kernels) -> np.ndarray:
+    """Separable convolution, ``kernels[axis]`` along each axis, mirrored (half-sample
+    symmetric) past the border, which keeps the total signal exactly."""
+    from scipy.ndimage import convolve1d
+
+    out = np.asarray(image, dtype=np.float64)
+    for axis, k in enumerate(kernels):
+        out = convolve1d(out, k, axis=axis, mode="reflect")
+    return out
+
+
+def _log_convolve(log_image, kernels) -> np.ndarray:
+    """``ln`` of :func:`_convolve` of ``exp(log_image)`` (non-negative kernels), without
+    underflow: each output pixel's sum is taken relative to the largest value under its
+    kernel (log-sum-exp). Blurs directly when ``exp`` of every value is a normal float."""
+    g = np.asarray(log_image, dtype=np.float64)
+    if np.all(g > -700.0):
+        return np.log(_convolve(np.exp(g), kernels))
+    from scipy.ndimage import maximum_filter1d
+
+    for axis, k in enumerate(kernels):
+        r = len(k) // 2
+        top = maximum_filter1d(g, size=len(k), axis=axis, mode="reflect")
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (r, r)
+        padded = np.pad(g, pad, mode="symmetric")
+        acc = np.zeros_like(g)
+        n = g.shape[axis]
+        for j, weight in enumerate(k[::-1]):
+            if weight == 0:
+                continue
+            window = padded[j:j + n] if axis == 0 else padded[:, j:j + n]
+            acc += weight * np.exp(window - top)
+        g = top + np.log(acc)
+    return g
+
+
 def _blur(image, scene) -> np.ndarray:
     """Focal-spot blur: a separable discrete Gaussian of FWHM :func:`focal_spot_blur_mm`.
 
     The image is extended past its border by mirroring (half-sample symmetric), which keeps
     the total signal exactly, whatever the image.
     """
-    sigmas = _blur_sigmas(scene)
-    if sigmas is None:
-        return image
-    from scipy.ndimage import convolve1d
-
-    out = np.asarray(image, dtype=np.float64)
-    for axis, sigma in enumerate(sigmas):
-        out = convolve1d(out, gaussian_kernel(sigma), axis=axis, mode="reflect")
-    return out
+    kernels = _focal_kernels(scene)
+    return image if kernels is None else _convolve(image, kernels)
 
 
 def _log_blur(log_image, scene) -> np.ndarray:
@@ -361,28 +686,9 @@ def _log_blur(log_image, scene) -> np.ndarray:
     (log-sum-exp), so an image of transmissions far below float64's smallest number (a line
     integral of thousands) is blurred exactly. Same kernel and border rule as :func:`_blur`.
     """
-    sigmas = _blur_sigmas(scene)
+    kernels = _focal_kernels(scene)
     g = np.asarray(log_image, dtype=np.float64)
-    if sigmas is None:
-        return g
-    if np.all(g > -700.0):                 # exp(g) is a normal float: blur it directly
-        return np.log(_blur(np.exp(g), scene))
-    from scipy.ndimage import maximum_filter1d
-
-    for axis, sigma in enumerate(sigmas):
-        k = gaussian_kernel(sigma)
-        r = len(k) // 2
-        top = maximum_filter1d(g, size=len(k), axis=axis, mode="reflect")
-        pad = [(0, 0), (0, 0)]
-        pad[axis] = (r, r)
-        padded = np.pad(g, pad, mode="symmetric")
-        acc = np.zeros_like(g)
-        n = g.shape[axis]
-        for j, weight in enumerate(k[::-1]):
-            window = padded[j:j + n] if axis == 0 else padded[:, j:j + n]
-            acc += weight * np.exp(window - top)
-        g = top + np.log(acc)
-    return g
+    return g if kernels is None else _log_convolve(g, kernels)
 
 
 def _poisson(rng, lam) -> np.ndarray:
@@ -407,7 +713,8 @@ def detect(transmitted, scene, *, i0: float | None = None, rng=None):
     transmitted : (H, W) float
         ``I / I0`` per pixel, from :func:`transmission` averaged over each pixel's rays.
     scene : Scene
-        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise`` and ``seed``.
+        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise``, ``seed`` and
+        the detector model (see :func:`detect_log`).
     i0 : float, optional
         Unattenuated photons per pixel at the detector centre; default ``scene.detector.i0``.
     rng : numpy.random.Generator, optional
@@ -430,40 +737,77 @@ def detect(transmitted, scene, *, i0: float | None = None, rng=None):
     return detect_log(log_t, scene, i0=i0, rng=rng)
 
 
-def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None):
+def flat_field(scene, *, i0: float | None = None) -> np.ndarray:
+    """(H, W) the noise-free reading without any body, in detected units.
+
+    ``gain * I0 * F * A``: ``F`` the fall-off (if on), ``A`` the unattenuated beam's detected
+    fraction relative to an ideal detector at the centre (the scintillator's absorption and the
+    heel effect; 1 for an ideal detector and a uniform beam). The line integral is
+    ``-ln(intensity / flat_field)``.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> float(flat_field(xray_viz.load_scene("sphere")).max())
+    1.0
+    """
+    det = scene.detector
+    w, h = det.shape
+    i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
+    A, _ = _levels(scene)
+    fall = falloff_factor(scene) if getattr(det, "falloff", False) else 1.0
+    return float(getattr(det, "gain", 1.0)) * i0 * fall * np.broadcast_to(A, (h, w))
+
+
+def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
+               log_variance=None):
     """The detector's reading of the transmitted beam, given ``ln(I / I0)`` per pixel.
 
     Parameters
     ----------
     log_transmitted : (H, W) float
-        ``ln(I / I0)`` per pixel (:func:`log_transmission` averaged over each pixel's rays by
-        :func:`pixel_log_mean`).
+        ``ln(I / I0)`` per pixel (:func:`pixel_log_transmission`, or :func:`log_transmission`
+        averaged over each pixel's rays by :func:`pixel_log_mean`).
     scene : Scene
-        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise`` and ``seed``.
+        ``scene.detector`` gives ``i0``, ``falloff``, ``focal_spot``, ``noise``, ``seed``,
+        ``scintillator``, ``mtf``, ``electronic_noise`` and ``gain``.
     i0 : float, optional
         Unattenuated photons per pixel at the detector centre; default ``scene.detector.i0``.
     rng : numpy.random.Generator, optional
         Random numbers for the noise; default ``numpy.random.default_rng(scene.detector.seed)``.
+    log_variance : (H, W) float, optional
+        The variance's transmitted fraction, ``ln`` (:func:`pixel_log_transmission`); without
+        it the noise assumes the unattenuated beam's variance-to-mean ratio everywhere (exact
+        for a counting detector and a single energy, not behind thick bodies otherwise).
 
     Returns
     -------
     intensity : (H, W) float
-        ``I0 * F * T`` (photons, or photon-equivalents of mean energy for an
-        energy-integrating detector), blurred by the focal spot, with Poisson noise if asked.
-        It underflows to 0 behind more than ~745 attenuation lengths.
+        In detected units: ``gain`` times the signal in photon-equivalents, ``I0 * F * A * T``
+        without noise (``A``: :func:`flat_field`'s detected fraction; an energy-integrating
+        detector's photon-equivalent is a photon of the unattenuated beam's mean energy). It
+        underflows to 0 behind more than ~745 attenuation lengths.
     line_integral : (H, W) float
-        ``-ln(intensity / (I0 * F))``, computed from ``log_transmitted`` directly (and
-        through the blur in the log domain), so it is finite for any finite path length.
-        With noise, pixels that received no photon count as half a photon so the line
-        integral stays finite.
+        ``-ln(intensity / flat_field)``, computed from ``log_transmitted`` directly (and
+        through the blurs in the log domain), so it is finite for any finite path length.
+        With noise, pixels read as less than half a photon count as half a photon, so the
+        line integral stays finite.
 
     Notes
     -----
-    Noise: a counting detector gets ``Poisson(I)``. An energy-integrating detector's signal is a
-    compound Poisson sum of photon energies; it is modelled as ``Poisson(s I) / s`` with ``s`` the
-    Swank factor ``<E>^2 / <E^2>`` of the *unattenuated* spectrum, which gives the exact mean and
-    variance of a flat field (and of any pixel to the extent hardening leaves ``s`` unchanged).
-    Means above 1e12 photons are sampled from the normal limit of the Poisson distribution.
+    Order of operations (:mod:`xray_viz.physics.detector`): mean signal -> focal-spot blur ->
+    quantum noise -> detector blur (MTF) -> electronic noise -> gain.
+
+    Quantum noise: the signal is a compound Poisson sum of the absorbed photons' scores
+    (energies for an energy-integrating detector); per pixel, with mean ``M`` and variance
+    ``V = I0 F sum_k u2_k T_k`` (the transmitted spectrum's own second moment, from
+    ``log_variance``), it is sampled as ``c * Poisson(M / c)``, ``c = V / M``: the exact mean
+    and variance (``c`` is the inverse Swank factor ``<E^2> / <E>^2`` of the transmitted
+    spectrum, relative to the unattenuated mean energy). A counting detector has ``c = 1``:
+    plain Poisson counts. Means above 1e12 photons are sampled from the normal limit. The
+    focal-spot blur acts on the mean and the variance alike (it redistributes photons); the
+    detector blur acts on the noisy signal (light spread correlates the noise). Electronic
+    noise is ``Normal(0, electronic_noise)`` photon-equivalents per pixel.
 
     Examples
     --------
@@ -475,24 +819,35 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None):
     det = scene.detector
     log_t = np.asarray(log_transmitted, dtype=np.float64)
     i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
-    flat = i0 * falloff_factor(scene) if getattr(det, "falloff", False) else np.full(
+    gain = float(getattr(det, "gain", 1.0))
+    A, B = _levels(scene)
+    incident = i0 * falloff_factor(scene) if getattr(det, "falloff", False) else np.full(
         log_t.shape, i0)
-    if _blur_sigmas(scene) is None:
-        signal = flat * np.exp(log_t)
-        line_integral = -log_t
-    else:
-        log_flat = np.log(flat)
-        log_signal = _log_blur(log_flat + log_t, scene)
-        signal = np.exp(log_signal)
-        line_integral = log_flat - log_signal
-    if not getattr(det, "noise", False):
-        return signal, line_integral
-    from xray_viz.physics.spectra import source_spectrum
-
+    flat = incident * A
+    log_flat = np.log(flat)
+    mtf = _mtf_kernels(scene)
+    noise = bool(getattr(det, "noise", False))
+    if not noise and mtf is None and _blur_sigmas(scene) is None:
+        return gain * flat * np.exp(log_t), -log_t
+    log_signal = _log_blur(log_flat + log_t, scene)
+    if not noise:
+        if mtf is not None:
+            log_signal = _log_convolve(log_signal, mtf)
+        return gain * np.exp(log_signal), log_flat - log_signal
     if rng is None:
         rng = np.random.default_rng(getattr(det, "seed", None))
-    spectrum = source_spectrum(scene.source)
-    s = spectrum.swank_factor if _response(scene) == "energy" else 1.0
-    signal = _poisson(rng, signal * s) / s
-    line_integral = -np.log(np.maximum(signal, 0.5 / s) / flat)
-    return signal, line_integral
+    log_v = log_t if log_variance is None else np.asarray(log_variance, dtype=np.float64)
+    log_var = _log_blur(np.log(incident * B) + log_v, scene)
+    if _counts_photons(scene):
+        log_c = np.zeros_like(log_signal)              # photon counts: variance = mean
+    else:
+        log_c = log_var - log_signal                   # variance / mean, per pixel
+    c = np.exp(log_c)
+    signal = c * _poisson(rng, np.exp(log_signal - log_c))
+    if mtf is not None:
+        signal = _convolve(signal, mtf)
+    sigma_e = float(getattr(det, "electronic_noise", 0.0) or 0.0)
+    if sigma_e > 0:
+        signal = signal + rng.normal(0.0, sigma_e, signal.shape)
+    line_integral = log_flat - np.log(np.maximum(signal, 0.5 * c))
+    return gain * signal, line_integral
