@@ -167,7 +167,10 @@ def _coordinate(tx, anode_angle):
 @lru_cache(maxsize=16)
 def _grid_cached(params, x_range, y_range, grid, energies):
     kvp, anode_angle, filters, bin_width, anode = params
-    s = _spek(kvp, anode_angle, filters, bin_width, anode)
+    # SpekPy for the anode (heel, self-filtration) only; the tube filters are crossed
+    # obliquely off axis, attenuated with the same xraylib data as everything else
+    # (xray_viz.physics.spectra filters the central spectrum so)
+    s = _spek(kvp, anode_angle, (), bin_width, anode)
     k, centre = s.get_spectrum()
     k = np.asarray(k, dtype=np.float64)
     centre = np.asarray(centre, dtype=np.float64)
@@ -185,13 +188,18 @@ def _grid_cached(params, x_range, y_range, grid, energies):
                           math.log(th + math.atan(x_range[1])), na)
     tx_nodes = np.tan(np.exp(a_nodes) - th)
     ty_nodes = np.linspace(y_range[0], y_range[1], nb)
+    from xray_viz.physics.spectra import filter_attenuation
+
+    mu_t = sum((filter_attenuation(m, energies) * mm for m, mm in filters),
+               np.zeros(len(energies)))                   # -ln of the filters on the axis
     ratio = np.empty((na, nb, len(energies)))
     for i, tx in enumerate(tx_nodes):
         for j, ty in enumerate(ty_nodes):
             _, fluence = s.get_spectrum(x=tx * _Z_CM, y=ty * _Z_CM, z=_Z_CM)
-            # per solid angle: SpekPy's inverse square divided out
-            ratio[i, j] = np.asarray(fluence, dtype=np.float64)[pos] * (1 + tx * tx + ty * ty) \
-                / centre[pos]
+            # per solid angle: SpekPy's inverse square divided out; the filters' extra path
+            oblique = math.sqrt(1 + tx * tx + ty * ty)
+            ratio[i, j] = np.asarray(fluence, dtype=np.float64)[pos] * oblique ** 2 \
+                / centre[pos] * np.exp(-mu_t * (oblique - 1.0))
     if not (np.all(np.isfinite(ratio)) and np.all(ratio.sum(axis=-1) > 0)):
         raise SceneError("[source] heel = true: SpekPy gives no photons at the anode edge of "
                          "the field; use a larger anode_angle")
