@@ -110,7 +110,8 @@ class Radiograph:
             if self.scene is None:
                 raise ValueError("this Radiograph has no scene to trace its path lengths from")
             n = self.supersample
-            check_memory(self.scene, supersample=n, path_lengths=True, images=False)
+            check_memory(self.scene, supersample=n, engine=self.engine, path_lengths=True,
+                         images=False)
             w, h = self.scene.detector.shape
             out = np.empty((h, w, len(self.scene.bodies)))
             _band_loop(self.scene, self.engine, n, per_body=out)
@@ -381,7 +382,8 @@ def _image_bytes_per_pixel(scene) -> int:
 
 
 def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast",
-                  path_lengths: bool = False, images: bool = True) -> dict:
+                  path_lengths: bool = False, images: bool = True,
+                  keep_hits: bool = False) -> dict:
     """Estimated peak memory of :func:`render` (bytes), by part.
 
     Parameters
@@ -394,6 +396,8 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
         Count the per-body path lengths ``(H, W, n_bodies)`` (8 bytes each).
     images : bool
         Count the output images (see :func:`_image_bytes_per_pixel`).
+    keep_hits : bool
+        The whole detector is traced at once (its path lengths; the hits are not counted).
 
     Returns
     -------
@@ -412,8 +416,8 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
     w, h = scene.detector.shape
     pixels = w * h
     nb = len(scene.bodies)
-    rows = min(h, _band_rows(scene, engine, n))
-    per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if engine == "numpy" else 0)
+    rows = h if keep_hits else min(h, _band_rows(scene, engine, n))
+    per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if engine == "numpy" or keep_hits else 0)
     need = {
         "images": pixels * _image_bytes_per_pixel(scene) if images else 0,
         "path_lengths": pixels * nb * 8 if path_lengths else 0,
@@ -434,7 +438,8 @@ def _gib(nbytes: float) -> str:
 
 
 def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
-                 path_lengths: bool = False, images: bool = True) -> None:
+                 path_lengths: bool = False, images: bool = True,
+                 keep_hits: bool = False) -> None:
     """Refuse, in one line, a job whose output cannot fit in the memory available.
 
     Compares :func:`memory_needed` with :func:`available_memory` (Linux's ``MemAvailable``;
@@ -449,7 +454,7 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
     if available is None:
         return
     need = memory_needed(scene, supersample=supersample, engine=engine,
-                         path_lengths=path_lengths, images=images)
+                         path_lengths=path_lengths, images=images, keep_hits=keep_hits)
     if need["total"] <= available:
         return
     w, h = scene.detector.shape
@@ -522,7 +527,8 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
 
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
     _blur_sigmas(scene)                # a focal spot wider than the detector: refused now
-    check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths)
+    check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths,
+                 keep_hits=keep_hits)
     w, h = scene.detector.shape
     t0 = time.perf_counter()
     log_t = np.empty((h, w))
