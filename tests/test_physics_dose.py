@@ -589,3 +589,34 @@ def test_dosimetry_docstring_examples():
     assert result.attempted >= 5 and result.failed == 0
     result = doctest.testmod(spectra, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.attempted >= 5 and result.failed == 0
+
+
+def test_air_kerma_reaches_the_radiograph_and_the_dicom_header(tmp_path):
+    import pydicom
+
+    import xray_viz
+    from xray_viz.cli import main
+    from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED, air_kerma, hvl
+    from xray_viz.physics.spectra import source_spectrum
+
+    ball = tmp_path / "ball.stl"
+    trimesh.creation.icosphere(subdivisions=2, radius=40.0).export(ball)
+    scene_file = tmp_path / "s.toml"
+    scene_file.write_text(
+        '[source]\nposition = [0.0, 0.0, 1000.0]\nmas = 2.0\n'
+        'spectrum = { kvp = 80.0, filters = { Al = 2.5 } }\n'
+        '[detector]\ncenter = [0.0, 0.0, -500.0]\nshape = [32, 32]\npitch = 2.0\n'
+        f'[[body]]\nmesh = "{ball}"\nmaterial = "Water, Liquid"\n')
+    scene = xray_viz.load_scene(scene_file)
+    image = xray_viz.render(scene)
+    kerma = air_kerma(scene)
+    assert image.air_kerma == kerma and image.scope == SCATTER_NOT_MODELLED
+    out = tmp_path / "x.dcm"
+    assert main(["render", str(scene_file), "-o", str(out)]) == 0
+    ds = pydicom.dcmread(out)
+    assert int(ds.ExposureInuAs) == 2000
+    assert float(ds.EntranceDoseInmGy) == pytest.approx(kerma.entrance_uGy / 1000, rel=1e-6)
+    assert float(ds.DistanceSourceToEntrance) == pytest.approx(960.0, abs=1.0)   # 1000 - r
+    assert float(ds.HalfValueLayer) == pytest.approx(
+        hvl(source_spectrum(scene.source)).hvl1, rel=1e-6)
+    assert "scattered photons" in ds.ImageComments

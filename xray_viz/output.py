@@ -667,9 +667,27 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
         ds.KVP = _ds(spectrum.kvp if spectrum.kvp is not None else spectrum.max_energy)
     if scene.detector.focal_spot > 0:
         ds.FocalSpots = _ds(scene.detector.focal_spot)
+    exposure = ""
+    if getattr(scene.source, "mas", None) is not None:
+        from xray_viz.physics.dosimetry import air_kerma, hvl
+
+        kerma = air_kerma(scene)
+        ds.ExposureInuAs = int(round(kerma.mas * 1000))            # (0018,1153)
+        ds.Exposure = int(round(kerma.mas))                         # (0018,1152), mAs
+        if kerma.entrance_uGy is not None:
+            # Entrance Dose in mGy (0040,8302): incident air kerma, free in air, no backscatter
+            ds.EntranceDoseInmGy = _ds(kerma.entrance_uGy / 1000.0)
+            ds.DistanceSourceToEntrance = _ds(kerma.entrance_distance_mm)
+        ds.HalfValueLayer = _ds(hvl(spectrum).hvl1)               # mm Al, on air kerma
+        exposure = (f"; {kerma.mas:g} mAs: incident air kerma (free in air, no backscatter) "
+                    + (f"{kerma.entrance_uGy:.4g} uGy at the nearest body surface, "
+                       if kerma.entrance_uGy is not None else "")
+                    + f"{kerma.detector_uGy:.4g} uGy at the detector")
+    from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED
+
     ds.ImageComments = (f"{quantity or 'image'}; beam: {spectrum.description}; "
                         f"detector response: {scene.detector.response}; SID {sid:g} mm, "
-                        f"SOD {sod:g} mm")[:10240]
+                        f"SOD {sod:g} mm{exposure}; {SCATTER_NOT_MODELLED}")[:10240]
     return ds
 
 

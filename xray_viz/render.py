@@ -93,6 +93,24 @@ class Radiograph:
     _path_length: np.ndarray | None = field(repr=False, default=None)
 
     @property
+    def scope(self) -> str:
+        """What the image leaves out, for anyone who uses it as data: scattered radiation
+        (:data:`xray_viz.physics.dosimetry.SCATTER_NOT_MODELLED`)."""
+        from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED
+
+        return SCATTER_NOT_MODELLED
+
+    @property
+    def air_kerma(self):
+        """The exposure's incident air kerma (:class:`~xray_viz.physics.dosimetry.AirKerma`)
+        when the scene's source gives ``mas``; None otherwise."""
+        if self.scene is None or getattr(self.scene.source, "mas", None) is None:
+            return None
+        from xray_viz.physics.dosimetry import air_kerma
+
+        return air_kerma(self.scene)
+
+    @property
     def path_length(self) -> np.ndarray:
         """(H, W, n_bodies) float: millimetres of each pixel's rays in each body's material
         (innermost / later body wins; the mean over a pixel's supersampled rays).
