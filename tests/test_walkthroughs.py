@@ -54,14 +54,22 @@ class Run:
         return float(m.group(group))
 
 
+#: Seconds a walkthrough may take (about 50 s for the slowest, 11, on a quiet 2-core machine).
+WALKTHROUGH_TIMEOUT = 300
+
+
 def _run(n: int, out: Path) -> Run:
     env = dict(os.environ, PYVISTA_OFF_SCREEN="true", XRAY_VIZ_OUTPUT=str(out),
                MPLBACKEND="Agg")
     try:
         proc = subprocess.run([sys.executable, str(walkthrough_path(n))], env=env, cwd=out,
-                              capture_output=True, text=True, timeout=120)
+                              capture_output=True, text=True, timeout=WALKTHROUGH_TIMEOUT)
     except subprocess.TimeoutExpired as exc:
-        return Run(-1, exc.stdout or "", f"timed out after 120 s\n{exc.stderr or ''}", out)
+        def text(b):                      # TimeoutExpired keeps bytes, even with text=True
+            return b.decode(errors="replace") if isinstance(b, bytes) else (b or "")
+
+        return Run(-1, text(exc.stdout), f"timed out after {WALKTHROUGH_TIMEOUT} s\n"
+                   f"{text(exc.stderr)}", out)
     return Run(proc.returncode, proc.stdout, proc.stderr, out)
 
 
@@ -256,7 +264,7 @@ def test_walkthrough_without_a_display_says_use_off_screen(tmp_path):
     env["XRAY_VIZ_OUTPUT"] = str(tmp_path / "pngs")
     exe = Path(sys.executable).with_name("xray-viz")
     proc = subprocess.run([str(exe), "walkthrough", "1"], env=env, cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=WALKTHROUGH_TIMEOUT)
     assert proc.returncode == 2, proc.stderr
     err = proc.stderr.strip()
     assert err.count("\n") == 0 and "no display" in err and "--off-screen" in err, err
