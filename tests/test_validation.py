@@ -489,7 +489,7 @@ def test_viewer_of_a_source_with_a_spectrum_object(tmp_path):
         assert vw.radiograph.intensity.min() < 0.5
         # no energy or kVp control for a fixed spectrum; the status names it
         assert "energy" not in vw.sliders and "kvp" not in vw.sliders
-        assert "spectrum, mean 60.0 keV" in vw.view.status
+        assert "spectrum, mean 60 keV" in vw.view.status
         with pytest.raises(ValueError, match="has a spectrum"):
             vw.set_energy(70.0)
         prof = vw.pick_pixel(16, 16)

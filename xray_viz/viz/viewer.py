@@ -395,7 +395,7 @@ class Viewer:
         if self.kvp is not None:
             return f"{self.kvp:g} kVp"
         if self.fixed_spectrum is not None:
-            return f"spectrum, mean {self.fixed_spectrum.mean_energy:.1f} keV"
+            return f"spectrum, mean {self.fixed_spectrum.mean_energy:.3g} keV"
         return f"{self.energy:g} keV"
 
     def _update_status(self) -> None:
