@@ -58,11 +58,12 @@ class Run:
 WALKTHROUGH_TIMEOUT = 300
 
 
-def _run(n: int, out: Path) -> Run:
+def _run(n: int, out: Path, path: Path | None = None) -> Run:
     env = dict(os.environ, PYVISTA_OFF_SCREEN="true", XRAY_VIZ_OUTPUT=str(out),
                MPLBACKEND="Agg")
+    path = walkthrough_path(n) if path is None else path
     try:
-        proc = subprocess.run([sys.executable, str(walkthrough_path(n))], env=env, cwd=out,
+        proc = subprocess.run([sys.executable, str(path)], env=env, cwd=out,
                               capture_output=True, text=True, timeout=WALKTHROUGH_TIMEOUT)
     except subprocess.TimeoutExpired as exc:
         def text(b):                      # TimeoutExpired keeps bytes, even with text=True
@@ -79,8 +80,11 @@ def runs(tmp_path_factory) -> dict[int, Run]:
     folders = {n: tmp_path_factory.mktemp(f"walkthrough{n:02d}") for n in numbers}
     # The slowest first, so that the two workers finish together.
     order = sorted(numbers, key=lambda n: n != 11)
+    # paths found here, not in the threads (ast.parse from two threads at once has failed
+    # under load with "AST constructor recursion depth mismatch")
+    paths = {n: walkthrough_path(n) for n in numbers}
     with ThreadPoolExecutor(max_workers=2) as pool:
-        results = dict(zip(order, pool.map(lambda n: _run(n, folders[n]), order)))
+        results = dict(zip(order, pool.map(lambda n: _run(n, folders[n], paths[n]), order)))
     return results
 
 
