@@ -25,7 +25,7 @@ except ImportError:            # the test extra is not installed: test_propertie
     pass
 else:
     _hypothesis_settings.register_profile(
-        "xray_viz", max_examples=12, deadline=None, derandomize=True, database=None,
+        "xray_viz", max_examples=15, deadline=None, derandomize=True, database=None,
         print_blob=True, suppress_health_check=[HealthCheck.too_slow])
     _hypothesis_settings.register_profile(
         "slow", max_examples=300, deadline=None, print_blob=True,
