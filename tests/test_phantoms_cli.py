@@ -92,18 +92,7 @@ def test_render_every_phantom(name, tmp_path, capfd):
     assert image.min() < 0.97 * image.max()
 
 
-def _show_case(name):
-    if name == "shepp_logan":
-        # On main (28ac9e5) the viewer's material colours add a mixture material (a dict of
-        # mass fractions) to a str and raise TypeError; being fixed in issue 12. Remove this
-        # mark with the fix (strict: the test fails when it starts passing).
-        return pytest.param(name, marks=pytest.mark.xfail(
-            raises=TypeError, strict=True,
-            reason="show crashes on a mixture material (dict + str in the viewer)"))
-    return name
-
-
-@pytest.mark.parametrize("name", [_show_case(n) for n in NAMES])
+@pytest.mark.parametrize("name", NAMES)
 def test_show_screenshot_of_every_phantom(name, tmp_path, capfd):
     from PIL import Image
 
