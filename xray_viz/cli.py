@@ -75,10 +75,15 @@ def _render_command(args) -> int:
         raise XrayVizError(f"--supersample must be >= 1, got {args.supersample}")
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
+    from xray_viz.output import check_target
+
+    check_target(out)                 # a read-only target is refused before the render
     scene = xray_viz.load_scene(args.scene)
     with _compile_notice(args.engine):
         image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
     data = image.quantity(args.quantity)
+    engine, total_ms = image.engine, image.timing["total"] * 1000
+    del image                         # only the image written stays in memory while saving
     save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
                quantity=args.quantity)
     w, h = scene.detector.shape
@@ -91,7 +96,7 @@ def _render_command(args) -> int:
         dose = (f", {k.mas:g} mAs: air kerma " + (f"{k.entrance_uGy:.4g} uGy at entrance, "
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
     print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
-          f"engine {image.engine}, {image.timing['total'] * 1000:.0f} ms{dose})")
+          f"engine {engine}, {total_ms:.0f} ms{dose})")
     return 0
 
 

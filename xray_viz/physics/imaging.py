@@ -821,14 +821,20 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
     i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
     gain = float(getattr(det, "gain", 1.0))
     A, B = _levels(scene)
-    incident = i0 * falloff_factor(scene) if getattr(det, "falloff", False) else np.full(
-        log_t.shape, i0)
-    flat = incident * A
-    log_flat = np.log(flat)
     mtf = _mtf_kernels(scene)
     noise = bool(getattr(det, "noise", False))
+    falloff = bool(getattr(det, "falloff", False))
     if not noise and mtf is None and _blur_sigmas(scene) is None:
-        return gain * flat * np.exp(log_t), -log_t
+        # the common case, in place: 16 bytes per pixel besides log_t (big detectors)
+        signal = np.exp(log_t)
+        signal *= gain * i0
+        if falloff:
+            signal *= falloff_factor(scene)
+        signal *= A
+        return signal, -log_t
+    incident = i0 * falloff_factor(scene) if falloff else np.full(log_t.shape, i0)
+    flat = incident * A
+    log_flat = np.log(flat)
     log_signal = _log_blur(log_flat + log_t, scene)
     if not noise:
         if mtf is not None:
