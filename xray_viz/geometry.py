@@ -198,7 +198,7 @@ def check_supersample(value, *, name: str = "supersample") -> int:
     return int(value)
 
 
-def _row_range(rows, h):
+def row_range(rows, h):
     """``(start, stop)`` of a range of image rows given as None, (start, stop), range or slice."""
     if rows is None:
         return 0, h
@@ -251,7 +251,7 @@ def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
     n = check_supersample(supersample)
     vp = viewport(scene.source.position, scene.detector)
     w, h = vp.shape
-    start, stop = _row_range(rows, h)
+    start, stop = row_range(rows, h)
     # The rows of pixel_coordinates(vp.shape), computed for these rows only (same values).
     ui = np.arange(w) / (w - 1) if w > 1 else np.array([0.5])
     vj = np.arange(h) / (h - 1) if h > 1 else np.array([0.5])

@@ -317,8 +317,8 @@ def _checked(L, scene, engine, r0):
     image."""
     if not L.size:
         return L
-    low = float(L.min())
-    if low >= 0.0 and np.isfinite(L).all():
+    low = float(L.min())                   # NaN if any is NaN
+    if low >= 0.0 and np.isfinite(float(L.max())):
         return L
     from xray_viz.errors import EngineError
 
@@ -341,8 +341,10 @@ def _checked(L, scene, engine, r0):
 def _check_transmission(log_t, scene):
     """No pixel may transmit more than the open beam (I <= I0): mu >= 0 and L >= 0 make every
     energy bin's ``exp(-sum mu L) <= 1``."""
-    top = float(np.max(log_t)) if log_t.size else 0.0
-    if top > 1e-9 or not np.isfinite(log_t).all():
+    if not log_t.size:
+        return
+    top, low = float(log_t.max()), float(log_t.min())       # NaN if any is NaN
+    if not (top <= 1e-9 and np.isfinite(low)):
         from xray_viz.errors import EngineError
 
         raise EngineError(f"internal error: a pixel's transmission ln(I/I0) = {top!r} (> 0, or "

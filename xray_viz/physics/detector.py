@@ -208,47 +208,14 @@ def absorption_efficiency(scintillator, energies_kev) -> np.ndarray:
 # tables
 
 
-def _csv_fields(text: str) -> list[str]:
-    text = text.replace(";", ",")
-    return [p.strip() for p in text.split(",")] if "," in text else text.split()
-
-
-def _is_number(field: str) -> bool:
-    try:
-        float(field)
-    except ValueError:
-        return False
-    return True
-
-
 @lru_cache(maxsize=64)
 def _read_table_cached(path: str, mtime_ns: int, size: int) -> np.ndarray:
-    try:
-        with open(path, encoding="utf-8-sig") as fh:
-            lines = fh.readlines()
-    except UnicodeDecodeError as exc:
-        _fail(f"{path}: not a UTF-8 text file (byte {exc.start}); expected a two-column CSV table")
-    except OSError as exc:
-        _fail(f"{path}: cannot read: {exc.strerror}")
-    rows, header_seen = [], False
-    for lineno, line in enumerate(lines, 1):
-        text = line.split("#", 1)[0].strip()
-        if not text:
-            continue
-        parts = _csv_fields(text)
-        bad = [p for p in parts if not _is_number(p)]
-        if bad:
-            if not rows and not header_seen and len(bad) == len(parts):
-                header_seen = True
-                continue
-            _fail(f"{path}: line {lineno}: {bad[0]!r} is not a number (two numeric columns; one "
-                  "header line is allowed before the data)")
-        if len(parts) != 2:
-            _fail(f"{path}: line {lineno}: expected two columns, got {len(parts)}")
-        rows.append([float(p) for p in parts])
-    if len(rows) < 2:
+    from xray_viz.physics.spectra import read_columns
+
+    data = read_columns(path, error=SceneError, name="table",
+                        columns="two numeric columns")
+    if len(data) < 2:
         _fail(f"{path}: needs at least two rows of two numbers")
-    data = np.asarray(rows)
     if not np.all(np.isfinite(data)):
         _fail(f"{path}: values must be finite")
     if np.any(np.diff(data[:, 0]) <= 0):

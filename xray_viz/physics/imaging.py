@@ -158,22 +158,9 @@ def _heel(scene, keep):
 
 def _row_range(scene, rows) -> tuple[int, int]:
     """``(start, stop)`` of a block of image rows (None: all of them)."""
-    h = scene.detector.shape[1]
-    if rows is None:
-        return 0, h
-    if isinstance(rows, slice):
-        if rows.step not in (None, 1):
-            raise ValueError(f"rows must be consecutive image rows, got step {rows.step}")
-        start, stop, _ = rows.indices(h)
-    elif isinstance(rows, range):
-        if rows.step != 1:
-            raise ValueError(f"rows must be consecutive image rows, got step {rows.step}")
-        start, stop = rows.start, rows.stop
-    else:
-        start, stop = (int(r) for r in rows)
-    if not 0 <= start < stop <= h:
-        raise ValueError(f"rows {start}:{stop} are not a block of the detector's {h} rows")
-    return start, stop
+    from xray_viz.geometry import row_range
+
+    return row_range(rows, scene.detector.shape[1])
 
 
 def _rays_per_pixel(scene, rows, n_rays) -> tuple[int, int]:

@@ -66,6 +66,7 @@ import numpy as np
 from xray_viz.errors import SceneFileNotFoundError, SpectrumError, excerpt
 
 __all__ = ["Spectrum", "BeamQuality", "tube_spectrum", "quality_spectrum", "read_spectrum_csv",
+           "read_columns",
            "spectrum_from_dict", "source_spectrum", "UnfilteredSpectrumWarning", "SPECTRUM_KEYS",
            "ANODES", "KVP_RANGE", "IEC61267_QUALITIES", "IEC61267_EDITION"]
 
@@ -537,19 +538,39 @@ def _is_number(field: str) -> bool:
     return True
 
 
-@lru_cache(maxsize=64)
-def _read_csv_cached(path: str, mtime_ns: int, size: int) -> Spectrum:
-    rows = []
-    header_seen = False
+def read_columns(path, *, error=SpectrumError, name="spectrum file",
+                 columns="keV, relative fluence") -> np.ndarray:
+    """The rows of a two-column numeric CSV text file: the one reader of spectrum files and of
+    the detector's MTF/LSF tables.
+
+    Comma, semicolon or blank separated, UTF-8 (a byte-order mark allowed), ``#`` comments and
+    blank lines anywhere, one header line before the data none of whose fields is a number.
+    Errors name the file and line and quote a short, escaped excerpt of the bad field.
+
+    Parameters
+    ----------
+    path : str or Path
+    error : type
+        The exception class raised (an :class:`~xray_viz.errors.XrayVizError` subclass).
+    name, columns : str
+        How messages name the file and its two columns.
+
+    Returns
+    -------
+    (n, 2) float
+        ``n >= 0`` rows, in file order.
+    """
     try:
         # utf-8-sig: a byte-order mark (as spreadsheet programs write) is not part of line 1
         with open(path, encoding="utf-8-sig") as fh:
             lines = fh.readlines()
     except UnicodeDecodeError as exc:
-        raise SpectrumError(f"{path}: not a UTF-8 text file (byte {exc.start}); a spectrum is a "
-                            "two-column CSV text file: keV, relative fluence") from None
+        raise error(f"{path}: not a UTF-8 text file (byte {exc.start}); a {name} is a "
+                    f"two-column CSV text file: {columns}") from None
     except OSError as exc:
-        raise SpectrumError(f"{path}: cannot read the spectrum file: {exc.strerror}") from None
+        raise error(f"{path}: cannot read the {name}: {exc.strerror}") from None
+    rows = []
+    header_seen = False
     for lineno, line in enumerate(lines, 1):
         text = line.split("#", 1)[0].strip()
         if not text:
@@ -562,17 +583,21 @@ def _read_csv_cached(path: str, mtime_ns: int, size: int) -> Spectrum:
                 header_seen = True
                 continue
             why = ("only one header line is allowed, before the data" if len(bad) == len(parts)
-                   else "expected two numbers: keV, relative fluence")
+                   else f"expected two numbers: {columns}")
             # the file may be anything a scene names: quote a short escaped excerpt only
-            raise SpectrumError(f"{path}: line {lineno}: {excerpt(bad[0])} is not a number "
-                                f"({why})")
+            raise error(f"{path}: line {lineno}: {excerpt(bad[0])} is not a number ({why})")
         if len(parts) != 2:
-            raise SpectrumError(f"{path}: line {lineno}: expected two columns (keV, fluence), "
-                                f"got {len(parts)}")
+            raise error(f"{path}: line {lineno}: expected two columns ({columns}), "
+                        f"got {len(parts)}")
         rows.append([float(p) for p in parts])
-    if not rows:
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 2)
+
+
+@lru_cache(maxsize=64)
+def _read_csv_cached(path: str, mtime_ns: int, size: int) -> Spectrum:
+    data = read_columns(path)
+    if not len(data):
         raise SpectrumError(f"{path}: no spectrum rows (two columns: keV, relative fluence)")
-    data = np.asarray(rows)
     try:
         return Spectrum(data[:, 0], data[:, 1], kvp=float(data[-1, 0]),
                         description=f"from {os.path.basename(path)}")
