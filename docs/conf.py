@@ -205,7 +205,7 @@ extensions = [
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
 templates_path = ["_templates"]
-exclude_patterns = ["_build", "_readme"]
+exclude_patterns = ["_build"]
 default_role = "py:obj"
 pygments_style = "sphinx"
 
@@ -216,8 +216,6 @@ nitpick_ignore_regex = [(r"py:.*", r"(?!xray_viz(\.|$)).*")]
 nitpick_ignore = [
     # not in xray_viz.scene.__all__ (so without a page), named by xray_viz.meshes.command
     ("py:data", "xray_viz.scene.LENGTH_UNITS"),
-    # named by xray_viz.bodies' docstring, not (yet) defined in xray_viz.geometry
-    ("py:class", "xray_viz.geometry.Acquisition"),
 ]
 
 # -- API reference (autosummary + numpydoc) --------------------------------------------------
@@ -259,53 +257,12 @@ sphinx_gallery_conf = {
     "only_warn_on_example_error": False,
     "abort_on_example_error": False,
     "first_notebook_cell": (
-        "# To write the figures as PNG files (into out/walkthroughs/NN/, or $XRAY_VIZ_OUTPUT)\n"
-        "# instead of showing them, uncomment this line before running the notebook:\n"
+        "# Off-screen (PNG files in out/walkthroughs/NN/) instead of windows:\n"
         "# import os; os.environ['PYVISTA_OFF_SCREEN'] = 'true'"
     ),
 }
 
 _invalidate_stale_gallery()
-
-# -- README sections -------------------------------------------------------------------------
-# Pages include sections of README.md (not copies): each "## Title" section is written to
-# _readme/<title-slug>.md (gitignored, rewritten every build) without its heading line and with
-# its sub-headings one level up, so that a page's own "# Title" is followed by "##" headings.
-# A README edit shows on the next build; a renamed section fails it (the include is missing).
-
-README_SECTIONS = DOCS / "_readme"
-
-
-def _slug(title: str) -> str:
-    return re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
-
-
-def _write_readme_sections() -> None:
-    sections: dict[str, list[str]] = {}
-    current = None
-    fenced = False
-    for line in (REPO / "README.md").read_text(encoding="utf-8").splitlines():
-        if line.lstrip().startswith("```"):
-            fenced = not fenced
-        elif not fenced and line.startswith("## "):
-            current = line[3:].strip()
-            sections[current] = []
-            continue
-        elif not fenced and line.startswith("# "):
-            current = None
-            continue
-        elif not fenced and line.startswith("###"):
-            line = line[1:]
-        if current is not None:
-            sections[current].append(line)
-    shutil.rmtree(README_SECTIONS, ignore_errors=True)
-    README_SECTIONS.mkdir()
-    for title, lines in sections.items():
-        (README_SECTIONS / f"{_slug(title)}.md").write_text("\n".join(lines).strip() + "\n",
-                                                            encoding="utf-8")
-
-
-_write_readme_sections()
 # pages of the computation times, left by a build that wrote them (they load from CDNs)
 for _stale in (DOCS / "sg_execution_times.rst", GALLERY / "sg_execution_times.rst"):
     _stale.unlink(missing_ok=True)
@@ -348,18 +305,10 @@ DOCSTRING_FIXES = {
 }
 
 
-#: A role's target wrapped after a dot (``:func:`~a.b.`` at the end of a line, ``c``` on the
-#: next): reST reads a target with a space in it, which resolves to nothing.
-_WRAPPED_TARGET = re.compile(r"(:[\w:]+:`~?[\w.]+\.)\n[ \t]*([\w.]+`)")
-
-
 def _fix_docstrings(app, what, name, obj, options, lines):
-    """autodoc-process-docstring: apply :data:`DOCSTRING_FIXES`, join wrapped role targets."""
-    text = "\n".join(lines)
+    """autodoc-process-docstring: apply :data:`DOCSTRING_FIXES`."""
     for old, new in DOCSTRING_FIXES.get(name, ()):
-        text = text.replace(old, new)
-    text = _WRAPPED_TARGET.sub(r"\1\2", text)
-    lines[:] = text.split("\n")
+        lines[:] = [line.replace(old, new) for line in lines]
 
 
 def _whole_sentence_summaries():
@@ -367,9 +316,8 @@ def _whole_sentence_summaries():
 
     Sphinx's ``extract_summary`` ends the summary at the first ". ", also inside a literal:
     ``n . (x - r0) <= c`` became the unterminated ````n .`` ("Inline literal start-string
-    without end-string"), and "Compute HO, VE, FL and LHC (Eq. 1.2) for ..." became "... (Eq.".
-    Where the cut leaves an odd number of ```` or an open parenthesis, the whole first
-    paragraph is the summary.
+    without end-string"). Where the cut leaves an odd number of ````, the whole first paragraph
+    is the summary.
     """
     from sphinx.ext import autosummary
 
@@ -379,7 +327,7 @@ def _whole_sentence_summaries():
 
     def extract_summary(doc, settings):
         summary = original(doc, settings)
-        if summary.count("``") % 2 or summary.count("(") > summary.count(")"):
+        if summary.count("``") % 2:
             lines = [line.strip() for line in doc]
             while lines and not lines[0]:
                 lines.pop(0)
@@ -438,43 +386,16 @@ def _canonical_name(target: str, reftype: str) -> str | None:
     return None
 
 
-def _field_of_a_class(target: str) -> str | None:
-    """``xray_viz.physics.spectra.Spectrum.fluence_per_mas`` -> the class, when the attribute
-    is a field or attribute of the class (numpydoc lists those in the class's Attributes
-    section, which gives them no target of their own)."""
-    owner, _, attr = target.rpartition(".")
-    name = _canonical_name(owner, "class") or owner
-    module, _, qualname = name.rpartition(".")
-    try:
-        cls = getattr(importlib.import_module(module), qualname)
-    except (ImportError, AttributeError, ValueError):
-        return None
-    if not inspect.isclass(cls):
-        return None
-    fields = getattr(cls, "__dataclass_fields__", {})
-    return name if attr in fields or hasattr(cls, attr) else None
-
-
 def _resolve_reexports(app, env, node, contnode):
-    """missing-reference: resolve ``xray_viz.X`` to the page of the object it re-exports, and
-    a class's field to the class."""
-    if node.get("refdomain") != "py" or not node.get("reftarget", "").startswith("xray_viz."):
+    """missing-reference: resolve ``xray_viz.X`` to the page of the object it re-exports."""
+    if node.get("refdomain") != "py":
         return None
-    target, reftype = node["reftarget"], node.get("reftype", "")
+    canonical = _canonical_name(node.get("reftarget", ""), node.get("reftype", ""))
+    if canonical is None:
+        return None
     domain = env.get_domain("py")
-    canonical = _canonical_name(target, reftype)
-    if canonical is not None:
-        found = domain.resolve_xref(env, node["refdoc"], app.builder, reftype, canonical,
-                                    node, contnode)
-        if found is not None:
-            return found
-        target = canonical
-    if reftype in ("attr", "obj", "data"):
-        cls = _field_of_a_class(target)
-        if cls is not None:
-            return domain.resolve_xref(env, node["refdoc"], app.builder, "class", cls, node,
-                                       contnode)
-    return None
+    return domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"], canonical,
+                               node, contnode)
 
 
 _VIEWER_FAVICONS = re.compile(r"`https://kitware\.github\.io/vtk-js/icon/favicon-\$\{\w+\}x\$\{\w+\}\.png`")
@@ -497,14 +418,7 @@ def _offline_viewer(app, exception):
             viewer.write_text(fixed, encoding="utf-8")
 
 
-def _no_object_base(app, name, obj, options, bases):
-    """autodoc-process-bases: no "Bases: object" line for a class with no other base."""
-    if list(bases) == [object]:
-        bases.clear()
-
-
 def setup(app):
-    app.connect("autodoc-process-bases", _no_object_base)
     app.connect("autodoc-process-docstring", _fix_docstrings)
     app.connect("include-read", _rewrite_repo_links)
     app.connect("missing-reference", _resolve_reexports)
