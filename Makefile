@@ -35,7 +35,7 @@ test-all: setup
 ## errors). Re-runs only the walkthroughs that changed (sphinx-gallery keeps docs/walkthroughs/).
 docs: setup
 	$(PY) -m sphinx -b html -W --keep-going -q -d $(DOCS_OUT)/doctrees docs $(DOCS_OUT)/html
-	@echo "open $(DOCS_OUT)/html/index.html"
+	@echo "open $(DOCS_OUT)/html/index.html (interactive 3D views: python -m http.server -b 127.0.0.1 -d $(DOCS_OUT)/html)"
 
 ## Benchmarks against the peers (installs the bench extra and the peers' Debian packages).
 bench: setup

@@ -476,3 +476,95 @@ def test_walkthrough_notebook_runs_in_a_kernel(site, number, tmp_path, monkeypat
         li = float(re.search(r"line integral = sum mu L = ([\d.]+)", outputs).group(1))
         ratio = float(re.search(r"I/I0 = exp\(-line integral\) = ([\d.]+)", outputs).group(1))
         assert ratio == pytest.approx(np.exp(-li), abs=1e-5)
+
+
+# --------------------------------------------------------------------------------------------
+# The walkthroughs' gallery mode, in this process (what the build relies on)
+
+
+@pytest.fixture
+def gallery_mode(monkeypatch):
+    """pyvista.BUILDING_GALLERY as docs/conf.py sets it; no trame export (a picture only)."""
+    import pyvista as pv
+
+    def no_trame(self):
+        raise ImportError("no trame in this test")
+
+    monkeypatch.setattr(pv, "BUILDING_GALLERY", True)
+    monkeypatch.setattr(pv, "OFF_SCREEN", True)
+    monkeypatch.setattr(pv.Plotter, "_trame_component", no_trame)
+    pv.close_all()
+    yield pv
+    pv.close_all()
+
+
+def _block_vars(folder: Path, name="sphx_glr_demo"):
+    paths = (str(folder / f"{name}_{k:03d}.png") for k in range(1, 100))
+    return {"image_path_iterator": paths, "example_globals": {}}
+
+
+def test_gallery_plotter_spans_cells_and_keeps_its_slider_frames(gallery_mode, tmp_path,
+                                                                 monkeypatch):
+    """A figure built over two cells: after the first, nothing is scraped and the plotter stays
+    open (the old failure: "This plotter is closed"); after the second, the frame recorded by
+    save_frame comes first, then the final scene; no PNG goes to the walkthrough output."""
+    from xray_viz.walkthroughs import (gallery_scraper, is_building_gallery, new_plotter,
+                                       reset_gallery, save_frame, show_or_save)
+
+    pv = gallery_mode
+    monkeypatch.setenv("XRAY_VIZ_OUTPUT", str(tmp_path / "out"))
+    conf = {"src_dir": str(tmp_path)}
+    assert is_building_gallery()
+    plotter = new_plotter(window_size=(400, 300))
+    plotter.add_mesh(pv.Sphere(), color="black")
+    block_vars = _block_vars(tmp_path)
+    assert gallery_scraper(("code", "", 1), block_vars, conf) == ""          # cell 1: open
+    assert not plotter._closed and list(pv.plotting.plotter._ALL_PLOTTERS.values()) == [plotter]
+    assert save_frame(plotter, "frame", walkthrough=1) is None
+    plotter.add_mesh(pv.Cube(center=(2, 0, 0)), color="red")
+    plotter.reset_camera()
+    assert show_or_save(plotter, "final", walkthrough=1) is None
+    rst = gallery_scraper(("code", "", 2), block_vars, conf)                # cell 2: shown
+    first, second = tmp_path / "sphx_glr_demo_001.png", tmp_path / "sphx_glr_demo_002.png"
+    assert "sphx_glr_demo_001.png" in rst and "sphx_glr_demo_002.png" in rst
+    assert rst.index("_001.png") < rst.index("_002.png")
+    for png in (first, second):
+        _check_png(png, min_size=300, min_std=5.0)
+    a = np.asarray(Image.open(first).convert("RGB"), dtype=float)
+    b = np.asarray(Image.open(second).convert("RGB"), dtype=float)
+    red = lambda im: ((im[..., 0] > 150) & (im[..., 1] < 80)).sum()        # noqa: E731
+    assert red(a) == 0 and red(b) > 100            # the frame is before the cube was added
+    assert pv.plotting.plotter._ALL_PLOTTERS == {}                          # handed over
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+    reset_gallery(conf, None)
+
+
+def test_gallery_scraper_refuses_a_plotter_closed_unrendered(gallery_mode, tmp_path):
+    from xray_viz.walkthroughs import gallery_scraper, new_plotter
+
+    plotter = new_plotter(window_size=(300, 300))
+    plotter.close()                                    # closed without show_or_save()
+    with pytest.raises(RuntimeError, match="show_or_save"):
+        gallery_scraper(("code", "", 1), _block_vars(tmp_path), {"src_dir": str(tmp_path)})
+
+
+def test_gallery_mode_leaves_matplotlib_figures_open(gallery_mode, tmp_path, monkeypatch):
+    from xray_viz.walkthroughs import pyplot, show_or_save_figure
+
+    monkeypatch.setenv("XRAY_VIZ_OUTPUT", str(tmp_path / "out"))
+    plt = pyplot()
+    fig = plt.figure()
+    try:
+        assert show_or_save_figure(fig, "fig", walkthrough=1) is None
+        assert plt.fignum_exists(fig.number)           # for sphinx-gallery's scraper
+        assert not (tmp_path / "out" / "fig.png").exists()
+    finally:
+        plt.close(fig)
+
+
+def test_reset_gallery_closes_what_a_walkthrough_left_open(gallery_mode):
+    from xray_viz.walkthroughs import new_plotter, reset_gallery
+
+    plotter = new_plotter(window_size=(200, 200))
+    reset_gallery({}, None)
+    assert plotter._closed and gallery_mode.plotting.plotter._ALL_PLOTTERS == {}
