@@ -257,7 +257,8 @@ sphinx_gallery_conf = {
     "only_warn_on_example_error": False,
     "abort_on_example_error": False,
     "first_notebook_cell": (
-        "# Off-screen (PNG files in out/walkthroughs/NN/) instead of windows:\n"
+        "# To write the figures as PNG files (into out/walkthroughs/NN/, or $XRAY_VIZ_OUTPUT)\n"
+        "# instead of showing them, uncomment this line before running the notebook:\n"
         "# import os; os.environ['PYVISTA_OFF_SCREEN'] = 'true'"
     ),
 }
@@ -316,8 +317,9 @@ def _whole_sentence_summaries():
 
     Sphinx's ``extract_summary`` ends the summary at the first ". ", also inside a literal:
     ``n . (x - r0) <= c`` became the unterminated ````n .`` ("Inline literal start-string
-    without end-string"). Where the cut leaves an odd number of ````, the whole first paragraph
-    is the summary.
+    without end-string"), and "Compute HO, VE, FL and LHC (Eq. 1.2) for ..." became "... (Eq.".
+    Where the cut leaves an odd number of ```` or an open parenthesis, the whole first
+    paragraph is the summary.
     """
     from sphinx.ext import autosummary
 
@@ -327,7 +329,7 @@ def _whole_sentence_summaries():
 
     def extract_summary(doc, settings):
         summary = original(doc, settings)
-        if summary.count("``") % 2:
+        if summary.count("``") % 2 or summary.count("(") > summary.count(")"):
             lines = [line.strip() for line in doc]
             while lines and not lines[0]:
                 lines.pop(0)
@@ -418,7 +420,14 @@ def _offline_viewer(app, exception):
             viewer.write_text(fixed, encoding="utf-8")
 
 
+def _no_object_base(app, name, obj, options, bases):
+    """autodoc-process-bases: no "Bases: object" line for a class with no other base."""
+    if list(bases) == [object]:
+        bases.clear()
+
+
 def setup(app):
+    app.connect("autodoc-process-bases", _no_object_base)
     app.connect("autodoc-process-docstring", _fix_docstrings)
     app.connect("include-read", _rewrite_repo_links)
     app.connect("missing-reference", _resolve_reexports)
