@@ -205,7 +205,7 @@ extensions = [
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
 templates_path = ["_templates"]
-exclude_patterns = ["_build"]
+exclude_patterns = ["_build", "_readme"]
 default_role = "py:obj"
 pygments_style = "sphinx"
 
@@ -216,6 +216,8 @@ nitpick_ignore_regex = [(r"py:.*", r"(?!xray_viz(\.|$)).*")]
 nitpick_ignore = [
     # not in xray_viz.scene.__all__ (so without a page), named by xray_viz.meshes.command
     ("py:data", "xray_viz.scene.LENGTH_UNITS"),
+    # named by xray_viz.bodies' docstring, not (yet) defined in xray_viz.geometry
+    ("py:class", "xray_viz.geometry.Acquisition"),
 ]
 
 # -- API reference (autosummary + numpydoc) --------------------------------------------------
@@ -264,6 +266,46 @@ sphinx_gallery_conf = {
 }
 
 _invalidate_stale_gallery()
+
+# -- README sections -------------------------------------------------------------------------
+# Pages include sections of README.md (not copies): each "## Title" section is written to
+# _readme/<title-slug>.md (gitignored, rewritten every build) without its heading line and with
+# its sub-headings one level up, so that a page's own "# Title" is followed by "##" headings.
+# A README edit shows on the next build; a renamed section fails it (the include is missing).
+
+README_SECTIONS = DOCS / "_readme"
+
+
+def _slug(title: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "-", title.lower()).strip("-")
+
+
+def _write_readme_sections() -> None:
+    sections: dict[str, list[str]] = {}
+    current = None
+    fenced = False
+    for line in (REPO / "README.md").read_text(encoding="utf-8").splitlines():
+        if line.lstrip().startswith("```"):
+            fenced = not fenced
+        elif not fenced and line.startswith("## "):
+            current = line[3:].strip()
+            sections[current] = []
+            continue
+        elif not fenced and line.startswith("# "):
+            current = None
+            continue
+        elif not fenced and line.startswith("###"):
+            line = line[1:]
+        if current is not None:
+            sections[current].append(line)
+    shutil.rmtree(README_SECTIONS, ignore_errors=True)
+    README_SECTIONS.mkdir()
+    for title, lines in sections.items():
+        (README_SECTIONS / f"{_slug(title)}.md").write_text("\n".join(lines).strip() + "\n",
+                                                            encoding="utf-8")
+
+
+_write_readme_sections()
 # pages of the computation times, left by a build that wrote them (they load from CDNs)
 for _stale in (DOCS / "sg_execution_times.rst", GALLERY / "sg_execution_times.rst"):
     _stale.unlink(missing_ok=True)
@@ -306,10 +348,18 @@ DOCSTRING_FIXES = {
 }
 
 
+#: A role's target wrapped after a dot (``:func:`~a.b.`` at the end of a line, ``c``` on the
+#: next): reST reads a target with a space in it, which resolves to nothing.
+_WRAPPED_TARGET = re.compile(r"(:[\w:]+:`~?[\w.]+\.)\n[ \t]*([\w.]+`)")
+
+
 def _fix_docstrings(app, what, name, obj, options, lines):
-    """autodoc-process-docstring: apply :data:`DOCSTRING_FIXES`."""
+    """autodoc-process-docstring: apply :data:`DOCSTRING_FIXES`, join wrapped role targets."""
+    text = "\n".join(lines)
     for old, new in DOCSTRING_FIXES.get(name, ()):
-        lines[:] = [line.replace(old, new) for line in lines]
+        text = text.replace(old, new)
+    text = _WRAPPED_TARGET.sub(r"\1\2", text)
+    lines[:] = text.split("\n")
 
 
 def _whole_sentence_summaries():
@@ -388,16 +438,43 @@ def _canonical_name(target: str, reftype: str) -> str | None:
     return None
 
 
+def _field_of_a_class(target: str) -> str | None:
+    """``xray_viz.physics.spectra.Spectrum.fluence_per_mas`` -> the class, when the attribute
+    is a field or attribute of the class (numpydoc lists those in the class's Attributes
+    section, which gives them no target of their own)."""
+    owner, _, attr = target.rpartition(".")
+    name = _canonical_name(owner, "class") or owner
+    module, _, qualname = name.rpartition(".")
+    try:
+        cls = getattr(importlib.import_module(module), qualname)
+    except (ImportError, AttributeError, ValueError):
+        return None
+    if not inspect.isclass(cls):
+        return None
+    fields = getattr(cls, "__dataclass_fields__", {})
+    return name if attr in fields or hasattr(cls, attr) else None
+
+
 def _resolve_reexports(app, env, node, contnode):
-    """missing-reference: resolve ``xray_viz.X`` to the page of the object it re-exports."""
-    if node.get("refdomain") != "py":
+    """missing-reference: resolve ``xray_viz.X`` to the page of the object it re-exports, and
+    a class's field to the class."""
+    if node.get("refdomain") != "py" or not node.get("reftarget", "").startswith("xray_viz."):
         return None
-    canonical = _canonical_name(node.get("reftarget", ""), node.get("reftype", ""))
-    if canonical is None:
-        return None
+    target, reftype = node["reftarget"], node.get("reftype", "")
     domain = env.get_domain("py")
-    return domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"], canonical,
-                               node, contnode)
+    canonical = _canonical_name(target, reftype)
+    if canonical is not None:
+        found = domain.resolve_xref(env, node["refdoc"], app.builder, reftype, canonical,
+                                    node, contnode)
+        if found is not None:
+            return found
+        target = canonical
+    if reftype in ("attr", "obj", "data"):
+        cls = _field_of_a_class(target)
+        if cls is not None:
+            return domain.resolve_xref(env, node["refdoc"], app.builder, "class", cls, node,
+                                       contnode)
+    return None
 
 
 _VIEWER_FAVICONS = re.compile(r"`https://kitware\.github\.io/vtk-js/icon/favicon-\$\{\w+\}x\$\{\w+\}\.png`")

@@ -51,6 +51,8 @@ API_MODULES = [
     "xray_viz.tracing.intersect", "xray_viz.tracing.hits", "xray_viz.tracing.candidates",
     "xray_viz.tracing.fast", "xray_viz.attenuation", "xray_viz.physics",
     "xray_viz.physics.imaging", "xray_viz.physics.materials", "xray_viz.physics.spectra",
+    "xray_viz.physics.detector", "xray_viz.physics.dosimetry", "xray_viz.physics.heel",
+    "xray_viz.bodies",
     "xray_viz.output", "xray_viz.meshes", "xray_viz.meshes.io", "xray_viz.meshes.repair",
     "xray_viz.meshes.decimate", "xray_viz.phantoms", "xray_viz.render", "xray_viz.errors",
     "xray_viz.walkthroughs", "xray_viz.viz",
@@ -267,6 +269,11 @@ def test_readme_and_benchmarks_are_pages(site):
     physics = "".join(_parse(site.page("physics.html").read_text(encoding="utf-8")).text)
     assert "Unknown keys are errors" in readme and "Unknown keys are errors" in scene
     assert 'response = "energy"' in physics and "mu(E) comes from xraylib" in physics
+    # every README sub-heading of a section is a heading of its page, one level up
+    html = site.page("physics.html").read_text(encoding="utf-8")
+    for sub in re.findall(r"^### (.+)$", readme.split("## Physics keys", 1)[1].split("\n## ")[0],
+                          flags=re.M):
+        assert re.search(rf"<h2>{re.escape(sub.strip())}<a", html), sub
     page = site.page("benchmarks.html")
     tags = _parse(page.read_text(encoding="utf-8"))
     assert "Targets of issue 3" in "".join(tags.text)
