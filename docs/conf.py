@@ -326,7 +326,7 @@ html_theme_options = {
     "footer_end": ["sphinx-version"],
     "secondary_sidebar_items": {"walkthroughs/[0-9]*": []},   # wide walkthrough pages
 }
-html_sidebars = {"index": [], "benchmarks": []}
+html_sidebars = {page: [] for page in ("index", "getting_started", "scene_files", "physics", "benchmarks")}
 html_context = {"default_mode": "light"}
 
 # MathJax 3 (sphinx-mathjax-offline sets mathjax_path to its local copy).

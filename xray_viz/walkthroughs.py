@@ -6,7 +6,10 @@ title, then ``# %%`` cells of narrative and code) that runs
 
 * interactively: PyVista windows and Matplotlib figures open (``plotter.show()``), or
 * off-screen, when ``PYVISTA_OFF_SCREEN=true``: every figure is written as a PNG into the folder
-  named by ``XRAY_VIZ_OUTPUT`` (default ``out/walkthroughs/NN/``).
+  named by ``XRAY_VIZ_OUTPUT`` (default ``out/walkthroughs/NN/``), or
+* in the documentation's gallery, when sphinx-gallery runs it with ``pyvista.BUILDING_GALLERY``
+  set: the figures stay open for :data:`gallery_scraper`, which puts them on the page (each 3D
+  scene both as a picture and as an interactive vtk.js view).
 
 From the command line: ``xray-viz walkthrough --list`` and
 ``xray-viz walkthrough N [--off-screen]``.
@@ -32,6 +35,7 @@ __all__ = [
     "WalkthroughNotFoundError", "is_off_screen", "output_dir", "new_plotter", "show_or_save",
     "show_or_save_figure", "save_frame", "list_walkthroughs", "walkthrough_path", "run_walkthrough",
     "walkthrough_command", "add_walkthrough_parser", "arrow", "polyline", "segments", "pyplot",
+    "is_building_gallery", "GalleryScraper", "gallery_scraper", "reset_gallery",
 ]
 
 _TRUE = ("1", "true", "yes", "on")
@@ -61,6 +65,24 @@ def is_off_screen() -> bool:
 
     pv = sys.modules.get("pyvista")
     return bool(pv is not None and getattr(pv, "OFF_SCREEN", False))
+
+
+def is_building_gallery() -> bool:
+    """True while sphinx-gallery runs the walkthroughs for the documentation.
+
+    That is when PyVista is imported and ``pyvista.BUILDING_GALLERY`` is True (``docs/conf.py``
+    sets it, as PyVista's own gallery does). Then :func:`show_or_save`, :func:`save_frame` and
+    :func:`show_or_save_figure` write no files and leave the figures to
+    :data:`gallery_scraper` and sphinx-gallery's Matplotlib scraper.
+
+    Returns
+    -------
+    bool
+    """
+    import sys
+
+    pv = sys.modules.get("pyvista")
+    return bool(pv is not None and getattr(pv, "BUILDING_GALLERY", False))
 
 
 def output_dir(walkthrough: int) -> Path:
@@ -134,8 +156,14 @@ def show_or_save(plotter, name: str, *, walkthrough: int) -> Path | None:
     Returns
     -------
     Path or None
-        The PNG written when off-screen, else None (after the window is closed).
+        The PNG written when off-screen, else None (after the window is closed, or, in the
+        documentation's gallery, once the plotter is rendered for :data:`gallery_scraper`).
     """
+    if is_building_gallery():
+        # pyvista.Plotter.show() keeps the picture (last_image) and the vtk.js scene
+        # (last_vtksz) of a gallery plotter, and keeps the plotter for the scraper.
+        plotter.show(title=f"xray_viz walkthrough {walkthrough:02d}: {name}")
+        return None
     if is_off_screen():
         path = output_dir(walkthrough) / f"{name}.png"
         plotter.screenshot(str(path))
@@ -163,8 +191,14 @@ def save_frame(plotter, name: str, *, walkthrough: int) -> Path | None:
     Returns
     -------
     Path or None
-        The PNG written, or None on screen.
+        The PNG written, or None on screen and in the documentation's gallery (there the frame
+        is kept on the plotter, and :data:`gallery_scraper` shows it before the final scene).
     """
+    if is_building_gallery():
+        frames = list(getattr(plotter, "_xray_viz_frames", ()))
+        frames.append(plotter.screenshot(None, return_img=True))
+        plotter._xray_viz_frames = frames
+        return None
     if not is_off_screen():
         return None
     path = output_dir(walkthrough) / f"{name}.png"
@@ -187,10 +221,13 @@ def show_or_save_figure(figure, name: str, *, walkthrough: int) -> Path | None:
     Returns
     -------
     Path or None
-        The PNG written when off-screen, else None.
+        The PNG written when off-screen, else None. In the documentation's gallery the figure
+        is left open for sphinx-gallery's Matplotlib scraper.
     """
     import matplotlib.pyplot as plt
 
+    if is_building_gallery():
+        return None
     if is_off_screen():
         path = output_dir(walkthrough) / f"{name}.png"
         figure.savefig(path, dpi=100)
@@ -210,6 +247,110 @@ def pyplot():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+# --------------------------------------------------------------------------------------------
+# The documentation's gallery (sphinx-gallery runs the walkthroughs; docs/conf.py)
+
+
+class GalleryScraper:
+    """Image scraper of the walkthroughs' gallery: the slider states, then each 3D scene.
+
+    sphinx-gallery calls it after every code block of a walkthrough. For every PyVista plotter
+    of the block it writes, in order, the frames recorded by :func:`save_frame` (pictures) and,
+    once the plotter was shown by :func:`show_or_save`, its final scene: a picture and, when
+    trame-pyvista is installed, the scene exported for vtk.js (``.vtksz``), which PyVista's
+    ``offlineviewer`` directive shows as an interactive view in a tab beside the picture.
+
+    A plotter that was not shown yet stays open for the next block, so a figure can be built
+    over several cells of narrative; :func:`reset_gallery` closes what is left at the end of a
+    walkthrough.
+
+    Unlike ``pyvista.DynamicScraper`` (which captures and closes every open plotter after every
+    block) this works with plotters that span cells and records intermediate slider states.
+
+    Parameters
+    ----------
+    dynamic : bool, optional
+        Also embed the interactive vtk.js scene (default True).
+    """
+
+    def __init__(self, *, dynamic: bool = True):
+        self.dynamic = bool(dynamic)
+
+    def __repr__(self) -> str:  # stable: sphinx-gallery hashes its configuration
+        return f"GalleryScraper(dynamic={self.dynamic})"
+
+    def __call__(self, block, block_vars, gallery_conf) -> str:
+        """Write the block's figures and return their reST (sphinx-gallery's scraper API).
+
+        Parameters
+        ----------
+        block : tuple
+            The code block (sphinx-gallery's ``(label, content, line_number)``).
+        block_vars : dict
+            sphinx-gallery's block variables; ``image_path_iterator`` names the files.
+        gallery_conf : dict
+            sphinx-gallery's configuration (``src_dir``).
+
+        Returns
+        -------
+        str
+            reST for the figures, empty when the block made none.
+
+        Raises
+        ------
+        RuntimeError
+            If a plotter was closed without being rendered (nothing to show).
+        """
+        import pyvista as pv
+        from PIL import Image
+        from pyvista.plotting.utilities.sphinx_gallery import html_rst
+
+        paths = block_vars["image_path_iterator"]
+        names = []
+        plotters = pv.plotting.plotter._ALL_PLOTTERS
+        for key, plotter in list(plotters.items()):
+            for frame in getattr(plotter, "_xray_viz_frames", ()):
+                path = Path(next(paths)).with_suffix(".png")
+                Image.fromarray(frame).save(path)
+                names.append(str(path))
+            plotter._xray_viz_frames = []
+            if not plotter._closed:
+                continue                        # not shown yet: a later block shows it
+            plotters.pop(key)
+            if plotter.last_image is None:
+                raise RuntimeError("a walkthrough closed a plotter without rendering it; "
+                                   "end each figure with show_or_save()")
+            path = Path(next(paths)).with_suffix(".png")
+            Image.fromarray(plotter.last_image).save(path)
+            vtksz = getattr(plotter, "last_vtksz", None)
+            if self.dynamic and vtksz is not None:
+                path = path.with_suffix(".vtksz")
+                path.write_bytes(vtksz)
+            names.append(str(path))
+        return html_rst(names, gallery_conf["src_dir"]) if names else ""
+
+
+#: The scraper instance ``docs/conf.py`` names (``"xray_viz.walkthroughs.gallery_scraper"``).
+gallery_scraper = GalleryScraper()
+
+
+def reset_gallery(gallery_conf, fname) -> None:
+    """Close every PyVista plotter left open between two walkthroughs (sphinx-gallery reset).
+
+    Parameters
+    ----------
+    gallery_conf : dict
+        sphinx-gallery's configuration (unused).
+    fname : str or None
+        The walkthrough about to run or just run (unused).
+    """
+    import sys
+
+    pv = sys.modules.get("pyvista")
+    if pv is not None:
+        pv.close_all()
 
 
 # --------------------------------------------------------------------------------------------
