@@ -33,7 +33,7 @@ from xray_viz.tracing.fast import clear_caches
 
 def _timed(render, scene, *, cold: bool):
     if cold:
-        clear_caches()
+        clear_caches(scene)
     t = time.perf_counter()
     image = render(scene)
     return time.perf_counter() - t, image.timing
@@ -100,7 +100,7 @@ def main(argv=None):
         print(f"| {mode} | {r['poly']:.4f} | {r['trace']:.4f} / {r['image']:.4f} | "
               f"{r['one']:.4f} | {r['mono']:.3f} | {r['mono'] / r['poly']:.1f} x | "
               f"{r['poly'] / r['one']:.2f} x |")
-    print(f"\n{args.bins} mono renders: {what}; cold = clear_caches() before every render.")
+    print(f"\n{args.bins} mono renders: {what}; cold = clear_caches(scene) before every render.")
     return rows
 
 

@@ -21,7 +21,7 @@ process, so ratios are meaningful even on a noisy machine. Three suites:
     Writes a Pareto plot (one column per phantom, error budgets labelled with the cheapest
     setting meeting them) and tables.
 ``peers``
-    The fast engine (``trace_once``; its per-mesh set-up measured as ``clear_caches()`` + a
+    The fast engine (``trace_once``; its per-mesh set-up measured as ``clear_caches(scene)`` + a
     first trace minus a warm one; and ``xray_viz.render`` with a new Scene per frame, all
     per-render work included), the NumPy engine, Open3D ``RaycastingScene.list_intersections``,
     trimesh + embreex ``multiple_hits``, pyvista ``multi_ray_trace`` and gVXR (when installed)
@@ -521,7 +521,7 @@ def _pareto_shepp_logan(*, repeat, subdivisions, shape, supersamples, decimation
     import gc
 
     from xray_viz.geometry import detector_rays
-    from xray_viz.tracing.fast import clear_caches, trace_once
+    from xray_viz.tracing.fast import trace_once
 
     ells = shepp_logan_ellipsoids()
     rank = ellipsoid_precedence(ells)
@@ -560,8 +560,7 @@ def _pareto_shepp_logan(*, repeat, subdivisions, shape, supersamples, decimation
                              quantity="line integral -ln(I/I0)", hausdorff_mm=hausdorff,
                              precedence_matches_analytic=precedence_ok,
                              max_line_integral=float(truth.max())))
-        del scene, meshes
-        clear_caches()                  # 13M faces at subdivision 8: free them before the next
+        del scene, meshes               # 13M faces at subdivision 8: free them before the next
         gc.collect()
     return rows
 
@@ -741,13 +740,13 @@ _WARNED: set = set()
 
 
 def fast_build_time(scene, warm_s, repeat=3):
-    """The fast engine's per-mesh set-up: ``clear_caches()`` then a first trace, minus a warm
+    """The fast engine's per-mesh set-up: ``clear_caches(scene)`` then a first trace, minus a warm
     trace (median of ``repeat``)."""
     from xray_viz.tracing.fast import clear_caches, trace_once
 
     times = []
     for _ in range(repeat):
-        clear_caches()
+        clear_caches(scene)
         t0 = time.perf_counter()
         trace_once(scene)
         times.append(time.perf_counter() - t0)
@@ -951,7 +950,7 @@ def _peers_table(results, cube):
             lines.append(f"| {faces} | {r['engine']} | {build} | {query} | {x_fast:.2f} | "
                          f"{x_o3d:.3f} | {x_o3d_b:.3f} | {r['max_error_mm']:.3g} |")
     lines += ["", "fast: `trace_once`, a full re-trace (projection, raster, path lengths) with "
-              "the per-mesh set-up cached; build = `clear_caches()` then a first trace, minus a "
+              "the per-mesh set-up cached; build = `clear_caches(scene)` then a first trace, minus a "
               "warm trace. fast render(): per frame a new `Scene` (source moved 1 um, so "
               "nothing but the per-mesh set-up is reused) and `xray_viz.render` (trace + image); "
               "the Scene part in brackets. pyvista rebuilds inside every call (build -)."]

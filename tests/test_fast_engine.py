@@ -142,8 +142,8 @@ def test_sphere_phantom_diameter_and_default_engine():
 
 
 def test_trace_once_cached_and_reused_when_materials_change():
-    clear_caches()
     scene = make_scene(_sphere(), pitch=1.5)
+    clear_caches(scene)
     L1, _ = fast_path_lengths(scene)
     L2, _ = fast_path_lengths(scene)
     assert L2 is L1 and not L1.flags.writeable
@@ -346,26 +346,34 @@ def test_band_path_for_large_detectors_matches_direct_path(kind, monkeypatch):
     assert np.all(ok)
 
 
-def test_body_bounds_are_cached_per_mesh_not_measured_per_scene(monkeypatch):
-    """Scene.replace (the viewer moving the source) checks the source against cached boxes."""
-    import xray_viz.attenuation as att
+def test_body_bounds_are_kept_by_the_bodies_not_measured_per_scene(monkeypatch):
+    """Scene.replace (the viewer moving the source) checks the source against the boxes the
+    bodies keep: no pass over the vertices, no module-level cache."""
+    from xray_viz.bodies import Bodies
 
     m = _sphere(sub=2)
-    lo, hi = att.mesh_bounds(m)
-    assert att.mesh_bounds(m)[0] is lo and not lo.flags.writeable
-    np.testing.assert_array_equal(lo, m.vertices.min(0))
     scene = make_scene(m, pitch=1.5)
+    box = scene.bodies.bounds
+    assert scene.bodies.bounds is box and not box.flags.writeable
+    np.testing.assert_array_equal(box[0, 0], m.vertices.min(0))
+    np.testing.assert_array_equal(box[0, 1], m.vertices.max(0))
+    fast_path_lengths(scene, cache=False)              # what the engine needs, once
     calls = []
-    measure = att._measure
-    monkeypatch.setattr(att, "_measure", lambda mesh: calls.append(1) or measure(mesh))
+    build = Bodies._value
+
+    def counting(self, name, make):
+        return build(self, name, lambda: calls.append(name) or make())
+    monkeypatch.setattr(Bodies, "_value", counting)
     for z in (900.0, 800.0, 700.0):
-        scene.replace(source=dataclasses.replace(scene.source, position=[0, 0, z]))
+        moved = scene.replace(source=dataclasses.replace(scene.source, position=[0, 0, z]))
+        assert moved.bodies is scene.bodies
         scene.replace(source=dataclasses.replace(scene.source, kind="parallel"))
     fast_path_lengths(scene, cache=False)
     assert calls == []
-    # A changed mesh is measured again.
+    # A mesh changed in place is measured again.
+    lo = box[0, 0].copy()
     m.apply_translation([5, 0, 0])
-    assert att.mesh_bounds(m)[0][0] == pytest.approx(lo[0] + 5) and calls == [1]
+    assert scene.bodies.bounds[0, 0, 0] == pytest.approx(lo[0] + 5) and calls == ["bounds"]
 
 
 # --------------------------------------------------------------------------------------------

@@ -344,7 +344,6 @@ CHILD = textwrap.dedent(r'''
         assert rc == 0, rc
     else:
         import trimesh
-        from xray_viz.attenuation import remember_precedence
         from xray_viz.output import save_image
         from xray_viz.scene import Body, Detector, Scene, Source
         n, k, shape = spec["bodies"], int(np.ceil(np.sqrt(spec["bodies"]))), spec["shape"]
@@ -356,9 +355,8 @@ CHILD = textwrap.dedent(r'''
             bodies.append(Body(name=f"ball{b}", mesh=m, mu=0.2))
         det = Detector.from_size([0, 0, -100.0], [0, 1, 0], (shape, shape), (120.0, 120.0))
         scene = Scene(Source(position=[0, 0, 1000.0], energy=60.0), det, tuple(bodies))
-        # Disjoint balls: no body inside another, so the precedence is the list order (the
-        # pairwise containment test of 1000 bodies is not what is measured here).
-        remember_precedence(scene.bodies, np.arange(n))
+        # Disjoint balls: no body inside another, so the precedence is the list order.
+        assert scene.bodies.precedence.tolist() == list(range(n))
         image = xray_viz.render(scene)
         save_image(spec["out"], image.intensity)
         assert image.total_path_length.max() > 0

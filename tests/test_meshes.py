@@ -411,19 +411,28 @@ def test_mesh_command_errors(tmp_path, ball):
                  "--max-error", 1)
 
 
-def test_check_mesh_reuses_its_report_until_the_mesh_changes():
+def test_bodies_reuse_their_reports_until_a_mesh_changes():
+    """The mesh reports are kept by the Bodies that own the meshes (no module-level cache);
+    a mesh changed in place is checked again, and refused if it is no longer traceable."""
+    from xray_viz.bodies import Bodies
+    from xray_viz.errors import MeshError
     from xray_viz.meshes.repair import check_mesh
+    from xray_viz.scene import Body
 
     mesh = trimesh.creation.icosphere(subdivisions=2, radius=5.0)
-    first = check_mesh(mesh)
+    bodies = Bodies([Body(name="ball", mesh=mesh, mu=0.2)])
+    first = bodies.reports[0]
     assert first.outward and first.watertight
-    assert check_mesh(mesh) is first                  # same data: the cached report
+    assert bodies.reports[0] is first                 # same data: the kept report
+    assert check_mesh(mesh) == first                  # and it is check_mesh's answer
+    mesh.vertices *= 2.0                              # in place: scaled
+    scaled = bodies.reports[0]
+    assert scaled is not first and scaled.volume == pytest.approx(8 * first.volume)
     mesh.invert()                                     # in place: faces flipped
     flipped = check_mesh(mesh)
-    assert flipped is not first and not flipped.outward and flipped.volume < 0
-    mesh.vertices *= 2.0                              # in place: scaled
-    scaled = check_mesh(mesh)
-    assert scaled.volume == pytest.approx(8 * flipped.volume)
+    assert not flipped.outward and flipped.volume < 0
+    with pytest.raises(MeshError, match="changed in place"):
+        bodies.reports
 
 
 # --------------------------------------------------------------------------------------------

@@ -22,11 +22,17 @@ and column 0 the left (u = 0).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
-__all__ = ["Viewport", "viewport", "detector_axes", "beam_direction", "pixel_coordinates",
-           "detector_rays", "Rays", "check_supersample"]
+__all__ = ["Acquisition", "DetectorFrame", "FineGrid", "Viewport", "viewport", "detector_axes",
+           "beam_direction", "pixel_coordinates", "detector_rays", "Rays", "check_supersample",
+           "beam_planes", "boxes_outside_beam", "row_range", "UP_TOLERANCE"]
+
+#: ``up`` is refused as parallel to the beam when ``|forward x unit(up)|`` is below this (the
+#: sine of the angle between them): ``unit(forward x up)`` would lose most of its digits.
+UP_TOLERANCE = 1e-9
 
 
 def beam_direction(source_position, detector_center) -> np.ndarray:
@@ -91,16 +97,18 @@ def detector_axes(source_position, detector_center, up) -> tuple[np.ndarray, np.
     Raises
     ------
     SceneError
-        When the source sits at the detector centre or ``up`` is parallel to the beam.
+        When the source sits at the detector centre or ``up`` is parallel to the beam (within
+        :data:`UP_TOLERANCE`).
     """
     forward = beam_direction(source_position, detector_center)
     up = np.asarray(up, dtype=np.float64)
     ho_dir = np.cross(forward, up)
     norm = np.linalg.norm(ho_dir)
-    if norm < 1e-12 * np.linalg.norm(up):
+    if not norm >= UP_TOLERANCE * np.linalg.norm(up):
         from xray_viz.errors import SceneError
 
-        raise SceneError(f"[detector] up {up.tolist()} is parallel to the beam")
+        raise SceneError(f"[detector] up {up.tolist()} is parallel to the beam (source -> "
+                         "detector centre); choose an up vector across the beam")
     ho_dir /= norm
     return forward, ho_dir, np.cross(ho_dir, forward)
 
@@ -222,7 +230,7 @@ def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
 
     Parameters
     ----------
-    scene : Scene
+    scene : Scene or Acquisition
         Source and detector.
     supersample : int, optional
         ``n`` gives ``n x n`` rays per pixel on a regular sub-grid centred on the pixel's ray
@@ -249,7 +257,8 @@ def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
     True
     """
     n = check_supersample(supersample)
-    vp = viewport(scene.source.position, scene.detector)
+    acq = scene if isinstance(scene, Acquisition) else getattr(scene, "acquisition", None)
+    vp = acq.viewport if acq is not None else viewport(scene.source.position, scene.detector)
     w, h = vp.shape
     start, stop = row_range(rows, h)
     # The rows of pixel_coordinates(vp.shape), computed for these rows only (same values).
@@ -276,3 +285,269 @@ def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
         directions = d / t_max[:, None]
         origins = np.broadcast_to(vp.r0, directions.shape).copy()
     return Rays(origins=origins, directions=directions, t_max=t_max, shape=vp.shape)
+
+
+# --------------------------------------------------------------------------------------------
+# How the bodies are imaged: the acquisition
+
+
+@dataclass(frozen=True)
+class FineGrid:
+    """Where the rays of an ``n x n`` supersampled detector grid lie, in its frame.
+
+    The fine (sub-ray) grid has ``n W`` columns and ``n H`` rows, sample ``(x, y)`` (x to the
+    right, y up) at ``center + p00 + x * ex + y * ey``; a point ``(a, b)`` mm from the detector
+    centre along ``ho``, ``ve`` has fine coordinates ``(a * sx + bx, b * sy + by)``.
+
+    Attributes
+    ----------
+    n : int
+        Rays per pixel along each axis.
+    sx, sy : float
+        Fine samples per mm along ``ho`` and ``ve``.
+    bx, by : float
+        Fine coordinates of the detector centre.
+    ex, ey : (3,) float
+        One fine step along ``ho`` and ``ve`` (mm vectors).
+    p00 : (3,) float
+        Offset of fine sample ``(0, 0)`` from the detector centre (mm).
+    """
+
+    n: int
+    sx: float
+    sy: float
+    bx: float
+    by: float
+    ex: np.ndarray
+    ey: np.ndarray
+    p00: np.ndarray
+
+
+@dataclass(frozen=True)
+class DetectorFrame:
+    """The detector's frame seen from the source, one name per concept.
+
+    Attributes
+    ----------
+    source : (3,) float
+        The source position ``r0`` (mm).
+    center : (3,) float
+        The detector centre (mm).
+    forward : (3,) float
+        Unit beam axis, from the source to the detector centre (``unit(-FL)``).
+    ho, ve : (3,) float
+        Unit vectors along the detector's rows (left to right, ``unit(HO)``) and columns
+        (bottom to top, ``unit(VE)``).
+    sid : float
+        Source-to-detector distance along the axis, ``|FL|`` (mm).
+    parallel : bool
+        A parallel beam (every ray along ``forward``) rather than a point source.
+    shape : (int, int)
+        ``(W, H)`` rays.
+    pitch : (float, float)
+        mm between neighbouring rays along ``ho`` and ``ve``.
+    """
+
+    source: np.ndarray
+    center: np.ndarray
+    forward: np.ndarray
+    ho: np.ndarray
+    ve: np.ndarray
+    sid: float
+    parallel: bool
+    shape: tuple
+    pitch: tuple
+
+    def grid(self, n: int = 1) -> FineGrid:
+        """The ``n x n`` supersampled ray grid in this frame (:class:`FineGrid`)."""
+        n = check_supersample(n)
+        (w, h), (px, py) = self.shape, self.pitch
+        bx = n * (w - 1) / 2 + (n - 1) / 2
+        by = n * (h - 1) / 2 + (n - 1) / 2
+        ex, ey = (px / n) * self.ho, (py / n) * self.ve
+        return FineGrid(n=n, sx=n / px, sy=n / py, bx=bx, by=by, ex=ex, ey=ey,
+                        p00=-bx * ex - by * ey)
+
+
+def beam_planes(r0, forward, eu, ev, FL, half_u, half_v, perspective) -> np.ndarray:
+    """Planes bounding the beam: every ray point ``x`` has ``n . (x - r0) <= c`` for each row
+    ``(nx, ny, nz, c)`` of the result.
+
+    Rows 0-3 are the side planes (through the source for a point source: the pyramid from the
+    source through the detector rectangle of half-widths ``half_u``, ``half_v`` mm along ``eu``
+    and ``ev``; the slab box of a parallel beam), row 4 the source plane (nothing behind it),
+    row 5 the detector plane (rays end there, ``FL`` from the source).
+    """
+    f = np.asarray(forward, np.float64)
+    eu = np.asarray(eu, np.float64)
+    ev = np.asarray(ev, np.float64)
+    rows = []
+    for e, h in ((eu, half_u), (ev, half_v)):
+        for s in (1.0, -1.0):
+            if perspective:
+                rows.append(np.append(s * FL * e - h * f, 0.0))   # |a| FL <= h w
+            else:
+                rows.append(np.append(s * e, h))                  # |a| <= h
+    rows.append(np.append(-f, 0.0))
+    rows.append(np.append(f, FL))
+    return np.ascontiguousarray(rows, dtype=np.float64)
+
+
+def boxes_outside_beam(lo, hi, r0, planes) -> np.ndarray:
+    """(n,) bool: which boxes ``[lo[k], hi[k]]`` lie wholly outside one of the beam's
+    ``planes`` (see :func:`beam_planes`), so that no ray of the beam meets what is inside them.
+
+    Exact up to a relative margin of 1e-12 kept on the safe (not outside) side.
+    """
+    lo = np.asarray(lo, np.float64).reshape(-1, 3)
+    hi = np.asarray(hi, np.float64).reshape(-1, 3)
+    n, c = planes[:, :3], planes[:, 3]
+    mid, half = (lo + hi) / 2 - r0, (hi - lo) / 2
+    nearest = mid @ n.T - half @ np.abs(n).T            # min of n . (x - r0) over each box
+    scale = (np.abs(mid) + half) @ np.abs(n).T + np.abs(c)
+    return np.any(nearest - c > 1e-12 * scale, axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class Acquisition:
+    """How bodies are imaged: the source and the detector (the thesis' camera and viewport).
+
+    Cheap to build and to replace: nothing here depends on the meshes, so a new acquisition
+    (the source moved, the next angle of an orbit) reuses every per-mesh set-up kept by the
+    :class:`~xray_viz.bodies.Bodies` it images. Derived geometry (the frame, the viewport
+    vectors, the beam's bounding planes) is computed once per acquisition.
+
+    Parameters
+    ----------
+    source : Source
+        :class:`xray_viz.scene.Source`.
+    detector : Detector
+        :class:`xray_viz.scene.Detector`.
+
+    Raises
+    ------
+    SceneError
+        If the source sits at the detector centre or the detector's ``up`` is parallel to the
+        beam.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> acq = xray_viz.load_scene("sphere").acquisition
+    >>> acq.frame.sid, (acq.frame.forward + 0.0).tolist()
+    (1500.0, [0.0, 0.0, -1.0])
+    >>> turned = acq.rotated(90.0, axis=[0, 1, 0])          # the source orbits the origin
+    >>> (turned.source.position.round(6) + 0.0).tolist()
+    [1000.0, 0.0, 0.0]
+    """
+
+    source: object
+    detector: object
+
+    def __post_init__(self):
+        self.frame                       # validates: the source off the detector, up across
+
+    @cached_property
+    def frame(self) -> DetectorFrame:
+        """The :class:`DetectorFrame` (beam axis, detector axes, distance)."""
+        r0 = np.asarray(self.source.position, np.float64)
+        center = np.asarray(self.detector.center, np.float64)
+        forward, ho, ve = detector_axes(r0, center, self.detector.up)
+        return DetectorFrame(source=r0, center=center, forward=forward, ho=ho, ve=ve,
+                             sid=float(np.linalg.norm(r0 - center)),
+                             parallel=self.source.kind == "parallel",
+                             shape=tuple(self.detector.shape), pitch=tuple(self.detector.pitch))
+
+    @cached_property
+    def viewport(self) -> Viewport:
+        """The thesis' viewport vectors ``HO``, ``VE``, ``FL``, ``LHC`` (:func:`viewport`)."""
+        return viewport(self.source.position, self.detector)
+
+    @property
+    def parallel(self) -> bool:
+        """A parallel beam (rather than a point source)."""
+        return self.frame.parallel
+
+    def replace(self, **changes) -> "Acquisition":
+        """A copy with ``source=`` and/or ``detector=`` replaced."""
+        return Acquisition(source=changes.pop("source", self.source),
+                           detector=changes.pop("detector", self.detector), **changes)
+
+    def rays(self, *, supersample: int = 1, rows=None) -> Rays:
+        """The detector's rays in image order (:func:`detector_rays`)."""
+        return detector_rays(self, supersample=supersample, rows=rows)
+
+    @property
+    def half_widths(self) -> tuple[float, float]:
+        """Half-widths (mm) of the detector's ray grid, any supersampling included, plus one
+        pixel: a margin far above rounding and fixed-point snapping, so culling by them is
+        conservative."""
+        (w, h), (pu, pv) = self.detector.shape, self.detector.pitch
+        return (w / 2 + 1) * pu, (h / 2 + 1) * pv
+
+    @cached_property
+    def planes(self) -> np.ndarray:
+        """(6, 4) float: the planes bounding the beam of any supersampling, widened by a pixel
+        (:func:`beam_planes`, :attr:`half_widths`)."""
+        f = self.frame
+        hu, hv = self.half_widths
+        out = beam_planes(f.source, f.forward, f.ho, f.ve, f.sid, hu, hv, not f.parallel)
+        out.setflags(write=False)
+        return out
+
+    def outside_beam(self, bounds) -> np.ndarray:
+        """(n,) bool: which boxes ``bounds[k] = [lo, hi]`` lie wholly outside the beam (a side
+        plane of the pyramid from a point source through the detector's edges, or of a
+        parallel beam's slab box, widened by a pixel; behind the source plane; beyond the
+        detector), so that no ray meets what is inside them."""
+        bounds = np.asarray(bounds, np.float64).reshape(-1, 2, 3)
+        return boxes_outside_beam(bounds[:, 0], bounds[:, 1], self.frame.source, self.planes)
+
+    @cached_property
+    def key(self) -> tuple:
+        """Hashable: equal for acquisitions whose rays are the same (results may be shared)."""
+        src, det = self.source, self.detector
+        return (tuple(np.asarray(src.position, float).tolist()), src.kind,
+                tuple(np.asarray(det.center, float).tolist()),
+                tuple(np.asarray(det.up, float).tolist()), tuple(det.shape), tuple(det.pitch))
+
+    def rotated(self, angle: float, *, axis=(0.0, 0.0, 1.0), center=(0.0, 0.0, 0.0)
+                ) -> "Acquisition":
+        """The source and the detector turned by ``angle`` degrees about an axis.
+
+        The bodies stay where they are: this is one step of an orbit (a CT gantry), and
+        the radiograph equals that of the bodies turned by ``-angle`` about the same axis.
+
+        Parameters
+        ----------
+        angle : float
+            Degrees, counter-clockwise seen from the tip of ``axis``.
+        axis : (3,) float, optional
+            Direction of the rotation axis.
+        center : (3,) float, optional
+            A point of the rotation axis (mm).
+
+        Returns
+        -------
+        Acquisition
+        """
+        import dataclasses
+        import math
+
+        from xray_viz.errors import SceneError
+
+        a = np.asarray(axis, np.float64).reshape(-1)
+        if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.linalg.norm(a) > 0:
+            raise SceneError(f"rotation axis must be 3 finite numbers, not all 0; got {axis!r}")
+        if isinstance(angle, bool) or not isinstance(angle, (int, float, np.number)) \
+                or not math.isfinite(float(angle)):
+            raise SceneError(f"rotation angle must be a finite number of degrees, got {angle!r}")
+        c = np.asarray(center, np.float64).reshape(3)
+        a = a / np.linalg.norm(a)
+        t = math.radians(float(angle))
+        k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+        rot = np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)     # Rodrigues
+        source = dataclasses.replace(self.source, position=c + rot @ (self.source.position - c))
+        detector = dataclasses.replace(self.detector, center=c + rot @ (self.detector.center - c),
+                                       up=rot @ self.detector.up)
+        return Acquisition(source=source, detector=detector)

@@ -30,10 +30,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from xray_viz.attenuation import path_lengths as _sweep_path_lengths
 from xray_viz.errors import SceneError
-from xray_viz.geometry import check_supersample, detector_rays, viewport
-from xray_viz.tracing.hits import Hits, trace_rays
+from xray_viz.geometry import check_supersample
+from xray_viz.tracing.engines import ENGINES
+from xray_viz.tracing.hits import Hits
 
 __all__ = ["Radiograph", "render", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
            "check_memory", "available_memory"]
@@ -147,41 +147,6 @@ class Radiograph:
         raise ValueError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
 
 
-def _numpy_path_lengths(scene, *, supersample=1, keep_hits=False, rows=None):
-    rays = detector_rays(scene, supersample=supersample, rows=rows)
-    vp = viewport(scene.source.position, scene.detector)
-    hits = trace_rays(scene, rays.origins, rays.directions, t_min=0.0, t_max=rays.t_max,
-                      axis=vp.forward)
-    L = _sweep_path_lengths(hits.ray, hits.t, hits.body, hits.entering, n_rays=len(rays),
-                            n_bodies=len(scene.bodies), precedence=scene.precedence,
-                            t_max=rays.t_max)
-    return L, (hits if keep_hits else None)
-
-
-def _fast_path_lengths(scene, *, supersample=1, keep_hits=False):
-    from xray_viz.tracing.fast import fast_path_lengths
-
-    return fast_path_lengths(scene, supersample=supersample, keep_hits=keep_hits)
-
-
-#: Rendering engines by name. ``fn(scene, *, supersample, keep_hits) -> (L, hits or None)`` where
-#: ``L`` is ``(W * H * supersample**2, n_bodies)``: effective path lengths (mm) of the rays of
-#: :func:`~xray_viz.geometry.detector_rays` ``(scene, supersample=supersample)``, in that order.
-#: (:func:`render` itself traces by bands of rows: :func:`_numpy_rows`,
-#: :func:`xray_viz.tracing.fast.trace_rows`.)
-ENGINES = {"fast": _fast_path_lengths, "numpy": _numpy_path_lengths}
-
-
-def _numpy_rows(scene, *, supersample=1, rows=None):
-    """The NumPy engine by windows of ``rows`` image rows: yields ``(r0, r1, L)`` as
-    :func:`xray_viz.tracing.fast.trace_rows` does."""
-    h = scene.detector.shape[1]
-    step = h if rows is None else max(1, int(rows))
-    for r0 in range(0, h, step):
-        r1 = min(h, r0 + step)
-        yield r0, r1, _numpy_path_lengths(scene, supersample=supersample, rows=(r0, r1))[0]
-
-
 def _band_rows(scene, engine, n) -> int:
     """Image rows per band: ``rows x W x n^2`` rays of path lengths fill :data:`BAND_BYTES`
     (with the NumPy engine's working memory per ray), at least one row."""
@@ -198,17 +163,12 @@ def _windows(scene, engine, n, keep_hits=False):
         L, hits = ENGINES[engine](scene, supersample=n, keep_hits=True)
         yield 0, h, L, hits
         return
+    bodies, acquisition = scene.bodies, scene.acquisition
     if rows >= h and engine == "fast":
-        # It fits in one band: the whole frame, through the fast engine's result cache.
-        yield 0, h, ENGINES["fast"](scene, supersample=n, keep_hits=False)[0], None
+        # It fits in one band: the whole frame, through the results the fast engine keeps.
+        yield 0, h, ENGINES["fast"].path_lengths(bodies, acquisition, supersample=n), None
         return
-    if engine == "fast":
-        from xray_viz.tracing.fast import trace_rows
-
-        parts = trace_rows(scene, supersample=n, rows=rows)
-    else:
-        parts = _numpy_rows(scene, supersample=n, rows=rows)
-    for r0, r1, L in parts:
+    for r0, r1, L in ENGINES[engine].windows(bodies, acquisition, supersample=n, rows=rows):
         yield r0, r1, L, None
 
 

@@ -36,7 +36,6 @@ import dataclasses
 import math
 import tomllib
 from dataclasses import dataclass, field
-from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -523,7 +522,11 @@ class Body:
     density : float or None
         Density in g/cm^3 for ``material``.
     source_file : Path or None
-        File the mesh was read from, for messages.
+        File the mesh was read from, for messages and :meth:`Scene.to_dict`.
+    placement : dict or None
+        How ``source_file``'s mesh was placed in the scene: the ``[[body]]`` keys
+        ``position``, ``rotation``, ``scale``, ``units`` and ``repair`` as read from a scene
+        file (None or ``{}``: the file's mesh as it is). :meth:`Scene.to_dict` writes them back.
 
     Raises
     ------
@@ -539,6 +542,7 @@ class Body:
     material: str | None = None
     density: float | None = None
     source_file: Path | None = None
+    placement: dict | None = None
 
     def __post_init__(self):
         check_name(self.name)
@@ -608,17 +612,23 @@ def check_name(name) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """A source, a detector and bodies.
+    """What is imaged and how: an :class:`~xray_viz.geometry.Acquisition` (a source and a
+    detector) and :class:`~xray_viz.bodies.Bodies`.
 
-    Build one with :func:`load_scene` (a TOML file or a bundled phantom name) or directly.
-    Derived data (the concatenated triangle soup) is computed once and cached; use
-    :meth:`replace` to make a changed copy.
+    Build one with :func:`load_scene` (a TOML file or a bundled phantom name) or directly from
+    a source, a detector and bodies. Bodies given as a sequence of :class:`Body` are checked
+    (and repaired with a warning when needed) once, into a :class:`~xray_viz.bodies.Bodies`
+    that keeps everything derived from the meshes; :meth:`replace` with another source or
+    detector (``scene.replace(source=...)``, ``scene.replace(acquisition=...)``) keeps the same
+    bodies, so none of that is paid again.
 
     Examples
     --------
     >>> import xray_viz
     >>> scene = xray_viz.load_scene("sphere")
     >>> moved = scene.replace(source=dataclasses.replace(scene.source, position=[0, 0, 800]))
+    >>> moved.bodies is scene.bodies
+    True
     """
 
     source: Source
@@ -627,24 +637,17 @@ class Scene:
     path: Path | None = None
 
     def __post_init__(self):
-        object.__setattr__(self, "bodies", tuple(self.bodies))
-        names = [b.name for b in self.bodies]
-        dup = sorted({n for n in names if names.count(n) > 1})
-        if dup:
-            raise SceneError(f"{self._where()}body names must be unique, repeated: {dup}")
-        from xray_viz.geometry import beam_direction
+        from xray_viz.bodies import Bodies
+        from xray_viz.geometry import Acquisition
 
-        forward = beam_direction(self.source.position, self.detector.center)
-        up = self.detector.up / np.linalg.norm(self.detector.up)
-        if np.linalg.norm(np.cross(forward, up)) < 1e-9:
-            raise SceneError(
-                f"{self._where()}[detector] up {self.detector.up.tolist()} is parallel to the beam "
-                "(source -> detector centre); choose an up vector across the beam"
-            )
-        object.__setattr__(self, "bodies", tuple(_traceable(b, self._where()) for b in self.bodies))
-        from xray_viz.attenuation import check_source_outside
-
-        check_source_outside(self)
+        try:
+            acquisition = Acquisition(source=self.source, detector=self.detector)
+        except SceneError as exc:
+            raise SceneError(f"{self._where()}{exc}") from None
+        object.__setattr__(self, "acquisition", acquisition)
+        if not isinstance(self.bodies, Bodies):
+            object.__setattr__(self, "bodies", Bodies(self.bodies, where=self._where()))
+        self.bodies.check_source_outside(acquisition, where=self._where())
         from xray_viz.physics.heel import check_heel
 
         check_heel(self)
@@ -653,7 +656,22 @@ class Scene:
         return f"{self.path}: " if self.path else ""
 
     def replace(self, **changes) -> "Scene":
-        """Return a copy with fields replaced (``source=``, ``detector=``, ``bodies=``)."""
+        """Return a copy with fields replaced (``source=``, ``detector=``, ``acquisition=``,
+        ``bodies=``, ``path=``).
+
+        Bodies given as a sequence whose meshes are the very mesh objects of this scene's
+        bodies (say, another material) share what was derived from the meshes
+        (:meth:`xray_viz.bodies.Bodies.like`).
+        """
+        acquisition = changes.pop("acquisition", None)
+        if acquisition is not None:
+            if "source" in changes or "detector" in changes:
+                raise TypeError("Scene.replace: give acquisition= or source=/detector=, not both")
+            changes["source"], changes["detector"] = acquisition.source, acquisition.detector
+        if "bodies" in changes:
+            from xray_viz.bodies import Bodies
+
+            changes["bodies"] = Bodies.like(changes["bodies"], self.bodies, where=self._where())
         return dataclasses.replace(self, **changes)
 
     def transform_bodies(self, matrix) -> "Scene":
@@ -661,8 +679,10 @@ class Scene:
 
         An invertible map that keeps orientation (determinant > 0) keeps every body closed and
         outward and keeps which body lies inside which, so the mesh checks and the bodies'
-        :attr:`precedence` carry over instead of being recomputed (the viewer's rotation
-        slider re-renders the frog without testing its 16 bodies for nesting again).
+        :attr:`precedence` carry over instead of being recomputed
+        (:meth:`xray_viz.bodies.Bodies.transform`). To image the same bodies from another
+        direction, turn the acquisition instead (``scene.replace(acquisition=
+        scene.acquisition.rotated(...))``): that keeps every per-mesh set-up.
 
         Parameters
         ----------
@@ -687,79 +707,191 @@ class Scene:
         >>> float(shifted.bodies[0].vertices[:, 0].mean() - scene.bodies[0].vertices[:, 0].mean())
         5.0
         """
-        from xray_viz.meshes.repair import check_mesh, remember_check
-
-        m = np.asarray(matrix, dtype=float)
-        if m.shape != (4, 4) or not np.all(np.isfinite(m)) or not np.allclose(m[3], [0, 0, 0, 1]):
-            raise SceneError(f"transform_bodies: need a finite 4 x 4 affine matrix with last row "
-                             f"[0, 0, 0, 1], got shape {m.shape}")
-        det = float(np.linalg.det(m[:3, :3]))
-        if not det > 0:
-            raise SceneError(f"transform_bodies: the matrix must keep orientation (determinant "
-                             f"> 0), got {det:.6g}; a mirror image would turn meshes inside out")
-        bodies = []
-        for body in self.bodies:
-            mesh = body.mesh.copy()
-            mesh.apply_transform(m)
-            report = check_mesh(body.mesh)
-            remember_check(mesh, dataclasses.replace(report, volume=report.volume * det))
-            bodies.append(dataclasses.replace(body, mesh=mesh))
-        from xray_viz.attenuation import remember_precedence
-
-        remember_precedence(bodies, self.precedence)
-        return self.replace(bodies=tuple(bodies))
+        def placed(body, m):
+            if body.source_file is None:
+                return {}
+            placement = _compose_placement(body.placement, m)
+            # a shear has no scene-file keys: the mesh is no longer its file's
+            return {"placement": placement} if placement is not None else \
+                {"placement": None, "source_file": None}
+        return dataclasses.replace(self, bodies=self.bodies.transform(matrix, changes=placed))
 
     @property
     def body_names(self) -> list[str]:
-        return [b.name for b in self.bodies]
+        """The bodies' names, in order."""
+        return self.bodies.names
 
-    @cached_property
+    def to_dict(self, *, base: str | Path | None = None) -> dict:
+        """The scene as a scene-file document (what :func:`scene_from_dict` reads).
+
+        Every key is written explicitly (defaults too). Each body refers to the mesh file it
+        was read from (:attr:`Body.source_file`) with the keys that placed it
+        (:attr:`Body.placement`), so the document loads into the same meshes, bit for bit,
+        wherever it is saved; bodies moved by :meth:`transform_bodies` carry the composed
+        placement (the same meshes to rounding).
+
+        Parameters
+        ----------
+        base : path-like, optional
+            Folder the document will be saved in: mesh and table paths are written relative
+            to it. Default: absolute paths.
+
+        Returns
+        -------
+        dict
+
+        Raises
+        ------
+        SceneError
+            A body built in Python without a mesh file, a spectrum given as a ``Spectrum``
+            object, or a body moved by a transform that is not a rotation and scaling.
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> doc = xray_viz.load_scene("sphere").to_dict()
+        >>> sorted(doc), doc["detector"]["shape"], doc["body"][0]["name"]
+        (['body', 'detector', 'source'], [256, 256], 'ball')
+        """
+        return _scene_document(self, base=None if base is None else Path(base))
+
+    def to_toml(self, *, base: str | Path | None = None) -> str:
+        """The scene as the text of a scene file (:meth:`to_dict` written by ``tomli_w``).
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> scene = xray_viz.load_scene("nested_spheres")
+        >>> again = scene_from_dict(tomllib.loads(scene.to_toml()))
+        >>> bool((xray_viz.render(again).intensity == xray_viz.render(scene).intensity).all())
+        True
+        """
+        import tomli_w
+
+        return tomli_w.dumps(self.to_dict(base=base))
+
+    @property
     def triangles(self) -> np.ndarray:
-        """(T, 3, 3) float: every triangle of every body, bodies in order."""
-        if not self.bodies:
-            return np.zeros((0, 3, 3))
-        tris = np.concatenate([b.vertices[b.faces] for b in self.bodies])
-        tris.setflags(write=False)
-        return tris
+        """(T, 3, 3) float: every triangle of every body, bodies in order
+        (:attr:`xray_viz.bodies.Bodies.triangles`)."""
+        return self.bodies.triangles
 
-    @cached_property
+    @property
     def triangle_body(self) -> np.ndarray:
         """(T,) int: index of the body each triangle of :attr:`triangles` belongs to."""
-        counts = [len(b.faces) for b in self.bodies]
-        return np.repeat(np.arange(len(self.bodies)), counts)
+        return self.bodies.triangle_body
 
-    @cached_property
+    @property
     def triangle_offset(self) -> np.ndarray:
         """(n_bodies + 1,) int: body k owns triangles ``triangle_offset[k]:triangle_offset[k+1]``."""
-        return np.concatenate([[0], np.cumsum([len(b.faces) for b in self.bodies])]).astype(np.int64)
+        return self.bodies.triangle_offset
 
-    @cached_property
+    @property
     def precedence(self) -> np.ndarray:
         """(n_bodies,) int rank: where bodies overlap, the highest rank gives the material.
 
         Innermost wins (a body inside another replaces its material), and where bodies only
         partly overlap the later-listed one wins. See :func:`xray_viz.attenuation.body_precedence`.
         """
-        from xray_viz.attenuation import body_precedence
-
-        return body_precedence(self)
+        return self.bodies.precedence
 
 
-def _traceable(body: Body, where: str = "") -> Body:
-    """The body itself when its mesh is closed and outward; else repaired, with a warning."""
-    from xray_viz.meshes.repair import MeshRepairWarning, check_mesh, ensure_traceable
+def _path_text(path, base: Path | None) -> str:
+    import os
 
-    if check_mesh(body.mesh).traceable:
-        return body
-    try:
-        mesh, changes = ensure_traceable(body.mesh, name=body.name)
-    except XrayVizError as exc:
-        raise type(exc)(f"{where}{exc}") from None
-    import warnings
+    path = Path(path).resolve()
+    return str(path) if base is None else os.path.relpath(path, Path(base).resolve())
 
-    warnings.warn(f"{where}body {body.name!r}: mesh repaired: {'; '.join(changes)}",
-                  MeshRepairWarning, stacklevel=3)
-    return dataclasses.replace(body, mesh=mesh)
+
+def _plain(value):
+    """A value as TOML can hold it: lists of Python numbers, no NumPy types."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    return value
+
+
+def _with_paths(table: dict, base: Path | None) -> dict:
+    """A canonical table (spectrum, mtf) with its file paths written for ``base``."""
+    return {k: (_path_text(v, base) if k in ("file", "lsf") and isinstance(v, (str, Path))
+                else _plain(v)) for k, v in table.items()}
+
+
+def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
+    src, det = scene.source, scene.detector
+    source = {"position": src.position.tolist(), "kind": src.kind}
+    if src.spectrum is not None:
+        from collections.abc import Mapping
+
+        if not isinstance(src.spectrum, Mapping):
+            raise SceneError("[source] spectrum is a Spectrum object built in Python: a scene "
+                             "file needs it as a table (such as { kvp = 80.0 }) or a CSV file "
+                             "({ file = \"spectrum.csv\" })")
+        source["spectrum"] = _with_paths(dict(src.spectrum), base)
+    else:
+        source["energy"] = src.energy
+    if src.mas is not None:
+        source["mas"] = src.mas
+    source["heel"] = src.heel
+    detector = {"center": det.center.tolist(), "up": det.up.tolist(),
+                "shape": list(det.shape), "pitch": list(det.pitch), "response": det.response}
+    if src.mas is None:
+        detector["I0"] = det.i0
+    detector.update(noise=det.noise, falloff=det.falloff, supersample=det.supersample,
+                    focal_spot=det.focal_spot)
+    if det.seed is not None:
+        detector["seed"] = det.seed
+    if det.scintillator is not None:
+        detector["scintillator"] = _plain(dict(det.scintillator))
+    if det.mtf is not None:
+        detector["mtf"] = _with_paths(dict(det.mtf), base)
+    detector.update(electronic_noise=det.electronic_noise, gain=det.gain)
+    bodies = []
+    for body in scene.bodies:
+        if body.source_file is None:
+            raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
+                             "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
+                             "source_file= that file, to write the scene")
+        entry = {"name": body.name, "mesh": _path_text(body.source_file, base)}
+        if body.mu is not None:
+            entry["mu"] = body.mu
+        else:
+            entry["material"] = _plain(body.material)
+            if body.density is not None:
+                entry["density"] = body.density
+        entry.update(_plain(dict(body.placement or {})))
+        bodies.append(entry)
+    doc = {"source": source, "detector": detector}
+    if bodies:
+        doc["body"] = bodies
+    return doc
+
+
+def _compose_placement(placement, matrix):
+    """The placement keys of a body's file mesh moved by ``matrix`` as well: a rotation matrix,
+    a scale per axis and a position; None when ``matrix`` shears the mesh (no such keys)."""
+    p = dict(placement or {})
+    rotation = p.get("rotation")
+    if rotation is not None:
+        rotation = np.asarray(rotation, dtype=np.float64)
+    m = np.asarray(matrix, dtype=np.float64) @ body_transform(
+        position=p.get("position"), rotation=rotation, scale=p.get("scale"),
+        units=p.get("units", "mm"))
+    scale = np.linalg.norm(m[:3, :3], axis=0)
+    r = m[:3, :3] / scale
+    if not (np.allclose(r.T @ r, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0):
+        return None
+    out = {"position": m[:3, 3].tolist(), "rotation": r.tolist(), "scale": scale.tolist()}
+    if "repair" in p:
+        out["repair"] = p["repair"]
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -1013,7 +1145,9 @@ def _integer(t: _Table, key: str, *, minimum: int, default=None):
     return value
 
 
-def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
+def _parse_body(t: _Table, base_dir: Path, index: int):
+    """``(body, report)``: one ``[[body]]`` table's body, its mesh checked (and repaired if
+    allowed), and the mesh's :class:`~xray_viz.meshes.repair.MeshReport`."""
     from xray_viz.meshes.io import load_mesh
 
     t.expect(BODY_KEYS)
@@ -1081,7 +1215,8 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
     from xray_viz.meshes.repair import MeshRepairWarning, ensure_traceable
 
     try:
-        mesh, changes = ensure_traceable(mesh, name=name, repair=repair)
+        mesh, changes, report = ensure_traceable(mesh, name=name, repair=repair,
+                                                 return_report=True)
     except XrayVizError as exc:
         raise type(exc)(f"{where}{path.name}: {exc}") from None
     if changes:
@@ -1089,7 +1224,10 @@ def _parse_body(t: _Table, base_dir: Path, index: int) -> Body:
 
         warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
                       MeshRepairWarning, stacklevel=2)
-    return Body(name=name, mesh=mesh, mu=mu, material=material, density=density, source_file=path)
+    placement = {k: t.data[k] for k in ("position", "rotation", "scale", "units", "repair")
+                 if k in t.data}
+    return Body(name=name, mesh=mesh, mu=mu, material=material, density=density,
+                source_file=path, placement=placement), report
 
 
 def _check_material_energies(src: _Table, energy, spectrum, bodies) -> None:
@@ -1230,18 +1368,23 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     if not isinstance(raw_bodies, list):
         top.fail("'body' must be an array of tables: write [[body]]")
     top.done()
-    bodies = []
+    parsed = []
     for k, raw in enumerate(raw_bodies):
         bt = _Table(raw, f"[[body]] #{k + 1}", file)
-        bodies.append(_parse_body(bt, base_dir, k))
+        parsed.append(_parse_body(bt, base_dir, k))
+    bodies = [b for b, _ in parsed]
     _check_material_energies(src, energy, spectrum, bodies)
+    from xray_viz.bodies import Bodies
+
     try:
+        bodies = Bodies(bodies, where=f"{file}: " if file else "",
+                        reports=[r for _, r in parsed])
         scene = Scene(
             source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas,
                           heel=heel),
             detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch),
                               **options),
-            bodies=tuple(bodies),
+            bodies=bodies,
             path=file,
         )
     except SceneError as exc:

@@ -59,7 +59,6 @@ False
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,7 +67,7 @@ from xray_viz.errors import MeshError
 
 __all__ = [
     "MeshReport", "RepairReport", "MeshWarning", "MeshRepairWarning", "check_mesh", "repair_mesh",
-    "ensure_traceable", "format_reports", "remember_check", "simple_winding",
+    "ensure_traceable", "format_reports", "simple_winding",
     "self_intersecting_faces", "surfaces_cross", "body_inside", "containers",
 ]
 
@@ -211,39 +210,7 @@ def check_mesh(mesh) -> MeshReport:
     >>> report.watertight, report.outward, round(report.volume)
     (True, True, 6000)
     """
-    try:
-        key = (id(mesh), hash(mesh))          # trimesh's hash follows the vertex and face data
-    except TypeError:
-        key = None
-    report = _CHECKED.get(key) if key is not None else None
-    if report is None:
-        report = _check_mesh(mesh)
-        if key is not None:
-            _CHECKED[key] = report
-            while len(_CHECKED) > _CHECKED_SIZE:
-                _CHECKED.popitem(last=False)
-    return report
-
-
-def remember_check(mesh, report: MeshReport) -> None:
-    """Record ``report`` as :func:`check_mesh`'s answer for ``mesh`` as it is now.
-
-    For a mesh derived from a checked one by a map known to keep the checked properties (an
-    orientation-preserving affine transform: see :meth:`xray_viz.scene.Scene.transform_bodies`).
-    """
-    try:
-        key = (id(mesh), hash(mesh))
-    except TypeError:
-        return
-    _CHECKED[key] = report
-    while len(_CHECKED) > _CHECKED_SIZE:
-        _CHECKED.popitem(last=False)
-
-
-#: Reports of recently checked meshes: every new Scene checks its bodies, and a viewer or a
-#: benchmark that builds a Scene per frame from the same meshes should not pay for it again.
-_CHECKED: "OrderedDict[tuple, MeshReport]" = OrderedDict()
-_CHECKED_SIZE = 64
+    return _check_mesh(mesh)
 
 
 def _check_mesh(mesh) -> MeshReport:
@@ -420,7 +387,7 @@ def body_inside(mesh_a, mesh_b) -> bool:
     >>> body_inside(small, big), body_inside(moved, big), body_inside(big, small)
     (True, False, False)
     """
-    from xray_viz.attenuation import inside_counts
+    from xray_viz.tracing.hits import inside_counts
 
     faces = np.asarray(mesh_a.faces, dtype=np.int64)
     if not len(faces) or not len(mesh_b.faces):
@@ -466,18 +433,23 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
     >>> containers([small, big, poking])
     [[1], [], []]
     """
-    from xray_viz.attenuation import inside_counts
+    from xray_viz.tracing.hits import inside_counts
 
     n = len(meshes)
     boxes = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
     crossing = [bool(r.self_intersections) for r in reports] if reports is not None else None
     points = {}
     out = [[] for _ in range(n)]
+    lo = np.array([bx[0] for bx in boxes], dtype=np.float64).reshape(n, 3)
+    hi = np.array([bx[1] for bx in boxes], dtype=np.float64).reshape(n, 3)
+    solid = np.array([len(m.faces) > 0 for m in meshes], dtype=bool)
     for b in range(n):
-        blo, bhi = boxes[b]
-        cand = [a for a in range(n) if a != b and len(meshes[a].faces)
-                and np.all(boxes[a][0] >= blo) and np.all(boxes[a][1] <= bhi)]
-        if not cand or not len(meshes[b].faces):
+        if not solid[b]:
+            continue
+        within = solid & np.all(lo >= lo[b], axis=1) & np.all(hi <= hi[b], axis=1)
+        within[b] = False
+        cand = np.flatnonzero(within).tolist()          # boxes inside b's box: candidates
+        if not cand:
             continue
         for a in cand:
             if a not in points:
@@ -499,7 +471,8 @@ def simple_winding(mesh) -> bool:
     True for a mesh of one edge-connected piece, or of outward pieces whose bounding boxes
     are pairwise disjoint (:attr:`MeshReport.simple`). Then the signed sum of hit depths along
     a ray is its length inside the body; otherwise the hits must be sorted and the winding
-    number tracked. From :func:`check_mesh`'s cached report.
+    number tracked (:class:`xray_viz.bodies.Bodies` keeps this per body: :attr:`~xray_viz.bodies.
+    Bodies.simple`).
 
     Parameters
     ----------
@@ -637,7 +610,7 @@ def _inside_counts(pieces, query, target):
     -------
     inside, total : (n,) int
     """
-    from xray_viz.attenuation import PROBE
+    from xray_viz.tracing.hits import PROBE
     from xray_viz.tracing.hits import trace_triangles
 
     tris, labels, order, starts, lo, hi = pieces
@@ -982,7 +955,8 @@ def _canonical(faces):
     return np.take_along_axis(faces, idx, axis=1)
 
 
-def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
+def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True, report=None,
+                     return_report: bool = False):
     """Return a closed, outward version of a body's mesh, repairing it when needed.
 
     Parameters
@@ -993,6 +967,10 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
         The body's name, for messages.
     repair : bool, optional
         When False, a mesh that needs repair is refused instead.
+    report : MeshReport, optional
+        :func:`check_mesh` of ``body_mesh`` when the caller has it (not checked again).
+    return_report : bool, optional
+        Also return the report of the mesh returned.
 
     Returns
     -------
@@ -1000,6 +978,8 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
         ``body_mesh`` itself when it was already traceable, otherwise the repaired mesh.
     changes : list of str
         What was fixed; empty when nothing was.
+    report : MeshReport
+        Of the mesh returned (with ``return_report=True`` only).
 
     Raises
     ------
@@ -1016,10 +996,11 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
     >>> mesh is ball, changes
     (True, [])
     """
-    report = check_mesh(body_mesh)
+    if report is None:
+        report = check_mesh(body_mesh)
     if report.traceable:
         _warn_self_intersections(name, report)
-        return body_mesh, []
+        return (body_mesh, [], report) if return_report else (body_mesh, [])
     if report.crossing:
         raise _crossing_error(name, report)
     problems = "; ".join(report.problems())
@@ -1034,7 +1015,7 @@ def ensure_traceable(body_mesh, *, name: str = "body", repair: bool = True):
                         f"{'; '.join(rep.after.problems())}); close the surface in a mesh editor")
     changes = [f"was {problems}"] + list(rep.changes)
     _warn_self_intersections(name, rep.after)
-    return repaired, changes
+    return (repaired, changes, rep.after) if return_report else (repaired, changes)
 
 
 def _warn_self_intersections(name, report) -> None:

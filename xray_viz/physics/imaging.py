@@ -93,7 +93,7 @@ def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
     if response == "energy":
         w = w * spectrum.energies
     elif response == "kerma":
-        from xray_viz.physics.dosimetry import air_mass_energy_absorption
+        from xray_viz.physics._air import air_mass_energy_absorption
 
         w = w * spectrum.energies * air_mass_energy_absorption(spectrum.energies)
     elif response != "counting":
@@ -478,8 +478,9 @@ def pixel_log_mean(log_values, n_per_pixel: int) -> np.ndarray:
 
 
 def source_detector_distance(scene) -> float:
-    """SID in mm: from the source to the detector plane, along the beam axis."""
-    return float(np.linalg.norm(np.asarray(scene.source.position) - scene.detector.center))
+    """SID in mm: from the source to the detector plane, along the beam axis
+    (:attr:`xray_viz.geometry.DetectorFrame.sid`)."""
+    return scene.acquisition.frame.sid
 
 
 def source_object_distance(scene) -> float:

@@ -3,7 +3,7 @@
 For a detector grid every ray shares the source (point source) or the direction (parallel
 beam), so tracing all hits is rasterising the scene's triangles onto the detector:
 
-0. **Cull bodies**: a body whose bounding box (cached per mesh) lies wholly outside the beam -
+0. **Cull bodies**: a body whose bounding box (kept by the bodies) lies wholly outside the beam -
    outside one side plane of the pyramid from a point source through the detector's edges
    (widened by a pixel), or of a parallel beam's slab box, wholly behind the plane of the
    source or beyond the detector - is skipped as a whole: none of its vertices is projected,
@@ -25,7 +25,7 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    (counter-clockwise seen from the source) from exit.
 5. **Path lengths**: one body in the beam whose winding number is provably 0 or 1 (one
    edge-connected piece, or outward pieces with disjoint bounding boxes:
-   :func:`xray_viz.meshes.repair.simple_winding`, cached per mesh):
+   :attr:`xray_viz.bodies.Bodies.simple`, from the mesh reports):
    ``L = sum(exit depths) - sum(entry depths)`` (+ the detector depth when the ray is still
    inside there), accumulated per ray in one parallel pass over the triangles (one accumulator
    per thread; for very large detectors, per band of rows); no hit list. Otherwise (several
@@ -42,11 +42,14 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    lengths of that window's rays only, so a big job needs O(meshes + one window) memory, not
    O(rays x bodies). A ray's result does not depend on the windows (bit for bit).
 
-The result of :func:`fast_path_lengths` is cached per (meshes, source, detector,
-supersampling) when it is small (64 MiB at most, 128 MiB in all): re-rendering the same
-geometry with other energies or materials costs nothing, and the per-mesh set-up (faces sorted
-along the Morton order of their vertices, vertices numbered in order of first use by those faces,
-concatenated over the bodies in the beam) is cached per mesh.
+What the engine derives from the meshes is kept on the scene's
+:class:`~xray_viz.bodies.Bodies` (:meth:`~xray_viz.bodies.Bodies.cached`), never in this
+module: the per-mesh set-up (faces sorted along the Morton order of their vertices, vertices
+numbered in order of first use by those faces), its concatenation over the bodies in the beam,
+scratch memory, and the results of :func:`fast_path_lengths` for the last few acquisitions
+when they are small (64 MiB at most, 128 MiB in all): re-rendering the same geometry with other
+energies or materials costs nothing, and a new acquisition (the source moved) pays no per-mesh
+set-up again.
 
 Limits: meshes must be closed and outward oriented (as for the NumPy engine). A body crossing
 the plane of the source inside the beam cannot be projected and is refused with a
@@ -72,46 +75,47 @@ from __future__ import annotations
 import math
 import os
 import threading
-from collections import OrderedDict
 
 import numba
 import numpy as np
 
 from xray_viz.errors import SceneError
-from xray_viz.geometry import check_supersample, detector_axes
+from xray_viz.geometry import check_supersample
 from xray_viz.tracing._raster import FRAC_BITS
 
 __all__ = ["fast_path_lengths", "trace_once", "trace_rows", "clear_caches", "visible_bodies",
            "FRAC_BITS"]
 
-_PREP_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
-_MESH_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
-_L_CACHE: "OrderedDict[tuple, np.ndarray]" = OrderedDict()
-_PREP_CACHE_SIZE = 64
-_PREP_CACHE_BYTES = 512 << 20
-_MESH_CACHE_SIZE = 8
-_L_CACHE_SIZE = 4
-#: Results larger than this are not cached (render() traces them window by window anyway), and
-#: the cache holds at most ``_L_CACHE_BYTES`` in all: it costs a bounded, predictable memory.
-_L_CACHE_ENTRY_BYTES = 64 << 20
-_L_CACHE_BYTES = 128 << 20
+#: Results larger than this are not kept (render() traces them window by window anyway), and
+#: a scene's bodies keep at most ``_RESULT_BYTES`` of results in all (4 at most): a bounded,
+#: predictable memory.
+_RESULT_ENTRY_BYTES = 64 << 20
+_RESULT_BYTES = 128 << 20
+_RESULTS = 4
+#: Per-mesh set-ups (spatial order) and concatenations of the bodies in the beam kept per
+#: scene's bodies, bounded in bytes (a body set of a few big meshes keeps a few).
+_GEOMETRY_BYTES = 512 << 20
 
 
-def clear_caches() -> None:
-    """Forget cached meshes and path lengths (for timing cold runs)."""
-    _PREP_CACHE.clear()
-    _MESH_CACHE.clear()
-    _L_CACHE.clear()
-    _WORK.clear()
+def clear_caches(scene) -> None:
+    """Forget what the fast engine keeps on a scene's bodies (its per-mesh set-up, scratch
+    memory and recent results), for timing cold runs.
+
+    Parameters
+    ----------
+    scene : Scene or Bodies
+    """
+    bodies = getattr(scene, "bodies", scene)
+    bodies.forget(("fast", "prepared"))
+    bodies.forget(("fast", "geometry"))
+    bodies.forget(("fast", "result"))
+    bodies.forget(("fast", "workspace"))
+    bodies.forget(("fast", "accumulators"))
 
 
-def _mesh_key(body):
-    mesh = body.mesh
-    try:
-        h = hash(mesh)
-    except TypeError:
-        h = None
-    return (id(mesh), h)
+def _split(scene):
+    """``(bodies, acquisition)`` of a scene."""
+    return scene.bodies, scene.acquisition
 
 
 def _spatial_order(v, f):
@@ -142,123 +146,84 @@ def _spatial_order(v, f):
     return np.ascontiguousarray(v[order]), np.ascontiguousarray(rank[f])
 
 
-def _prepared(body):
-    """One mesh's vertices (V, 3) float64 and faces (T, 3) int32/int64 in spatial order
-    (:func:`_spatial_order`), cached per mesh."""
-    key = _mesh_key(body)
-    hit = _PREP_CACHE.get(key)
-    if hit is not None:
-        _PREP_CACHE.move_to_end(key)
-        return hit
-    v, f = _spatial_order(np.asarray(body.vertices, dtype=np.float64),
-                          np.asarray(body.faces, dtype=np.int64))
-    f = np.array(f, dtype=np.int32 if len(v) < 2**31 else np.int64, order="C")
-    if np.may_share_memory(v, body.mesh.vertices):
-        v = v.copy()                    # small meshes: not a view of the mesh's own data
-    for a in (v, f):
-        a.setflags(write=False)
-    _PREP_CACHE[key] = (v, f)
-    # Bounded in entries and in bytes (a viewer turning a big mesh makes a new one per frame).
-    while len(_PREP_CACHE) > 1 and (
-            len(_PREP_CACHE) > _PREP_CACHE_SIZE or
-            sum(a.nbytes + b.nbytes for a, b in _PREP_CACHE.values()) > _PREP_CACHE_BYTES):
-        _PREP_CACHE.popitem(last=False)
-    return v, f
+def _prepared(bodies, k):
+    """Body ``k``'s vertices (V, 3) float64 and faces (T, 3) int32/int64 in spatial order
+    (:func:`_spatial_order`), kept by the bodies."""
+    def build():
+        body = bodies[k]
+        v, f = _spatial_order(np.asarray(body.vertices, dtype=np.float64),
+                              np.asarray(body.faces, dtype=np.int64))
+        f = np.array(f, dtype=np.int32 if len(v) < 2**31 else np.int64, order="C")
+        if np.may_share_memory(v, body.mesh.vertices):
+            v = v.copy()                # small meshes: not a view of the mesh's own data
+        for a in (v, f):
+            a.setflags(write=False)
+        return v, f
+    return bodies.cached(("fast", "prepared", k), build, limit=max(8, len(bodies)),
+                         nbytes=_GEOMETRY_BYTES)
 
 
-def _geometry(scene, keep=None):
+def _geometry(bodies, keep=None):
     """Concatenated vertices (V, 3) float64, faces (T, 3) int32 (int64 beyond 2**31 vertices)
-    and triangle bodies (T,) int32 (indices into ``scene.bodies``) of the bodies ``keep``
-    (default: all), cached per tuple of (body index, mesh)."""
-    keep = tuple(range(len(scene.bodies))) if keep is None else tuple(keep)
-    key = tuple((k, _mesh_key(scene.bodies[k])) for k in keep)
-    hit = _MESH_CACHE.get(key)
-    if hit is not None:
-        _MESH_CACHE.move_to_end(key)
-        return key, hit
-    parts = [_prepared(scene.bodies[k]) for k in keep]
-    if len(parts) == 1:
-        V, F = parts[0]                 # shared with the per-mesh cache: no copy
-    elif parts:
-        offset = np.cumsum([0] + [len(v) for v, _ in parts])
-        wide = offset[-1] >= 2**31
-        V = np.ascontiguousarray(np.concatenate([v for v, _ in parts]))
-        F = np.ascontiguousarray(np.concatenate(
-            [f.astype(np.int64) + o for (_, f), o in zip(parts, offset)]),
-            dtype=np.int64 if wide else np.int32)
-    else:
-        V, F = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-    B = np.concatenate([np.full(len(f), k, np.int32) for k, (_, f) in zip(keep, parts)]) \
-        if parts else np.zeros(0, np.int32)
-    for a in (V, F, B):
-        a.setflags(write=False)
-    _MESH_CACHE[key] = (V, F, B)
-    while len(_MESH_CACHE) > _MESH_CACHE_SIZE:
-        _MESH_CACHE.popitem(last=False)
-    return key, (V, F, B)
+    and triangle bodies (T,) int32 (indices into ``bodies``) of the bodies ``keep`` (default:
+    all), kept by the bodies per tuple ``keep``."""
+    keep = tuple(range(len(bodies))) if keep is None else tuple(keep)
 
-
-def _beam(scene, frame):
-    """The beam's bounding planes (:func:`xray_viz.attenuation.beam_planes`), for any
-    supersampling, widened by a pixel (:func:`xray_viz.attenuation.beam_half_widths`)."""
-    from xray_viz.attenuation import beam_half_widths, beam_planes
-
-    r0, center, f, eu, ev, FL = frame[:6]
-    hu, hv = beam_half_widths(scene.detector)
-    return beam_planes(r0, f, eu, ev, FL, hu, hv, scene.source.kind != "parallel")
+    def build():
+        parts = [_prepared(bodies, k) for k in keep]
+        if len(parts) == 1:
+            V, F = parts[0]             # shared with the per-mesh set-up: no copy
+        elif parts:
+            offset = np.cumsum([0] + [len(v) for v, _ in parts])
+            wide = offset[-1] >= 2**31
+            V = np.ascontiguousarray(np.concatenate([v for v, _ in parts]))
+            F = np.ascontiguousarray(np.concatenate(
+                [f.astype(np.int64) + o for (_, f), o in zip(parts, offset)]),
+                dtype=np.int64 if wide else np.int32)
+        else:
+            V, F = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+        B = np.concatenate([np.full(len(f), k, np.int32) for k, (_, f) in zip(keep, parts)]) \
+            if parts else np.zeros(0, np.int32)
+        for a in (V, F, B):
+            a.setflags(write=False)
+        return V, F, B
+    return bodies.cached(("fast", "geometry", keep), build, limit=8,
+                         nbytes=_GEOMETRY_BYTES)
 
 
 def visible_bodies(scene, planes=None) -> tuple:
     """Indices of the bodies whose bounding box meets the beam (any supersampling); the others
     are culled as a whole: no vertex of theirs is projected, their path lengths are zero.
 
-    Boxes are cached per mesh (:func:`xray_viz.attenuation.mesh_bounds`). A body is culled when
-    its box lies wholly outside one side plane of the beam (the pyramid from a point source
-    through the detector's edges, the slab box of a parallel beam), wholly behind the plane of
-    the source or wholly beyond the detector.
+    Boxes are kept by the scene's bodies (:attr:`xray_viz.bodies.Bodies.bounds`). A body is
+    culled when its box lies wholly outside one side plane of the beam (the pyramid from a
+    point source through the detector's edges, the slab box of a parallel beam), wholly behind
+    the plane of the source or wholly beyond the detector
+    (:meth:`xray_viz.geometry.Acquisition.outside_beam`).
     """
-    from xray_viz.attenuation import boxes_outside_beam, mesh_bounds
-
-    if not scene.bodies:
+    bodies, acq = _split(scene)
+    if not len(bodies):
         return ()
     if planes is None:
-        planes = _beam(scene, _frame(scene, 1))
-    boxes = [mesh_bounds(b.mesh) for b in scene.bodies]
-    out = boxes_outside_beam(np.array([b[0] for b in boxes]), np.array([b[1] for b in boxes]),
-                             np.asarray(scene.source.position, np.float64), planes)
+        out = acq.outside_beam(bodies.bounds)
+    else:
+        from xray_viz.geometry import boxes_outside_beam
+
+        out = boxes_outside_beam(bodies.bounds[:, 0], bodies.bounds[:, 1], acq.frame.source,
+                                 planes)
     return tuple(int(k) for k in np.flatnonzero(~out))
 
 
-def _frame(scene, n):
-    """Detector frame and fine-grid mapping (see :mod:`xray_viz.tracing._raster`)."""
-    r0 = np.asarray(scene.source.position, np.float64)
-    center = np.asarray(scene.detector.center, np.float64)
-    f, eu, ev = detector_axes(r0, center, scene.detector.up)
-    FL = float(np.linalg.norm(r0 - center))
-    W, H = scene.detector.shape
-    px, py = scene.detector.pitch
-    # Fine coordinate of a detector offset (a, b) mm from the centre.
-    sx, sy = n / px, n / py
-    bx = n * (W - 1) / 2 + (n - 1) / 2
-    by = n * (H - 1) / 2 + (n - 1) / 2
-    Ex = (px / n) * eu
-    Ey = (py / n) * ev
-    P00 = -bx * Ex - by * Ey          # offset of fine sample (0, 0) from the detector centre
-    return r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00
+_LOCK = threading.RLock()     # one trace at a time: numba's parallel kernels, shared scratch
 
 
-_WORK: dict = {}
-_LOCK = threading.RLock()     # the scratch arrays are shared: one trace at a time
-
-
-def _workspace(n_vertices, n_triangles):
-    """Scratch arrays reused between calls (fresh pages cost more than the projection)."""
-    if _WORK.get("size") != (n_vertices, n_triangles):
-        _WORK["size"] = (n_vertices, n_triangles)
-        _WORK["arrays"] = (np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
-                           np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
-                           np.empty((n_triangles, 4), np.int64), np.empty(n_vertices, np.int32))
-    return _WORK["arrays"]
+def _workspace(bodies, n_vertices, n_triangles):
+    """Scratch arrays reused between calls on the same bodies (fresh pages cost more than
+    the projection)."""
+    return bodies.cached(("fast", "workspace", n_vertices, n_triangles), lambda: (
+        np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
+        np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
+        np.empty((n_triangles, 4), np.int64), np.empty(n_vertices, np.int32)), limit=1)
 
 
 #: Above this many (threads x samples), one body is traced by bands (memory) not per thread.
@@ -269,10 +234,10 @@ _DIRECT_MAX_SAMPLES = 1 << 23
 _USE_NUMPY = "use the NumPy engine (engine='numpy' in Python, --engine numpy on the command line)"
 
 
-def _refuse(scene, B, t, r0, w, F):
-    body = scene.bodies[int(B[t])].name
+def _refuse(bodies, acq, B, t, r0, w, F):
+    body = bodies[int(B[t])].name
     ws = w[F[t]]
-    perspective = scene.source.kind != "parallel"
+    perspective = not acq.parallel
     if ws.min() < 0 or (perspective and ws.min() <= 0):
         raise SceneError(
             f"body {body!r} crosses the plane of the source (through {r0.tolist()}, across the "
@@ -283,16 +248,16 @@ def _refuse(scene, B, t, r0, w, F):
         f"move the source back or {_USE_NUMPY}")
 
 
-def _accumulators(n_chunks, nH, nW):
-    """Zeroed per-thread accumulators, reused between calls (no fresh pages to fault in)."""
-    key = (n_chunks, nH, nW)
-    if _WORK.get("acc_key") != key:
-        _WORK["acc_key"] = key
-        _WORK["acc"] = (np.zeros((n_chunks, nH, nW)), np.zeros((n_chunks, nH, nW), np.int32))
-    else:
-        for a in _WORK["acc"]:
+def _accumulators(bodies, n_chunks, nH, nW):
+    """Zeroed per-thread accumulators, reused between calls on the same bodies (no fresh
+    pages to fault in)."""
+    fresh = []
+    acc = bodies.cached(("fast", "accumulators", n_chunks, nH, nW), lambda: fresh.append(1) or (
+        np.zeros((n_chunks, nH, nW)), np.zeros((n_chunks, nH, nW), np.int32)), limit=1)
+    if not fresh:
+        for a in acc:
             a.fill(0)
-    return _WORK["acc"]
+    return acc
 
 
 def _band_order(n_bands):
@@ -313,10 +278,11 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
         The fast engine never builds a hit list; ``True`` delegates to the NumPy engine, which
         returns one.
     cache : bool, optional
-        Reuse the result of an earlier call on the same meshes, source, detector and
-        supersampling (the default). The returned array is then shared and read-only. Only
-        results of at most 64 MiB are kept (at most 128 MiB in all, 4 results); larger ones are
-        returned writable and not kept.
+        Reuse the result of an earlier call on the same bodies (or bodies of the same mesh
+        objects), source, detector and supersampling (the default); it is kept on the bodies.
+        The returned array is then shared and read-only. Only results of at most 64 MiB are
+        kept (at most 128 MiB in all, 4 results); larger ones are returned writable and not
+        kept.
 
     Returns
     -------
@@ -341,26 +307,19 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
     n = check_supersample(supersample)
     W, H = scene.detector.shape
     if keep_hits or (n > 1 and (W == 1 or H == 1)):
-        from xray_viz.render import _numpy_path_lengths
+        from xray_viz.tracing.reference import numpy_path_lengths
 
-        return _numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
-    gkey = tuple(_mesh_key(b) for b in scene.bodies)
-    src, det = scene.source, scene.detector
-    key = (gkey, tuple(src.position.tolist()), src.kind, tuple(det.center.tolist()),
-           tuple(det.up.tolist()), tuple(det.shape), tuple(det.pitch), n,
-           tuple(scene.precedence.tolist()) if len(scene.bodies) > 1 else ())
+        return numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
+    bodies, acq = _split(scene)
+    key = ("fast", "result", acq.key, n)
     if cache:
-        hit = _L_CACHE.get(key)
+        hit = bodies.lookup(key)
         if hit is not None:
-            _L_CACHE.move_to_end(key)
             return hit, None
     L = trace_once(scene, supersample=n)
-    if cache and L.nbytes <= _L_CACHE_ENTRY_BYTES:
+    if cache and L.nbytes <= _RESULT_ENTRY_BYTES:
         L.setflags(write=False)
-        _L_CACHE[key] = L
-        while len(_L_CACHE) > _L_CACHE_SIZE or \
-                sum(a.nbytes for a in _L_CACHE.values()) > _L_CACHE_BYTES:
-            _L_CACHE.popitem(last=False)
+        bodies.store(key, L, limit=_RESULTS, nbytes=_RESULT_BYTES)
     return L, None
 
 
@@ -383,7 +342,6 @@ def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
 
 def _trace(scene, *, supersample):
     n = check_supersample(supersample)
-    W, H = scene.detector.shape
     with _LOCK:
         plan = _Plan(scene, n, None)
         return plan.window(0, plan.n_bands)[2]
@@ -427,9 +385,9 @@ def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
     n = check_supersample(supersample)
     W, H = scene.detector.shape
     if n > 1 and (W == 1 or H == 1):       # as fast_path_lengths: the NumPy engine's rays
-        from xray_viz.render import _numpy_rows
+        from xray_viz.tracing.reference import numpy_rows
 
-        yield from _numpy_rows(scene, supersample=n, rows=rows)
+        yield from numpy_rows(scene, supersample=n, rows=rows)
         return
     window = None if rows is None or rows >= H else n * max(1, int(rows))
     with _LOCK:
@@ -467,14 +425,13 @@ class _Plan:
     """
 
     def __init__(self, scene, n, window):
-        from xray_viz.meshes.repair import simple_winding
         from xray_viz.tracing import _raster as R
 
+        bodies, acq = _split(scene)
         self.R = R
-        self.scene = scene
         self.n = n
-        W, H = self.shape = scene.detector.shape
-        self.nb = nb = len(scene.bodies)
+        W, H = self.shape = acq.detector.shape
+        self.nb = nb = len(bodies)
         nW, nH = self.nW, self.nH = W * n, H * n
         self.band_height = bh = _band_height(nH, nW, n, window)
         self.n_bands = int(math.ceil(nH / bh))
@@ -482,18 +439,19 @@ class _Plan:
         self.mode = "empty"
         if nb == 0:
             return
-        frame = _frame(scene, n)
-        r0, center, f, eu, ev, FL, sx, sy, bx, by, Ex, Ey, P00 = frame
-        planes = _beam(scene, frame)
-        keep = self.keep = visible_bodies(scene, planes)
+        fr, g = acq.frame, acq.frame.grid(n)
+        r0, center, f, eu, ev, FL = fr.source, fr.center, fr.forward, fr.ho, fr.ve, fr.sid
+        sx, sy, bx, by, Ex, Ey, P00 = g.sx, g.sy, g.bx, g.by, g.ex, g.ey, g.p00
+        planes = acq.planes
+        keep = self.keep = visible_bodies(scene)
         if not keep:
             return
-        V, F, B = _geometry(scene, keep)[1]
+        V, F, B = _geometry(bodies, keep)
         if len(F) == 0:
             return
         sides = np.ascontiguousarray(planes[:4])
-        perspective = scene.source.kind != "parallel"
-        XY, w, huge, status, box, K = _workspace(len(V), len(F))
+        perspective = not fr.parallel
+        XY, w, huge, status, box, K = _workspace(bodies, len(V), len(F))
         if perspective:
             R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge,
                                nW, nH, K)
@@ -505,29 +463,29 @@ class _Plan:
         self.F, self.XY, self.B = F, XY, B
         n_chunks = numba.get_num_threads()
         # The signed depth sum is a body's path length only where its winding number is 0 or 1
-        # (cached per mesh by the mesh check every Scene runs: a dictionary look-up here).
-        if len(keep) == 1 and simple_winding(scene.bodies[keep[0]].mesh):
+        # (from the mesh reports the bodies keep).
+        if len(keep) == 1 and bodies.simple[keep[0]]:
             if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
                 # A single pass over the triangles, one accumulator per thread: the depth
                 # spans S of every sample now (O(samples), at most _DIRECT_MAX_SAMPLES).
                 self.mode = "direct"
-                Sc, Nc = _accumulators(n_chunks, nH, nW)
+                Sc, Nc = _accumulators(bodies, n_chunks, nH, nW)
                 err = np.empty(n_chunks, np.int64)
                 depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
                 R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
                                 nW, nH, depth_ok, Sc, Nc, err, K, sides)
                 if err.max() >= 0:
-                    _refuse(scene, B, int(err.max()), r0, w, F)
+                    _refuse(bodies, acq, B, int(err.max()), r0, w, F)
                 self.S = np.empty((nH, nW))
                 R.reduce_chunks(Sc, Nc, FL, self.S)
                 return
             self.mode = "single"
         else:
             self.mode = "multi"
-            self.prec = np.ascontiguousarray(scene.precedence, dtype=np.int64)
+            self.prec = np.ascontiguousarray(bodies.precedence, dtype=np.int64)
         (self.tri, self.kind, self.orient, self.cbox, self.coef, self.wrange, self.band_start,
          self.band_tris) = _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW,
-                                  nH, sides, status, box, B, scene, bh, self.n_bands)
+                                  nH, sides, status, box, B, (bodies, acq), bh, self.n_bands)
 
     def detach(self):
         """Own copies of the shared scratch arrays still needed by :meth:`window`."""
@@ -571,11 +529,11 @@ class _Plan:
 
 
 def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides, status,
-           box, B, scene, band_height, n_bands):
+           box, B, where, band_height, n_bands):
     """Cull, set up and bin the triangles by bands of ``band_height`` detector rows."""
     R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides)
     if status.min() <= R.ERR_STRADDLE:
-        _refuse(scene, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
+        _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
     tri = np.flatnonzero(status).astype(np.int64)
     M = len(tri)
     kind = np.empty(M, np.int8)

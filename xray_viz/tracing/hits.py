@@ -10,7 +10,10 @@ from xray_viz.errors import SceneError
 from xray_viz.tracing.candidates import candidate_pairs
 from xray_viz.tracing.intersect import watertight_intersect
 
-__all__ = ["Hits", "trace_triangles", "trace_rays"]
+__all__ = ["Hits", "trace_triangles", "trace_rays", "inside_counts", "PROBE"]
+
+#: A fixed, irrational-looking direction for inside/outside tests (no axis, no diagonal).
+PROBE = np.array([0.5377, 0.3141, 0.7826]) / np.linalg.norm([0.5377, 0.3141, 0.7826])
 
 
 @dataclass(frozen=True)
@@ -187,8 +190,8 @@ def trace_rays(scene, origins, directions, *, t_min=0.0, t_max=np.inf, axis=None
 
     Parameters
     ----------
-    scene : Scene
-        The bodies to trace (source and detector are not used).
+    scene : Scene or Bodies
+        The bodies to trace (a scene's source and detector are not used).
     origins : (n, 3) or (3,) float
         Ray origins (mm), finite.
     directions : (n, 3) or (3,) float
@@ -228,3 +231,14 @@ def trace_rays(scene, origins, directions, *, t_min=0.0, t_max=np.inf, axis=None
     point = origins[ray] + t[:, None] * directions[ray]
     return Hits(ray=ray, t=t, point=point, triangle=local, body=body, barycentric=bary,
                 entering=entering)
+
+
+def inside_counts(triangles, points, *, direction=PROBE) -> np.ndarray:
+    """Winding number of a closed mesh around points: exits minus entries along a probe ray.
+
+    1 for a point inside an outward-oriented closed mesh, 0 outside.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    dirs = np.broadcast_to(direction, points.shape)
+    ray, _, _, _, entering = trace_triangles(triangles, points, dirs, t_min=0.0)
+    return np.bincount(ray, weights=np.where(entering, -1, 1), minlength=len(points)).astype(int)

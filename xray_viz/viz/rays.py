@@ -193,8 +193,9 @@ def trace_selection(scene, rays) -> RaySelection:
 def inside_segments(hits: Hits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The pieces of the rays that lie inside at least one body.
 
-    A piece runs from one hit to the next hit of the same ray while the count of bodies the
-    ray is inside (entries minus exits so far) is positive. Its end points *are* hit points.
+    A piece runs from one hit to the next hit of the same ray while the ray is inside a body
+    (entries minus exits of that body so far positive: the renderer's sweep,
+    :func:`xray_viz.attenuation.stretch_materials`). Its end points *are* hit points.
 
     Returns
     -------
@@ -209,17 +210,14 @@ def inside_segments(hits: Hits) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     >>> float(round(np.linalg.norm(ends - starts), 1))   # ~ the diameter, mm (pixel 127, 127)
     80.0
     """
+    from xray_viz.attenuation import stretch_materials
+
     if len(hits) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64)
-    step = np.where(hits.entering, 1, -1)
-    starts_of_ray = np.r_[True, hits.ray[1:] != hits.ray[:-1]]
-    depth = np.cumsum(step)
-    # depth at the start of each ray, subtracted so the count restarts at 0 for every ray
-    base = np.maximum.accumulate(np.where(starts_of_ray, np.arange(len(step)), 0))
-    depth = depth - (depth[base] - step[base])
+    winner = stretch_materials(hits.ray, hits.body, hits.entering,
+                               precedence=np.arange(int(hits.body.max()) + 1))
     same_ray = hits.ray[1:] == hits.ray[:-1]
-    keep = same_ray & (depth[:-1] > 0)
-    idx = np.flatnonzero(keep)
+    idx = np.flatnonzero(same_ray & (winner[:-1] >= 0))
     return hits.point[idx], hits.point[idx + 1], hits.ray[idx]
 
 
@@ -284,21 +282,13 @@ def attenuation_profile(scene, hits: Hits, t_max: float, *, energy=None) -> Atte
     if energy is None:
         energy = scene.source.energy if scene.source.energy is not None else 60.0
     mu_b = body_mu(scene, [energy])[0] if scene.bodies else np.zeros(0)
-    prec = np.asarray(scene.precedence) if scene.bodies else np.zeros(0)
-    inside = np.zeros(len(scene.bodies), np.int64)
-    t = [0.0]
-    body = []
-    current = -1
-    for tk, bk, ek in zip(hits.t, hits.body, hits.entering):
-        body.append(current)
-        t.append(float(tk))
-        inside[bk] += 1 if ek else -1
-        active = np.flatnonzero(inside > 0)
-        current = int(active[np.argmax(prec[active])]) if len(active) else -1
-    body.append(current)
-    t.append(float(t_max))
-    t = np.asarray(t)
-    body = np.asarray(body, dtype=np.int64)
+    from xray_viz.attenuation import stretch_materials
+
+    prec = np.asarray(scene.precedence) if scene.bodies else np.zeros(0, np.int64)
+    after = stretch_materials(np.zeros(len(hits), np.int64), hits.body, hits.entering,
+                              precedence=prec)
+    t = np.concatenate([[0.0], np.asarray(hits.t, dtype=np.float64), [float(t_max)]])
+    body = np.concatenate([[-1], after]).astype(np.int64)
     mu = np.where(body >= 0, mu_b[np.maximum(body, 0)] if len(mu_b) else 0.0, 0.0)
     line_integral = float(np.sum(mu * np.diff(t)) / MM_PER_CM)
     return AttenuationProfile(t=t, mu=mu, body=body, line_integral=line_integral,

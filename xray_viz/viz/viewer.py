@@ -85,12 +85,6 @@ VIEW_BOX = (0.02, 0.35, 0.98, 0.84)
 BODIES_VIEW_BOX = (0.3, 0.35, 0.98, 0.84)
 
 
-def _rotation_about(axis, angle_deg, point) -> np.ndarray:
-    import trimesh
-
-    return trimesh.transformations.rotation_matrix(math.radians(angle_deg), axis, point)
-
-
 class Viewer:
     """The scene in 3D, its radiograph live beside it, and the controls.
 
@@ -186,17 +180,16 @@ class Viewer:
         shape = (max(2, round(w * scale)), max(2, round(h * scale)))
         detector = det.from_size(det.center, det.up, shape, det.size) if shape != det.shape \
             else det
-        bodies = base.bodies
-        if self.rotation % 360 != 0 and bodies:
-            turned = getattr(self, "_turned", None)
-            if turned is None or turned[0] != self.rotation:   # keep them while other controls move
-                lo = np.min([b.vertices.min(axis=0) for b in bodies], axis=0)
-                hi = np.max([b.vertices.max(axis=0) for b in bodies], axis=0)
-                m = _rotation_about(det.up, self.rotation, (lo + hi) / 2)
-                turned = (self.rotation, base.transform_bodies(m).bodies)
-                self._turned = turned
-            bodies = turned[1]
-        return base.replace(source=source, detector=detector, bodies=bodies)
+        from xray_viz.geometry import Acquisition
+
+        acquisition = Acquisition(source=source, detector=detector)
+        if self.rotation % 360 != 0 and len(base.bodies):
+            # Turning the bodies by +angle is seeing them from a source and detector turned by
+            # -angle: the bodies, and all their per-mesh set-up, stay as they are.
+            box = base.bodies.bounds
+            centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2
+            acquisition = acquisition.rotated(-self.rotation, axis=det.up, center=centre)
+        return base.replace(acquisition=acquisition)
 
     def update(self) -> None:
         """Rebuild the scene from the controls, re-render and redraw (keeps a picked pixel)."""
@@ -226,7 +219,9 @@ class Viewer:
         self.update()
 
     def set_body_rotation(self, degrees: float) -> None:
-        """Turn every body by ``degrees`` about the detector's up axis through their centre."""
+        """See the bodies turned by ``degrees`` about the detector's up axis through their
+        centre: the source and the detector orbit the other way (the bodies and their
+        per-mesh set-up stay as they are)."""
         if float(degrees) == self.rotation:
             return
         self.rotation = float(degrees)

@@ -1,0 +1,165 @@
+"""The import graph of xray_viz is one-way, as ARCHITECTURE.md draws it.
+
+Every ``import`` of the package is read from the source (module level and inside functions,
+so lazy imports count too) and the graph is checked: no cycle anywhere, and each layer
+imports only the layers below it.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "xray_viz"
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(name: str, path: Path) -> tuple[set[str], set[str]]:
+    """``(xray_viz modules, top-level third-party packages)`` imported by one module."""
+    ours, theirs = set(), set()
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(up + ([base] if base else []))
+            subs = [f"{base}.{a.name}" for a in node.names]
+            # ``from package import module`` imports the module (its package's __init__ runs
+            # first, as for every import, and is not counted); a name defined in the package
+            # itself is an import of the package
+            targets = subs + ([base] if any(t not in MODULES for t in subs) else [])
+        for t in targets:
+            if t.split(".")[0] != "xray_viz":
+                theirs.add(t.split(".")[0])
+                continue
+            while t not in MODULES and "." in t:
+                t = t.rsplit(".", 1)[0]
+            if t != name and t in MODULES:
+                ours.add(t)
+    return ours, theirs
+
+
+GRAPH = {}
+THIRD_PARTY = {}
+for _name, _path in MODULES.items():
+    GRAPH[_name], THIRD_PARTY[_name] = _imports(_name, _path)
+
+
+def _cycles(graph) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_reader_sees_the_imports_it_must():
+    """The checks below mean something: the reader finds known imports, lazy ones included."""
+    assert "xray_viz.tracing.engines" in GRAPH["xray_viz.render"]
+    assert "xray_viz.bodies" in GRAPH["xray_viz.scene"]                     # a lazy import
+    assert "xray_viz.tracing._raster" in GRAPH["xray_viz.tracing.fast"]
+    assert "numba" in THIRD_PARTY["xray_viz.tracing.fast"]
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == [["a", "b", "c"]]
+
+
+def test_no_import_cycle():
+    assert _cycles(GRAPH) == []
+
+
+def _reaches(start: str) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        for w in GRAPH[todo.pop()]:
+            if w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return seen
+
+
+@pytest.mark.parametrize("module, forbidden", [
+    # how bodies are imaged knows nothing of the meshes, the tracers or the physics
+    ("xray_viz.geometry", ("xray_viz.scene", "xray_viz.bodies", "xray_viz.tracing",
+                           "xray_viz.physics", "xray_viz.meshes", "xray_viz.render")),
+    # the tracers know rays and triangles, not scenes, images or viewers
+    ("xray_viz.tracing", ("xray_viz.scene", "xray_viz.render", "xray_viz.physics",
+                          "xray_viz.viz", "xray_viz.output", "xray_viz.cli")),
+    ("xray_viz.tracing.engines", ("xray_viz.scene", "xray_viz.render", "xray_viz.physics",
+                                  "xray_viz.viz")),
+    ("xray_viz.attenuation", ("xray_viz.scene", "xray_viz.render", "xray_viz.tracing.fast",
+                              "xray_viz.viz", "xray_viz.physics")),
+    # what is imaged does not depend on how it is imaged, nor on the physics
+    ("xray_viz.bodies", ("xray_viz.scene", "xray_viz.render", "xray_viz.physics",
+                         "xray_viz.tracing.fast", "xray_viz.viz")),
+    ("xray_viz.physics.imaging", ("xray_viz.render", "xray_viz.scene", "xray_viz.tracing",
+                                  "xray_viz.viz")),
+    ("xray_viz.scene", ("xray_viz.render", "xray_viz.tracing.fast", "xray_viz.viz",
+                        "xray_viz.output")),
+    ("xray_viz.render", ("xray_viz.viz", "xray_viz.cli", "xray_viz.output")),
+])
+def test_layers_import_only_what_is_below_them(module, forbidden):
+    reached = _reaches(module)
+    bad = sorted(m for m in reached for f in forbidden if m == f or m.startswith(f + "."))
+    assert bad == [], f"{module} reaches {bad}"
+
+
+@pytest.mark.parametrize("prefix", ["xray_viz.tracing", "xray_viz.physics",
+                                    "xray_viz.attenuation", "xray_viz.geometry",
+                                    "xray_viz.bodies"])
+def test_no_vtk_in_the_tracer_or_the_physics(prefix):
+    """The tracers and the physics run without a render window: no VTK or PyVista import."""
+    for name in MODULES:
+        if name == prefix or name.startswith(prefix + "."):
+            reached = {name} | _reaches(name)
+            heavy = {p for m in reached for p in THIRD_PARTY[m]} & {"vtk", "vtkmodules",
+                                                                   "pyvista"}
+            assert not heavy, f"{name} imports {sorted(heavy)}"
+
+
+def test_no_module_level_caches_keyed_by_mesh_identity():
+    """What is derived from meshes lives on the Bodies that own them (issue 13): no module
+    keeps dictionaries keyed by ``id(mesh)``."""
+    for name, path in MODULES.items():
+        text = path.read_text(encoding="utf-8")
+        assert "id(mesh)" not in text and "id(b.mesh)" not in text, name
