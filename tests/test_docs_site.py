@@ -49,7 +49,8 @@ DOCS = REPO / "docs"
 API_MODULES = [
     "xray_viz", "xray_viz.scene", "xray_viz.geometry", "xray_viz.tracing",
     "xray_viz.tracing.intersect", "xray_viz.tracing.hits", "xray_viz.tracing.candidates",
-    "xray_viz.tracing.fast", "xray_viz.attenuation", "xray_viz.physics",
+    "xray_viz.tracing.fast", "xray_viz.tracing.engines", "xray_viz.tracing.reference",
+    "xray_viz.attenuation", "xray_viz.physics",
     "xray_viz.physics.imaging", "xray_viz.physics.materials", "xray_viz.physics.spectra",
     "xray_viz.physics.detector", "xray_viz.physics.dosimetry", "xray_viz.physics.heel",
     "xray_viz.bodies",
@@ -281,6 +282,8 @@ def test_readme_and_benchmarks_are_pages(site):
     assert len(plots) == 2
     for src in plots:
         _check_png(_local(page, src))
+    arch = "".join(_parse(site.page("architecture.html").read_text(encoding="utf-8")).text)
+    assert "Where a CT orbit goes" in arch and "tracing.engines" in arch
 
 
 def test_how_it_works_has_a_page_per_stage_with_the_equations(site):

@@ -129,7 +129,7 @@ class Bodies(Sequence):
         if reports is not None:
             reports = tuple(reports)
             if len(reports) != len(bodies):
-                raise ValueError("Bodies: one report per body")
+                raise SceneError("Bodies: one report per body")
         elif check:
             checked = [_traceable(b, where) for b in bodies]
             bodies = tuple(b for b, _ in checked)

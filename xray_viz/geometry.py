@@ -26,6 +26,8 @@ from functools import cached_property
 
 import numpy as np
 
+from xray_viz.errors import SceneError
+
 __all__ = ["Acquisition", "DetectorFrame", "FineGrid", "Viewport", "viewport", "detector_axes",
            "beam_direction", "pixel_coordinates", "detector_rays", "Rays", "check_supersample",
            "beam_planes", "boxes_outside_beam", "row_range", "UP_TOLERANCE"]
@@ -40,8 +42,6 @@ def beam_direction(source_position, detector_center) -> np.ndarray:
     fl = np.asarray(source_position, float) - np.asarray(detector_center, float)
     norm = np.linalg.norm(fl)
     if norm == 0:
-        from xray_viz.errors import SceneError
-
         raise SceneError("the source sits at the detector centre: FL = r0 - center is zero")
     return -fl / norm
 
@@ -105,8 +105,6 @@ def detector_axes(source_position, detector_center, up) -> tuple[np.ndarray, np.
     ho_dir = np.cross(forward, up)
     norm = np.linalg.norm(ho_dir)
     if not norm >= UP_TOLERANCE * np.linalg.norm(up):
-        from xray_viz.errors import SceneError
-
         raise SceneError(f"[detector] up {up.tolist()} is parallel to the beam (source -> "
                          "detector centre); choose an up vector across the beam")
     ho_dir /= norm
@@ -199,8 +197,6 @@ def check_supersample(value, *, name: str = "supersample") -> int:
 
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) \
             or value < 1:
-        from xray_viz.errors import SceneError
-
         raise SceneError(f"{name} must be a whole number >= 1 (an int), got {value!r} "
                          f"({type(value).__name__})")
     return int(value)
@@ -212,16 +208,16 @@ def row_range(rows, h):
         return 0, h
     if isinstance(rows, slice):
         if rows.step not in (None, 1):
-            raise ValueError(f"rows must be a contiguous range of image rows, got {rows!r}")
+            raise SceneError(f"rows must be a contiguous range of image rows, got {rows!r}")
         start, stop, _ = rows.indices(h)
     elif isinstance(rows, range):
         if rows.step != 1:
-            raise ValueError(f"rows must be a contiguous range of image rows, got {rows!r}")
+            raise SceneError(f"rows must be a contiguous range of image rows, got {rows!r}")
         start, stop = rows.start, rows.stop
     else:
         start, stop = (int(r) for r in rows)
     if not 0 <= start <= stop <= h:
-        raise ValueError(f"rows {start}..{stop} are not within the detector's {h} rows")
+        raise SceneError(f"rows {start}..{stop} are not within the detector's {h} rows")
     return start, stop
 
 
@@ -533,8 +529,6 @@ class Acquisition:
         """
         import dataclasses
         import math
-
-        from xray_viz.errors import SceneError
 
         a = np.asarray(axis, np.float64).reshape(-1)
         if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.linalg.norm(a) > 0:

@@ -126,7 +126,7 @@ class Radiograph:
         """
         if self._path_length is None:
             if self.scene is None:
-                raise ValueError("this Radiograph has no scene to trace its path lengths from")
+                raise SceneError("this Radiograph has no scene to trace its path lengths from")
             n = self.supersample
             check_memory(self.scene, supersample=n, engine=self.engine, path_lengths=True,
                          images=False)
@@ -144,7 +144,7 @@ class Radiograph:
             return self.line_integral
         if name in ("path-length", "path_length"):
             return self.total_path_length
-        raise ValueError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
+        raise SceneError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
 
 
 def _band_rows(scene, engine, n) -> int:

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from xray_viz.errors import SceneError, SceneFileNotFoundError, XrayVizError
+from xray_viz.physics.spectra import DEFAULT_ENERGY
 
 __all__ = ["Source", "Detector", "Body", "Scene", "load_scene", "scene_from_dict"]
 
@@ -294,7 +295,7 @@ class Source:
 
     position: np.ndarray
     kind: str = "point"
-    energy: float | None = 60.0
+    energy: float | None = DEFAULT_ENERGY
     spectrum: dict | None = None
     mas: float | None = None
     heel: bool | str = False
@@ -500,6 +501,48 @@ def _shape(value) -> tuple[int, int]:
     return shape
 
 
+def _check_body_values(where: str, mu, material, density):
+    """The value rules of a body's material keys, shared by :class:`Body` and the scene-file
+    reader (one validation path): ``(mu, density)`` as floats.
+
+    Raises
+    ------
+    SceneError
+        Neither or both of ``mu`` and ``material``, ``mu < 0``, ``density <= 0``, a density
+        with ``mu``, a material that is neither a string nor a mapping.
+    MaterialError
+        An unknown material, a bad mixture, or a formula without a density.
+    """
+    if mu is None and material is None:
+        raise SceneError(f"{where}needs 'mu' (linear attenuation coefficient, 1/cm) or "
+                         "'material'")
+    if mu is not None and material is not None:
+        raise SceneError(f"{where}gives both 'mu' and 'material'; use one")
+    mu = _real(mu, f"{where}mu (1/cm)", optional=True)
+    if mu is not None and not mu >= 0:
+        raise SceneError(f"{where}mu must be >= 0 (1/cm), got {mu:g}")
+    density = _real(density, f"{where}density (g/cm3)", optional=True)
+    if density is not None and not density > 0:
+        raise SceneError(f"{where}density must be > 0 g/cm3, got {density:g}")
+    if density is not None and mu is not None:
+        raise SceneError(f"{where}gives 'density' with 'mu'; density goes with 'material'")
+    if material is not None:
+        from collections.abc import Mapping
+
+        from xray_viz.errors import MaterialError
+        from xray_viz.physics.materials import check_material
+
+        if not isinstance(material, (str, Mapping)):
+            raise SceneError(f"{where}material must be a name or formula string, or a mapping "
+                             f"of mass fractions such as {{ H2O = 0.9, NaCl = 0.1 }}; got "
+                             f"{_shown(material)}")
+        try:
+            check_material(material, density=density)
+        except MaterialError as exc:
+            raise MaterialError(f"{where}{exc}") from None
+    return mu, density
+
+
 @dataclass(frozen=True, eq=False)
 class Body:
     """A closed triangle mesh filled with one material.
@@ -547,33 +590,9 @@ class Body:
     def __post_init__(self):
         check_name(self.name)
         where = f"body {self.name!r}: "
-        if self.mu is None and self.material is None:
-            raise SceneError(f"{where}give 'mu' (1/cm) or 'material'")
-        if self.mu is not None and self.material is not None:
-            raise SceneError(f"{where}gives both 'mu' and 'material'; use one")
-        mu = _real(self.mu, f"{where}mu (1/cm)", optional=True)
-        if mu is not None and not mu >= 0:
-            raise SceneError(f"{where}mu must be >= 0 (1/cm), got {mu:g}")
-        density = _real(self.density, f"{where}density (g/cm3)", optional=True)
-        if density is not None and not density > 0:
-            raise SceneError(f"{where}density must be > 0 g/cm3, got {density:g}")
-        if density is not None and mu is not None:
-            raise SceneError(f"{where}gives 'density' with 'mu'; density goes with 'material'")
+        mu, density = _check_body_values(where, self.mu, self.material, self.density)
         object.__setattr__(self, "mu", mu)
         object.__setattr__(self, "density", density)
-        if self.material is not None:
-            from collections.abc import Mapping
-
-            from xray_viz.errors import MaterialError
-            from xray_viz.physics.materials import check_material
-
-            if not isinstance(self.material, (str, Mapping)):
-                raise SceneError(f"{where}material must be a name or formula string, or a "
-                                 f"mapping of mass fractions; got {_shown(self.material)}")
-            try:
-                check_material(self.material, density=density)
-            except MaterialError as exc:
-                raise MaterialError(f"{where}{exc}") from None
         if not (hasattr(self.mesh, "vertices") and hasattr(self.mesh, "faces")):
             raise SceneError(f"{where}mesh must be a triangle mesh (trimesh.Trimesh), got "
                              f"{type(self.mesh).__name__}")
@@ -1160,26 +1179,17 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     mesh_name = t.string("mesh", required=True)
     if not mesh_name.strip():
         t.fail(f"{label} mesh must name a mesh file, got {mesh_name!r}")
-    mu = t.number("mu", nonnegative=True)
+    mu = t.number("mu")                                  # types here, values in Body's rules
     material = t.raw("material")
-    if material is not None and not isinstance(material, (str, dict)):
-        t.fail(f"material must be a name or formula string, or a table of mass fractions such as "
-               f"{{ H2O = 0.9, NaCl = 0.1 }}; got {material!r}")
-    density = t.number("density", positive=True)
-    if mu is not None and material is not None:
-        t.fail("gives both 'mu' and 'material'; use one")
-    if mu is None and material is None:
-        t.fail("needs 'mu' (linear attenuation coefficient, 1/cm) or 'material'")
-    if mu is not None and density is not None:
-        t.fail("gives 'density' with 'mu'; density goes with 'material'")
-    if material is not None:
-        from xray_viz.errors import MaterialError
-        from xray_viz.physics.materials import check_material
+    density = t.number("density")
+    from xray_viz.errors import MaterialError
 
-        try:
-            check_material(material, density=density)
-        except MaterialError as exc:
-            t.fail(f"{label}: {exc}")
+    try:
+        mu, density = _check_body_values("", mu, material, density)
+    except MaterialError as exc:
+        t.fail(f"{label}: {exc}")
+    except SceneError as exc:
+        t.fail(str(exc))
     position = t.vector("position", 3)
     rotation = None
     if t.has("rotation"):
@@ -1245,7 +1255,7 @@ def _check_material_energies(src: _Table, energy, spectrum, bodies) -> None:
     why = (f"outside {lo:g}-{hi:g} keV, the range of xraylib's attenuation tables that {who} "
            f"needs")
     if spectrum is None:
-        e = 60.0 if energy is None else energy
+        e = DEFAULT_ENERGY if energy is None else energy
         if not lo <= e <= hi:
             src.fail(f"energy {e:g} keV is {why}; use an energy in that range, or give such "
                      f"bodies a constant mu (1/cm)")
@@ -1280,7 +1290,8 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     position = src.vector("position", 3, required=True)
     kind = src.string("kind", default="point", choices=("point", "parallel"))
     spectrum = src.raw("spectrum")
-    energy = src.number("energy", default=None if spectrum is not None else 60.0, positive=True)
+    energy = src.number("energy", default=None if spectrum is not None else DEFAULT_ENERGY,
+                        positive=True)
     if spectrum is not None and src.has("energy"):
         src.fail("gives both 'energy' and 'spectrum'; use one")
     mas = src.number("mas", positive=True)
@@ -1306,14 +1317,10 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     center = det.vector("center", 3, required=True)
     up = det.vector("up", 3, default=np.array([0.0, 1.0, 0.0]))
     shape = det.vector("shape", 2, required=True, integer=True)
-    if np.any(shape < 1):
-        det.fail(f"shape must be >= 1 pixel each way, got {shape.tolist()}")
     if det.has("pitch") and det.has("size"):
         det.fail("gives both 'pitch' and 'size'; use one")
     if not det.has("pitch") and not det.has("size"):
         det.fail("is missing the required key 'pitch' (mm between rays) or 'size' ([|HO|, |VE|] mm)")
-    if not np.any(up):
-        det.fail("up must be a non-zero vector")
     if det.has("size"):
         size = det.vector("size", 2, positive=True)
         pitch = size / np.maximum(shape - 1, 1)
@@ -1363,6 +1370,14 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         except SpectrumError as exc:
             src.fail(str(exc))
     det.done()
+    # the value rules are the dataclasses' own: a bad value is reported before any mesh loads
+    try:
+        source = Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas,
+                        heel=heel)
+        detector = Detector(center=center, up=up, shape=tuple(shape.tolist()),
+                            pitch=tuple(pitch), **options)
+    except SceneError as exc:
+        raise SceneError(f"{file}: {exc}" if file else str(exc)) from None
 
     raw_bodies = top.raw("body", default=[])
     if not isinstance(raw_bodies, list):
@@ -1379,14 +1394,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     try:
         bodies = Bodies(bodies, where=f"{file}: " if file else "",
                         reports=[r for _, r in parsed])
-        scene = Scene(
-            source=Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas,
-                          heel=heel),
-            detector=Detector(center=center, up=up, shape=tuple(shape), pitch=tuple(pitch),
-                              **options),
-            bodies=bodies,
-            path=file,
-        )
+        scene = Scene(source=source, detector=detector, bodies=bodies, path=file)
     except SceneError as exc:
         msg = str(exc)
         if file and not msg.startswith(str(file)):

@@ -138,3 +138,7 @@ def _half_value_layers(energies_kev, fluence, mu_per_mm, muen=None):
     h1 = _attenuation_to_half(w, mu_per_mm, 0.5)
     q = _attenuation_to_half(w, mu_per_mm, 0.25)
     return h1, q - h1
+
+
+# Documented and exported by xray_viz.physics.dosimetry (as numpy's ``set_module`` does).
+air_mass_energy_absorption.__module__ = "xray_viz.physics.dosimetry"

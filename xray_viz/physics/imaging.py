@@ -31,6 +31,8 @@ import math
 
 import numpy as np
 
+from xray_viz.errors import SceneError
+
 __all__ = ["body_mu", "log_transmission", "log_variance_transmission", "transmission",
            "pixel_log_mean", "pixel_log_transmission", "ray_weights", "detect", "detect_log",
            "flat_field", "detector_weights", "falloff_factor",
@@ -97,7 +99,7 @@ def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
 
         w = w * spectrum.energies * air_mass_energy_absorption(spectrum.energies)
     elif response != "counting":
-        raise ValueError(f"detector response must be 'energy', 'counting' or 'kerma', got "
+        raise SceneError(f"detector response must be 'energy', 'counting' or 'kerma', got "
                          f"{response!r}")
     return w / w.sum()
 
@@ -169,7 +171,7 @@ def _rays_per_pixel(scene, rows, n_rays) -> tuple[int, int]:
     w = scene.detector.shape[0]
     n_pixels = (stop - start) * w
     if n_rays % n_pixels:
-        raise ValueError(f"{n_rays} rays do not cover image rows {start}:{stop} ({n_pixels} "
+        raise SceneError(f"{n_rays} rays do not cover image rows {start}:{stop} ({n_pixels} "
                          "pixels) in detector_rays order")
     return start * w, n_rays // n_pixels
 

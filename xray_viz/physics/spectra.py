@@ -65,10 +65,14 @@ import numpy as np
 
 from xray_viz.errors import SceneFileNotFoundError, SpectrumError, excerpt
 
+#: Photon energy (keV) of a source that gives neither ``energy`` nor ``spectrum``, and the
+#: energy at which per-ray figures of a polychromatic source are shown when one is needed.
+DEFAULT_ENERGY = 60.0
+
 __all__ = ["Spectrum", "BeamQuality", "tube_spectrum", "quality_spectrum", "read_spectrum_csv",
-           "read_columns",
-           "spectrum_from_dict", "source_spectrum", "UnfilteredSpectrumWarning", "SPECTRUM_KEYS",
-           "ANODES", "KVP_RANGE", "IEC61267_QUALITIES", "IEC61267_EDITION"]
+           "read_columns", "spectrum_from_dict", "source_spectrum", "UnfilteredSpectrumWarning",
+           "SPECTRUM_KEYS", "ANODES", "KVP_RANGE", "IEC61267_QUALITIES", "IEC61267_EDITION",
+           "DEFAULT_ENERGY"]
 
 
 class UnfilteredSpectrumWarning(UserWarning):
@@ -790,7 +794,7 @@ def source_spectrum(source) -> Spectrum:
     """
     spec = source.spectrum
     if spec is None:
-        return _mono_cached(float(source.energy if source.energy is not None else 60.0))
+        return _mono_cached(float(source.energy if source.energy is not None else DEFAULT_ENERGY))
     if isinstance(spec, Spectrum):
         return spec
     d = _validated(spec)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from xray_viz.errors import SceneError
 from xray_viz.geometry import detector_rays
 from xray_viz.tracing import Hits, trace_rays
 
@@ -56,7 +57,7 @@ def pixel_ray_index(shape, i, j) -> np.ndarray:
     i = np.asarray(i, dtype=np.int64)
     j = np.asarray(j, dtype=np.int64)
     if np.any((i < 0) | (i >= w) | (j < 0) | (j >= h)):
-        raise ValueError(f"pixel (i, j) outside a {w} x {h} detector: i={i}, j={j}")
+        raise SceneError(f"pixel (i, j) outside a {w} x {h} detector: i={i}, j={j}")
     return (h - 1 - j) * w + i
 
 
@@ -107,24 +108,24 @@ def select_pixels(shape, rays) -> tuple[np.ndarray, np.ndarray]:
             return np.array([(w - 1) // 2]), np.array([(h - 1) // 2])
         m = re.fullmatch(r"(every|grid|row|column)\s+(\d+)", spec)
         if not m:
-            raise ValueError(f"rays must be 'every K', 'grid N', 'row J', 'column I', 'center', "
+            raise SceneError(f"rays must be 'every K', 'grid N', 'row J', 'column I', 'center', "
                              f"'none' or a list of (i, j) pixels; got {rays!r}")
         what, n = m.group(1), int(m.group(2))
         if what == "every":
             if n < 1:
-                raise ValueError(f"rays 'every K' needs K >= 1, got {n}")
+                raise SceneError(f"rays 'every K' needs K >= 1, got {n}")
             ii, jj = np.meshgrid(np.arange(0, w, n), np.arange(0, h, n), indexing="ij")
         elif what == "grid":
             if n < 1:
-                raise ValueError(f"rays 'grid N' needs N >= 1, got {n}")
+                raise SceneError(f"rays 'grid N' needs N >= 1, got {n}")
             ii, jj = np.meshgrid(_even_indices(w, n), _even_indices(h, n), indexing="ij")
         elif what == "row":
             if n >= h:
-                raise ValueError(f"row {n} outside a detector {h} pixels high")
+                raise SceneError(f"row {n} outside a detector {h} pixels high")
             ii, jj = np.arange(w), np.full(w, n)
         else:
             if n >= w:
-                raise ValueError(f"column {n} outside a detector {w} pixels wide")
+                raise SceneError(f"column {n} outside a detector {w} pixels wide")
             ii, jj = np.full(h, n), np.arange(h)
         return ii.ravel().astype(np.int64), jj.ravel().astype(np.int64)
     pix = np.asarray(rays, dtype=np.int64).reshape(-1, 2)
@@ -280,7 +281,9 @@ def attenuation_profile(scene, hits: Hits, t_max: float, *, energy=None) -> Atte
     from xray_viz.physics.imaging import MM_PER_CM, body_mu
 
     if energy is None:
-        energy = scene.source.energy if scene.source.energy is not None else 60.0
+        from xray_viz.physics.spectra import DEFAULT_ENERGY
+
+        energy = scene.source.energy if scene.source.energy is not None else DEFAULT_ENERGY
     mu_b = body_mu(scene, [energy])[0] if scene.bodies else np.zeros(0)
     from xray_viz.attenuation import stretch_materials
 

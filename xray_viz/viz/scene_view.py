@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyvista as pv
 
+from xray_viz.errors import SceneError
 from xray_viz.geometry import pixel_coordinates, viewport
 from xray_viz.viz.rays import RaySelection, inside_segments, trace_selection
 
@@ -356,7 +357,7 @@ class SceneView:
         """Show or hide a group: ``"bodies"``, ``"source"``, ``"detector"``, ``"grid"``,
         ``"vectors"``, ``"frustum"``, ``"rays"``, ``"hits"`` or ``"picked"``."""
         if group not in GROUPS:
-            raise ValueError(f"unknown group {group!r}; choose one of {', '.join(GROUPS)}")
+            raise SceneError(f"unknown group {group!r}; choose one of {', '.join(GROUPS)}")
         self.show[group] = bool(visible)
         if group == "hits":
             names = GROUPS["hits"] + ("picked-entry", "picked-exit")

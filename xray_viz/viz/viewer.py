@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pyvista as pv
 
+from xray_viz.errors import SceneError
 from xray_viz.geometry import viewport
 from xray_viz.viz.rays import attenuation_profile, effective_energy, pixel_ray_index
 from xray_viz.viz.scene_view import plot_scene
@@ -124,7 +125,10 @@ class Viewer:
         self.axis = -vp.forward                          # unit(FL): detector centre -> source
         self.source_distance = float(np.linalg.norm(vp.FL))
         self.rotation = 0.0
-        self.energy = float(scene.source.energy) if scene.source.energy is not None else 60.0
+        from xray_viz.physics.spectra import DEFAULT_ENERGY
+
+        self.energy = float(scene.source.energy if scene.source.energy is not None
+                            else DEFAULT_ENERGY)
         self.kvp = None
         #: The source's spectrum when it is fixed (a CSV file's, or a Spectrum given through
         #: the API): no energy or kVp control then. None for a tube spectrum (the kVp slider)
@@ -212,7 +216,7 @@ class Viewer:
         """Move the source along the beam axis to ``distance`` mm from the detector centre."""
         distance = float(distance)
         if not distance > 0:
-            raise ValueError(f"source distance must be > 0 mm, got {distance}")
+            raise SceneError(f"source distance must be > 0 mm, got {distance}")
         if distance == self.source_distance:
             return
         self.source_distance = distance
@@ -236,7 +240,7 @@ class Viewer:
             When the source has a spectrum (set its kVp with :meth:`set_kvp` if it is a tube's).
         """
         if self.kvp is not None or self.fixed_spectrum is not None:
-            raise ValueError(f"the source has a spectrum ({self._beam_text()}), not one energy"
+            raise SceneError(f"the source has a spectrum ({self._beam_text()}), not one energy"
                              + ("; use set_kvp" if self.kvp is not None else ""))
         if float(kev) == self.energy:
             return
@@ -263,7 +267,7 @@ class Viewer:
         image's range until it is set)."""
         window = float(window)
         if not window > 0:
-            raise ValueError(f"window must be > 0, got {window}")
+            raise SceneError(f"window must be > 0, got {window}")
         self.set_window_level(window, self.view.level)
 
     def set_level(self, level: float) -> None:
