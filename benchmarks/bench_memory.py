@@ -33,7 +33,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 #: The child: write the job's scene, run the CLI, print peak RSS (bytes) and seconds as JSON.
@@ -90,7 +89,7 @@ def write_scene(kind: str, shape: int, bodies: int, folder) -> Path:
         radius = 0.35 * spacing
         out = ["[source]", "position = [0.0, 0.0, 1000.0]", "energy = 60.0", "",
                "[detector]", "center = [0.0, 0.0, -100.0]", "up = [0.0, 1.0, 0.0]",
-               f"shape = [{shape}, {shape}]", f"size = [120.0, 120.0]", ""]
+               f"shape = [{shape}, {shape}]", "size = [120.0, 120.0]", ""]
         for b in range(bodies):
             x = (b % k - (k - 1) / 2) * spacing
             y = (b // k - (k - 1) / 2) * spacing
@@ -174,7 +173,6 @@ def main(argv=None):
           "| seconds |")
     print("| --- | ---: | ---: | --- | ---: | ---: | ---: |")
     for kind, shape, nb, engine in jobs:
-        t0 = time.perf_counter()
         r = median_job(kind, shape, nb, engine, args.repeat, args.python)
         if r is None:
             print(f"| {kind} | {nb} | {shape}^2 | {engine} | failed | | |", flush=True)

@@ -253,7 +253,6 @@ def shepp_logan_scene(meshes, shape):
     import dataclasses
 
     import xray_viz
-    from xray_viz.scene import Body
 
     base = xray_viz.load_scene("shepp_logan")
     by_name = {b.name: b for b in base.bodies}
@@ -560,7 +559,7 @@ def _pareto_shepp_logan(*, repeat, subdivisions, shape, supersamples, decimation
                              quantity="line integral -ln(I/I0)", hausdorff_mm=hausdorff,
                              precedence_matches_analytic=precedence_ok,
                              max_line_integral=float(truth.max())))
-        del scene, meshes               # 13M faces at subdivision 8: free them before the next
+        scene = meshes = None           # 13M faces at subdivision 8: free them before the next
         gc.collect()
     return rows
 

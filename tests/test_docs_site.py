@@ -20,9 +20,7 @@ import http.server
 import importlib
 import importlib.util
 import inspect
-import io
 import json
-import os
 import re
 import shutil
 import subprocess

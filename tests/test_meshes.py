@@ -24,7 +24,7 @@ from xray_viz.meshes import (
     load_mesh,
     repair_mesh,
 )
-from xray_viz.meshes.command import add_mesh_parser, mesh_command
+from xray_viz.meshes.command import add_mesh_parser
 from helpers import ball_union_chord
 
 R = 40.0

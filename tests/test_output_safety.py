@@ -33,7 +33,7 @@ from xray_viz.cli import main
 from xray_viz.errors import MeshError, OutputError, SpectrumError, excerpt, one_line
 from xray_viz.meshes import load_mesh
 from xray_viz.physics.spectra import read_spectrum_csv
-from xray_viz.output import _write_protected, load_image, save_image, to_uint16
+from xray_viz.output import _write_protected, save_image, to_uint16
 from helpers import write_scene
 from test_scene_file import GOOD
 

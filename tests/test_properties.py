@@ -32,7 +32,6 @@ of every test, and the tests marked ``slow`` (``-m slow``) add long runs on larg
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np

@@ -1,7 +1,6 @@
 """What the viewer draws is what the geometry and the tracer computed; widgets update it."""
 
 import argparse
-import dataclasses
 
 import numpy as np
 import pytest

@@ -140,6 +140,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``xray-viz`` argument parser with every subcommand."""
     parser = _Parser(
         prog="xray-viz", description=DESCRIPTION, epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -61,23 +61,23 @@ class WriteInterrupted(SystemExit):
 
 
 def excerpt(text, limit: int = 40) -> str:
-    """A short, escaped quotation of untrusted text (a line of a user's file) for a message.
+    r"""A short, escaped quotation of untrusted text (a line of a user's file) for a message.
 
     The first ``limit`` characters, quoted and escaped as :func:`repr` does (control
-    characters, newlines and other unprintable characters become ``\\x01``, ``\\n``, ...;
+    characters, newlines and other unprintable characters become ``\x01``, ``\n``, ...;
     printable non-ASCII text stays readable), followed by ``...`` and the full length when
     the text was cut. Bytes are quoted as bytes (``b'...'``). The result is one line of bounded
-    length (at most ``10 * limit + 30`` characters, the longest escape being ``\\U0001xxxx``),
+    length (at most ``10 * limit + 30`` characters, the longest escape being ``\U0001xxxx``),
     whatever the input.
 
     Examples
     --------
     >>> excerpt("0.5x")
     "'0.5x'"
-    >>> excerpt("A" * 100 + "\\x1b[31m", limit=5)
+    >>> excerpt("A" * 100 + "\x1b[31m", limit=5)
     "'AAAAA'... (105 characters)"
-    >>> excerpt("tab\\there")
-    "'tab\\\\there'"
+    >>> excerpt("tab\there")
+    "'tab\\there'"
     """
     if not isinstance(text, (str, bytes)):
         text = str(text)
@@ -88,7 +88,7 @@ def excerpt(text, limit: int = 40) -> str:
 
 
 def one_line(text, limit: int = 200) -> str:
-    """Another library's error message made safe to print as part of one line.
+    r"""Another library's error message made safe to print as part of one line.
 
     Runs of white space (newlines, tabs) become one space, other unprintable characters are
     escaped as :func:`repr` escapes them, and the result is cut to ``limit`` characters with
@@ -97,8 +97,8 @@ def one_line(text, limit: int = 200) -> str:
 
     Examples
     --------
-    >>> one_line("bad token\\n  at line 3:\\x07 " + "x" * 300, limit=30)
-    'bad token at line 3:\\\\x07 xx...'
+    >>> one_line("bad token\n  at line 3:\x07 " + "x" * 300, limit=30)
+    'bad token at line 3:\\x07 xx...'
     """
     if isinstance(text, bytes):
         text = text.decode("utf-8", errors="backslashreplace")

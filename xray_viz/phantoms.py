@@ -12,7 +12,6 @@ True
 
 from __future__ import annotations
 
-import tomllib
 from importlib import resources
 from pathlib import Path
 

@@ -227,6 +227,7 @@ class Spectrum:
 
     @property
     def max_energy(self) -> float:
+        """Energy (keV) of the highest bin."""
         return float(self.energies[-1])
 
 
@@ -610,13 +611,13 @@ def _read_csv_cached(path: str, mtime_ns: int, size: int) -> Spectrum:
 
 
 def read_spectrum_csv(path) -> Spectrum:
-    """Read a two-column CSV spectrum (keV, relative fluence per bin); cached until the file changes.
+    r"""Read a two-column CSV spectrum (keV, relative fluence per bin); cached until the file changes.
 
     Examples
     --------
     >>> import tempfile, pathlib
     >>> p = pathlib.Path(tempfile.mkdtemp()) / "s.csv"
-    >>> _ = p.write_text("keV,fluence\\n50,1\\n70,3\\n")
+    >>> _ = p.write_text("keV,fluence\n50,1\n70,3\n")
     >>> read_spectrum_csv(p).weights.tolist()
     [0.25, 0.75]
     """

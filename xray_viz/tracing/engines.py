@@ -105,6 +105,7 @@ class NumpyEngine:
         yield from numpy_rows(_Imaged(bodies, acquisition), supersample=n, rows=rows)
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
+        """``(L, hits or None)`` of a scene (see :class:`Engine`)."""
         n = check_supersample(supersample)
         return numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
 
@@ -134,6 +135,7 @@ class FastEngine:
         yield from trace_rows(_Imaged(bodies, acquisition), supersample=supersample, rows=rows)
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
+        """``(L, hits or None)`` of a scene; ``keep_hits`` asks the NumPy engine for the hits."""
         from xray_viz.tracing.fast import fast_path_lengths
 
         return fast_path_lengths(scene, supersample=supersample, keep_hits=keep_hits)

@@ -387,6 +387,7 @@ class Viewer:
         self.plotter.show()
 
     def close(self) -> None:
+        """Close the window and free the render window."""
         self.plotter.close()
 
     # ------------------------------------------------------------------ widgets
