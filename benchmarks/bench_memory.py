@@ -62,23 +62,16 @@ def write_scene(kind: str, shape: int, bodies: int, folder) -> Path:
 
     folder = Path(folder)
     if kind == "frog":
-        from xray_viz import phantoms
+        import dataclasses
 
-        src = phantoms.scene_path("frog")
-        text = src.read_text()
-        lines = []
-        for line in text.splitlines():
-            key = line.split("=")[0].strip()
-            if key == "shape":
-                line = f"shape = [{shape}, {shape}]"
-            elif key == "pitch":
-                line = f"pitch = {0.274 * 511 / (shape - 1)!r}"
-            elif key == "mesh":
-                rel = line.split("=", 1)[1].strip().strip('"')
-                line = f'mesh = "{(src.parent / rel).as_posix()}"'
-            lines.append(line)
+        import xray_viz
+
+        scene = xray_viz.load_scene("frog")
+        pitch = 0.274 * 511 / (shape - 1)
+        scene = scene.replace(detector=dataclasses.replace(
+            scene.detector, shape=(shape, shape), pitch=(pitch, pitch)))
         path = folder / f"frog_{shape}.toml"
-        path.write_text("\n".join(lines) + "\n")
+        path.write_text(scene.to_toml())         # the frog's meshes by absolute path
         return path
     if kind in ("balls", "baseline"):
         ball = folder / "ball.stl"
@@ -87,16 +80,17 @@ def write_scene(kind: str, shape: int, bodies: int, folder) -> Path:
         k = int(np.ceil(np.sqrt(bodies)))
         spacing = 100.0 / k                               # a 100 mm field
         radius = 0.35 * spacing
-        out = ["[source]", "position = [0.0, 0.0, 1000.0]", "energy = 60.0", "",
-               "[detector]", "center = [0.0, 0.0, -100.0]", "up = [0.0, 1.0, 0.0]",
-               f"shape = [{shape}, {shape}]", "size = [120.0, 120.0]", ""]
-        for b in range(bodies):
-            x = (b % k - (k - 1) / 2) * spacing
-            y = (b // k - (k - 1) / 2) * spacing
-            out += ["[[body]]", f'name = "ball{b}"', f'mesh = "{ball.as_posix()}"',
-                    "mu = 0.2", f"position = [{x!r}, {y!r}, 0.0]", f"scale = {radius!r}", ""]
+        import tomli_w
+
+        doc = {"source": {"position": [0.0, 0.0, 1000.0], "energy": 60.0},
+               "detector": {"center": [0.0, 0.0, -100.0], "up": [0.0, 1.0, 0.0],
+                            "shape": [shape, shape], "size": [120.0, 120.0]},
+               "body": [{"name": f"ball{b}", "mesh": ball.as_posix(), "mu": 0.2,
+                         "position": [(b % k - (k - 1) / 2) * spacing,
+                                      (b // k - (k - 1) / 2) * spacing, 0.0],
+                         "scale": radius} for b in range(bodies)]}
         path = folder / f"{kind}_{bodies}_{shape}.toml"
-        path.write_text("\n".join(out))
+        path.write_text(tomli_w.dumps(doc))
         return path
     raise ValueError(kind)
 

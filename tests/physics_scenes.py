@@ -2,40 +2,40 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 import trimesh
 
 import xray_viz
 
 
-def _toml_value(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float, np.integer, np.floating)):
-        return repr(float(value)) if isinstance(value, (float, np.floating)) else str(int(value))
-    if isinstance(value, str):
-        return json.dumps(value)
+def _plain(value):
+    """NumPy numbers and arrays as the Python values a TOML writer takes."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
     if isinstance(value, dict):
-        return "{ " + ", ".join(f"{json.dumps(str(k))} = {_toml_value(v)}"
-                                for k, v in value.items()) + " }"
-    return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
 
 
 def write_scene(tmp_path: Path, *, source: dict, detector: dict, bodies=(), name="scene"):
-    """Write meshes and a TOML scene; ``bodies`` are ``(name, trimesh, {key: value})``."""
-    lines = ["[source]"] + [f"{k} = {_toml_value(v)}" for k, v in source.items()]
-    lines += ["", "[detector]"] + [f"{k} = {_toml_value(v)}" for k, v in detector.items()]
+    """Write meshes and a TOML scene (tomli-w); ``bodies`` are ``(name, trimesh, {key: value})``."""
+    doc = {"source": _plain(source), "detector": _plain(detector)}
+    entries = []
     for body_name, mesh, keys in bodies:
         mesh_file = f"{name}_{body_name}.stl"
         mesh.export(tmp_path / mesh_file)
-        lines += ["", "[[body]]", f"name = {json.dumps(body_name)}",
-                  f"mesh = {json.dumps(mesh_file)}"]
-        lines += [f"{k} = {_toml_value(v)}" for k, v in keys.items()]
+        entries.append({"name": body_name, "mesh": mesh_file, **_plain(keys)})
+    if entries:
+        doc["body"] = entries
     path = tmp_path / f"{name}.toml"
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text(tomli_w.dumps(doc))
     return path
 
 
