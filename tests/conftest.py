@@ -4,6 +4,10 @@ pytest-pyvista's cached images in tests/image_cache/."""
 import os
 import sys
 
+# Mesh reports are not read from or kept on disk during tests (tests/test_report_cache.py turns
+# it on in a temporary folder): a test that changes the checker's behaviour must see it run.
+os.environ["XRAY_VIZ_CACHE_DIR"] = "off"
+
 # Read by PyVista at import and by VTK when it creates a render window.
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):

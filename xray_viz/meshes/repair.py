@@ -186,7 +186,7 @@ class RepairReport:
         return format_reports([("before", self.before), ("after", self.after)], changes=self.changes)
 
 
-def check_mesh(mesh) -> MeshReport:
+def check_mesh(mesh, *, cache: bool = True) -> MeshReport:
     """Report whether a mesh is closed and outward, using trimesh's cheap properties.
 
     A closed mesh of several pieces is read by the nonzero rule (see the module docstring):
@@ -198,6 +198,11 @@ def check_mesh(mesh) -> MeshReport:
     ----------
     mesh : trimesh.Trimesh
         The mesh to check (not modified).
+    cache : bool, optional
+        Read and keep the report on disk by content hash (the mesh's arrays and the checking
+        code: :mod:`xray_viz.meshes._report_cache`), so that loading the same mesh again costs
+        a hash instead of the checks (seconds for a million faces). ``XRAY_VIZ_CACHE_DIR=off``
+        turns it off everywhere.
 
     Returns
     -------
@@ -210,7 +215,19 @@ def check_mesh(mesh) -> MeshReport:
     >>> report.watertight, report.outward, round(report.volume)
     (True, True, 6000)
     """
-    return _check_mesh(mesh)
+    if not cache:
+        return _check_mesh(mesh)
+    from xray_viz.meshes import _report_cache
+
+    try:
+        key = _report_cache.mesh_key(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    except (TypeError, ValueError):          # not arrays of numbers: the check's message
+        return _check_mesh(mesh)
+    report = _report_cache.load(key, MeshReport)
+    if report is None:
+        report = _check_mesh(mesh)
+        _report_cache.store(key, report)
+    return report
 
 
 def _check_mesh(mesh) -> MeshReport:

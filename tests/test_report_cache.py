@@ -1,0 +1,87 @@
+"""Mesh reports kept on disk by content hash (xray_viz.meshes._report_cache)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+import xray_viz
+from xray_viz.meshes import _report_cache, repair
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    folder = tmp_path / "cache"
+    monkeypatch.setenv("XRAY_VIZ_CACHE_DIR", str(folder))
+    calls = []
+    real = repair._check_mesh
+    monkeypatch.setattr(repair, "_check_mesh", lambda mesh: calls.append(1) or real(mesh))
+    return folder / "mesh-reports", calls
+
+
+def test_the_same_mesh_is_checked_once_whatever_the_object(cache):
+    folder, calls = cache
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    first = repair.check_mesh(ball)
+    again = repair.check_mesh(trimesh.Trimesh(ball.vertices.copy(), ball.faces.copy(),
+                                              process=False))
+    assert calls == [1] and again == first and len(list(folder.glob("*.json"))) == 1
+    # a different mesh (one vertex moved) is checked
+    moved = ball.copy()
+    moved.vertices[0] += 0.5
+    assert repair.check_mesh(moved).volume != first.volume and calls == [1, 1]
+
+
+def test_a_report_agrees_with_the_checker_on_a_broken_mesh(cache):
+    folder, calls = cache
+    box = trimesh.creation.box(extents=[4, 5, 6])
+    open_box = trimesh.Trimesh(box.vertices, box.faces[1:], process=False)
+    a = repair.check_mesh(open_box)
+    b = repair.check_mesh(open_box)
+    assert a == b == repair.check_mesh(open_box, cache=False) and not a.watertight
+    assert calls == [1, 1]                      # the third was cache=False
+
+
+def test_a_corrupt_or_foreign_file_is_ignored_and_replaced(cache):
+    folder, calls = cache
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=5.0)
+    good = repair.check_mesh(ball)
+    (path,) = folder.glob("*.json")
+    for text in ("{not json", json.dumps({"format": 99, "report": {}}),
+                 json.dumps({"format": _report_cache.FORMAT, "report": {"faces": 1}})):
+        path.write_text(text)
+        assert repair.check_mesh(ball) == good
+    assert len(calls) == 4
+    assert json.loads(path.read_text())["format"] == _report_cache.FORMAT
+
+
+def test_the_checker_code_is_part_of_the_key(cache, monkeypatch):
+    folder, calls = cache
+    v, f = np.zeros((3, 3)), np.array([[0, 1, 2]])
+    key = _report_cache.mesh_key(v, f)
+    _report_cache._checker_digest.cache_clear()
+    monkeypatch.setattr(_report_cache, "_checker_digest", lambda: b"another checker")
+    assert _report_cache.mesh_key(v, f) != key
+
+
+def test_off_and_unwritable_places_only_cost_time(tmp_path, monkeypatch):
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=5.0)
+    monkeypatch.setenv("XRAY_VIZ_CACHE_DIR", "off")
+    assert _report_cache.cache_dir() is None and repair.check_mesh(ball).watertight
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    monkeypatch.setenv("XRAY_VIZ_CACHE_DIR", str(blocked))
+    assert repair.check_mesh(ball).watertight            # nothing written, no error
+
+
+def test_a_scene_loads_from_stored_reports(cache):
+    folder, calls = cache
+    first = xray_viz.load_scene("nested_spheres")
+    n = len(calls)
+    again = xray_viz.load_scene("nested_spheres")
+    assert n >= len(first.bodies) and len(calls) == n        # the second load checked nothing
+    assert again.bodies.reports == first.bodies.reports
+    assert np.array_equal(xray_viz.render(again).intensity, xray_viz.render(first).intensity)

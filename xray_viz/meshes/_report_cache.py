@@ -1,0 +1,104 @@
+"""Mesh reports kept on disk by content hash, so that loading the same mesh again is free.
+
+:func:`xray_viz.meshes.repair.check_mesh` of a big mesh is the slowest part of loading a scene
+(the self-intersection test of a 1.3M-face sphere alone takes seconds). Its report depends only
+on the vertex and face arrays and on the checking code, so it is stored under the SHA-256 of
+``(the arrays' bytes, shapes, dtypes, and the source of xray_viz/meshes/repair.py)``: a changed
+mesh or a changed checker never reads an old report.
+
+Where: ``$XRAY_VIZ_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/xray_viz`` or
+``~/.cache/xray_viz``, in ``mesh-reports/``. ``XRAY_VIZ_CACHE_DIR=off`` (or a place that cannot
+be written) turns it off: reports are then computed every time, nothing else changes. Files
+are written to a temporary name and renamed, and a file that does not parse is ignored (and
+replaced), so a killed process or a corrupt file never gives a wrong report.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+#: Bumped when the stored format changes.
+FORMAT = 1
+
+
+def cache_dir() -> Path | None:
+    """The folder of the stored reports, or None when caching is off."""
+    env = os.environ.get("XRAY_VIZ_CACHE_DIR")
+    if env is not None and env.strip().lower() in ("", "0", "off", "no", "false", "none"):
+        return None
+    if env:
+        base = Path(env)
+    else:
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        base = Path(xdg) / "xray_viz" if xdg else Path.home() / ".cache" / "xray_viz"
+    return base / "mesh-reports"
+
+
+@lru_cache(maxsize=1)
+def _checker_digest() -> bytes:
+    """SHA-256 of the checking code: a change of it invalidates every stored report."""
+    from xray_viz.meshes import repair
+
+    return hashlib.sha256(Path(repair.__file__).read_bytes()).digest()
+
+
+def mesh_key(vertices, faces) -> str:
+    """Hex SHA-256 of a mesh's arrays and of the checking code."""
+    h = hashlib.sha256()
+    h.update(f"xray_viz mesh report {FORMAT}".encode())
+    h.update(_checker_digest())
+    for a in (vertices, faces):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def load(key: str, report_type):
+    """The stored report of ``key`` (a ``report_type``), or None."""
+    folder = cache_dir()
+    if folder is None:
+        return None
+    try:
+        data = json.loads((folder / f"{key}.json").read_text(encoding="utf-8"))
+        if data.get("format") != FORMAT:
+            return None
+        fields = {f.name for f in dataclasses.fields(report_type)}
+        values = data["report"]
+        if set(values) != fields:
+            return None
+        return report_type(**{k: tuple(v) if isinstance(v, list) else v
+                              for k, v in values.items()})
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def store(key: str, report) -> None:
+    """Keep ``report`` for ``key`` (silently nothing where the folder cannot be written)."""
+    folder = cache_dir()
+    if folder is None:
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        text = json.dumps({"format": FORMAT, "report": dataclasses.asdict(report)})
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key[:16]}-", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+            os.replace(tmp, folder / f"{key}.json")
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+    except OSError:
+        return
