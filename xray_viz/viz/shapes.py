@@ -212,7 +212,7 @@ def viewport_vectors(viewport) -> dict:
 
 
 def viewport_arrows(viewport) -> dict:
-    """``{name: PolyData}``: the :func:`viewport_vectors` as :func:`line_arrow` s.
+    """``{name: PolyData}``: the :func:`viewport_vectors` drawn by :func:`line_arrow`.
 
     The tips are sized by the detector, not by ``|FL|`` (the same arrows on a 1 m or a 10 cm
     beam): a tenth of its shorter side long, 0.28 of that in radius.
