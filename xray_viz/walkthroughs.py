@@ -515,7 +515,8 @@ def walkthrough_command(args) -> int:
 
 
 def arrow(start, end, *, tip=None, shaft=None):
-    """A :func:`pyvista.Arrow` from ``start`` to ``end`` whose tip keeps a fixed size.
+    """A :func:`pyvista.Arrow` from ``start`` to ``end`` whose tip keeps a fixed size
+    (:func:`xray_viz.viz.shapes.solid_arrow`).
 
     Parameters
     ----------
@@ -530,36 +531,22 @@ def arrow(start, end, *, tip=None, shaft=None):
     -------
     pyvista.PolyData
     """
-    import numpy as np
-    import pyvista as pv
+    from xray_viz.viz.shapes import solid_arrow
 
-    start = np.asarray(start, float)
-    vec = np.asarray(end, float) - start
-    length = float(np.linalg.norm(vec))
-    tip = 0.12 * length if tip is None else float(tip)
-    tip = min(tip, length / 3)
-    shaft = tip / 8 if shaft is None else float(shaft)
-    return pv.Arrow(start=start, direction=vec, scale=length, tip_length=tip / length,
-                    tip_radius=0.35 * tip / length, shaft_radius=shaft / length)
+    return solid_arrow(start, end, tip=tip, shaft=shaft)
 
 
 def polyline(points):
-    """A :class:`pyvista.PolyData` line through ``points`` ((n, 3) float), in order."""
-    import numpy as np
-    import pyvista as pv
+    """A :class:`pyvista.PolyData` line through ``points`` ((n, 3) float), in order
+    (:func:`xray_viz.viz.shapes.polyline`)."""
+    from xray_viz.viz.shapes import polyline as _polyline
 
-    return pv.lines_from_points(np.asarray(points, float))
+    return _polyline(points)
 
 
 def segments(starts, ends):
-    """Many separate line segments ``starts[k] -> ends[k]`` as one :class:`pyvista.PolyData`."""
-    import numpy as np
-    import pyvista as pv
+    """Many separate line segments ``starts[k] -> ends[k]`` as one :class:`pyvista.PolyData`
+    (:func:`xray_viz.viz.shapes.segments`, as the scene view draws its rays)."""
+    from xray_viz.viz.shapes import segments as _segments
 
-    starts = np.asarray(starts, float).reshape(-1, 3)
-    ends = np.asarray(ends, float).reshape(-1, 3)
-    n = len(starts)
-    pts = np.empty((2 * n, 3))
-    pts[0::2], pts[1::2] = starts, ends
-    cells = np.column_stack([np.full(n, 2), 2 * np.arange(n), 2 * np.arange(n) + 1]).ravel()
-    return pv.PolyData(pts, lines=cells)
+    return _segments(starts, ends)

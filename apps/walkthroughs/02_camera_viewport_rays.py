@@ -25,6 +25,8 @@ import numpy as np
 
 import xray_viz
 from xray_viz.scene import Detector, Source
+from xray_viz.viz.shapes import detector_quad
+from xray_viz.viz.style import COLORS
 from xray_viz.walkthroughs import new_plotter, segments, show_or_save
 
 WALKTHROUGH = 2
@@ -87,12 +89,10 @@ print(f"backward: {len(rays)} rays, exactly one per pixel, every one reaches the
 
 def draw_common(plotter):
     plotter.add_mesh(scene.bodies[0].mesh, color="wheat", opacity=0.35)
-    corners = np.array([vp.point(0, 0), vp.point(1, 0), vp.point(1, 1), vp.point(0, 1)])
-    import pyvista as pv
-
-    plane = pv.PolyData(corners, faces=[4, 0, 1, 2, 3])
-    plotter.add_mesh(plane, color="lightsteelblue", opacity=0.6, show_edges=True)
-    plotter.add_points(vp.r0[None], color="gold", point_size=20, render_points_as_spheres=True)
+    # the detector: the quadrilateral LHC, LHC + HO, LHC + HO + VE, LHC + VE
+    plotter.add_mesh(detector_quad(vp), color="lightsteelblue", opacity=0.6, show_edges=True)
+    plotter.add_points(vp.r0[None], color=COLORS["source"], point_size=20,
+                       render_points_as_spheres=True)
     plotter.add_point_labels([vp.r0 + [0, 0, 30], vp.point(1, 1) + [0, 0, -25]],
                              ["source r0 (camera)", "detector (viewport)"], font_size=16,
                              point_size=1, shape_opacity=0.0, always_visible=True)

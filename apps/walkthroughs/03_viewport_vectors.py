@@ -33,6 +33,7 @@ import numpy as np
 
 import xray_viz
 from xray_viz.scene import Detector
+from xray_viz.viz.shapes import detector_quad
 from xray_viz.walkthroughs import arrow, new_plotter, show_or_save
 
 WALKTHROUGH = 3
@@ -62,12 +63,9 @@ print(f"HO.VE = {vp.HO @ vp.VE:.1f}, HO.FL = {vp.HO @ vp.FL:.1f}, VE.FL = {vp.VE
 # HO (red) and VE (green) drawn from the corner along the viewport's edges, FL (blue) from the
 # centre to the camera, LHC (black) from the origin to the corner, and the vector
 # LHC - r0 (grey) from the camera to the same corner.
-import pyvista as pv  # noqa: E402
-
 plotter = new_plotter()
-corners = np.array([corner, corner + vp.HO, corner + vp.HO + vp.VE, corner + vp.VE])
-plotter.add_mesh(pv.PolyData(corners, faces=[4, 0, 1, 2, 3]), color="lightsteelblue",
-                 opacity=0.5, show_edges=True)
+# the viewport: the quadrilateral LHC, LHC + HO, LHC + HO + VE, LHC + VE
+plotter.add_mesh(detector_quad(vp), color="lightsteelblue", opacity=0.5, show_edges=True)
 plotter.add_mesh(arrow(corner, corner + vp.HO, tip=12), color="red")
 plotter.add_mesh(arrow(corner, corner + vp.VE, tip=12), color="green")
 plotter.add_mesh(arrow(centre, r0, tip=12), color="blue")

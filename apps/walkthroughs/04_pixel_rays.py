@@ -29,6 +29,8 @@ import numpy as np
 import xray_viz
 from xray_viz.geometry import pixel_coordinates
 from xray_viz.scene import Detector, Scene, Source
+from xray_viz.viz.shapes import detector_quad
+from xray_viz.viz.style import COLORS
 from xray_viz.walkthroughs import arrow, new_plotter, segments, show_or_save
 
 WALKTHROUGH = 4
@@ -108,15 +110,11 @@ for label, r0, center in (("camera at the origin", [0.0, 0.0, 0.0], [0.0, 0.0, -
 # built from LHC - r0 (black), :math:`u_i` HO (red) and :math:`v_j` VE (green); the ray is blue.
 # Right: the camera away from the origin. Correct rays (blue) end on their pixels; the printed
 # Eq. 1.5's rays (red) start at the camera and leave in the wrong direction.
-import pyvista as pv  # noqa: E402
-
-
 def draw_viewport(plotter, vp, grid):
-    c = np.array([vp.point(0, 0), vp.point(1, 0), vp.point(1, 1), vp.point(0, 1)])
-    plotter.add_mesh(pv.PolyData(c, faces=[4, 0, 1, 2, 3]), color="lightsteelblue", opacity=0.5,
-                     show_edges=True)
+    plotter.add_mesh(detector_quad(vp), color="lightsteelblue", opacity=0.5, show_edges=True)
     plotter.add_points(grid, color="navy", point_size=10, render_points_as_spheres=True)
-    plotter.add_points(vp.r0[None], color="gold", point_size=18, render_points_as_spheres=True)
+    plotter.add_points(vp.r0[None], color=COLORS["source"], point_size=18,
+                       render_points_as_spheres=True)
     plotter.add_points(np.zeros((1, 3)), color="black", point_size=10,
                        render_points_as_spheres=True)
 

@@ -18,6 +18,11 @@ and in the right subplot the radiograph, row 0 at the top as in the image arrays
 own colour bar (round ticks, :func:`colorbar_ticks`) and window/level (shown as ``W=..., L=...``
 in its title; :meth:`SceneView.set_window_level`). It can also be draped on the detector plane
 as a texture.
+
+:class:`SceneView` keeps the actors, their groups and toggles and redraws them
+(:meth:`SceneView.set_scene`); the shapes it draws come from :mod:`xray_viz.viz.shapes`, their
+colours, widths and fonts from :mod:`xray_viz.viz.style`, and where the camera goes from
+:mod:`xray_viz.viz.camera` (NumPy only, tested without VTK).
 """
 
 from __future__ import annotations
@@ -29,43 +34,15 @@ import numpy as np
 import pyvista as pv
 
 from xray_viz.errors import SceneError
-from xray_viz.geometry import pixel_coordinates, viewport
+from xray_viz.geometry import viewport
+from xray_viz.viz import camera, shapes
 from xray_viz.viz.rays import RaySelection, inside_segments, trace_selection
+# the look of the view, importable from here as before
+from xray_viz.viz.style import (ARROW_WIDTH, BODY_SPECULAR, COLORS, CORNER_FONT, FONT_SIZES,
+                                LEGEND, LINE_WIDTHS, OPACITY, PALETTE, material_color)  # noqa: F401
 
 __all__ = ["SceneView", "plot_scene", "material_label", "grid_indices", "image_to_grid",
            "quantity_title", "window_level_limits", "colorbar_ticks"]
-
-#: Colours of what the viewer marks: the source, rays, hits, the picked ray and the HO, VE,
-#: FL and LHC arrows. None of them is a material colour (:data:`PALETTE`), so a marker never
-#: reads as a material: yellow for the source and rays, black for the ray inside the bodies,
-#: bright green and sky blue for the entry and exit glyphs, magenta for the picked ray, red
-#: and green (darker) for the viewport edges HO and VE, black and grey for FL and LHC.
-COLORS = {
-    "source": "gold",
-    "detector": "#9aa4b1",
-    "grid": "#303841",
-    "ray": "#e0c000",
-    "inside": "#1a1a1a",
-    "entry": "#00d000",
-    "exit": "#00b0ff",
-    "picked": "magenta",
-    "frustum": "#888888",
-    "HO": "#e00000",
-    "VE": "#008f00",
-    "FL": "#1a1a1a",
-    "LHC": "#7f7f7f",
-}
-
-#: Colours given to materials in order of appearance: matplotlib's tab10 and tab20b without
-#: the reds, greens, cyans, yellows, greys and magentas of :data:`COLORS`.
-PALETTE = ("#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#393b79", "#e7969c", "#c49c94",
-           "#6b6ecf", "#7b4173")
-
-#: Width in pixels of the HO, VE, FL and LHC arrows' shafts.
-ARROW_WIDTH = 3
-
-#: Font size of the radiograph's corner labels, (0, 0) and (W - 1, H - 1).
-CORNER_FONT = 14
 
 #: Actor names of each toggleable group of the 3D view.
 GROUPS = {
@@ -224,38 +201,6 @@ def image_to_grid(image, *, name="value") -> pv.ImageData:
     return grid
 
 
-def _arrow(start, vector, *, tip: float, tip_radius: float) -> pv.PolyData:
-    """An arrow from ``start`` along ``vector``: a line for the shaft (drawn a fixed number
-    of pixels wide, so it is neither invisible far away nor a fat cylinder beside the
-    camera) and a cone ``tip`` mm long (at most 40% of the arrow) of radius ``tip_radius``."""
-    start = np.asarray(start, float)
-    vector = np.asarray(vector, float)
-    tip = min(float(tip), 0.4 * float(np.linalg.norm(vector)))
-    unit = vector / max(float(np.linalg.norm(vector)), 1e-300)
-    end = start + vector
-    shaft = pv.Line(start, end - tip * unit)
-    cone = pv.Cone(center=end - 0.5 * tip * unit, direction=unit, height=tip,
-                   radius=float(tip_radius), resolution=24)
-    return shaft.append_polydata(cone)
-
-
-def _lines(starts, ends) -> pv.PolyData:
-    starts = np.asarray(starts, float).reshape(-1, 3)
-    ends = np.asarray(ends, float).reshape(-1, 3)
-    n = len(starts)
-    points = np.empty((2 * n, 3))
-    points[0::2], points[1::2] = starts, ends
-    cells = np.column_stack([np.full(n, 2), np.arange(0, 2 * n, 2), np.arange(1, 2 * n, 2)])
-    return pv.PolyData(points, lines=cells.ravel()) if n else pv.PolyData()
-
-
-def _glyphs(points, geom) -> pv.PolyData:
-    points = np.asarray(points, float).reshape(-1, 3)
-    if not len(points):
-        return pv.PolyData()
-    return pv.PolyData(points).glyph(geom=geom, scale=False, orient=False)
-
-
 @dataclass
 class SceneView:
     """The plotter of :func:`plot_scene` and the names of what it drew, for updates.
@@ -298,7 +243,7 @@ class SceneView:
     zoom: float = 1.0
     status: str = ""
     slider_band: float = 0.0
-    view_box: tuple = (0.02, 0.06, 0.98, 0.8)
+    view_box: tuple = camera.SIDE_VIEW_BOX
     bodies_view_box: tuple | None = None
     camera_view: str = "side"
     _camera_set: bool = False
@@ -312,8 +257,7 @@ class SceneView:
     @property
     def size_scale(self) -> float:
         """A length (mm) that sets marker and arrow-tip sizes: 1/40 of the scene's extent."""
-        vp = self.viewport
-        return max(np.linalg.norm(vp.FL), np.linalg.norm(vp.HO), np.linalg.norm(vp.VE)) / 40
+        return camera.scene_scale(self.viewport)
 
     @property
     def bodies_bounds(self):
@@ -403,7 +347,7 @@ class SceneView:
         drawn = getattr(self, "_drawn_bodies", {})
         for body in self.scene.bodies:
             label = material_label(body)
-            color = labels.setdefault(label, PALETTE[len(labels) % len(PALETTE)])
+            color = labels.setdefault(label, material_color(len(labels)))
             name = f"body:{body.name}"
             try:
                 key = (id(body.mesh), hash(body.mesh), color)
@@ -411,26 +355,23 @@ class SceneView:
                 key = None
             if key is not None and drawn.get(name) == key and name in self.plotter.actors:
                 continue        # the same mesh in the same colour (the source moved): keep it
-            mesh = pv.PolyData.from_regular_faces(body.vertices, body.faces)
-            self._add(name, mesh, group="bodies", color=color, opacity=0.35,
-                      smooth_shading=True, specular=0.3)
+            mesh = shapes.body_surface(body.vertices, body.faces)
+            self._add(name, mesh, group="bodies", color=color, opacity=OPACITY["body"],
+                      smooth_shading=True, specular=BODY_SPECULAR)
             drawn[name] = key
         self._drawn_bodies = drawn
         self.material_colors = labels
 
     def _draw_source(self):
-        vp = self.viewport
-        marker = pv.Sphere(radius=0.4 * self.size_scale, center=vp.r0)
+        marker = shapes.source_marker(self.viewport.r0, radius=0.4 * self.size_scale)
         self._add("source", marker, group="source", color=COLORS["source"])
 
     def _draw_detector(self):
         vp = self.viewport
         w, h = vp.shape
-        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.HO + vp.VE, vp.LHC + vp.VE])
         # The plane sits a hair behind the pixel positions so the grid lines stay visible.
         back = vp.forward * 1e-3 * self.size_scale
-        plane = pv.PolyData(corners + back, faces=[4, 0, 1, 2, 3])
-        plane.active_texture_coordinates = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+        plane = shapes.detector_plane(vp, offset=back)
         if self.texture and self.radiograph is not None:
             image = self.radiograph.quantity(self.quantity)
             lo, hi = window_level_limits(image, window=self.window, level=self.level)
@@ -443,18 +384,15 @@ class SceneView:
                       lighting=False)
         else:
             self._add("detector", plane, group="detector", color=COLORS["detector"],
-                      opacity=0.45, lighting=False)
+                      opacity=OPACITY["detector"], lighting=False)
         ii = grid_indices(w, max_lines=self.max_grid_lines)
         jj = grid_indices(h, max_lines=self.max_grid_lines)
-        u, v = pixel_coordinates((w, h))
-        uu = u[0, ii]                         # u of columns ii
-        vv = v[::-1, 0][jj]                   # v of rows-from-bottom jj
-        pts = vp.LHC + uu[:, None, None] * vp.HO + vv[None, :, None] * vp.VE   # (ni, nj, 3)
-        grid = pv.StructuredGrid(pts[..., 0][..., None], pts[..., 1][..., None],
-                                 pts[..., 2][..., None])
+        grid = shapes.pixel_grid(vp, ii, jj)
         self.grid_ij = (ii, jj)
+        dense = len(ii) > OPACITY["grid_dense_lines"]
         self._add("grid", grid, group="grid", style="wireframe", color=COLORS["grid"],
-                  line_width=1, lighting=False, opacity=0.7 if len(ii) > 12 else 1.0)
+                  line_width=LINE_WIDTHS["grid"], lighting=False,
+                  opacity=OPACITY["grid_dense"] if dense else OPACITY["grid"])
         if len(ii) < w or len(jj) < h:
             si, sj = (int(ii[1] - ii[0]) if len(ii) > 1 else 1,
                       int(jj[1] - jj[0]) if len(jj) > 1 else 1)
@@ -464,29 +402,23 @@ class SceneView:
         else:
             self.grid_label = f"pixel grid: all {w} x {h} rays"
         self.plotter.subplot(*self.subplot_3d)
-        self._text(self.grid_label, (0.01, 0.008), "grid-label", font_size=8,
-                   vertical="bottom")
+        self._text(self.grid_label, (0.01, 0.008), "grid-label",
+                   font_size=FONT_SIZES["grid_label"], vertical="bottom")
 
     #: Where along each arrow its label sits by default (fraction from its start).
     LABEL_AT = {"HO": 0.6, "VE": 0.6, "FL": 0.5, "LHC": 0.35}
 
     def _vector_arrows(self):
         """``{name: (start, vector)}`` of the HO, VE, FL and LHC arrows (thesis Figure 1.3)."""
-        vp = self.viewport
-        center = vp.LHC + vp.HO / 2 + vp.VE / 2
-        return {"HO": (vp.LHC, vp.HO), "VE": (vp.LHC, vp.VE), "FL": (center, vp.FL),
-                "LHC": (vp.r0, vp.LHC - vp.r0)}
+        return shapes.viewport_vectors(self.viewport)
 
     def _draw_vectors(self):
-        vp = self.viewport
         # Tips sized by the detector, not by |FL| (the same arrows on a 1 m or a 10 cm
         # beam); shafts are lines ARROW_WIDTH pixels wide: visible in the whole-set-up view,
         # not fat cylinders where the FL and LHC arrows run past the camera of the close-up.
-        det = float(min(np.linalg.norm(vp.HO), np.linalg.norm(vp.VE)))
-        tip = 0.1 * det
-        for key, (start, vec) in self._vector_arrows().items():
-            self._add(f"vec:{key}", _arrow(start, vec, tip=tip, tip_radius=0.28 * tip),
-                      group="vectors", color=COLORS[key], line_width=ARROW_WIDTH)
+        for key, arrow in shapes.viewport_arrows(self.viewport).items():
+            self._add(f"vec:{key}", arrow, group="vectors", color=COLORS[key],
+                      line_width=ARROW_WIDTH)
         self._draw_vector_labels()
 
     def _world_to_box(self, points) -> np.ndarray:
@@ -518,33 +450,23 @@ class SceneView:
                 xy = self._world_to_box(start + frac[:, None] * vec)
                 # in the view box if the arrow passes through it, else anywhere in the pane
                 box = getattr(self, "_framed_box", self.view_box)
-                for bx0, by0, bx1, by1 in (box, (0.0, 0.0, 1.0, 1.0)):
-                    inside = ((xy[:, 0] > bx0 + 0.03) & (xy[:, 0] < bx1 - 0.06)
-                              & (xy[:, 1] > by0 + 0.03) & (xy[:, 1] < by1 - 0.03))
-                    if inside.any():
-                        at = float(frac[inside][np.argmin(np.abs(frac[inside] - at))])
-                        break
+                at = camera.label_fraction(xy, frac, at, (box, camera.FULL_PANE))
             label_pts.append(start + at * vec)
             labels.append(key if key != "LHC" else "LHC - r0")
         label_pts.append(vp.r0)
         labels.append("r0 (source)")
         self.plotter.subplot(*self.subplot_3d)
         actor = self.plotter.add_point_labels(
-            np.asarray(label_pts), labels, font_size=12, bold=True, show_points=False,
-            shape_opacity=0.6, always_visible=True, name="vec-labels", reset_camera=False,
+            np.asarray(label_pts), labels, font_size=FONT_SIZES["vector_label"], bold=True,
+            show_points=False, shape_opacity=OPACITY["label_box"], always_visible=True, name="vec-labels", reset_camera=False,
             render=False)
         actor.SetVisibility(self.is_visible("vectors"))
         self.vector_label_points = dict(zip(labels, np.asarray(label_pts)))
 
     def _draw_frustum(self):
-        vp = self.viewport
-        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.HO + vp.VE, vp.LHC + vp.VE])
-        if self.scene.source.kind == "parallel":
-            starts = corners + vp.FL
-        else:
-            starts = np.repeat(vp.r0[None], 4, axis=0)
-        self._add("frustum", _lines(starts, corners), group="frustum",
-                  color=COLORS["frustum"], line_width=1)
+        lines = shapes.frustum(self.viewport, parallel=self.scene.source.kind == "parallel")
+        self._add("frustum", lines, group="frustum", color=COLORS["frustum"],
+                  line_width=LINE_WIDTHS["frustum"])
 
     def _ray_actors(self, sel: RaySelection, prefix: str, *, color, width):
         starts, ends, _ = inside_segments(sel.hits)
@@ -552,27 +474,28 @@ class SceneView:
         exit_ = sel.hits.point[~sel.hits.entering]
         r = self.glyph_radius
         group = "rays" if prefix == "rays" else "picked"
-        self._add(prefix, _lines(sel.origins, sel.ends), group=group, color=color,
+        self._add(prefix, shapes.segments(sel.origins, sel.ends), group=group, color=color,
                   line_width=width, lighting=False)
         # inside a body: a little wider than the ray, dark and half transparent, so the
         # body's own (material) colour still shows around and through it
-        self._add(f"{prefix}-inside", _lines(starts, ends), group=group,
-                  color=COLORS["inside"], line_width=width + 1, opacity=0.55, lighting=False)
+        self._add(f"{prefix}-inside", shapes.segments(starts, ends), group=group,
+                  color=COLORS["inside"], line_width=width + LINE_WIDTHS["inside_extra"],
+                  opacity=OPACITY["inside"], lighting=False)
         hits_group = "hits" if prefix == "rays" else "picked"
         name_entry = "hits-entry" if prefix == "rays" else "picked-entry"
         name_exit = "hits-exit" if prefix == "rays" else "picked-exit"
-        a = self._add(name_entry, _glyphs(entry, pv.Sphere(radius=r)), group=hits_group,
+        a = self._add(name_entry, shapes.entry_markers(entry, radius=r), group=hits_group,
                       color=COLORS["entry"])
-        b = self._add(name_exit, _glyphs(exit_, pv.Cube(x_length=1.6 * r, y_length=1.6 * r,
-                                                        z_length=1.6 * r)),
-                      group=hits_group, color=COLORS["exit"])
+        b = self._add(name_exit, shapes.exit_markers(exit_, radius=r), group=hits_group,
+                      color=COLORS["exit"])
         for actor in (a, b):
             if actor is not None and prefix != "rays":
                 actor.SetVisibility(self.is_visible("hits") and self.is_visible("picked"))
 
     def _draw_rays(self):
         self.selection = trace_selection(self.scene, self.rays)
-        self._ray_actors(self.selection, "rays", color=COLORS["ray"], width=1)
+        self._ray_actors(self.selection, "rays", color=COLORS["ray"],
+                         width=LINE_WIDTHS["ray"])
 
     def _draw_legend(self):
         self.plotter.subplot(*self.subplot_3d)
@@ -580,8 +503,10 @@ class SceneView:
         entries += [["source r0", COLORS["source"]], ["ray", COLORS["ray"]],
                     ["inside a body", COLORS["inside"]], ["entry hit (sphere)", COLORS["entry"]],
                     ["exit hit (cube)", COLORS["exit"]]]
-        self.plotter.add_legend(entries, bcolor="white", border=True, size=(0.28, min(0.3, 0.026 * len(entries))),
-                                loc="upper left", face="rectangle", background_opacity=0.7)
+        height = min(LEGEND["max_height"], LEGEND["entry_height"] * len(entries))
+        self.plotter.add_legend(entries, bcolor=LEGEND["bcolor"], border=True,
+                                size=(LEGEND["width"], height), loc=LEGEND["loc"],
+                                face=LEGEND["face"], background_opacity=OPACITY["legend"])
 
     def _draw_radiograph(self):
         """The image in the right subplot, laid out in fractions of the pane: the title on
@@ -608,7 +533,9 @@ class SceneView:
                     scalar_bar_args=dict(title=title, vertical=True, position_x=0.8,
                                          position_y=y0 + 0.05 * (y1 - y0),
                                          height=0.8 * (y1 - y0), width=0.05,
-                                         fmt="%.3g", title_font_size=12, label_font_size=11,
+                                         fmt="%.3g",
+                                         title_font_size=FONT_SIZES["colorbar_title"],
+                                         label_font_size=FONT_SIZES["colorbar_labels"],
                                          color="black", n_labels=5))
         # round ticks (0.2, 0.4, ...) rather than five evenly spaced odd values, and the
         # title clear of the top tick label
@@ -624,21 +551,18 @@ class SceneView:
         bar.SetLabelFormat(fmt)
         bar.SetVerticalTitleSeparation(int(0.6 * bar.GetTitleTextProperty().GetFontSize()) + 6)
         self.colorbar_labels = [fmt % t for t in ticks]
-        frame = pv.lines_from_points(np.array([[-.5, -.5, .05], [w - .5, -.5, .05],
-                                               [w - .5, h - .5, .05], [-.5, h - .5, .05],
-                                               [-.5, -.5, .05]]))
-        pl.add_mesh(frame, name="radiograph-frame", color="black", line_width=1,
+        frame = shapes.rectangle(-.5, -.5, w - .5, h - .5, .05)
+        pl.add_mesh(frame, name="radiograph-frame", color="black",
+                    line_width=LINE_WIDTHS["image_frame"],
                     lighting=False, reset_camera=False, render=False, pickable=False)
         # camera: parallel projection, the image centred in its box
-        aspect = self._pane_aspect()
-        scale = 0.5 * max(h / (y1 - y0), w / ((x1 - x0) * aspect))     # half the view height
-        cx = (w - 1) / 2 - ((x0 + x1) / 2 - 0.5) * 2 * scale * aspect
-        cy = (h - 1) / 2 - ((y0 + y1) / 2 - 0.5) * 2 * scale
+        framing = camera.image_view((h, w), aspect=self._pane_aspect(), box=(x0, y0, x1, y1))
+        scale = framing.parallel_scale
         pl.view_xy()
         pl.camera.parallel_projection = True
-        pl.camera.focal_point = (cx, cy, 0.0)
-        pl.camera.position = (cx, cy, 10.0 * max(w, h))
-        pl.camera.up = (0.0, 1.0, 0.0)
+        pl.camera.focal_point = tuple(framing.focal_point)
+        pl.camera.position = tuple(framing.position)
+        pl.camera.up = tuple(framing.up)
         pl.camera.parallel_scale = scale
         pl.reset_camera_clipping_range()
         # corner labels just outside the frame: (0, 0) below its lower-left corner,
@@ -661,7 +585,8 @@ class SceneView:
         # the render time last: its digits change from run to run, nothing after them moves
         lines.append(f"window/level {self.window_level_text};  engine {engine}: "
                      f"{total * 1000:.0f} ms")
-        self._text("\n".join(lines), (0.03, 0.985), "radiograph-title", font_size=8)
+        self._text("\n".join(lines), (0.03, 0.985), "radiograph-title",
+                   font_size=FONT_SIZES["image_title"])
         pl.subplot(*self.subplot_3d)
 
     @property
@@ -675,7 +600,7 @@ class SceneView:
         """Grey map of the image: reversed for intensity, so attenuation is bright."""
         return "gray_r" if self.quantity == "intensity" else "gray"
 
-    def _text(self, text, position, name, *, font_size=9, justify="left", vertical="top",
+    def _text(self, text, position, name, *, font_size=FONT_SIZES["text"], justify="left", vertical="top",
               color="black"):
         """Text in the current subplot at ``position``, fractions of the pane, anchored at
         its ``justify`` / ``vertical`` side (fixed pixel size, so it never scales)."""
@@ -686,7 +611,8 @@ class SceneView:
         getattr(prop, f"SetVerticalJustificationTo{vertical.capitalize()}")()
         return actor
 
-    def _label(self, point, text, name, *, justify="left", vertical="bottom", font_size=9):
+    def _label(self, point, text, name, *, justify="left", vertical="bottom",
+               font_size=FONT_SIZES["text"]):
         """A text anchored at a 3D point of the current subplot."""
         from vtkmodules.vtkRenderingCore import vtkTextActor
 
@@ -714,12 +640,7 @@ class SceneView:
     def _axes(self):
         """Unit vectors: ``forward`` (source to detector), ``up`` (the detector's VE) and
         ``side`` (``up x forward``, the direction a side view looks along)."""
-        vp = self.viewport
-        forward = -np.asarray(vp.FL, float) / np.linalg.norm(vp.FL)
-        up = np.asarray(vp.VE, float) / np.linalg.norm(vp.VE)
-        up = up - up.dot(forward) * forward
-        up /= np.linalg.norm(up)
-        return forward, up, np.cross(up, forward)
+        return camera.view_axes(self.viewport)
 
     def view_side(self, *, azimuth: float = 60.0, elevation: float | None = None,
                   view_angle: float = 12.0) -> None:
@@ -742,47 +663,15 @@ class SceneView:
             Of the perspective camera, degrees; small is nearly a parallel projection (the
             source end does not look much larger than the detector end).
         """
-        vp = self.viewport
         self.plotter.subplot(*self.subplot_3d)
-        forward, up, side = self._axes()
-        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.VE, vp.LHC + vp.HO + vp.VE])
-        lo, hi = self.bodies_bounds
-        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-        r0 = np.asarray(vp.r0, float)
-        source = r0 + 0.6 * self.size_scale * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0],
-                                                         [0, -1, 0], [0, 0, 1], [0, 0, -1]])
-        points = np.vstack([corners, box, source])
-
-        def axes(elev):
-            e, a = math.radians(elev), math.radians(azimuth)
-            dop = math.cos(e) * (math.cos(a) * side + math.sin(a) * forward) - math.sin(e) * up
-            right = np.cross(dop, up)
-            right /= np.linalg.norm(right)
-            return dop, right, np.cross(right, dop)
-
-        if elevation is None:
-            # Fill the box: the elevation tilts the beam on screen without narrowing it (its
-            # width is set by the azimuth), so raise it until the picture's shape matches the
-            # box's (nearly parallel projection: the points' extents on screen).
-            bx0, by0, bx1, by1 = self.view_box
-            w, h = self._pane_aspect() * (bx1 - bx0), by1 - by0
-
-            def filled(elev):
-                _, right, screen_up = axes(elev)
-                ex = max(np.ptp(points @ right), 1e-12)
-                ey = max(np.ptp(points @ screen_up), 1e-12)
-                s = min(w / ex, h / ey)
-                return round(s * s * ex * ey / (w * h), 3)
-
-            elevation = max(range(4, 33, 2), key=lambda e: (filled(e), -e))
-        dop, right, screen_up = axes(elevation)
-        cam = self.plotter.camera
-        cam.parallel_projection = False
-        cam.view_angle = float(view_angle)
-        self._frame(points, dop, right, screen_up, margin=1.04 / self.zoom)
+        framing = camera.side_view(self.viewport, self.bodies_bounds,
+                                   aspect=self._pane_aspect(), box=self.view_box,
+                                   azimuth=azimuth, elevation=elevation,
+                                   view_angle=view_angle, zoom=self.zoom,
+                                   source_radius=0.6 * self.size_scale)
+        self._apply(framing)
         self.camera_view = "side"
-        self.side_elevation = float(elevation)
+        self.side_elevation = framing.elevation
 
     def view_bodies(self, *, zoom: float = 1.0, azimuth: float = -14.0,
                     elevation: float = 4.0) -> None:
@@ -794,62 +683,25 @@ class SceneView:
         defaults put the (out of view) source to the right at about mid-height, so the rays
         come in from the right edge of the pane, clear of the legend, the key help, the check
         boxes (left) and the mu(t) chart (below)."""
-        vp = self.viewport
         self.plotter.subplot(*self.subplot_3d)
-        forward, up, side = self._axes()
-        lo, hi = self.bodies_bounds
-        corners = np.array([vp.LHC, vp.LHC + vp.HO, vp.LHC + vp.VE, vp.LHC + vp.HO + vp.VE])
-        box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                        for z in (lo[2], hi[2])])
-        a, e = math.radians(azimuth), math.radians(elevation)
-        dop = (math.cos(e) * (math.cos(a) * forward + math.sin(a) * side)
-               - math.sin(e) * up)                       # camera -> focal point
-        right = np.cross(dop, up)
-        right /= np.linalg.norm(right)
-        screen_up = np.cross(right, dop)
-        cam = self.plotter.camera
-        cam.parallel_projection = False
-        cam.view_angle = 30.0
-        # the camera behind the source (as far from the bodies as the source is, or more)
-        behind = float((np.asarray(vp.r0) - (lo + hi) / 2) @ -dop) * 1.15
-        self._frame(np.vstack([corners, box]), dop, right, screen_up, margin=1.06 / zoom,
-                    min_distance=behind, anchor=(lo + hi) / 2,
-                    box=self.bodies_view_box or self.view_box)
+        framing = camera.bodies_view(self.viewport, self.bodies_bounds,
+                                     aspect=self._pane_aspect(),
+                                     box=self.bodies_view_box or self.view_box, zoom=zoom,
+                                     azimuth=azimuth, elevation=elevation)
+        self._apply(framing)
         self.camera_view = "bodies"
 
-    def _frame(self, points, dop, right, screen_up, *, margin=1.06, min_distance=0.0,
-               anchor=None, box=None) -> None:
-        """Aim the (perspective) camera along ``dop`` so that ``points`` fill ``box`` (left,
-        bottom, right, top fractions of the pane; default :attr:`view_box`), centred. With
-        ``min_distance`` the camera stays at least that far (along ``dop``) from ``anchor``
-        and narrows its view angle instead."""
+    def _apply(self, framing) -> None:
+        """Put the 3D camera where ``framing`` (:mod:`xray_viz.viz.camera`) says and pin it
+        there."""
         cam = self.plotter.camera
-        bx0, by0, bx1, by1 = self.view_box if box is None else box
-        self._framed_box = (bx0, by0, bx1, by1)
-        cam.SetWindowCenter(1.0 - bx0 - bx1, 1.0 - by0 - by1)   # focal point at the box centre
-        sx = self._pane_aspect() * (bx1 - bx0)      # the box's half-width / half-height,
-        sy = by1 - by0                              # in units of the view's half-height
-        half_v = math.tan(math.radians(cam.view_angle) / 2) / margin
-        focal = points.mean(axis=0)
-        anchor = focal if anchor is None else np.asarray(anchor, float)
-        for _ in range(12):
-            rel = points - focal
-            x, y, depth = rel @ right, rel @ screen_up, rel @ dop
-            need = np.maximum(np.abs(x) / (half_v * sx), np.abs(y) / (half_v * sy))
-            distance = float(np.max(need - depth))
-            floor = min_distance + float((anchor - focal) @ dop)
-            if distance < floor:                    # too close: step back, narrow the view
-                distance = floor
-                tx, ty = x / (distance + depth), y / (distance + depth)
-                half_v = max((tx.max() - tx.min()) / 2 / sx, (ty.max() - ty.min()) / 2 / sy)
-                cam.view_angle = math.degrees(2 * math.atan(half_v * margin))
-            # re-centre: shift the focal point to the middle of the points' angular extent
-            tx, ty = x / (distance + depth), y / (distance + depth)
-            focal = focal + distance * ((tx.max() + tx.min()) / 2 * right
-                                        + (ty.max() + ty.min()) / 2 * screen_up)
-        cam.focal_point = tuple(focal)
-        cam.position = tuple(focal - distance * dop)
-        cam.up = tuple(screen_up)
+        cam.parallel_projection = False
+        cam.view_angle = framing.view_angle
+        self._framed_box = framing.box
+        cam.SetWindowCenter(*framing.window_center)     # focal point at the box centre
+        cam.focal_point = tuple(framing.focal_point)
+        cam.position = tuple(framing.position)
+        cam.up = tuple(framing.up)
         self.plotter.reset_camera_clipping_range()
         self._pinned = self._camera_state()
         self._camera_set = True
@@ -919,16 +771,16 @@ class SceneView:
         sel = trace_selection(self.scene, [(int(i), int(j))])
         self.picked = sel
         self.show["picked"] = True
-        self._ray_actors(sel, "picked-ray", color=COLORS["picked"], width=3)
+        self._ray_actors(sel, "picked-ray", color=COLORS["picked"],
+                         width=LINE_WIDTHS["picked"])
         if self.subplot_image is not None and self.radiograph is not None:
             self.plotter.subplot(*self.subplot_image)
             x, y = float(i), float(j)
-            box = np.array([[x - .5, y - .5, .2], [x + .5, y - .5, .2], [x + .5, y + .5, .2],
-                            [x - .5, y + .5, .2], [x - .5, y - .5, .2]])
-            outline = pv.lines_from_points(box)
+            outline = shapes.rectangle(x - .5, y - .5, x + .5, y + .5, .2)
             self.datasets["picked-pixel"] = outline
             self.plotter.add_mesh(outline, name="picked-pixel", color=COLORS["picked"],
-                                  line_width=3, lighting=False, reset_camera=False,
+                                  line_width=LINE_WIDTHS["picked_pixel"], lighting=False,
+                                  reset_camera=False,
                                   render=False, pickable=False)
             self.plotter.subplot(*self.subplot_3d)
         return sel
