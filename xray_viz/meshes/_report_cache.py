@@ -45,9 +45,7 @@ def cache_dir() -> Path | None:
 @lru_cache(maxsize=1)
 def _checker_digest() -> bytes:
     """SHA-256 of the checking code: a change of it invalidates every stored report."""
-    from xray_viz.meshes import repair
-
-    return hashlib.sha256(Path(repair.__file__).read_bytes()).digest()
+    return hashlib.sha256(Path(__file__).with_name("repair.py").read_bytes()).digest()
 
 
 def mesh_key(vertices, faces) -> str:
