@@ -1135,7 +1135,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     """
     base_dir = Path(base_dir)
     top = _Table(doc, "scene", file)
-    top.expect(("source", "detector", "body"))
+    top.expect(("source", "detector", "body", "labels", "ct"))  # [[labels]], [[ct]]: volumes
     src = top.table("source", required=True)
     src.where = "[source]"
     src.expect(SOURCE_KEYS)
@@ -1229,11 +1229,16 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     raw_bodies = top.raw("body", default=[])
     if not isinstance(raw_bodies, list):
         top.fail("'body' must be an array of tables: write [[body]]")
+    volumes = {key: top.raw(key) for key in ("labels", "ct")}
     top.done()
     bodies = []
     for k, raw in enumerate(raw_bodies):
         bt = _Table(raw, f"[[body]] #{k + 1}", file)
         bodies.append(_parse_body(bt, base_dir, k))
+    if any(v is not None for v in volumes.values()):  # label maps and CTs: bodies after [[body]]
+        from xray_viz.meshes.volumes import volume_bodies
+
+        bodies.extend(volume_bodies(volumes, base_dir=base_dir, file=file))
     _check_material_energies(src, energy, spectrum, bodies)
     try:
         scene = Scene(
