@@ -1304,6 +1304,10 @@ def load_scene(path: str | Path) -> Scene:
                 f"{path}: no such scene file, and no bundled phantom of that name "
                 f"(phantoms: {names})"
             )
+    if p.suffix.lower() == ".json":  # a gVirtualXray scene
+        from xray_viz.meshes.gvxr import load_gvxr
+
+        return load_gvxr(p)
     try:
         text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError:
@@ -1313,5 +1317,7 @@ def load_scene(path: str | Path) -> Scene:
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{p}: malformed TOML: {exc}") from None
+        from xray_viz.meshes.gvxr import not_toml
+
+        raise SceneError(not_toml(p, text) or f"{p}: malformed TOML: {exc}") from None
     return scene_from_dict(doc, base_dir=p.parent, file=p)
