@@ -202,3 +202,116 @@ def test_to_toml_round_trips_through_tomllib():
 def test_docstring_examples():
     result = doctest.testmod(G, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     assert result.attempted > 0 and result.failed == 0
+
+
+# --------------------------------------------------------------------------------------------
+# other mesh inputs: pyvista and trimesh objects, .vtu, glTF/GLB scenes of several nodes
+
+
+def _scene_with(bodies):
+    from xray_viz.scene import Detector, Scene, Source
+
+    return Scene(source=Source(position=[0, 0, 500.0], kind="parallel"),
+                 detector=Detector(center=[0, 0, -100.0], up=[0, 1, 0], shape=(48, 48),
+                                   pitch=0.5),
+                 bodies=bodies)
+
+
+def test_body_accepts_pyvista_datasets_and_trimesh():
+    import pyvista as pv
+
+    from xray_viz.scene import Body
+
+    tri = trimesh.creation.icosphere(subdivisions=3, radius=8.0)
+    poly = pv.PolyData.from_regular_faces(tri.vertices, tri.faces)
+    a = Body(name="a", mesh=tri, mu=0.2)
+    b = Body(name="b", mesh=poly, mu=0.2)
+    assert isinstance(b.mesh, trimesh.Trimesh) and b.mesh.is_watertight
+    ia = xray_viz.render(_scene_with([a]), engine="numpy").quantity("path-length")
+    ib = xray_viz.render(_scene_with([b]), engine="numpy").quantity("path-length")
+    assert np.allclose(ia, ib, atol=1e-9) and ia.max() > 15
+    # any dataset: its outer surface (a 10 mm voxel block; an unstructured grid of it)
+    grid = pv.ImageData(dimensions=(11, 11, 11), spacing=(1.0, 1.0, 1.0), origin=(-5, -5, -5))
+    for dataset in (grid, grid.cast_to_unstructured_grid()):
+        body = Body(name="block", mesh=dataset, mu=0.1)
+        assert body.mesh.is_watertight and body.mesh.volume == pytest.approx(1000.0)
+        image = xray_viz.render(_scene_with([body]), engine="numpy").quantity("path-length")
+        assert image.max() == pytest.approx(10.0)
+
+
+def test_vtu_body_in_a_scene_file(tmp_path):
+    import pyvista as pv
+
+    grid = pv.ImageData(dimensions=(5, 5, 5), spacing=(2.0, 2.0, 2.0), origin=(-4, -4, -4))
+    grid.cast_to_unstructured_grid().save(tmp_path / "block.vtu")
+    (tmp_path / "s.toml").write_text("""
+[source]
+position = [0.0, 0.0, 500.0]
+kind = "parallel"
+[detector]
+center = [0.0, 0.0, -100.0]
+shape = [16, 16]
+pitch = 1.0
+[[body]]
+name = "block"
+mesh = "block.vtu"
+mu = 0.1
+""")
+    (body,) = xray_viz.load_scene(tmp_path / "s.toml").bodies
+    assert body.mesh.volume == pytest.approx(512.0)
+
+
+def write_glb(path):
+    s = trimesh.Scene()
+    s.add_geometry(trimesh.creation.box(extents=[4, 4, 4]), node_name="cube",
+                   transform=trimesh.transformations.translation_matrix([10, 0, 0]))
+    s.add_geometry(trimesh.creation.icosphere(radius=3.0), node_name="ball")
+    s.add_geometry(trimesh.creation.icosphere(radius=1.0), node_name="pearl",
+                   transform=trimesh.transformations.translation_matrix([0, 10, 0]))
+    s.export(path)
+
+
+GLB_SCENE = """
+[source]
+position = [0.0, 0.0, 500.0]
+kind = "parallel"
+[detector]
+center = [0.0, 0.0, -100.0]
+shape = [16, 16]
+pitch = 2.0
+[[body]]
+mesh = "model.glb"
+mu = 0.1
+{extra}
+"""
+
+
+def test_glb_of_several_nodes_loads_as_several_bodies(tmp_path):
+    write_glb(tmp_path / "model.glb")
+    (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra=""))
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    assert [b.name for b in scene.bodies] == ["model/ball", "model/cube", "model/pearl"]
+    ball, cube, pearl = scene.bodies
+    assert np.allclose(cube.mesh.bounds, [[8, -2, -2], [12, 2, 2]])   # its node's transform
+    assert np.allclose(pearl.mesh.centroid, [0, 10, 0], atol=0.05)
+    # merge = true: one body of all of them; a named node: that one only
+    (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra='name = "all"\nmerge = true'))
+    (merged,) = xray_viz.load_scene(tmp_path / "s.toml").bodies
+    assert merged.name == "all" and len(merged.faces) == sum(len(b.faces) for b in scene.bodies)
+    (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra="").replace(
+        'mesh = "model.glb"', 'mesh = "model.glb#cube"'))
+    (only,) = xray_viz.load_scene(tmp_path / "s.toml").bodies
+    assert np.allclose(only.mesh.bounds, cube.mesh.bounds)
+
+
+def test_glb_errors_are_one_line(tmp_path, capsys):
+    write_glb(tmp_path / "model.glb")
+    for extra, mesh, expect in [
+        ('merge = "yes"', "model.glb", r"\[\[body\]\] #1 merge must be true or false"),
+        ("", "model.glb#nope", r"has no mesh node 'nope'; its nodes: ball, cube, pearl"),
+    ]:
+        (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra=extra).replace(
+            'mesh = "model.glb"', f'mesh = "{mesh}"'))
+        rc = cli.main(["render", str(tmp_path / "s.toml"), "-o", str(tmp_path / "o.npy")])
+        err = capsys.readouterr().err
+        assert rc == 2 and err.count("\n") == 1 and re.search(expect, err), err

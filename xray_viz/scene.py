@@ -510,8 +510,9 @@ class Body:
     name : str
         Unique name of the body: not empty, no control characters (it appears in one-line
         messages).
-    mesh : trimesh.Trimesh
-        Closed, outward-oriented surface, in scene coordinates (mm), transforms applied.
+    mesh : trimesh.Trimesh or pyvista.DataSet
+        Closed, outward-oriented surface, in scene coordinates (mm), transforms applied. A
+        pyvista dataset is replaced by its extracted, triangulated surface (a Trimesh).
         Between 1 pm and 1000 km across (:data:`BODY_SIZE_RANGE`) and at least ``2**-30`` of
         its distance from the origin (:data:`BODY_MIN_RELATIVE`), so that float64 holds it.
     mu : float or None
@@ -541,6 +542,9 @@ class Body:
     source_file: Path | None = None
 
     def __post_init__(self):
+        from xray_viz.meshes.io import as_trimesh
+
+        object.__setattr__(self, "mesh", as_trimesh(self.mesh))  # pyvista: its surface
         check_name(self.name)
         where = f"body {self.name!r}: "
         if self.mu is None and self.material is None:
@@ -1231,6 +1235,9 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         top.fail("'body' must be an array of tables: write [[body]]")
     volumes = {key: top.raw(key) for key in ("labels", "ct")}
     top.done()
+    from xray_viz.meshes.io import expand_nodes
+
+    raw_bodies = expand_nodes(raw_bodies, base_dir, file=file)  # glTF nodes: a body each
     bodies = []
     for k, raw in enumerate(raw_bodies):
         bt = _Table(raw, f"[[body]] #{k + 1}", file)
