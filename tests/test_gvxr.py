@@ -205,7 +205,7 @@ def test_docstring_examples():
 
 
 # --------------------------------------------------------------------------------------------
-# other mesh inputs: pyvista and trimesh objects, .vtu, glTF/GLB scenes of several nodes
+# other mesh inputs: pyvista and trimesh objects, glTF/GLB scenes of several nodes
 
 
 def _scene_with(bodies):
@@ -237,28 +237,6 @@ def test_body_accepts_pyvista_datasets_and_trimesh():
         assert body.mesh.is_watertight and body.mesh.volume == pytest.approx(1000.0)
         image = xray_viz.render(_scene_with([body]), engine="numpy").quantity("path-length")
         assert image.max() == pytest.approx(10.0)
-
-
-def test_vtu_body_in_a_scene_file(tmp_path):
-    import pyvista as pv
-
-    grid = pv.ImageData(dimensions=(5, 5, 5), spacing=(2.0, 2.0, 2.0), origin=(-4, -4, -4))
-    grid.cast_to_unstructured_grid().save(tmp_path / "block.vtu")
-    (tmp_path / "s.toml").write_text("""
-[source]
-position = [0.0, 0.0, 500.0]
-kind = "parallel"
-[detector]
-center = [0.0, 0.0, -100.0]
-shape = [16, 16]
-pitch = 1.0
-[[body]]
-name = "block"
-mesh = "block.vtu"
-mu = 0.1
-""")
-    (body,) = xray_viz.load_scene(tmp_path / "s.toml").bodies
-    assert body.mesh.volume == pytest.approx(512.0)
 
 
 def write_glb(path):

@@ -61,7 +61,7 @@ file in the same folder, then renamed), in the format given by its extension.
 """
 
 _EPILOG = """\
-input formats: .stl .obj .ply .off .glb .gltf .vtp .vtu .vtk
+input formats: .stl .obj .ply .off .glb .gltf .vtp .vtk
 output formats: .stl (binary) .ply (binary) .obj .off
 
 volumes: IN may be a label map (.nii .nii.gz .nrrd .nhdr .mha .mhd) or, with --ct, a CT in HU

@@ -212,7 +212,8 @@ def _material(ctx, sample, where) -> dict:
                 "density": density if density is not None else _element_density(symbol)}
     if kind == "COMPOUND":
         if not isinstance(value, str) or not value:
-            ctx.fail(w, f"a compound is a formula such as \"H2O\", got {excerpt(json.dumps(value))}")
+            ctx.fail(w, "a compound is a formula such as \"H2O\", got "
+                        f"{excerpt(json.dumps(value))}")
         if density is None:
             ctx.fail(where, f"the compound {value!r} needs a 'Density' (g/cm3)")
         return {"material": value, "density": density}
@@ -316,7 +317,8 @@ def _beam(ctx, beam, source: dict, detector: dict):
             _keys(ctx, b, ("Energy", "Unit", "PhotonCount"), w)
             unit = str(b.get("Unit", "keV")).lower()
             if unit not in ENERGY_UNITS:
-                ctx.fail(w, f"unknown energy unit {excerpt(str(b.get('Unit')))}; use eV, keV or MeV")
+                ctx.fail(w, f"unknown energy unit {excerpt(str(b.get('Unit')))}; use eV, keV "
+                            "or MeV")
             if "Energy" not in b:
                 ctx.fail(w, "has no 'Energy'")
             lines.append((_number(ctx, b["Energy"], w) * ENERGY_UNITS[unit],

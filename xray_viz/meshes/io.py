@@ -13,8 +13,8 @@ __all__ = ["load_mesh", "MESH_SUFFIXES", "as_trimesh", "scene_nodes", "expand_no
 
 #: File suffixes read by :func:`load_mesh` through trimesh.
 TRIMESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
-#: File suffixes read through pyvista (VTK XML PolyData and UnstructuredGrid, legacy VTK).
-VTK_SUFFIXES = (".vtp", ".vtu", ".vtk")
+#: File suffixes read through pyvista (VTK XML PolyData and legacy VTK).
+VTK_SUFFIXES = (".vtp", ".vtk")
 #: Scene formats whose nodes become one body each (unless ``merge = true``).
 NODE_SUFFIXES = (".glb", ".gltf")
 #: Every file suffix read by :func:`load_mesh`.
@@ -34,8 +34,6 @@ def _quiet_vtk_read(pv, path: Path):
 
     if path.suffix.lower() == ".vtp":
         from vtkmodules.vtkIOXML import vtkXMLPolyDataReader as Reader
-    elif path.suffix.lower() == ".vtu":
-        from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridReader as Reader
     else:
         from vtkmodules.vtkIOLegacy import vtkDataSetReader as Reader
     buffer = vtkStringOutputWindow()
@@ -162,7 +160,7 @@ def load_mesh(path: str | Path, *, process: bool = True):
     ----------
     path : str or Path
         An STL (ASCII or binary), OBJ, PLY, OFF or GLB/GLTF file (read with trimesh), or a
-        VTK ``.vtp`` / ``.vtu`` / ``.vtk`` file (read with pyvista, imported only for these;
+        VTK ``.vtp`` / ``.vtk`` file (read with pyvista, imported only for these;
         polygons are triangulated, and a volume mesh is reduced to its outer surface).
         ``model.glb#NODE`` is the mesh of one node of a glTF/GLB scene (its transform
         applied); ``model.glb`` alone is every node's mesh merged.
