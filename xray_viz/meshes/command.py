@@ -67,9 +67,10 @@ output formats: .stl (binary) .ply (binary) .obj .off
 volumes: IN may be a label map (.nii .nii.gz .nrrd .nhdr .mha .mhd) or, with --ct, a CT in HU
 (the same formats or a folder holding a DICOM series). OUT is then a folder: one closed
 binary STL per label (in mm, the volume's RAS+ world coordinates) and NAME.toml, the [[body]]
-tables to paste into a scene (set each body's material there). --max-error MM bounds
-smoothing and decimation together (default: half the smallest voxel spacing); each body's
-Hausdorff distance to its voxel surface is reported.
+tables to paste into a scene (set each body's material there). Surfaces are smoothed
+(windowed sinc, within half a voxel diagonal of the voxel surface) and decimated within
+--max-error MM of the smoothed surface (default: a quarter of the smallest voxel spacing);
+each body's Hausdorff distance to its voxel surface is reported.
 
 examples:
   xray-viz mesh scan.stl -o scan_fixed.stl

@@ -32,12 +32,17 @@ Meshing (:func:`mesh_mask`)
     the affine to mm (faces reversed when the affine mirrors), smoothed by a windowed-sinc
     filter with normalised coordinates (VTK ``vtkWindowedSincPolyDataFilter``, which does not
     shrink the surface as Laplacian smoothing does), repaired if needed, and decimated by
-    quadric edge collapse (pymeshlab, :func:`~xray_viz.meshes.decimate`). ``max_error`` (mm)
-    bounds the whole: the strongest smoothing whose Hausdorff distance to the voxel surface
-    stays within 60 % of it is taken, and decimation gets the rest of the budget. The *voxel
-    surface* is the unsmoothed flying-edges surface of the label's voxels (it passes half-way
-    between a voxel inside and its neighbour outside); each body's symmetric Hausdorff distance
-    to it is measured and reported (:attr:`LabelSurface.hausdorff`).
+    quadric edge collapse (pymeshlab, :func:`~xray_viz.meshes.decimate`).
+
+    The *voxel surface* is the unsmoothed flying-edges surface of the label's voxels: it
+    passes half-way between a voxel inside and its neighbour outside, a staircase whose steps
+    are the data's resolution, not anatomy. Smoothing takes the steps off: the strongest
+    windowed-sinc filter of :data:`PASS_BANDS` whose Hausdorff distance to the voxel surface
+    stays within half a voxel diagonal (:func:`smoothing_limit`, the resolution of the data) is
+    used. ``max_error`` (mm) is the decimation's budget: the Hausdorff distance of the body to
+    the smoothed surface. Each body's symmetric Hausdorff distance to its voxel surface is
+    measured and reported (:attr:`LabelSurface.hausdorff`); it is at most about
+    ``smoothing_limit + max_error``.
 
 Nesting
     A label enclosed by another (marrow inside bone) must win inside it. The scene's rule is
@@ -61,9 +66,11 @@ Examples
 >>> from xray_viz.meshes.volumes import mesh_mask
 >>> i, j, k = np.indices((24, 24, 24))
 >>> ball = (i - 11.5) ** 2 + (j - 11.5) ** 2 + (k - 11.5) ** 2 <= 8.0 ** 2
->>> mesh, hausdorff = mesh_mask(ball, np.eye(4), max_error=0.5)
->>> mesh.is_watertight, bool(hausdorff <= 0.5), round(float(mesh.volume / ball.sum()), 1)
-(True, True, 1.0)
+>>> mesh, hausdorff = mesh_mask(ball, np.eye(4), max_error=0.25)
+>>> mesh.is_watertight, bool(hausdorff <= smoothing_limit(np.eye(4)) + 0.25)
+(True, True)
+>>> bool(abs(mesh.volume / (4 / 3 * np.pi * 8.0 ** 3) - 1) < 0.02)   # the ball of radius 8
+True
 """
 
 from __future__ import annotations
@@ -84,6 +91,7 @@ from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFo
 
 __all__ = [
     "Volume", "LabelSurface", "VolumeMeshes", "read_volume", "voxel_surface", "mesh_mask",
+    "smoothing_limit",
     "label_surfaces",
     "ct_surfaces", "classify_hu", "volume_bodies", "is_volume_path", "cache_dir",
     "SCHNEIDER_2000", "VOLUME_SUFFIXES", "LabelSkippedWarning", "VolumeCacheWarning",
@@ -98,14 +106,12 @@ VOLUME_SUFFIXES = NIFTI_SUFFIXES + ITK_SUFFIXES
 #: ITK's and DICOM's world coordinates (LPS+) to the scene's (RAS+): x and y negated.
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
-#: Part of ``max_error`` that smoothing may use; decimation gets the rest.
-SMOOTHING_SHARE = 0.6
 #: Windowed-sinc pass bands tried, strongest smoothing first (VTK: 0 < pass band < 2).
 PASS_BANDS = (0.01, 0.03, 0.1, 0.3)
 #: Windowed-sinc iterations.
 SMOOTHING_ITERATIONS = 20
 #: Bumped whenever the meshing changes what it makes: old cache entries are then not used.
-CACHE_VERSION = "volumes-1"
+CACHE_VERSION = "volumes-2"
 
 #: Default HU -> material table: a coarse grouping of the HU segments of Schneider, Bortfeld and
 #: Schlegel, "Correlation between CT numbers and tissue parameters needed for Monte Carlo
@@ -452,8 +458,20 @@ def _voxel_surface(values, affine, *, level: float = 0.5, pad: bool = True):
     return pv.PolyData.from_regular_faces(pts @ linear.T + affine[:3, 3], faces)
 
 
+def smoothing_limit(affine) -> float:
+    """How far (mm) smoothing may move a surface from the voxel surface: half the voxel
+    diagonal, the resolution of the data.
+
+    Examples
+    --------
+    >>> round(smoothing_limit(np.diag([1.0, 1.0, 2.0, 1.0])), 4)
+    1.2247
+    """
+    return 0.5 * float(np.linalg.norm(np.linalg.norm(np.asarray(affine)[:3, :3], axis=0)))
+
+
 def mesh_mask(mask, affine, *, max_error: float, name: str = "label"):
-    """Closed, smoothed, decimated surface of a boolean voxel mask, within ``max_error`` mm.
+    """Closed, smoothed, decimated surface of a boolean voxel mask.
 
     Parameters
     ----------
@@ -462,8 +480,8 @@ def mesh_mask(mask, affine, *, max_error: float, name: str = "label"):
     affine : array_like, 4x4
         Voxel index -> mm.
     max_error : float
-        Largest Hausdorff distance (mm) of the result to the voxel surface (the unsmoothed
-        flying-edges surface): smoothing takes at most 60 % of it, decimation the rest.
+        Decimation budget: the largest Hausdorff distance (mm) of the result to the smoothed
+        surface. (Smoothing itself stays within :func:`smoothing_limit` of the voxel surface.)
     name : str, optional
         For messages.
 
@@ -492,7 +510,8 @@ def mesh_mask(mask, affine, *, max_error: float, name: str = "label"):
     raw = _trimesh(raw_poly)
     if not check_mesh(raw).traceable:
         raw, _ = repair_mesh(raw)
-    smooth, d_smooth = raw, 0.0
+    limit = smoothing_limit(affine)
+    smooth = raw
     for band in PASS_BANDS:
         cand = _trimesh(raw_poly.smooth_taubin(
             n_iter=SMOOTHING_ITERATIONS, pass_band=band, normalize_coordinates=True,
@@ -501,29 +520,25 @@ def mesh_mask(mask, affine, *, max_error: float, name: str = "label"):
             cand, _ = repair_mesh(cand)
             if not check_mesh(cand).traceable:
                 continue
-        d = hausdorff_distance(cand, raw)
-        if d <= SMOOTHING_SHARE * max_error:
-            smooth, d_smooth = cand, d
+        if hausdorff_distance(cand, raw) <= limit:
+            smooth = cand
             break
     if not check_mesh(smooth).traceable:
         raise MeshError(f"{name}: the surface of its voxels could not be closed")
-    # decimation gets the rest of the budget; the sampled distances obey the triangle
-    # inequality only nearly, so the result is measured against the voxel surface itself and
-    # decimated less when it is over
-    budget = max_error - d_smooth
-    result, d_result = smooth, d_smooth
+    # the bisection's sampled distances are estimates: the result is measured again against
+    # the smoothed surface, and decimated less when it is over
+    result, budget = smooth, max_error
     for _ in range(4):
-        if len(smooth.faces) <= 64 or budget <= 0:
+        if len(smooth.faces) <= 64:
             break
         cand, _ = decimate(smooth, max_error=budget, samples=10000)
-        d = hausdorff_distance(cand, raw)
-        if d <= max_error:
-            result, d_result = cand, d
+        if hausdorff_distance(cand, smooth) <= max_error:
+            result = cand
             break
         budget *= 0.7
     if result.volume < 0:
         result.invert()
-    return result, d_result
+    return result, hausdorff_distance(result, raw)
 
 
 @dataclass(frozen=True, eq=False)
@@ -593,7 +608,7 @@ def _nesting_fill(labels: np.ndarray, label: int, listed) -> np.ndarray:
 
 
 def _default_max_error(spacing) -> float:
-    return 0.5 * float(np.min(spacing))
+    return 0.25 * float(np.min(spacing))
 
 
 def _mesh_labels(labels: np.ndarray, affine, wanted, names, max_error) -> list[LabelSurface]:
@@ -756,7 +771,8 @@ def label_surfaces(path, labels=None, *, names=None, max_error: float | None = N
     names : mapping of int to str, optional
         Body names (default ``<file stem>_<label>``).
     max_error : float, optional
-        Surface tolerance in mm (default: half the smallest voxel spacing).
+        Decimation tolerance in mm from the smoothed surface (default: a quarter of the
+        smallest voxel spacing); see :func:`mesh_mask`.
     cache : bool, optional
         Use the on-disk cache (:func:`cache_dir`).
 
