@@ -612,11 +612,19 @@ def _default_max_error(spacing) -> float:
 
 
 def _mesh_labels(labels: np.ndarray, affine, wanted, names, max_error) -> list[LabelSurface]:
+    affine = np.asarray(affine, dtype=np.float64)
     out = []
     for label in wanted:
-        mask = _nesting_fill(labels, label, wanted)
-        voxels = int(np.count_nonzero(labels == label))
-        mesh, h = mesh_mask(mask, affine, max_error=max_error, name=names[label])
+        idx = np.nonzero(labels == label)   # the one pass over the whole volume
+        voxels = int(idx[0].size)
+        if not voxels:
+            raise MeshError(f"{names[label]}: label {label} has no voxels")
+        lo = np.array([i.min() for i in idx])
+        box = tuple(slice(a, int(i.max()) + 1) for a, i in zip(lo, idx))
+        sub_affine = affine.copy()   # the label's bounding box, placed where it is
+        sub_affine[:3, 3] = affine[:3, :3] @ lo + affine[:3, 3]
+        mask = _nesting_fill(labels[box], label, wanted)
+        mesh, h = mesh_mask(mask, sub_affine, max_error=max_error, name=names[label])
         out.append(LabelSurface(label=int(label), name=names[label], mesh=mesh, hausdorff=h,
                                 voxels=voxels))
     return out
