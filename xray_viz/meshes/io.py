@@ -234,11 +234,10 @@ def as_trimesh(mesh):
     >>> type(as_trimesh(pv.ImageData(dimensions=(3, 3, 3)))).__name__  # any dataset: its surface
     'Trimesh'
     """
-    try:
-        import pyvista as pv
-    except ImportError:  # pragma: no cover - pyvista is a dependency
-        return mesh
-    if not isinstance(mesh, pv.DataSet):
+    import sys
+
+    pv = sys.modules.get("pyvista")   # not imported: the mesh cannot be one of its datasets
+    if pv is None or not isinstance(mesh, pv.DataSet):
         return mesh
     import trimesh
 

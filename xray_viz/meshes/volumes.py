@@ -52,7 +52,7 @@ Nesting
 
 Cache
     Meshing takes seconds to minutes; the result is cached on disk under the SHA-256 of the
-    volume file's bytes and of every parameter, so that a second load is instant. The cache
+    volume file's bytes and of every parameter: a second load reads it instead. The cache
     folder is ``$XRAY_VIZ_CACHE_DIR`` if set, else the user cache folder
     (``platformdirs.user_cache_dir("xray_viz")``: ``$XDG_CACHE_HOME/xray_viz`` or
     ``~/.cache/xray_viz`` on Linux) + ``/volumes``, else a private per-user folder
