@@ -381,9 +381,13 @@ LUNG_DENSITY = 0.26  # inflated lung, g/cm3 (the NIST compound's own density is 
 
 
 def _surface(mask, spacing, origin, *, sigma=1.0, step=1):
-    """Closed iso-surface (0.5) of a Gaussian-smoothed binary mask, via VTK flying edges."""
-    import pyvista as pv
+    """Closed iso-surface (0.5) of a Gaussian-smoothed binary mask (z, y, x), via VTK flying
+    edges in :func:`xray_viz.meshes.volumes.voxel_surface` (which the ``[[labels]]`` scene
+    table's meshing uses too; the frog keeps its Gaussian smoothing, so that its shipped
+    meshes stay reproducible)."""
     from scipy import ndimage
+
+    from xray_viz.meshes.volumes import voxel_surface
 
     idx = np.nonzero(mask)
     lo = np.maximum([i.min() - 4 for i in idx], 0)
@@ -391,12 +395,10 @@ def _surface(mask, spacing, origin, *, sigma=1.0, step=1):
     sub = mask[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].astype(np.float32)
     sub = ndimage.gaussian_filter(np.pad(sub, 3), sigma)[::step, ::step, ::step]
     sp = np.asarray(spacing, float) * step
-    img = pv.ImageData(dimensions=sub.shape[::-1], spacing=sp,
-                       origin=np.asarray(origin) + (lo[::-1] - 3) * np.asarray(spacing))
-    img.point_data["m"] = np.ascontiguousarray(sub).ravel()
-    surf = img.contour([0.5], scalars="m", method="flying_edges").triangulate().clean()
-    return trimesh.Trimesh(np.asarray(surf.points, float), np.asarray(surf.regular_faces),
-                           process=False)
+    affine = np.diag([*sp, 1.0])
+    affine[:3, 3] = np.asarray(origin) + (lo[::-1] - 3) * np.asarray(spacing)
+    # (z, y, x) -> (i, j, k); padded above, so taken as it is
+    return voxel_surface(sub.transpose(2, 1, 0), affine, level=0.5, pad=False)
 
 
 def _finish(mesh, faces, what):

@@ -145,3 +145,11 @@ def test_spectra_exposure_and_detector_physics_round_trip(tmp_path):
     assert 'file = "spec.csv"' in text
     (tmp_path / "again.toml").write_text(text)
     _same_images(scene, load_scene(tmp_path / "again.toml"))
+
+
+def test_bodies_made_from_volumes_are_not_written_as_meshes(tmp_path):
+    body = Body(name="bone", mesh=trimesh.creation.icosphere(radius=10.0), mu=0.5,
+                source_file=tmp_path / "seg.nii.gz")
+    scene = Scene(Source(position=[0, 0, 1000.0]), Detector(center=[0, 0, -500.0]), (body,))
+    with pytest.raises(SceneError, match="seg.nii.gz, not a mesh file"):
+        scene.to_toml()

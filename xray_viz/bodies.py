@@ -103,9 +103,9 @@ class Bodies(Sequence):
         Check every mesh and repair one that is not closed and outward, with a
         :class:`~xray_viz.meshes.repair.MeshRepairWarning` (the default). ``False`` trusts
         the caller (the meshes are checked on first use of :attr:`reports`).
-    reports : sequence of MeshReport, optional
+    reports : sequence of MeshReport or None, optional
         The meshes' reports when the caller has just checked them (the scene file loader),
-        so they are not checked twice.
+        so they are not checked twice; a None entry is checked here.
 
     Raises
     ------
@@ -130,8 +130,11 @@ class Bodies(Sequence):
             reports = tuple(reports)
             if len(reports) != len(bodies):
                 raise SceneError("Bodies: one report per body")
-        elif check:
-            checked = [_traceable(b, where) for b in bodies]
+        if check or reports is not None:
+            known = reports if reports is not None else (None,) * len(bodies)
+            checked = [(b, r) if r is not None else _traceable(b, where)
+                       for b, r in zip(bodies, known)] if check or None in known else \
+                list(zip(bodies, known))
             bodies = tuple(b for b, _ in checked)
             reports = tuple(r for _, r in checked)
         self._bodies = bodies

@@ -34,6 +34,8 @@ examples:
   xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
   xray-viz bench --suite peers                      time and error against Open3D, embree, gVXR
   xray-viz mesh scan.stl -o fixed.stl --decimate 50000   repair (always) and decimate a mesh
+  xray-viz mesh seg.nii.gz -o bodies/               a label map's meshes and a scene snippet
+  xray-viz convert gvxr.json -o scene.toml          a gVirtualXray JSON scene as a scene file
   xray-viz walkthrough --list                       the walkthroughs that rebuild the thesis
   xray-viz walkthrough 6                            Moller-Trumbore step by step, one ray
 
@@ -158,7 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "suffix: " + "; ".join(f"{k} = {v}" for k, v in FORMATS.items() if k != ".tif")
                     + ".", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", metavar="SCENE",
-                   help="a scene .toml file, or a bundled phantom name (`xray-viz phantoms`)")
+                   help="a scene .toml file (or a gVirtualXray .json scene), or a bundled phantom "
+                        "name (`xray-viz phantoms`)")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="output file: .npy, .tiff, .png or .dcm (DICOM with the geometry)")
     p.add_argument("--quantity", choices=QUANTITIES, default="intensity",
@@ -176,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_show_parser(sub)
     add_mesh_parser(sub)
+    from xray_viz.meshes.gvxr import add_convert_parser
+
+    add_convert_parser(sub)
     p = sub.add_parser(
         "bench", help="benchmark the engines: time vs error, peers, scaling (source checkout)",
         add_help=False, description="Runs benchmarks/suites.py of the source repository.")

@@ -552,8 +552,9 @@ class Body:
     name : str
         Unique name of the body: not empty, no control characters (it appears in one-line
         messages).
-    mesh : trimesh.Trimesh
-        Closed, outward-oriented surface, in scene coordinates (mm), transforms applied.
+    mesh : trimesh.Trimesh or pyvista.DataSet
+        Closed, outward-oriented surface, in scene coordinates (mm), transforms applied. A
+        pyvista dataset is replaced by its extracted, triangulated surface (a Trimesh).
         Between 1 pm and 1000 km across (:data:`BODY_SIZE_RANGE`) and at least ``2**-30`` of
         its distance from the origin (:data:`BODY_MIN_RELATIVE`), so that float64 holds it.
     mu : float or None
@@ -588,6 +589,9 @@ class Body:
     placement: dict | None = None
 
     def __post_init__(self):
+        from xray_viz.meshes.io import as_trimesh
+
+        object.__setattr__(self, "mesh", as_trimesh(self.mesh))  # pyvista: its surface
         check_name(self.name)
         where = f"body {self.name!r}: "
         mu, density = _check_body_values(where, self.mu, self.material, self.density)
@@ -878,6 +882,13 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
             raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
                              "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
                              "source_file= that file, to write the scene")
+        from xray_viz.meshes.io import MESH_SUFFIXES
+
+        mesh_file = str(body.source_file).split("#")[0]          # model.glb#NODE: the file
+        if not mesh_file.lower().endswith(MESH_SUFFIXES):
+            raise SceneError(f"body {body.name!r} was made from {Path(mesh_file).name}, not a "
+                             "mesh file: write its meshes with `xray-viz mesh FILE -o FOLDER` "
+                             "and refer to them, to write the scene")
         entry = {"name": body.name, "mesh": _path_text(body.source_file, base)}
         if body.mu is not None:
             entry["mu"] = body.mu
@@ -1283,7 +1294,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     """
     base_dir = Path(base_dir)
     top = _Table(doc, "scene", file)
-    top.expect(("source", "detector", "body"))
+    top.expect(("source", "detector", "body", "labels", "ct"))  # [[labels]], [[ct]]: volumes
     src = top.table("source", required=True)
     src.where = "[source]"
     src.expect(SOURCE_KEYS)
@@ -1382,11 +1393,19 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     raw_bodies = top.raw("body", default=[])
     if not isinstance(raw_bodies, list):
         top.fail("'body' must be an array of tables: write [[body]]")
+    volumes = {key: top.raw(key) for key in ("labels", "ct")}
     top.done()
+    from xray_viz.meshes.io import expand_nodes
+
+    raw_bodies = expand_nodes(raw_bodies, base_dir, file=file)  # glTF nodes: a body each
     parsed = []
     for k, raw in enumerate(raw_bodies):
         bt = _Table(raw, f"[[body]] #{k + 1}", file)
         parsed.append(_parse_body(bt, base_dir, k))
+    if any(v is not None for v in volumes.values()):  # label maps and CTs: bodies after [[body]]
+        from xray_viz.meshes.volumes import volume_bodies
+
+        parsed.extend((b, None) for b in volume_bodies(volumes, base_dir=base_dir, file=file))
     bodies = [b for b, _ in parsed]
     _check_material_energies(src, energy, spectrum, bodies)
     from xray_viz.bodies import Bodies
@@ -1450,6 +1469,10 @@ def load_scene(path: str | Path) -> Scene:
                 f"{path}: no such scene file, and no bundled phantom of that name "
                 f"(phantoms: {names})"
             )
+    if p.suffix.lower() == ".json":  # a gVirtualXray scene
+        from xray_viz.meshes.gvxr import load_gvxr
+
+        return load_gvxr(p)
     try:
         text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError:
@@ -1459,5 +1482,7 @@ def load_scene(path: str | Path) -> Scene:
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{p}: malformed TOML: {exc}") from None
+        from xray_viz.meshes.gvxr import not_toml
+
+        raise SceneError(not_toml(p, text) or f"{p}: malformed TOML: {exc}") from None
     return scene_from_dict(doc, base_dir=p.parent, file=p)

@@ -9,12 +9,14 @@ import numpy as np
 
 from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line
 
-__all__ = ["load_mesh", "MESH_SUFFIXES"]
+__all__ = ["load_mesh", "MESH_SUFFIXES", "as_trimesh", "scene_nodes", "expand_nodes"]
 
 #: File suffixes read by :func:`load_mesh` through trimesh.
 TRIMESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
 #: File suffixes read through pyvista (VTK XML PolyData and legacy VTK).
 VTK_SUFFIXES = (".vtp", ".vtk")
+#: Scene formats whose nodes become one body each (unless ``merge = true``).
+NODE_SUFFIXES = (".glb", ".gltf")
 #: Every file suffix read by :func:`load_mesh`.
 MESH_SUFFIXES = TRIMESH_SUFFIXES + VTK_SUFFIXES
 
@@ -158,8 +160,10 @@ def load_mesh(path: str | Path, *, process: bool = True):
     ----------
     path : str or Path
         An STL (ASCII or binary), OBJ, PLY, OFF or GLB/GLTF file (read with trimesh), or a
-        VTK ``.vtp`` / ``.vtk`` file (read with pyvista, imported only for these; polygons
-        are triangulated, and a volume mesh is reduced to its outer surface).
+        VTK ``.vtp`` / ``.vtk`` file (read with pyvista, imported only for these;
+        polygons are triangulated, and a volume mesh is reduced to its outer surface).
+        ``model.glb#NODE`` is the mesh of one node of a glTF/GLB scene (its transform
+        applied); ``model.glb`` alone is every node's mesh merged.
     process : bool, optional
         Merge coincident duplicate vertices (trimesh ``process=True``; STL stores every
         triangle's corners separately, a triangle soup). False gives the vertices and faces
@@ -189,6 +193,10 @@ def load_mesh(path: str | Path, *, process: bool = True):
     import trimesh
 
     path = Path(path)
+    if not path.exists() and "#" in path.name:
+        base, _, node = str(path).rpartition("#")
+        if Path(base).suffix.lower() in NODE_SUFFIXES and Path(base).exists():
+            return _node_mesh(Path(base), node, process=process)
     if not path.exists():
         raise SceneFileNotFoundError(f"{path}: mesh file not found")
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -211,3 +219,128 @@ def load_mesh(path: str | Path, *, process: bool = True):
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=bool(process),
                            validate=False)
     return mesh
+
+
+def as_trimesh(mesh):
+    """A body's mesh as a ``trimesh.Trimesh``: a pyvista dataset becomes its extracted,
+    triangulated surface; anything else is returned as it is (``Body`` checks it).
+
+    Examples
+    --------
+    >>> import pyvista as pv
+    >>> ball = as_trimesh(pv.Sphere(radius=2.0))
+    >>> type(ball).__name__, ball.is_watertight
+    ('Trimesh', True)
+    >>> type(as_trimesh(pv.ImageData(dimensions=(3, 3, 3)))).__name__  # any dataset: its surface
+    'Trimesh'
+    """
+    import sys
+
+    pv = sys.modules.get("pyvista")   # not imported: the mesh cannot be one of its datasets
+    if pv is None or not isinstance(mesh, pv.DataSet):
+        return mesh
+    import trimesh
+
+    if isinstance(mesh, pv.PolyData):
+        surface = mesh
+    else:
+        try:
+            surface = mesh.extract_surface(algorithm="dataset_surface")
+        except TypeError:  # older pyvista: no algorithm keyword
+            surface = mesh.extract_surface()
+    if surface.n_cells and not surface.is_all_triangles:
+        surface = surface.triangulate()
+    faces = (np.asarray(surface.regular_faces, dtype=np.int64) if surface.faces.size
+             else np.zeros((0, 3), np.int64))
+    return trimesh.Trimesh(np.asarray(surface.points, dtype=np.float64), faces, process=True,
+                           validate=False)
+
+
+def scene_nodes(path) -> list[str]:
+    """Names of the nodes of a glTF/GLB file that carry a mesh (sorted); [] for other files.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, trimesh
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "two.glb"
+    >>> s = trimesh.Scene()
+    >>> _ = s.add_geometry(trimesh.creation.box(), node_name="box")
+    >>> _ = s.add_geometry(trimesh.creation.icosphere(), node_name="ball")
+    >>> _ = s.export(path)
+    >>> scene_nodes(path)
+    ['ball', 'box']
+    """
+    path = Path(path)
+    if path.suffix.lower() not in NODE_SUFFIXES or not path.is_file():
+        return []
+    scene = _load_scene(path)
+    return sorted(scene.graph.nodes_geometry)
+
+
+def _load_scene(path: Path):
+    import trimesh
+
+    try:
+        return trimesh.load(path, force="scene", process=False)
+    except Exception as exc:  # trimesh raises many types on corrupt files
+        raise MeshError(f"{path}: cannot read mesh: {_reason(exc)}") from None
+
+
+def _node_mesh(path: Path, node: str, *, process: bool):
+    import trimesh
+
+    scene = _load_scene(path)
+    nodes = sorted(scene.graph.nodes_geometry)
+    if node not in nodes:
+        raise MeshError(f"{path}: has no mesh node {excerpt(node)}; its nodes: "
+                        f"{', '.join(nodes) or 'none'}")
+    transform, geometry = scene.graph[node]
+    mesh = scene.geometry[geometry].copy()
+    mesh.apply_transform(transform)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if len(faces) == 0:
+        raise MeshError(f"{path}#{node}: mesh is empty (no triangles)")
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError(f"{path}#{node}: vertices are NaN or infinite")
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=bool(process), validate=False)
+
+
+def expand_nodes(raw_bodies, base_dir, *, file=None):
+    """The scene file's ``[[body]]`` tables with each glTF/GLB of several mesh nodes expanded
+    into one table per node (``mesh = "model.glb#NODE"``, ``name = "NAME/NODE"``, NAME being
+    the table's name or else the file's stem), unless the table says ``merge = true`` (then
+    one body of every node's mesh). ``merge`` is removed from the tables returned.
+
+    Examples
+    --------
+    >>> expand_nodes([{"name": "a", "mesh": "a.stl", "mu": 0.1}], ".")
+    [{'name': 'a', 'mesh': 'a.stl', 'mu': 0.1}]
+    """
+    from xray_viz.errors import SceneError
+
+    if not isinstance(raw_bodies, list):
+        return raw_bodies
+    out = []
+    for k, raw in enumerate(raw_bodies):
+        if not isinstance(raw, dict):
+            out.append(raw)
+            continue
+        raw = dict(raw)
+        merge = raw.pop("merge", False)
+        where = f"{file}: " * bool(file) + f"[[body]] #{k + 1}"
+        if not isinstance(merge, bool):
+            raise SceneError(f"{where} merge must be true or false, got {excerpt(str(merge))}")
+        mesh = raw.get("mesh")
+        if merge or not isinstance(mesh, str) or Path(mesh).suffix.lower() not in NODE_SUFFIXES:
+            out.append(raw)
+            continue
+        path = Path(mesh) if Path(mesh).is_absolute() else Path(base_dir) / mesh
+        nodes = scene_nodes(path) if path.is_file() else []
+        if len(nodes) < 2:
+            out.append(raw)
+            continue
+        prefix = raw.get("name") if isinstance(raw.get("name"), str) else Path(mesh).stem
+        for node in nodes:
+            out.append({**raw, "name": f"{prefix}/{node}", "mesh": f"{mesh}#{node}"})
+    return out

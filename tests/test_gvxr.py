@@ -1,0 +1,295 @@
+"""gVirtualXray JSON scenes: loaded directly, converted to TOML, and one-line errors for what
+has no equivalent (xray_viz.meshes.gvxr)."""
+
+from __future__ import annotations
+
+import doctest
+import json
+import re
+import tomllib
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+import xray_viz
+from xray_viz import cli
+from xray_viz.errors import SceneError
+from xray_viz.meshes import gvxr as G
+
+
+def write_meshes(folder):
+    folder.mkdir(exist_ok=True)
+    trimesh.creation.icosphere(subdivisions=3, radius=2.0).export(folder / "ball.stl")
+    trimesh.creation.box(extents=[30.0, 20.0, 10.0]).export(folder / "plate.stl")
+
+
+def gvxr_doc(**changes):
+    doc = {
+        "WindowSize": [500, 500],
+        "Source": {"Position": [0, 0, 100, "cm"], "Shape": "PointSource",
+                   "Beam": [{"Energy": 60, "Unit": "keV", "PhotonCount": 1000}]},
+        "Detector": {"Position": [0, 0, -20, "cm"], "UpVector": [0, 1, 0],
+                     "NumberOfPixels": [64, 48], "Spacing": [0.5, 0.5, "mm"]},
+        "Samples": [
+            {"Label": "plate", "Path": "meshes/plate.stl", "Unit": "mm",
+             "Material": ["Element", "Al"]},
+            {"Label": "ball", "Path": "meshes/ball.stl", "Unit": "cm",
+             "Material": ["Mixture", "Ti90Al6V4"], "Density": 4.43,
+             "Transform": [["Translation", 5, 0, 0, "mm"], ["Rotation", 90, 0, 0, 1]]},
+            {"Label": "water", "Path": "meshes/ball.stl", "Unit": "mm",
+             "Material": ["Compound", "H2O"], "Density": 1.0,
+             "Transform": [["Scaling", 1.0, 2.0, 1.0], ["Translation", 0, 0, 20, "mm"]]},
+        ],
+    }
+    for key, value in changes.items():
+        section, _, sub = key.partition("__")
+        if sub:
+            doc[section][sub] = value
+        else:
+            doc[section] = value
+    return doc
+
+
+def write_json(tmp_path, doc, name="scene.json"):
+    write_meshes(tmp_path / "meshes")
+    p = tmp_path / name
+    p.write_text(json.dumps(doc, indent=2))
+    return p
+
+
+def test_json_scene_loads_with_units_materials_and_transforms(tmp_path):
+    scene = xray_viz.load_scene(write_json(tmp_path, gvxr_doc()))
+    assert scene.source.position.tolist() == [0.0, 0.0, 1000.0]     # cm -> mm
+    assert scene.detector.center.tolist() == [0.0, 0.0, -200.0]
+    assert scene.detector.shape == (64, 48) and scene.detector.pitch == (0.5, 0.5)
+    assert scene.source.energy == 60.0 and scene.detector.i0 == 1000.0
+    plate, ball, water = scene.bodies
+    assert plate.material == "Al" and plate.density == pytest.approx(2.699, rel=1e-3)
+    assert ball.material == pytest.approx({"Ti": 0.9, "Al": 0.06, "V": 0.04})
+    assert (water.material, water.density) == ("H2O", 1.0)
+    # gVXR's node matrix: each transform right-multiplies, so the last one acts first on
+    # the vertices (rotate about z, then translate); the unit scales the mesh file itself
+    raw = trimesh.load(tmp_path / "meshes" / "ball.stl")
+    r = Rotation.from_rotvec([0, 0, np.pi / 2]).as_matrix()
+    expected = (raw.vertices * 10.0) @ r.T + [5.0, 0, 0]
+    assert np.allclose(np.sort(ball.vertices, axis=0), np.sort(expected, axis=0), atol=1e-9)
+    # scaling then translation listed: the translation acts first, then the scaling
+    expected = (raw.vertices + [0, 0, 20.0]) * [1.0, 2.0, 1.0]
+    assert np.allclose(np.sort(water.vertices, axis=0), np.sort(expected, axis=0), atol=1e-9)
+
+
+def test_tube_beam_and_detector_size(tmp_path):
+    doc = gvxr_doc(Source__Beam={"kvp": 80, "tube angle": 10, "mAs": 2.0,
+                                 "filter": [["Al", 2.5], [29, 100, "um"]]},
+                   Source__Shape="ParallelBeam",
+                   Detector__Size=[32.0, 24.0, "mm"], Detector__Oversampling=2)
+    del doc["Detector"]["Spacing"]
+    d = G.gvxr_to_dict(doc, base_dir=tmp_path)
+    assert d["source"]["spectrum"] == {"kvp": 80.0, "anode_angle": 10.0,
+                                       "filters": {"Al": 2.5, "Cu": 0.1}}
+    assert d["source"]["mas"] == 2.0 and d["source"]["kind"] == "parallel"
+    assert d["detector"]["pitch"] == 0.5                 # gVXR: size / pixels
+    assert d["detector"]["supersample"] == 2
+
+
+def test_render_json_equals_render_of_the_converted_toml(tmp_path, capsys):
+    src = write_json(tmp_path, gvxr_doc())
+    (tmp_path / "out").mkdir()
+    dst = tmp_path / "out" / "scene.toml"
+    assert cli.main(["convert", str(src), "-o", str(dst)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    text = dst.read_text()
+    doc = tomllib.loads(text)
+    assert doc["body"][0]["mesh"] == "../meshes/plate.stl"   # relative to OUT's folder
+    a = xray_viz.render(xray_viz.load_scene(src), engine="numpy")
+    b = xray_viz.render(xray_viz.load_scene(dst), engine="numpy")
+    assert np.array_equal(a.intensity, b.intensity)
+    assert a.intensity.min() < 0.9 * a.intensity.max()        # the bodies are in the image
+    # and the CLI renders the JSON directly
+    assert cli.main(["render", str(src), "-o", str(tmp_path / "img.npy")]) == 0
+    assert np.allclose(np.load(tmp_path / "img.npy"), a.intensity, rtol=1e-6)  # fast engine
+
+
+def test_json_where_toml_is_expected_is_named(tmp_path, capsys):
+    p = write_json(tmp_path, gvxr_doc(), name="scene.toml")
+    with pytest.raises(SceneError, match=r"is a JSON file \(a gVirtualXray scene\), not TOML"):
+        xray_viz.load_scene(p)
+    rc = cli.main(["render", str(p), "-o", str(tmp_path / "x.npy")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "malformed TOML" not in err and "xray-viz convert" in err
+    q = tmp_path / "other.toml"
+    q.write_text('{"a": 1}')
+    with pytest.raises(SceneError, match="is a JSON file, not TOML"):
+        xray_viz.load_scene(q)
+
+
+def test_focal_spot_and_scan_warn(tmp_path):
+    doc = gvxr_doc(Source__Shape=["FocalSpot", 0.4, "mm", 5],
+                   Scan={"NumberOfProjections": 10, "FinalAngle": 360})
+    with pytest.warns(G.GvxrWarning) as record:
+        d = G.gvxr_to_dict(doc)
+    assert d["detector"]["focal_spot"] == 0.4
+    messages = " | ".join(str(w.message) for w in record)
+    assert "Gaussian" in messages and "Scan" in messages
+
+
+@pytest.mark.parametrize("change, expect", [
+    (dict(Samples=[{"Label": "c", "Cube": [10, "mm"], "Material": ["Element", "Fe"]}]),
+     r"Samples #1 \('c'\): the primitive 'Cube' has no equivalent"),
+    (dict(Samples=[{"Label": "b", "Path": "meshes/ball.stl", "Material": ["HU", 400]}]),
+     r"a Hounsfield value has no equivalent"),
+    (dict(Source__Beam=[{"Energy": 40, "Unit": "keV", "PhotonCount": 1},
+                        {"Energy": 60, "Unit": "keV", "PhotonCount": 1}]),
+     r"Source Beam: a spectrum of 2 lines \(40 to 60 keV\) has no equivalent"),
+    (dict(Source__Beam={"TextFile": "spectrum.txt", "Unit": "keV"}),
+     r"Source Beam TextFile: a spectrum read from a gVXR text file has no equivalent"),
+    (dict(Detector__LSF=[0.1, 0.8, 0.1]), r"Detector LSF: has no equivalent"),
+    (dict(Samples=["MoveToCentre"]), r"Samples #1: 'MoveToCentre' has no equivalent"),
+    (dict(Detector__RightVector=[-1, 0, 0]), r"Detector RightVector: \[-1.0, 0.0, 0.0\] is not"),
+    (dict(Samples=[{"Label": "s", "Path": "meshes/ball.stl", "Material": ["Element", "Fe"],
+                    "Transform": [["Rotation", 30, 0, 0, 1], ["Scaling", 1, 2, 1],
+                                  ["Rotation", 30, 0, 0, 1]]}]),
+     r"Transform: a scaling between rotations shears the mesh"),
+    (dict(Source__Colour=[1, 0, 0]), r"Source: unknown key 'Colour'"),
+    (dict(Detector__Spacing=[0.5, 0.5, "furlong"]), r"unknown length unit 'furlong'"),
+    (dict(Samples=[{"Label": "m", "Path": "meshes/ball.stl", "Material": ["Mixture", "Ti90"]}]),
+     r"a mixture needs a 'Density'"),
+    (dict(SceneGraph={"Path": "x.dae", "Unit": "mm"}), r"SceneGraph: a gVXR scene graph"),
+])
+def test_no_equivalent_is_one_line(tmp_path, capsys, change, expect):
+    p = write_json(tmp_path, gvxr_doc(**change))
+    out = tmp_path / "out.npy"
+    rc = cli.main(["render", str(p), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and err.startswith("xray-viz: error: "), err
+    assert str(p) in err and re.search(expect, err), err
+    assert not out.exists()
+    rc = cli.main(["convert", str(p), "-o", str(tmp_path / "s.toml")])
+    assert rc == 2 and not (tmp_path / "s.toml").exists()
+    capsys.readouterr()
+
+
+def test_malformed_json_is_one_line(tmp_path, capsys):
+    p = tmp_path / "bad.json"
+    p.write_text('{"Source": {"Position": [0, 0, 1, "m"],,}')
+    rc = cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "malformed JSON" in err and "line 1" in err
+
+
+def test_convert_refuses_a_non_toml_output_and_keeps_a_previous_file(tmp_path, capsys):
+    src = write_json(tmp_path, gvxr_doc())
+    assert cli.main(["convert", str(src), "-o", str(tmp_path / "s.json")]) == 2
+    assert "name it .toml" in capsys.readouterr().err
+    dst = tmp_path / "s.toml"
+    dst.write_text("previous")
+    bad = write_json(tmp_path, gvxr_doc(Detector__LSF=[1]), name="bad.json")
+    assert cli.main(["convert", str(bad), "-o", str(dst)]) == 2
+    assert dst.read_text() == "previous"
+
+
+def test_to_toml_round_trips_through_tomllib():
+    doc = {"source": {"position": [0.0, -1.5, 1e3], "spectrum": {"kvp": 80.0,
+                                                               "filters": {"Al": 2.5}}},
+           "detector": {"shape": [4, 3], "pitch": [0.1, 0.2], "noise": False},
+           "body": [{"name": 'odd "name" é', "mesh": "a b/c.stl",
+                     "material": {"Blood (ICRP)": 0.99, "I": 0.01}, "density": 1.07}]}
+    assert tomllib.loads(G.to_toml(doc, header="a\nb")) == doc
+
+
+def test_docstring_examples():
+    result = doctest.testmod(G, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    assert result.attempted > 0 and result.failed == 0
+
+
+# --------------------------------------------------------------------------------------------
+# other mesh inputs: pyvista and trimesh objects, glTF/GLB scenes of several nodes
+
+
+def _scene_with(bodies):
+    from xray_viz.scene import Detector, Scene, Source
+
+    return Scene(source=Source(position=[0, 0, 500.0], kind="parallel"),
+                 detector=Detector(center=[0, 0, -100.0], up=[0, 1, 0], shape=(48, 48),
+                                   pitch=0.5),
+                 bodies=bodies)
+
+
+def test_body_accepts_pyvista_datasets_and_trimesh():
+    import pyvista as pv
+
+    from xray_viz.scene import Body
+
+    tri = trimesh.creation.icosphere(subdivisions=3, radius=8.0)
+    poly = pv.PolyData.from_regular_faces(tri.vertices, tri.faces)
+    a = Body(name="a", mesh=tri, mu=0.2)
+    b = Body(name="b", mesh=poly, mu=0.2)
+    assert isinstance(b.mesh, trimesh.Trimesh) and b.mesh.is_watertight
+    ia = xray_viz.render(_scene_with([a]), engine="numpy").quantity("path-length")
+    ib = xray_viz.render(_scene_with([b]), engine="numpy").quantity("path-length")
+    assert np.allclose(ia, ib, atol=1e-9) and ia.max() > 15
+    # any dataset: its outer surface (a 10 mm voxel block; an unstructured grid of it)
+    grid = pv.ImageData(dimensions=(11, 11, 11), spacing=(1.0, 1.0, 1.0), origin=(-5, -5, -5))
+    for dataset in (grid, grid.cast_to_unstructured_grid()):
+        body = Body(name="block", mesh=dataset, mu=0.1)
+        assert body.mesh.is_watertight and body.mesh.volume == pytest.approx(1000.0)
+        image = xray_viz.render(_scene_with([body]), engine="numpy").quantity("path-length")
+        assert image.max() == pytest.approx(10.0)
+
+
+def write_glb(path):
+    s = trimesh.Scene()
+    s.add_geometry(trimesh.creation.box(extents=[4, 4, 4]), node_name="cube",
+                   transform=trimesh.transformations.translation_matrix([10, 0, 0]))
+    s.add_geometry(trimesh.creation.icosphere(radius=3.0), node_name="ball")
+    s.add_geometry(trimesh.creation.icosphere(radius=1.0), node_name="pearl",
+                   transform=trimesh.transformations.translation_matrix([0, 10, 0]))
+    s.export(path)
+
+
+GLB_SCENE = """
+[source]
+position = [0.0, 0.0, 500.0]
+kind = "parallel"
+[detector]
+center = [0.0, 0.0, -100.0]
+shape = [16, 16]
+pitch = 2.0
+[[body]]
+mesh = "model.glb"
+mu = 0.1
+{extra}
+"""
+
+
+def test_glb_of_several_nodes_loads_as_several_bodies(tmp_path):
+    write_glb(tmp_path / "model.glb")
+    (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra=""))
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    assert [b.name for b in scene.bodies] == ["model/ball", "model/cube", "model/pearl"]
+    ball, cube, pearl = scene.bodies
+    assert np.allclose(cube.mesh.bounds, [[8, -2, -2], [12, 2, 2]])   # its node's transform
+    assert np.allclose(pearl.mesh.centroid, [0, 10, 0], atol=0.05)
+    # merge = true: one body of all of them; a named node: that one only
+    (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra='name = "all"\nmerge = true'))
+    (merged,) = xray_viz.load_scene(tmp_path / "s.toml").bodies
+    assert merged.name == "all" and len(merged.faces) == sum(len(b.faces) for b in scene.bodies)
+    (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra="").replace(
+        'mesh = "model.glb"', 'mesh = "model.glb#cube"'))
+    (only,) = xray_viz.load_scene(tmp_path / "s.toml").bodies
+    assert np.allclose(only.mesh.bounds, cube.mesh.bounds)
+
+
+def test_glb_errors_are_one_line(tmp_path, capsys):
+    write_glb(tmp_path / "model.glb")
+    for extra, mesh, expect in [
+        ('merge = "yes"', "model.glb", r"\[\[body\]\] #1 merge must be true or false"),
+        ("", "model.glb#nope", r"has no mesh node 'nope'; its nodes: ball, cube, pearl"),
+    ]:
+        (tmp_path / "s.toml").write_text(GLB_SCENE.format(extra=extra).replace(
+            'mesh = "model.glb"', f'mesh = "{mesh}"'))
+        rc = cli.main(["render", str(tmp_path / "s.toml"), "-o", str(tmp_path / "o.npy")])
+        err = capsys.readouterr().err
+        assert rc == 2 and err.count("\n") == 1 and re.search(expect, err), err
