@@ -38,8 +38,8 @@ import threading
 import time
 import warnings
 
-__all__ = ["DELAY", "configure", "is_enabled", "task", "current", "advance", "rows", "status",
-           "iterate", "Task", "setup_logging", "LOGGER"]
+__all__ = ["DELAY", "configure", "is_enabled", "task", "tracked", "current", "advance", "rows",
+           "status", "iterate", "echo", "wrote", "Task", "setup_logging", "LOGGER"]
 
 #: Seconds a task runs before its bar appears (``$XRAY_VIZ_PROGRESS_DELAY`` overrides it).
 DELAY = 2.0
@@ -185,6 +185,46 @@ def status(text: str | None) -> None:
     t = _current.get()
     if t is not None:
         t.status(text)
+
+
+def echo(text: str) -> None:
+    """Print ``text`` on stdout, above any bar being drawn."""
+    if _enabled:
+        from tqdm import tqdm
+
+        tqdm.write(text, file=sys.stdout)
+    else:
+        print(text, flush=True)
+
+
+def wrote(path) -> None:
+    """Say ``wrote PATH`` on stdout (:func:`echo`) and count a step of the current task."""
+    echo(f"wrote {path}")
+    advance()
+
+
+def tracked(desc: str, *, total: int | None = None, unit: str = "it"):
+    """Decorate a function so that each call runs as a :func:`task`.
+
+    Examples
+    --------
+    >>> from xray_viz import progress
+    >>> @progress.tracked("adding", unit="steps")
+    ... def add(a, b):
+    ...     progress.advance()
+    ...     return a + b
+    >>> add(1, 2)
+    3
+    """
+    import functools
+
+    def decorate(func):
+        @functools.wraps(func)
+        def run(*args, **kwargs):
+            with task(desc, total=total, unit=unit):
+                return func(*args, **kwargs)
+        return run
+    return decorate
 
 
 def iterate(iterable, desc: str, *, total: int | None = None, unit: str = "it"):
