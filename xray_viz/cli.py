@@ -364,7 +364,7 @@ def version_report(*, gpu: bool = True) -> str:
     A :class:`scooby.Report` (as :class:`pyvista.Report` is): the platform, Python, every
     package of :data:`REPORT_CORE` and those of :data:`REPORT_OPTIONAL` that are installed,
     and with ``gpu`` the OpenGL renderer and VTK's render-window class (from an off-screen
-    window; ``error: ...`` when none can be made).
+    window, EGL when there is no display; ``error: ...`` when none can be made).
 
     Examples
     --------
@@ -375,6 +375,9 @@ def version_report(*, gpu: bool = True) -> str:
 
     meta = []
     if gpu:
+        from xray_viz.viz.command import _use_egl_if_headless
+
+        _use_egl_if_headless()        # no X server: EGL, as `xray-viz show --screenshot` uses
         try:
             from pyvista.report import GPUInfo
 
