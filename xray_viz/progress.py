@@ -97,8 +97,11 @@ class Task:
             except (AttributeError, ValueError, OSError):
                 sized = False
             fixed = {} if sized else {"ncols": 80, "nrows": 24}
-            self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False,
-                             delay=_delay(), dynamic_ncols=sized, mininterval=0.2, **fixed)
+            if total is None:                 # a count and the time so far
+                fixed["bar_format"] = "{desc}: {n_fmt}{unit} [{elapsed}{postfix}]"
+            self._bar = tqdm(total=total, desc=desc, unit=f" {unit}", file=sys.stderr,
+                             leave=False, delay=_delay(), dynamic_ncols=sized, mininterval=0.2,
+                             **fixed)
             self._stop = threading.Event()
             threading.Thread(target=self._tick, daemon=True, name="xray_viz-progress").start()
 
