@@ -412,13 +412,14 @@ def _bench_command(args) -> int:
     """``xray-viz bench ARGS``: the benchmark suites (a thin entry: they are not installed)."""
     suites = bench_suites()
     if suites is None:
+        from xray_viz import __version__
+
         raise XrayVizError(
-            "the benchmark suites are not part of an installed package (a wheel): they are in "
-            "the source distribution and the repository, in benchmarks/; in an unpacked source "
-            "tree (`pip download --no-deps --no-binary :all: xray_viz`, or a clone) install the "
-            "benchmark extra with `pip install -e '.[bench]'` (Open3D, embreex, gVXR) and "
-            "`bash benchmarks/setup.sh` (their Debian libraries), then run `xray-viz bench` "
-            "there (see BENCHMARKS.md)")
+            "the benchmark suites are not in an installed wheel: they ship in the source "
+            f"distribution (xray_viz-{__version__}.tar.gz) and the repository, in benchmarks/; "
+            "in that source tree install the benchmark extra with `pip install -e '.[bench]'` "
+            "(Open3D, embreex, gVXR) and run `bash benchmarks/setup.sh` (their Debian "
+            "libraries), then `xray-viz bench` (see BENCHMARKS.md)")
     import runpy
 
     module = runpy.run_path(str(suites), run_name="xray_viz_bench_suites")
