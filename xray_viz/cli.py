@@ -38,7 +38,7 @@ examples:
   xray-viz render default -o out/default.png       render the bundled default scene
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
-  xray-viz render limb -o limb.png --kvp 70 --shape 512 512   the file's values, changed for one run
+  xray-viz render limb -o limb.png --energy 40     a scene file's value, changed for one run
   xray-viz phantoms                                 list the bundled phantoms
   xray-viz show frog                                the interactive 3D viewer beside the radiograph
   xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
