@@ -166,15 +166,18 @@ def main(argv=None):
     print("| job | bodies | pixels | engine | peak RSS (MiB) | above baseline, bytes per pixel "
           "| seconds |")
     print("| --- | ---: | ---: | --- | ---: | ---: | ---: |")
-    for kind, shape, nb, engine in jobs:
+    from xray_viz import progress
+
+    progress.configure(enabled=sys.stderr.isatty())
+    for kind, shape, nb, engine in progress.iterate(jobs, "memory jobs", unit="jobs"):
         r = median_job(kind, shape, nb, engine, args.repeat, args.python)
         if r is None:
-            print(f"| {kind} | {nb} | {shape}^2 | {engine} | failed | | |", flush=True)
+            progress.echo(f"| {kind} | {nb} | {shape}^2 | {engine} | failed | | |")
             continue
         peak, seconds = r
         per = (peak - base[0]) / shape ** 2
-        print(f"| {kind} | {nb} | {shape}^2 | {engine} | {_mib(peak)} | {per:.0f} | "
-              f"{seconds:.1f} |", flush=True)
+        progress.echo(f"| {kind} | {nb} | {shape}^2 | {engine} | {_mib(peak)} | {per:.0f} | "
+                      f"{seconds:.1f} |")
     return 0
 
 

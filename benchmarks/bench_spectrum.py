@@ -70,7 +70,12 @@ def main(argv=None):
         render(scene)
 
     rows = {}
-    for mode in ("cold", "warm"):
+    import sys
+
+    from xray_viz import progress
+
+    progress.configure(enabled=sys.stderr.isatty())
+    for mode in progress.iterate(("cold", "warm"), "spectrum renders", unit="modes"):
         cold = mode == "cold"
         if not cold:
             render(poly)               # the path lengths are cached from here on

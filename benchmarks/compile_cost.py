@@ -38,7 +38,11 @@ if __name__ == "__main__":
         for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
             f.unlink()
         print("numba cache cleared")
-    for label in ("process 1", "process 2 (cached)"):
+    from xray_viz import progress
+
+    progress.configure(enabled=sys.stderr.isatty())
+    for label in progress.iterate(("process 1", "process 2 (cached)"), "compile cost",
+                                  unit="processes"):
         t = time.perf_counter()
         out = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True)
-        print(f"{label}: {out.stdout.strip()} {out.stderr.strip()[-300:]}")
+        progress.echo(f"{label}: {out.stdout.strip()} {out.stderr.strip()[-300:]}")

@@ -465,10 +465,12 @@ def _quiet_gvxr():
 # Suites
 
 
-def _progress(iterable, **kw):
-    from tqdm.auto import tqdm
+def _progress(iterable, *, desc, leave=None):
+    """A progress bar over ``iterable`` on a terminal (:mod:`xray_viz.progress`; ``xray-viz
+    -q bench`` turns it off)."""
+    from xray_viz import progress
 
-    return tqdm(iterable, **kw)
+    return progress.iterate(iterable, desc)
 
 
 def run_pareto(out, *, repeat, subdivisions, shape, supersamples, decimations,
@@ -1090,4 +1092,9 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
+    import sys
+
+    from xray_viz import progress
+
+    progress.configure(enabled=sys.stderr.isatty())
     raise SystemExit(main())

@@ -2,16 +2,25 @@
 
 Every sub-command reports bad input as one line on stderr (``xray-viz: error: ...``) and exits
 with status 2, without a traceback; nothing is half-written.
+
+Messages go through :mod:`logging` (the logger ``"xray_viz"``, see :mod:`xray_viz.progress`):
+notices and one-line warnings on stderr by default, debug lines with ``-v``, warnings only with
+``-q`` (``-qq``: errors only). Progress bars appear on a terminal only, for jobs longer than a
+couple of seconds, and never with ``-q``.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import textwrap
 from pathlib import Path
 
+from xray_viz import progress
 from xray_viz.errors import XrayVizError
+
+log = logging.getLogger("xray_viz.cli")
 
 DESCRIPTION = """\
 Simulate X-ray radiographs of triangle meshes by backward ray tracing (after Meneghini's thesis):
@@ -29,6 +38,7 @@ examples:
   xray-viz render default -o out/default.png       render the bundled default scene
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
+  xray-viz render limb -o limb.png --energy 40     a scene file's value, changed for one run
   xray-viz phantoms                                 list the bundled phantoms
   xray-viz show frog                                the interactive 3D viewer beside the radiograph
   xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
@@ -38,6 +48,10 @@ examples:
   xray-viz convert gvxr.json -o scene.toml          a gVirtualXray JSON scene as a scene file
   xray-viz walkthrough --list                       the walkthroughs that rebuild the thesis
   xray-viz walkthrough 6                            Moller-Trumbore step by step, one ray
+  xray-viz --version --verbose                      versions of everything, for a bug report
+
+Options for every command: -v/--verbose (debug messages), -q/--quiet (no progress bars or
+notices; -qq: no warnings either).
 
 Run `xray-viz COMMAND --help` for the options of each command.
 """
@@ -56,10 +70,234 @@ def _compile_notice(engine: str):
 
     def notice(where):
         then = f"cached in {where} afterwards" if where else "not cached: no writable place"
-        print(f"xray-viz: compiling the fast engine on first use (10-30 s, {then})...",
-              file=sys.stderr, flush=True)
+        logging.getLogger("xray_viz.compile").info(
+            "compiling the fast engine on first use (10-30 s, %s)...", then)
+        progress.status("compiling the fast engine")
 
     return _numba_cache.on_first_compile(notice)
+
+
+# --------------------------------------------------------------------------------------------
+# Scene overrides: the scene file's values changed for one run, checked like the file's keys
+
+#: Each override: (option, what it sets in the scene file).
+OVERRIDES = (
+    ("--energy", "[source] energy"),
+    ("--kvp", "[source] spectrum kvp"),
+    ("--source-distance", "[source] position"),
+    ("--shape", "[detector] shape"),
+    ("--pitch", "[detector] pitch"),
+    ("--detector-size", "[detector] size"),
+    ("--noise", "[detector] noise"),
+    ("--seed", "[detector] seed"),
+)
+# --angle (turn the acquisition about the bodies, issue 17) waits for the Acquisition of
+# issue 13: it is to rotate the source and detector together, which the scene file cannot say.
+
+
+def add_scene_overrides(parser: argparse.ArgumentParser) -> None:
+    """Add the options that change a scene file's values for one run (``render``, ``show``).
+
+    Each one edits the parsed scene file before it is checked, so that it is checked exactly
+    like the key it sets (see :func:`load_scene_with_overrides`).
+
+    Examples
+    --------
+    >>> parser = argparse.ArgumentParser()
+    >>> add_scene_overrides(parser)
+    >>> parser.parse_args(["--kvp", "70", "--no-noise"]).noise
+    False
+    """
+    g = parser.add_argument_group(
+        "scene overrides",
+        "Change the scene file's values for this run, without editing it. Each is checked like "
+        "the key it sets in the file.")
+    beam = g.add_mutually_exclusive_group()
+    beam.add_argument("--energy", type=float, metavar="KEV",
+                      help="[source] energy: a monochromatic beam of KEV keV (instead of the "
+                           "file's energy or spectrum)")
+    beam.add_argument("--kvp", type=float, metavar="KV",
+                      help="[source] spectrum kvp: a tube spectrum at KV kVp (the file's other "
+                           "spectrum keys kept; instead of a monochromatic energy)")
+    g.add_argument("--source-distance", type=float, metavar="MM",
+                   help="[source] position: move the source along the beam axis to MM from the "
+                        "detector centre")
+    g.add_argument("--shape", type=int, nargs=2, metavar=("W", "H"),
+                   help="[detector] shape: W x H pixels (the file's pitch, or size, kept)")
+    grid = g.add_mutually_exclusive_group()
+    grid.add_argument("--pitch", type=float, nargs="+", metavar="MM",
+                      help="[detector] pitch: mm between pixels, one number or two (along HO, "
+                           "VE); instead of the file's pitch or size")
+    grid.add_argument("--detector-size", type=float, nargs=2, metavar=("W", "H"),
+                      help="[detector] size: [|HO|, |VE|] in mm; instead of the file's pitch or "
+                           "size")
+    g.add_argument("--noise", action=argparse.BooleanOptionalAction, default=None,
+                   help="[detector] noise: Poisson noise on (needs the file's I0 or mas) or off")
+    g.add_argument("--seed", type=int, metavar="N", help="[detector] seed of the noise")
+
+
+def _given_overrides(args) -> list[tuple[str, object]]:
+    """``(option, value)`` of each override given on the command line."""
+    given = []
+    for option, _ in OVERRIDES:
+        value = getattr(args, option[2:].replace("-", "_"), None)
+        if value is not None:
+            given.append((option, value))
+    return given
+
+
+def _shown_option(option, value) -> str:
+    if option == "--noise":
+        return "--noise" if value else "--no-noise"
+    items = value if isinstance(value, list) else [value]
+    return " ".join([option, *(f"{v:g}" if isinstance(v, float) else str(v) for v in items)])
+
+
+def _apply_override(doc: dict, option: str, value) -> None:
+    """Edit the parsed scene file ``doc`` as if its author had written ``value`` for the key
+    that ``option`` sets. Values of the wrong kind in the file are left for its own checks."""
+    src = doc.get("source") if isinstance(doc.get("source"), dict) else None
+    det = doc.get("detector") if isinstance(doc.get("detector"), dict) else None
+    if option == "--energy" and src is not None:
+        src.pop("spectrum", None)
+        src["energy"] = value
+    elif option == "--kvp" and src is not None:
+        spectrum = src.get("spectrum")
+        src.pop("energy", None)
+        src["spectrum"] = {**spectrum, "kvp": value} if isinstance(spectrum, dict) \
+            else {"kvp": value}
+    elif option == "--source-distance" and src is not None and det is not None:
+        import math
+
+        import numpy as np
+
+        if not (math.isfinite(value) and value > 0):
+            raise XrayVizError(f"{_shown_option(option, value)}: the source distance must be a "
+                               "number > 0 (mm from the detector centre)")
+        try:
+            p = np.asarray(src["position"], dtype=np.float64).reshape(3)
+            c = np.asarray(det["center"], dtype=np.float64).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            return                                    # the file's own check names it
+        axis = p - c
+        norm = float(np.linalg.norm(axis))
+        if not (np.all(np.isfinite(axis)) and norm > 0):
+            return
+        src["position"] = (c + value * (axis / norm)).tolist()
+    elif det is not None and option in ("--shape", "--pitch", "--detector-size"):
+        if option == "--pitch" and len(value) not in (1, 2):
+            raise XrayVizError(f"{_shown_option(option, value)}: give one number (mm) "
+                               "or two (along HO and VE)")
+        if option == "--shape":
+            det["shape"] = list(value)
+            return
+        det.pop("pitch", None)
+        det.pop("size", None)
+        if option == "--pitch":
+            det["pitch"] = value[0] if len(value) == 1 else list(value)
+        else:
+            det["size"] = list(value)
+    elif det is not None and option in ("--noise", "--seed"):
+        det[option[2:]] = value
+
+
+def _scene_file(name) -> Path:
+    """The scene file that :func:`xray_viz.load_scene` reads for ``name`` (a file or a
+    bundled phantom); its error when there is none."""
+    import xray_viz
+    from xray_viz import phantoms
+
+    p = Path(name)
+    if p.is_file():
+        return p
+    bare = not p.suffix and "/" not in str(name) and "\\" not in str(name)
+    resolved = phantoms.scene_path(str(name)) if bare else None
+    if resolved is not None:
+        return Path(resolved)
+    return xray_viz.load_scene(name).path          # raises load_scene's own error
+
+
+def _parse(doc, path):
+    from xray_viz.scene import scene_from_dict
+
+    return scene_from_dict(doc, base_dir=path.parent, file=path)
+
+
+def load_scene_with_overrides(args):
+    """The scene ``args.scene`` with the overrides of :func:`add_scene_overrides` applied.
+
+    Each override edits the parsed scene file before :func:`xray_viz.scene.scene_from_dict`
+    checks it, so it is checked, and changes the scene, exactly as the key it sets would in
+    the file. A value the file's checks refuse is reported with the option that gave it.
+
+    Raises
+    ------
+    XrayVizError
+        An override's value refused: ``--energy 900: frog.toml: [source] energy ...``.
+    SceneError, SceneFileNotFoundError
+        From :func:`xray_viz.load_scene`, for the file itself.
+    """
+    import copy
+    import tomllib
+    import warnings
+
+    import xray_viz
+    from xray_viz.errors import SceneError
+
+    given = _given_overrides(args)
+    if not given:
+        scene = xray_viz.load_scene(args.scene)
+        _log_scene(scene)
+        return scene
+    path = _scene_file(args.scene)
+    try:
+        original = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return xray_viz.load_scene(path)           # raises its own one-line error
+    doc = copy.deepcopy(original)
+    for option, value in given:
+        _apply_override(doc, option, value)
+        log.debug("%s sets %s", _shown_option(option, value), dict(OVERRIDES)[option])
+    try:
+        scene = _parse(doc, path)
+    except SceneError as exc:
+        # Whose value is refused: the file's own (it fails without the overrides too), one
+        # override's (it fails alone), or the overrides' together.
+        def fails(options):
+            trial = copy.deepcopy(original)
+            try:
+                for option, value in given:
+                    if option in options:
+                        _apply_override(trial, option, value)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    _parse(trial, path)
+            except (SceneError, XrayVizError):
+                return True
+            return False
+
+        if fails(()):
+            raise
+        blamed = [(o, v) for o, v in given if fails((o,))] or given
+        shown = " ".join(_shown_option(o, v) for o, v in blamed)
+        raise XrayVizError(f"{shown}: {' '.join(str(exc).splitlines())}") from None
+    _log_scene(scene)
+    return scene
+
+
+def _log_scene(scene):
+    w, h = scene.detector.shape
+    src = scene.source
+    beam = f"{src.energy:g} keV" if src.spectrum is None else (
+        f"{src.spectrum['kvp']:g} kVp spectrum" if "kvp" in src.spectrum else "a spectrum file")
+    log.debug("scene %s: %d bodies, %s source at %s, %s; detector %d x %d pixels, pitch %s mm, "
+              "noise %s, seed %s", scene.path, len(scene.bodies), src.kind,
+              src.position.tolist(), beam, w, h, list(scene.detector.pitch),
+              scene.detector.noise, scene.detector.seed)
+
+
+# --------------------------------------------------------------------------------------------
+# Commands
 
 
 def _render_command(args) -> int:
@@ -80,9 +318,13 @@ def _render_command(args) -> int:
     from xray_viz.output import check_target
 
     check_target(out)                 # a read-only target is refused before the render
-    scene = xray_viz.load_scene(args.scene)
-    with _compile_notice(args.engine):
+    scene = load_scene_with_overrides(args)
+    h = scene.detector.shape[1]
+    log.debug("rendering with engine %s, supersample %s", args.engine,
+              args.supersample or scene.detector.supersample)
+    with _compile_notice(args.engine), progress.task("rendering", total=h, unit="rows"):
         image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)
+    log.debug("timing (s): %s", {k: round(v, 4) for k, v in image.timing.items()})
     data = image.quantity(args.quantity)
     engine, total_ms = image.engine, image.timing["total"] * 1000
     del image                         # only the image written stays in memory while saving
@@ -112,6 +354,54 @@ def _phantoms_command(args) -> int:
     return 0
 
 
+#: The packages of a bug report (:func:`version_report`): the core, then what is optional.
+REPORT_CORE = ("xray_viz", "numpy", "scipy", "numba", "llvmlite", "vtk", "pyvista", "pymeshlab",
+               "trimesh", "xraylib", "spekpy", "pydicom", "PIL", "tqdm", "matplotlib")
+REPORT_OPTIONAL = ("trame_pyvista", "nbclient", "sphinx", "open3d", "embreex", "gvxr")
+
+
+def version_report(*, gpu: bool = True) -> str:
+    """The versions of xray_viz, its dependencies and the render window, for bug reports.
+
+    A :class:`scooby.Report` (as :class:`pyvista.Report` is): the platform, Python, every
+    package of :data:`REPORT_CORE` and those of :data:`REPORT_OPTIONAL` that are installed,
+    and with ``gpu`` the OpenGL renderer and VTK's render-window class (from an off-screen
+    window, EGL when there is no display; ``error: ...`` when none can be made).
+
+    Examples
+    --------
+    >>> "numba :" in version_report(gpu=False)
+    True
+    """
+    import scooby
+
+    meta = []
+    if gpu:
+        from xray_viz.viz.command import _use_egl_if_headless
+
+        _use_egl_if_headless()        # no X server: EGL, as `xray-viz show --screenshot` uses
+        try:
+            from pyvista.report import GPUInfo
+
+            meta = list(GPUInfo().get_info())
+        except Exception as exc:  # noqa: BLE001 - a bug report must not fail on a broken GPU
+            meta = [("GPU Details", f"error: {exc}")]
+        try:
+            import vtk
+
+            window = vtk.vtkRenderWindow()
+            meta.append(("Render Window", window.GetClassName()))
+        except Exception as exc:  # noqa: BLE001
+            meta.append(("Render Window", f"error: {exc}"))
+    return str(scooby.Report(core=list(REPORT_CORE), optional=list(REPORT_OPTIONAL),
+                             extra_meta=meta, sort=False, text_width=92))
+
+
+def _report_command(args) -> int:
+    print(version_report())
+    return 0
+
+
 def bench_suites() -> Path | None:
     """``benchmarks/suites.py`` of the source checkout this package runs from, if any."""
     import xray_viz
@@ -124,14 +414,22 @@ def _bench_command(args) -> int:
     """``xray-viz bench ARGS``: the benchmark suites (a thin entry: they are not installed)."""
     suites = bench_suites()
     if suites is None:
+        from xray_viz import __version__
+
         raise XrayVizError(
-            "the benchmarks are not part of the installed package: they live in the source "
-            "repository's benchmarks/ folder; clone it, run `pip install -e '.[bench]'` and "
-            "`bash benchmarks/setup.sh` there, then `xray-viz bench` (see BENCHMARKS.md)")
+            "the benchmark suites are not in an installed wheel: they ship in the source "
+            f"distribution (xray_viz-{__version__}.tar.gz) and the repository, in benchmarks/; "
+            "in that source tree install the benchmark extra with `pip install -e '.[bench]'` "
+            "(Open3D, embreex, gVXR) and run `bash benchmarks/setup.sh` (their Debian "
+            "libraries), then `xray-viz bench` (see BENCHMARKS.md)")
     import runpy
 
     module = runpy.run_path(str(suites), run_name="xray_viz_bench_suites")
     return module["main"](list(args.bench_args))
+
+
+# --------------------------------------------------------------------------------------------
+# The parser
 
 
 class _Parser(argparse.ArgumentParser):
@@ -141,14 +439,28 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
+def _add_verbosity(parser, *, top: bool) -> None:
+    """``-v`` and ``-q``: on the main parser, and again on every command (so that they can
+    follow it); a command's own count replaces the main parser's."""
+    default = 0 if top else argparse.SUPPRESS
+    g = parser.add_argument_group("messages") if not top else parser
+    g.add_argument("-v", "--verbose", action="count", default=default,
+                   help="also print debug messages on stderr (with --version: the versions of "
+                        "every dependency)" if top else "also print debug messages on stderr")
+    g.add_argument("-q", "--quiet", action="count", default=default,
+                   help="no progress bars or notices on stderr (-qq: no warnings either)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``xray-viz`` argument parser with every subcommand."""
     parser = _Parser(
         prog="xray-viz", description=DESCRIPTION, epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    from xray_viz import __version__
 
-    parser.add_argument("--version", action="version", version=f"xray-viz {__version__}")
+    parser.add_argument("--version", action="store_true",
+                        help="print the version and exit (with -v: every dependency's, as "
+                             "`xray-viz report`)")
+    _add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     from xray_viz.output import FORMATS
@@ -172,6 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the scene's [detector] supersample, else 1")
     p.add_argument("--engine", default="fast", choices=sorted(ENGINES),
                    help="tracing engine (default: %(default)s)")
+    add_scene_overrides(p)
     p.set_defaults(func=_render_command)
 
     from xray_viz.meshes.command import add_mesh_parser
@@ -194,12 +507,22 @@ def build_parser() -> argparse.ArgumentParser:
                        description="List the bundled phantoms with their descriptions. Each name "
                                    "can be used wherever a scene file is expected.")
     p.set_defaults(func=_phantoms_command)
+    p = sub.add_parser("report", help="print the versions of everything, for a bug report",
+                       description="Print the platform, Python, the versions of xray_viz and "
+                                   "its dependencies (numba, VTK, pyvista, pymeshlab, xraylib, "
+                                   "spekpy, ...) and the render window VTK opens (as "
+                                   "pyvista.Report() does). The same as `xray-viz --version "
+                                   "--verbose`.")
+    p.set_defaults(func=_report_command)
+    for name, command in sub.choices.items():
+        if name != "bench":                    # bench passes its options to the suites
+            _add_verbosity(command, top=False)
     return parser
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Warnings (a mesh repaired at load time, ...) as one visible line on stderr."""
-    print(f"xray-viz: warning: {message}", file=sys.stderr)
+def _level(verbose: int, quiet: int) -> int:
+    """The logger's level for ``-v`` x ``verbose`` and ``-q`` x ``quiet``."""
+    return min(logging.ERROR, max(logging.DEBUG, logging.INFO + 10 * (quiet - verbose)))
 
 
 def main(argv=None) -> int:
@@ -209,20 +532,32 @@ def main(argv=None) -> int:
     Ctrl-C; ``128 + signum`` when SIGTERM or SIGHUP interrupted the writing of an output file
     (:func:`xray_viz.output.atomic_write` removed its temporary file first; one line says so).
     """
-    import warnings
-
-    from xray_viz.errors import WriteInterrupted, one_line
-
-    warnings.showwarning = _show_warning
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra and getattr(args, "command", None) == "bench":
         args.bench_args = extra              # the suites' own options (see `xray-viz bench --help`)
     elif extra:
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    verbose, quiet = args.verbose, args.quiet
+    progress.configure(enabled=not quiet and sys.stderr.isatty())
+    try:
+        with progress.setup_logging(_level(verbose, quiet)):
+            if args.version:
+                from xray_viz import __version__
+
+                print(version_report() if verbose else f"xray-viz {__version__}")
+                return 0
+            if not getattr(args, "func", None):
+                parser.print_help()
+                return 2
+            return _run(args)
+    finally:
+        progress.configure(enabled=False)
+
+
+def _run(args) -> int:
+    from xray_viz.errors import WriteInterrupted, one_line
+
     try:
         return int(args.func(args) or 0)
     except (XrayVizError, OSError) as exc:

@@ -230,11 +230,15 @@ class _LogBlocks:
 
 
 def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body=None,
-               keep_hits=False):
+               keep_hits=False, progress=None):
     """Trace the scene band by band into the (H, W) images given (any may be None).
 
+    ``progress(rows_done, rows)`` is called after each band (default:
+    :func:`xray_viz.progress.rows`, the command line's progress bar; a no-op elsewhere).
     Returns the seconds spent tracing and in the per-band image work, and the hits (or None).
     """
+    if progress is None:
+        from xray_viz.progress import rows as progress
     w = scene.detector.shape[0]
     nb = len(scene.bodies)
     nn = n * n
@@ -260,6 +264,7 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
                 per_body[r0:r1] = mean.reshape(r1 - r0, w, nb)
             del mean
         del L
+        progress(r1, scene.detector.shape[1])
         t0 = time.perf_counter()
         t_image += t0 - t1
     return t_trace, t_image, hits

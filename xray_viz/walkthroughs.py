@@ -29,6 +29,7 @@ import os
 import re
 from pathlib import Path
 
+from xray_viz import progress as _progress
 from xray_viz.errors import XrayVizError
 
 __all__ = [
@@ -168,7 +169,7 @@ def show_or_save(plotter, name: str, *, walkthrough: int) -> Path | None:
         path = output_dir(walkthrough) / f"{name}.png"
         plotter.screenshot(str(path))
         plotter.close()
-        print(f"wrote {path}")
+        _progress.wrote(path)
         return path
     plotter.show(title=f"xray_viz walkthrough {walkthrough:02d}: {name}")
     return None
@@ -203,7 +204,7 @@ def save_frame(plotter, name: str, *, walkthrough: int) -> Path | None:
         return None
     path = output_dir(walkthrough) / f"{name}.png"
     plotter.screenshot(str(path))
-    print(f"wrote {path}")
+    _progress.wrote(path)
     return path
 
 
@@ -232,7 +233,7 @@ def show_or_save_figure(figure, name: str, *, walkthrough: int) -> Path | None:
         path = output_dir(walkthrough) / f"{name}.png"
         figure.savefig(path, dpi=100)
         plt.close(figure)
-        print(f"wrote {path}")
+        _progress.wrote(path)
         return path
     plt.show()
     return None
@@ -506,7 +507,10 @@ def walkthrough_command(args) -> int:
         from xray_viz.viz.command import require_display
 
         require_display("--off-screen to write the figures as PNGs")
-    run_walkthrough(args.number, off_screen=True if args.off_screen else None)
+    from xray_viz.cli import _compile_notice
+
+    with _compile_notice("fast"), _progress.task(f"walkthrough {args.number}", unit="figures"):
+        run_walkthrough(args.number, off_screen=True if args.off_screen else None)
     return 0
 
 

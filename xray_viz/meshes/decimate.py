@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from xray_viz import progress as _progress
 from xray_viz.errors import MeshError
 
 __all__ = ["decimate", "hausdorff_distance"]
@@ -79,6 +80,7 @@ def _collapse(mesh, target_faces: int):
                            m.face_matrix().astype(np.int64), process=False)
 
 
+@_progress.tracked("decimating the mesh", unit="trials")
 def decimate(mesh, *, target_faces: int | None = None, max_error: float | None = None,
              samples: int = 20000, min_faces: int = 8):
     """Reduce a closed mesh by quadric edge collapse, to a face count or an error budget.
@@ -140,6 +142,7 @@ def decimate(mesh, *, target_faces: int | None = None, max_error: float | None =
         mid = (lo + hi) // 2
         cand = _collapse(mesh, mid)
         err = hausdorff_distance(mesh, cand, samples=samples)
+        _progress.advance()
         if err <= max_error and cand.is_watertight:
             best, best_err, hi = cand, err, mid
         else:

@@ -63,6 +63,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from xray_viz import progress as _progress
 from xray_viz.errors import MeshError
 
 __all__ = [
@@ -748,6 +749,7 @@ def _orient_outward(vertices, faces, reference=None):
     return faces, flipped, n
 
 
+@_progress.tracked("repairing the mesh", unit="steps")
 def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 25,
                 merge_distance: float = 0.01):
     """Repair a mesh with pymeshlab so that it is closed and outward.
@@ -815,6 +817,7 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
         v0, f0 = counts()
         run = filter_name if callable(filter_name) else getattr(ms, filter_name)
         result = run(**kwargs)
+        _progress.advance()
         v1, f1 = counts()
         if (v0, f0) != (v1, f1):
             text = label(result, v1 - v0, f1 - f0) if callable(label) else label

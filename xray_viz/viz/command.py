@@ -1,5 +1,9 @@
 """``xray-viz show SCENE [--screenshot OUT.png] [--size W H]``: the viewer from the command line.
 
+``--size`` is the *window's* size in pixels; the detector's is ``--detector-size`` (mm) or
+``--shape`` (pixels), the scene overrides that ``render`` has too
+(:func:`xray_viz.cli.add_scene_overrides`).
+
 The lead's :mod:`xray_viz.cli` wires it in with :func:`add_show_parser`.
 """
 
@@ -99,6 +103,9 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--view", choices=("side", "bodies"), default="side",
                    help="starting camera: the whole set-up from the side (default), or a "
                         "close-up of the bodies with the detector behind them (keys v and b)")
+    from xray_viz.cli import add_scene_overrides
+
+    add_scene_overrides(p)
     p.set_defaults(func=show_command)
     return p
 
@@ -117,7 +124,8 @@ def show_command(args) -> int:
     SceneError, SceneFileNotFoundError
         From :func:`xray_viz.load_scene`.
     """
-    import xray_viz
+    from xray_viz import progress
+    from xray_viz.cli import _compile_notice, load_scene_with_overrides
 
     out = Path(args.screenshot) if args.screenshot else None
     if out is not None and out.suffix.lower() not in SCREENSHOT_FORMATS:
@@ -139,7 +147,7 @@ def show_command(args) -> int:
                            f"most {MAX_RESOLUTION} pixels along the detector's longer side")
     from xray_viz.viz.rays import select_pixels
 
-    scene = xray_viz.load_scene(args.scene)
+    scene = load_scene_with_overrides(args)
     try:
         select_pixels(scene.detector.shape, args.rays)
     except ValueError as exc:
@@ -150,8 +158,9 @@ def show_command(args) -> int:
         _use_egl_if_headless()
     from xray_viz.viz.viewer import Viewer
 
-    viewer = Viewer(scene, rays=args.rays, resolution=args.resolution, texture=args.texture,
-                    window_size=(w, h), off_screen=out is not None)
+    with _compile_notice("fast"), progress.task("opening the viewer", unit="rows"):
+        viewer = Viewer(scene, rays=args.rays, resolution=args.resolution,
+                        texture=args.texture, window_size=(w, h), off_screen=out is not None)
     if args.view == "bodies":
         viewer.view_bodies()
     if out is None:
