@@ -161,7 +161,7 @@ def test_from_projection_matrix_round_trip(kind):
     skew = acq.projection_matrix()
     skew[0, :3] += 0.01 * skew[1, :3]
     with pytest.raises(SceneError, match="not supported yet"):
-        Acquisition.from_projection_matrix(skew, shape=f.shape, pitch=f.pitch,
+        Acquisition.from_projection_matrix(skew, shape=f.shape, pitch=f.pitch, like=acq,
                                            parallel=kind == "parallel", **kw)
 
 

@@ -575,7 +575,7 @@ class Acquisition:
 
     @classmethod
     def from_projection_matrix(cls, matrix, *, shape, pitch, parallel: bool = False,
-                               sid: float | None = None, depth: float = 0.0, like=None
+                               sid: float | None = None, depth: float = 0.0, like
                                ) -> "Acquisition":
         """The acquisition whose :meth:`projection_matrix` is ``matrix`` (to a scale factor).
 
@@ -592,10 +592,9 @@ class Acquisition:
             A parallel beam (an affine matrix). Its matrix does not say where along the beam
             the source and the detector are: give ``sid`` (mm) and ``depth`` (``forward .
             detector centre``, mm; default 0).
-        like : Acquisition, optional
-            Takes the source's and detector's other fields (energy, spectrum, ``I0``, noise,
-            ...) from it. Default: those of :class:`~xray_viz.scene.Source` and
-            :class:`~xray_viz.scene.Detector`.
+        like : Acquisition
+            Gives the source's and the detector's other fields (energy, spectrum, ``I0``,
+            noise, ...); its position, centre, up, shape and pitch are replaced.
 
         Raises
         ------
@@ -609,13 +608,11 @@ class Acquisition:
         >>> import numpy as np, xray_viz
         >>> acq = xray_viz.load_scene("sphere").acquisition.rotated(30.0, axis=[0, 1, 0])
         >>> back = Acquisition.from_projection_matrix(3.0 * acq.projection_matrix(),
-        ...                                           shape=(256, 256), pitch=(1.0, 1.0))
+        ...     shape=(256, 256), pitch=(1.0, 1.0), like=acq)
         >>> bool(np.allclose(back.frame.source, acq.frame.source, atol=1e-9))
         True
         """
         import dataclasses
-
-        from xray_viz.scene import Detector, Source
 
         p = np.array(matrix, dtype=np.float64)
         if p.shape != (3, 4) or not np.all(np.isfinite(p)):
@@ -662,10 +659,8 @@ class Acquisition:
             if abs(ku * pu - kv * pv) > tol * ku * pu:
                 refuse("the pitch gives different source-to-detector distances along u and v")
             center = position + ku * pu * forward
-        src = like.source if like is not None else Source(position=position)
-        det = like.detector if like is not None else Detector(center=center)
-        source = dataclasses.replace(src, position=position,
+        source = dataclasses.replace(like.source, position=position,
                                      kind="parallel" if parallel else "point")
-        detector = dataclasses.replace(det, center=center, up=ve, shape=(w, h),
+        detector = dataclasses.replace(like.detector, center=center, up=ve, shape=(w, h),
                                        pitch=(pu, pv))
         return cls(source=source, detector=detector)

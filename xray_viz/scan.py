@@ -81,7 +81,7 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
     Examples
     --------
     >>> import xray_viz
-    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4))
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
     >>> g["sid_mm"], g["sod_mm"], g["angles_deg"]
     (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
     """
