@@ -20,6 +20,7 @@ from xray_viz.errors import (MaterialError, MeshError, OutputError, SceneError,
 from xray_viz.geometry import Rays, Viewport, detector_rays, viewport
 from xray_viz.render import Radiograph, render
 from xray_viz.scene import Body, Detector, Scene, Source, load_scene
+from xray_viz.scan import scan
 from xray_viz.tracing import Hits, trace_rays
 
 __version__ = "0.1.0"
@@ -27,6 +28,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Body", "Detector", "Hits", "MaterialError", "MeshError", "OutputError", "Radiograph",
     "Rays", "Scene", "SceneError", "SceneFileNotFoundError", "Source", "SpectrumError",
-    "Viewport", "XrayVizError", "detector_rays", "load_scene", "render", "trace_rays",
+    "Viewport", "XrayVizError", "detector_rays", "load_scene", "render", "scan", "trace_rays",
     "viewport",
 ]

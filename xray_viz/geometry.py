@@ -545,3 +545,122 @@ class Acquisition:
         detector = dataclasses.replace(self.detector, center=c + rot @ (self.detector.center - c),
                                        up=rot @ self.detector.up)
         return Acquisition(source=source, detector=detector)
+
+    def projection_matrix(self) -> np.ndarray:
+        """(3, 4) float: the map of a point (mm, homogeneous) to its pixel on the detector.
+
+        ``P @ [x, y, z, 1] = w * [i, j, 1]`` with ``i`` the image column (0 at the left) and
+        ``j`` the row counted from the *bottom* (``j = H - 1 - row``), both in pixels; ``w > 0``
+        is the depth along the beam of a point in front of a point source. A parallel beam's
+        matrix is affine (last row ``[0, 0, 0, 1]``).
+
+        Examples
+        --------
+        >>> import numpy as np, xray_viz
+        >>> acq = xray_viz.load_scene("sphere").acquisition        # 256 x 256, 1.0 mm at SID
+        >>> p = acq.projection_matrix() @ [0.0, 0.0, 0.0, 1.0]     # the origin: the centre
+        >>> (p[:2] / p[2]).tolist()
+        [127.5, 127.5]
+        """
+        f = self.frame
+        (w, h), (pu, pv) = f.shape, f.pitch
+        cx, cy = (w - 1) / 2, (h - 1) / 2
+        if f.parallel:
+            rows = [np.append(f.ho / pu, cx - f.ho @ f.center / pu),
+                    np.append(f.ve / pv, cy - f.ve @ f.center / pv), [0.0, 0.0, 0.0, 1.0]]
+            return np.array(rows, np.float64)
+        m = np.array([f.sid / pu * f.ho + cx * f.forward, f.sid / pv * f.ve + cy * f.forward,
+                      f.forward])
+        return np.hstack([m, -(m @ f.source)[:, None]])
+
+    @classmethod
+    def from_projection_matrix(cls, matrix, *, shape, pitch, parallel: bool = False,
+                               sid: float | None = None, depth: float = 0.0, like
+                               ) -> "Acquisition":
+        """The acquisition whose :meth:`projection_matrix` is ``matrix`` (to a scale factor).
+
+        Parameters
+        ----------
+        matrix : (3, 4) array_like
+            Pixel coordinates as in :meth:`projection_matrix`.
+        shape : (int, int)
+            ``(W, H)`` pixels.
+        pitch : (float, float)
+            mm per pixel along the rows and columns; a point source's matrix then gives the
+            source-to-detector distance.
+        parallel : bool, optional
+            A parallel beam (an affine matrix). Its matrix does not say where along the beam
+            the source and the detector are: give ``sid`` (mm) and ``depth`` (``forward .
+            detector centre``, mm; default 0).
+        like : Acquisition
+            Gives the source's and the detector's other fields (energy, spectrum, ``I0``,
+            noise, ...); its position, centre, up, shape and pitch are replaced.
+
+        Raises
+        ------
+        SceneError
+            A matrix that is not finite or not of this form: skewed or mirrored pixel axes,
+            a principal point off the detector centre (an offset detector) or different
+            distances along the two axes (tilted detectors and offsets are not supported yet).
+
+        Examples
+        --------
+        >>> import numpy as np, xray_viz
+        >>> acq = xray_viz.load_scene("sphere").acquisition.rotated(30.0, axis=[0, 1, 0])
+        >>> back = Acquisition.from_projection_matrix(3.0 * acq.projection_matrix(),
+        ...     shape=(256, 256), pitch=(1.0, 1.0), like=acq)
+        >>> bool(np.allclose(back.frame.source, acq.frame.source, atol=1e-9))
+        True
+        """
+        import dataclasses
+
+        p = np.array(matrix, dtype=np.float64)
+        if p.shape != (3, 4) or not np.all(np.isfinite(p)):
+            raise SceneError(f"a projection matrix must be 3 x 4 finite numbers, got shape "
+                             f"{p.shape}")
+        w, h = (int(s) for s in shape)
+        pu, pv = (float(s) for s in pitch)
+        cx, cy = (w - 1) / 2, (h - 1) / 2
+        tol = 1e-9
+
+        def refuse(what):
+            raise SceneError(f"projection matrix: {what} (tilted or offset detectors are not "
+                             "supported yet)")
+
+        if parallel:
+            if not abs(p[2, 3]) > 0 or np.any(p[2, :3] != 0):
+                refuse("a parallel beam's matrix has the last row [0, 0, 0, 1]")
+            if sid is None:
+                raise SceneError("from_projection_matrix: a parallel beam needs sid= (mm)")
+            p = p / p[2, 3]
+            ho, ve = p[0, :3] * pu, p[1, :3] * pv
+            if abs(np.linalg.norm(ho) - 1) > tol or abs(np.linalg.norm(ve) - 1) > tol \
+                    or abs(ho @ ve) > tol:
+                refuse("its pixel axes are not orthogonal at the given pitch")
+            forward = np.cross(ve, ho)
+            center = ho * (cx - p[0, 3]) * pu + ve * (cy - p[1, 3]) * pv + forward * depth
+            position = center - float(sid) * forward
+        else:
+            p = p / np.linalg.norm(p[2, :3])
+            if np.linalg.det(p[:, :3]) > 0:
+                p = -p
+            m = p[:, :3]
+            forward = m[2]
+            position = -np.linalg.solve(m, p[:, 3])
+            pcx, pcy = m[0] @ forward, m[1] @ forward
+            hs, vs = m[0] - pcx * forward, m[1] - pcy * forward
+            ku, kv = np.linalg.norm(hs), np.linalg.norm(vs)
+            ho, ve = hs / ku, vs / kv
+            if abs(ho @ ve) > tol or not np.allclose(np.cross(ho, forward), ve, atol=tol):
+                refuse("its pixel axes are skewed or mirrored")
+            if abs(pcx - cx) > tol * max(1.0, cx) or abs(pcy - cy) > tol * max(1.0, cy):
+                refuse(f"its principal point ({pcx:.6g}, {pcy:.6g}) is not the detector centre "
+                       f"({cx:g}, {cy:g})")
+            if abs(ku * pu - kv * pv) > tol * ku * pu:
+                refuse("the pitch gives different source-to-detector distances along u and v")
+            center = position + ku * pu * forward
+        source = dataclasses.replace(like.source, position=position,
+                                     kind="parallel" if parallel else "point")
+        detector = dataclasses.replace(like.detector, center=center, up=ve, shape=(w, h),
+                                       pitch=(pu, pv))
+        return cls(source=source, detector=detector)

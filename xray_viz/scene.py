@@ -658,6 +658,8 @@ class Scene:
     detector: Detector
     bodies: tuple[Body, ...] = ()
     path: Path | None = None
+    #: The scene file's ``[scan]`` orbit (:class:`xray_viz.orbit.Orbit`), if it has one.
+    orbit: object = None
 
     def __post_init__(self):
         from xray_viz.bodies import Bodies
@@ -1294,7 +1296,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     """
     base_dir = Path(base_dir)
     top = _Table(doc, "scene", file)
-    top.expect(("source", "detector", "body", "labels", "ct"))  # [[labels]], [[ct]]: volumes
+    top.expect(("source", "detector", "body", "labels", "ct", "scan"))  # labels, ct: volumes
     src = top.table("source", required=True)
     src.where = "[source]"
     src.expect(SOURCE_KEYS)
@@ -1390,6 +1392,11 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     except SceneError as exc:
         raise SceneError(f"{file}: {exc}" if file else str(exc)) from None
 
+    orbit = top.raw("scan")
+    if orbit is not None:
+        from xray_viz.orbit import orbit_from_dict
+
+        orbit = orbit_from_dict(orbit, base_dir=base_dir, file=file)
     raw_bodies = top.raw("body", default=[])
     if not isinstance(raw_bodies, list):
         top.fail("'body' must be an array of tables: write [[body]]")
@@ -1413,7 +1420,8 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     try:
         bodies = Bodies(bodies, where=f"{file}: " if file else "",
                         reports=[r for _, r in parsed])
-        scene = Scene(source=source, detector=detector, bodies=bodies, path=file)
+        scene = Scene(source=source, detector=detector, bodies=bodies, path=file,
+                      orbit=orbit)
     except SceneError as exc:
         msg = str(exc)
         if file and not msg.startswith(str(file)):

@@ -1,0 +1,254 @@
+"""CT orbits: sequences of :class:`~xray_viz.geometry.Acquisition` around fixed bodies.
+
+An :class:`Orbit` turns the acquisition of a scene into the acquisitions of a scan:
+
+* ``"circular"``: ``acquisition.rotated(theta_k, axis=, center=)`` with
+  ``theta_k = start + k * arc / n`` (a full scan is ``arc = 360``, a short scan
+  ``180 + fan angle``);
+* ``"helical"``: the same, also moved by ``pitch * theta_k / 360`` mm along the axis;
+* ``"poses"``: an explicit source position, detector centre and detector ``u``/``v`` per
+  projection (like ASTRA's ``cone_vec``); untilted detectors only for now (``u``, ``v`` must
+  be the frame that :class:`~xray_viz.geometry.Acquisition` derives from the source and the
+  centre).
+
+Lives below :mod:`xray_viz.scene` (which reads the ``[scan]`` table with
+:func:`orbit_from_dict`); :mod:`xray_viz.scan` renders and writes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from xray_viz.errors import SceneError
+from xray_viz.geometry import Acquisition, detector_axes
+
+__all__ = ["Orbit", "ORBITS", "SCAN_KEYS", "orbit_from_dict", "pose_acquisition", "check_pose",
+           "read_poses"]
+
+ORBITS = ("circular", "helical", "poses")
+#: Keys of the ``[scan]`` table of a scene file.
+SCAN_KEYS = ("orbit", "projections", "arc", "axis", "center", "pitch", "poses", "start")
+
+#: How far (unit vectors) a pose's u/v may be from the derived detector frame.
+POSE_TOLERANCE = 1e-9
+
+
+def _vector(value, name, where) -> np.ndarray:
+    try:
+        out = np.array(value, dtype=np.float64).reshape(-1)
+        ok = out.shape == (3,) and bool(np.all(np.isfinite(out))) and \
+            not any(isinstance(x, bool) for x in value)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise SceneError(f"{where}{name} must be 3 finite numbers, got {value!r}")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Orbit:
+    """Where the source and detector go during a scan.
+
+    Parameters
+    ----------
+    kind : {"circular", "helical", "poses"}
+    projections : int
+        Number of projections (for ``"poses"``: the number of poses).
+    arc : float
+        Degrees covered by the ``projections`` angles ``start + k * arc / projections``.
+    axis, center : (3,) float
+        The rotation axis (direction) through ``center`` (mm).
+    pitch : float
+        Helical: mm travelled along ``axis`` per 360 degrees (0 for a circular orbit).
+    start : float
+        Angle (degrees) of the first projection.
+    poses : tuple of dict, optional
+        ``{"source", "detector_center", "u", "v"}`` per projection (``"poses"`` orbits).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> orbit = Orbit("circular", projections=4, axis=[0, 1, 0])
+    >>> orbit.angles().tolist()
+    [0.0, 90.0, 180.0, 270.0]
+    >>> acqs = list(orbit.acquisitions(xray_viz.load_scene("sphere").acquisition))
+    >>> (acqs[1].frame.source.round(9) + 0.0).tolist()
+    [1000.0, 0.0, 0.0]
+    """
+
+    kind: str = "circular"
+    projections: int = 360
+    arc: float = 360.0
+    axis: np.ndarray = dataclasses.field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    center: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    pitch: float = 0.0
+    start: float = 0.0
+    poses: tuple | None = None
+
+    def __post_init__(self):
+        if self.kind not in ORBITS:
+            raise SceneError(f"[scan] orbit must be one of {', '.join(ORBITS)}, "
+                             f"got {self.kind!r}")
+        n = self.projections
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise SceneError(f"[scan] projections must be a whole number >= 1, got {n!r}")
+        object.__setattr__(self, "projections", int(n))
+        for key in ("arc", "pitch", "start"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) \
+                    or not math.isfinite(v):
+                raise SceneError(f"[scan] {key} must be a finite number, got {v!r}")
+            object.__setattr__(self, key, float(v))
+        if not self.arc > 0:
+            raise SceneError(f"[scan] arc must be > 0 degrees, got {self.arc:g}")
+        axis = _vector(self.axis, "axis", "[scan] ")
+        if not np.linalg.norm(axis) > 0:
+            raise SceneError("[scan] axis must not be [0, 0, 0]")
+        object.__setattr__(self, "axis", axis / np.linalg.norm(axis))
+        object.__setattr__(self, "center", _vector(self.center, "center", "[scan] "))
+        if self.kind == "circular" and self.pitch != 0:
+            raise SceneError(f"[scan] pitch = {self.pitch:g} needs orbit = \"helical\"")
+        if self.kind == "poses":
+            if not self.poses:
+                raise SceneError("[scan] a poses orbit needs poses (a JSON file of poses)")
+            object.__setattr__(self, "poses", tuple(self.poses))
+            object.__setattr__(self, "projections", len(self.poses))
+        elif self.poses is not None:
+            raise SceneError("[scan] poses are given only with orbit = \"poses\"")
+
+    def angles(self) -> np.ndarray | None:
+        """(n,) float: the gantry angle of each projection in degrees (None for poses)."""
+        if self.kind == "poses":
+            return None
+        return self.start + self.arc * np.arange(self.projections) / self.projections
+
+    def acquisition(self, base: Acquisition, k: int) -> Acquisition:
+        """Projection ``k``'s acquisition: ``base`` moved along the orbit."""
+        if self.kind == "poses":
+            return pose_acquisition(base, self.poses[k], where=f"pose {k}: ")
+        angle = float(self.angles()[k])
+        acq = base.rotated(angle, axis=self.axis, center=self.center)
+        if self.pitch:
+            shift = self.pitch * angle / 360.0 * self.axis
+            acq = Acquisition(
+                source=dataclasses.replace(acq.source, position=acq.source.position + shift),
+                detector=dataclasses.replace(acq.detector,
+                                             center=acq.detector.center + shift))
+        return acq
+
+    def acquisitions(self, base: Acquisition):
+        """Yield the acquisition of every projection in order (a generator)."""
+        for k in range(self.projections):
+            yield self.acquisition(base, k)
+
+    def to_dict(self) -> dict:
+        """The orbit as a ``[scan]`` table (poses inline)."""
+        out = {"orbit": self.kind, "projections": self.projections}
+        if self.kind == "poses":
+            out["poses"] = [dict(p) for p in self.poses]
+            return out
+        out.update(arc=self.arc, axis=self.axis.tolist(), center=self.center.tolist(),
+                   pitch=self.pitch, start=self.start)
+        return out
+
+
+def check_pose(pose, *, where: str = "") -> tuple:
+    """``(source, detector_center, u, v)`` of a pose as float arrays (``u``, ``v`` unit).
+
+    Raises
+    ------
+    SceneError
+        If the pose is not a table of those four 3-vectors, or ``u``/``v`` are not the detector
+        frame derived from the source and the centre (tilted detectors are not supported yet).
+    """
+    keys = {"source", "detector_center", "u", "v"}
+    if not isinstance(pose, dict) or set(pose) != keys:
+        raise SceneError(f"{where}a pose is a table of source, detector_center, u and v, "
+                         f"got {pose!r}")
+    s, c, u, v = (_vector(pose[k], k, where) for k in ("source", "detector_center", "u", "v"))
+    if not (np.linalg.norm(u) > 0 and np.linalg.norm(v) > 0):
+        raise SceneError(f"{where}u and v must be non-zero vectors")
+    u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+    try:
+        _, ho, ve = detector_axes(s, c, v)
+    except SceneError as exc:
+        raise SceneError(f"{where}{exc}") from None
+    if np.abs(ho - u).max() > POSE_TOLERANCE or np.abs(ve - v).max() > POSE_TOLERANCE:
+        raise SceneError(f"{where}u/v are not the detector frame of source -> detector_center "
+                         f"(u = {ho.tolist()}, v = {ve.tolist()}): tilted detectors are not "
+                         "supported yet")
+    return s, c, u, v
+
+
+def pose_acquisition(base: Acquisition, pose, *, where: str = "") -> Acquisition:
+    """``base`` with the source and the detector placed as ``pose`` says (:func:`check_pose`)."""
+    s, c, _, v = check_pose(pose, where=where)
+    return Acquisition(source=dataclasses.replace(base.source, position=s),
+                       detector=dataclasses.replace(base.detector, center=c, up=v))
+
+
+def read_poses(path) -> tuple:
+    """The poses of a JSON file: a list of ``{"source", "detector_center", "u", "v"}`` or a
+    scan's geometry document (a table with ``"poses"``)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SceneError(f"[scan] poses file {path} not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SceneError(f"[scan] poses file {path} is not readable JSON: {exc}") from None
+    if isinstance(doc, dict) and "poses" in doc:
+        doc = doc["poses"]
+    if not isinstance(doc, list) or not doc:
+        raise SceneError(f"[scan] poses file {path} must hold a non-empty list of poses")
+    return tuple(doc)
+
+
+def orbit_from_dict(table, *, base_dir=".", file=None) -> Orbit:
+    """The :class:`Orbit` of a ``[scan]`` table (a poses file relative to ``base_dir``).
+
+    Raises
+    ------
+    SceneError
+        One line naming the file, the key and the value.
+
+    Examples
+    --------
+    >>> orbit_from_dict({"orbit": "helical", "projections": 8, "pitch": 10.0}).pitch
+    10.0
+    """
+    where = f"{file}: " if file else ""
+    try:
+        if not isinstance(table, dict):
+            raise SceneError(f"[scan] must be a table, got {table!r}")
+        unknown = sorted(set(table) - set(SCAN_KEYS))
+        if unknown:
+            raise SceneError(f"[scan] unknown key(s) {unknown}; known: {', '.join(SCAN_KEYS)}")
+        kwargs = {k: table[k] for k in ("projections", "arc", "axis", "center", "pitch",
+                                        "start") if k in table}
+        poses = table.get("poses")
+        kind = table.get("orbit", "poses" if poses is not None else "circular")
+        if poses is not None:
+            if kind != "poses":
+                raise SceneError(f"[scan] poses are given, so orbit must be \"poses\" "
+                                 f"(or left out), got {kind!r}")
+            if isinstance(poses, str):
+                poses = read_poses(Path(base_dir) / poses)
+            elif not isinstance(poses, list):
+                raise SceneError(f"[scan] poses must be a JSON file name or a list, got "
+                                 f"{poses!r}")
+            if "projections" in kwargs and kwargs["projections"] != len(poses):
+                raise SceneError(f"[scan] projections = {kwargs['projections']!r} but the "
+                                 f"poses give {len(poses)}")
+            kwargs["projections"] = len(poses)
+            for k, p in enumerate(poses):
+                check_pose(p, where=f"[scan] pose {k}: ")
+        return Orbit(kind, poses=poses, **kwargs)
+    except SceneError as exc:
+        raise SceneError(f"{where}{exc}") from None

@@ -1,0 +1,671 @@
+"""CT scans: projection stacks of a scene's fixed bodies along an orbit, their files, Dask.
+
+A scan is ``n`` projections of the scene's one :class:`~xray_viz.bodies.Bodies` by the
+acquisitions of an :class:`~xray_viz.orbit.Orbit` (circular, helical or explicit poses):
+every per-mesh set-up (mesh checks, bounds, the fast engine's spatial order) is paid once per
+process. The stack layout (in memory and in a Zarr v3 store) is the one ``CT-LAYOUT``
+documents and :mod:`xray_viz.reconstruct` reads: ``projections`` float32 ``(n, H, W)`` plus a
+JSON-serialisable ``geometry`` dict (:func:`scan_geometry`).
+
+* :func:`scan` renders in this process, or on a Dask cluster (``client=``): each task renders a
+  batch of projections and writes its own chunks of the Zarr store, then their ``done`` flags;
+  workers load the scene once (its scene-file text, keyed by a content hash).
+* Writers: :func:`open_store` / Zarr (resumable: a re-run fills only the projections whose
+  ``done`` flag is not set), :func:`write_tiff_stack`, :func:`write_nexus`.
+* Geometry for other toolkits: :func:`rtk_geometry` (+ :func:`rtk_geometry_xml`),
+  :func:`astra_vectors`, :func:`tigre_geometry`, and their inverses (``poses_from_*``).
+* ``xray-viz scan SCENE -o scan.zarr`` (:func:`add_scan_parser`, :func:`scan_command`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from xray_viz.errors import OutputError, SceneError
+from xray_viz.geometry import Acquisition
+from xray_viz.orbit import Orbit, orbit_from_dict
+
+__all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
+           "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
+           "write_nexus", "render_batch", "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
+
+#: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
+SCAN_QUANTITIES = ("line-integral", "intensity")
+LAYOUT_VERSION = 1
+PLUGIN_NAME = "xray_viz-scenes"
+
+
+# ---------------------------------------------------------------------------------- geometry
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
+
+
+def projection_seed(seed: int | None, k: int) -> int | None:
+    """The noise seed of projection ``k`` of a scan whose detector has ``seed`` (None: fresh
+    randomness): distinct per projection, the same in every run and on every worker.
+
+    Examples
+    --------
+    >>> projection_seed(7, 0) != projection_seed(7, 1), projection_seed(None, 3)
+    (True, None)
+    """
+    if seed is None:
+        return None
+    return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1, np.uint64)[0])
+
+
+def _pose(acq: Acquisition) -> dict:
+    f = acq.frame
+    return {"source": f.source.tolist(), "detector_center": f.center.tolist(),
+            "u": f.ho.tolist(), "v": f.ve.tolist()}
+
+
+def scan_geometry(scene, orbit: Orbit) -> dict:
+    """The geometry dict of a scan (the shared layout: angles, axis, SID, SOD, detector,
+    per-projection poses and projection matrices), JSON-serialisable.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
+    >>> g["sid_mm"], g["sod_mm"], g["angles_deg"]
+    (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
+    """
+    base = scene.acquisition
+    acqs = list(orbit.acquisitions(base))
+    det = scene.detector
+    angles = orbit.angles()
+    first = acqs[0].frame
+    if orbit.kind == "poses":
+        axis = center = sod = None
+    else:
+        axis, center = orbit.axis.tolist(), orbit.center.tolist()
+        rel = first.source - orbit.center
+        sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
+    return {
+        "orbit": orbit.kind,
+        "beam": "parallel" if base.parallel else "cone",
+        "projections": orbit.projections,
+        "angles_deg": None if angles is None else angles.tolist(),
+        "axis": axis, "center": center,
+        "pitch_mm_per_turn": orbit.pitch,
+        "sid_mm": first.sid,
+        "sod_mm": sod,
+        "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
+                     "offset_mm": [0.0, 0.0]},
+        "poses": [_pose(a) for a in acqs],
+        "projection_matrices": [a.projection_matrix().tolist() for a in acqs],
+    }
+
+
+def _physics(scene) -> dict:
+    src, det = scene.source, scene.detector
+    out = {"I0": det.i0, "response": det.response, "noise": det.noise, "seed": det.seed}
+    if src.spectrum is not None:
+        try:
+            out["spectrum"] = scene.to_dict()["source"]["spectrum"]
+        except SceneError:
+            out["spectrum"] = repr(src.spectrum)
+    else:
+        out["energy_kev"] = src.energy
+    return out
+
+
+# ---------------------------------------------------------------------------------- rendering
+
+def _check_quantity(quantity):
+    if quantity not in SCAN_QUANTITIES:
+        raise SceneError(f"unknown scan quantity {quantity!r}; choose one of "
+                         f"{', '.join(SCAN_QUANTITIES)}")
+
+
+def projection(scene, orbit: Orbit, k: int, *, quantity: str = "line-integral",
+               engine: str = "fast") -> np.ndarray:
+    """Projection ``k`` of a scan, ``(H, W)`` float32, rendered with the scene's bodies.
+
+    The detector's noise seed becomes :func:`projection_seed` ``(seed, k)``.
+    """
+    from xray_viz.render import render
+
+    acq = orbit.acquisition(scene.acquisition, k)
+    det = acq.detector
+    if det.seed is not None:
+        det = dataclasses.replace(det, seed=projection_seed(det.seed, k))
+    image = render(scene.replace(source=acq.source, detector=det), engine=engine)
+    return np.asarray(image.quantity(quantity), dtype=np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """A projection stack and its geometry.
+
+    Attributes
+    ----------
+    projections : (n, H, W) float32
+        ``projections[k]`` is the image of projection ``k`` (row 0 at the top of the
+        detector, column 0 at its left seen from the source).
+    geometry : dict
+        :func:`scan_geometry`.
+    quantity : str
+        ``"line-integral"`` (``-ln(I / I0)``) or ``"intensity"``.
+    physics : dict
+        Energy or spectrum, ``I0``, detector response, noise and seed.
+    scene : Scene
+    """
+
+    projections: np.ndarray
+    geometry: dict
+    quantity: str
+    physics: dict
+    scene: object = dataclasses.field(repr=False, default=None)
+
+    @property
+    def units(self) -> str:
+        """``"1"`` for line integrals, ``"photons"`` for intensities."""
+        return "1" if self.quantity == "line-integral" else "photons"
+
+
+def _orbit_of(scene, orbit) -> Orbit:
+    if orbit is None:
+        orbit = getattr(scene, "orbit", None) or Orbit()
+    elif isinstance(orbit, dict):
+        orbit = orbit_from_dict(orbit)
+    if not isinstance(orbit, Orbit):
+        raise SceneError(f"orbit must be an Orbit or a [scan] table, got {orbit!r}")
+    return orbit
+
+
+def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "fast",
+         store=None, client=None, batch: int = 8, progress: bool = False) -> Scan:
+    """Scan a scene: render every projection of an orbit.
+
+    Parameters
+    ----------
+    scene : Scene
+    orbit : Orbit or dict, optional
+        Default: the scene file's ``[scan]`` (:attr:`Scene.orbit`), else a full circular scan
+        of 360 projections about z through the origin.
+    quantity : {"line-integral", "intensity"}
+    engine : {"fast", "numpy"}
+    store : path-like, optional
+        A Zarr v3 store to write (and resume: projections flagged ``done`` are not rendered
+        again). Needed with ``client``.
+    client : distributed.Client, optional
+        Render on a Dask cluster; tasks write their chunks of ``store`` themselves.
+    batch : int
+        Projections per Dask task.
+    progress : bool
+        A progress bar (tqdm) on stderr.
+
+    Returns
+    -------
+    Scan
+
+    Examples
+    --------
+    >>> import dataclasses, xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> small = scene.replace(detector=dataclasses.replace(scene.detector, shape=(32, 24),
+    ...                                                    pitch=(8.0, 8.0)))
+    >>> s = xray_viz.scan(small, Orbit(projections=3, axis=[0, 1, 0]))
+    >>> s.projections.shape, s.projections.dtype.name
+    ((3, 24, 32), 'float32')
+    """
+    _check_quantity(quantity)
+    orbit = _orbit_of(scene, orbit)
+    geometry = scan_geometry(scene, orbit)
+    if client is not None and store is None:
+        raise SceneError("scan(client=...) writes a Zarr store: give store= (a path)")
+    if store is None:
+        w, h = scene.detector.shape
+        out = np.empty((orbit.projections, h, w), np.float32)
+        bar = _bar(orbit.projections, progress)
+        for k in range(orbit.projections):
+            out[k] = projection(scene, orbit, k, quantity=quantity, engine=engine)
+            bar.update(1)
+        bar.close()
+        return Scan(out, geometry, quantity, _physics(scene), scene)
+    _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
+                   client=client, batch=batch, progress=progress)
+    return read_zarr(store, scene=scene)
+
+
+def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, batch,
+                   progress) -> tuple[int, int]:
+    """Fill the missing projections of a Zarr store; ``(filled, total)``. Memory: one
+    projection per worker (the stack is never held)."""
+    group = open_store(store, scene=scene, quantity=quantity, geometry=geometry)
+    todo = [int(k) for k in np.flatnonzero(~group["done"][:])]
+    if client is not None:
+        _scan_dask(client, scene, orbit, store, todo, quantity=quantity, engine=engine,
+                   batch=batch, progress=progress)
+    else:
+        bar = _bar(len(todo), progress)
+        for k in todo:
+            _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
+                                                   engine=engine))
+            bar.update(1)
+        bar.close()
+    return len(todo), orbit.projections
+
+
+def _bar(total, progress):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="proj", disable=not (progress and sys.stderr.isatty()),
+                file=sys.stderr)
+
+
+# ---------------------------------------------------------------------------------- Zarr
+
+def _zarr():
+    try:
+        import zarr
+    except ImportError:
+        raise OutputError("Zarr stores need the ct extra: pip install 'xray_viz[ct]'") from None
+    return zarr
+
+
+def _canonical(doc) -> str:
+    return json.dumps(doc, sort_keys=True)
+
+
+def _attrs(scene, quantity, geometry) -> dict:
+    try:
+        text = scene.to_toml()
+    except SceneError:
+        text = None                 # bodies built in Python: no scene file to keep
+    return {"version": LAYOUT_VERSION, "quantity": quantity,
+            "units": "1" if quantity == "line-integral" else "photons",
+            "geometry": geometry, "physics": _physics(scene), "scene": text}
+
+
+def open_store(path, *, scene, geometry, quantity="line-integral"):
+    """The Zarr v3 group of a scan at ``path``: created (whole, or not at all) if missing,
+    otherwise opened for resuming after checking that it holds the same scan.
+
+    Layout: array ``projections`` ``(n, H, W)`` float32 in chunks of one projection, array
+    ``done`` ``(n,)`` bool (one chunk per projection, so concurrent writers never share a
+    chunk), attributes ``{"xray_viz": {"version", "quantity", "units", "geometry", "physics",
+    "scene"}}``.
+
+    Raises
+    ------
+    OutputError
+        If ``path`` holds something else (another scan, or not a scan store).
+    """
+    zarr = _zarr()
+    path = Path(path)
+    attrs = _attrs(scene, quantity, geometry)
+    if path.exists():
+        try:
+            group = zarr.open_group(str(path), mode="r+")
+            old = dict(group.attrs).get("xray_viz")
+        except Exception as exc:               # zarr raises many kinds for a non-store
+            raise OutputError(f"{path} exists and is not a Zarr scan store ({exc}); remove it "
+                              "or choose another -o") from None
+        new = json.loads(_canonical(attrs))
+        same = isinstance(old, dict) and all(
+            _canonical(old.get(k)) == _canonical(new[k])
+            for k in ("version", "quantity", "geometry", "physics", "scene"))
+        if not same:
+            raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
+                              "scene differ); remove it or choose another -o to keep both")
+        return group
+    n = geometry["projections"]
+    w, h = geometry["detector"]["shape"]
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        group = zarr.open_group(str(tmp), mode="w")
+        group.create_array("projections", shape=(n, h, w), chunks=(1, h, w), dtype="float32",
+                           fill_value=np.nan)
+        group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
+        group.attrs["xray_viz"] = attrs
+        os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return zarr.open_group(str(path), mode="r+")
+
+
+def _write_projection(group, k, image) -> None:
+    """Chunk first, then the flag: a store never claims a projection it does not hold."""
+    group["projections"][k] = image
+    group["done"][k] = True
+
+
+def write_zarr(result: Scan, path) -> None:
+    """Write a :class:`Scan` held in memory as a complete Zarr store (see :func:`open_store`)."""
+    group = open_store(path, scene=result.scene, quantity=result.quantity,
+                       geometry=result.geometry)
+    for k in np.flatnonzero(~group["done"][:]):
+        _write_projection(group, int(k), result.projections[k])
+
+
+def read_zarr(path, *, scene=None, require_complete: bool = True) -> Scan:
+    """The :class:`Scan` of a Zarr store.
+
+    Raises
+    ------
+    OutputError
+        If projections are missing (their ``done`` flag unset) and ``require_complete``.
+    """
+    zarr = _zarr()
+    group = zarr.open_group(str(path), mode="r")
+    meta = dict(group.attrs)["xray_viz"]
+    done = group["done"][:]
+    if require_complete and not done.all():
+        raise OutputError(f"{path}: {int((~done).sum())} of {len(done)} projections are "
+                          "missing; run the scan again to fill them")
+    return Scan(group["projections"][:], meta["geometry"], meta["quantity"], meta["physics"],
+                scene)
+
+
+# ---------------------------------------------------------------------------------- TIFF, NeXus
+
+def write_tiff_stack(result: Scan, folder) -> Path:
+    """One float32 TIFF per projection (``proj_00000.tif`` ...) and ``geometry.json`` in
+    ``folder`` (written whole into a temporary folder, then renamed; refused if it exists)."""
+    import tifffile
+
+    folder = Path(folder)
+    if folder.exists():
+        raise OutputError(f"{folder} exists; remove it or choose another -o")
+    tmp = folder.with_name(f".{folder.name}.partial-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    try:
+        digits = max(5, len(str(len(result.projections) - 1)))
+        for k, image in enumerate(result.projections):
+            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif", image)
+        meta = {"quantity": result.quantity, "units": result.units,
+                "geometry": result.geometry, "physics": result.physics}
+        (tmp / "geometry.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
+        os.replace(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return folder
+
+
+def write_nexus(result: Scan, path) -> Path:
+    """HDF5 in the NeXus NXtomo layout (``/entry/instrument/detector/data`` ``(n, H, W)``,
+    ``image_key``, ``/entry/sample/rotation_angle`` in degrees, ``/entry/data`` links), with
+    the geometry dict as JSON in ``/entry/xray_viz_geometry``. Written to a temporary file,
+    then renamed."""
+    import h5py
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
+    g = result.geometry
+    n = len(result.projections)
+    angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
+    try:
+        with h5py.File(tmp, "w") as f:
+            entry = f.create_group("entry")
+            entry.attrs["NX_class"] = "NXentry"
+            entry["definition"] = "NXtomo"
+            inst = entry.create_group("instrument")
+            inst.attrs["NX_class"] = "NXinstrument"
+            src = inst.create_group("source")
+            src.attrs["NX_class"] = "NXsource"
+            src["type"] = "Fixed Tube X-ray"
+            src["probe"] = "x-ray"
+            det = inst.create_group("detector")
+            det.attrs["NX_class"] = "NXdetector"
+            data = det.create_dataset("data", data=result.projections, chunks=(1,) +
+                                      result.projections.shape[1:])
+            data.attrs["units"] = result.units
+            det["image_key"] = np.zeros(n, np.int32)          # 0: a projection
+            for name, value in (("x_pixel_size", g["detector"]["pitch_mm"][0]),
+                                ("y_pixel_size", g["detector"]["pitch_mm"][1]),
+                                ("distance", g["sid_mm"] - (g["sod_mm"] or 0.0))):
+                det[name] = value
+                det[name].attrs["units"] = "mm"
+            sample = entry.create_group("sample")
+            sample.attrs["NX_class"] = "NXsample"
+            sample["name"] = "xray_viz scene"
+            sample["rotation_angle"] = angles
+            sample["rotation_angle"].attrs["units"] = "degree"
+            nxdata = entry.create_group("data")
+            nxdata.attrs["NX_class"] = "NXdata"
+            nxdata.attrs["signal"] = "data"
+            nxdata["data"] = data
+            nxdata["rotation_angle"] = sample["rotation_angle"]
+            nxdata["image_key"] = det["image_key"]
+            entry["xray_viz_geometry"] = json.dumps({"quantity": result.quantity,
+                                                     "geometry": g,
+                                                     "physics": result.physics})
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+# ---------------------------------------------------------------------------------- Dask
+
+def _scene_text(scene) -> str:
+    try:
+        return scene.to_toml()
+    except SceneError as exc:
+        raise SceneError(f"a scan on a Dask cluster ships the scene as a scene file, and this "
+                         f"scene has none: {exc}") from None
+
+
+def _scene_plugin():
+    """A worker plugin that holds the scenes a worker has loaded (by content hash) and runs
+    numba on one thread per worker process."""
+    from distributed import WorkerPlugin
+
+    class ScenePlugin(WorkerPlugin):
+        name = PLUGIN_NAME
+
+        def setup(self, worker):
+            self.scenes = {}
+            try:
+                import numba
+
+                numba.set_num_threads(1)
+            except (ImportError, ValueError):
+                pass
+
+    return ScenePlugin()
+
+
+def _worker_scenes():
+    """The loaded-scene dict of this Dask worker's plugin, or None outside a worker."""
+    try:
+        from distributed import get_worker
+
+        plugin = get_worker().plugins.get(PLUGIN_NAME)
+    except (ImportError, ValueError):
+        return None
+    return getattr(plugin, "scenes", None)
+
+
+def _load_scene_text(text: str, digest: str):
+    """The scene of a scene-file text, loaded once per worker process (keyed by ``digest``,
+    the SHA-256 of the text): its per-mesh set-up is then reused by every task."""
+    import tomllib
+
+    from xray_viz.scene import scene_from_dict
+
+    cache = _worker_scenes()
+    if cache is not None and digest in cache:
+        return cache[digest]
+    if hashlib.sha256(text.encode()).hexdigest() != digest:
+        raise SceneError("the scene text does not match its hash")
+    scene = scene_from_dict(tomllib.loads(text))
+    if cache is not None:
+        cache.clear()                           # one scene per worker: memory stays bounded
+        cache[digest] = scene
+    return scene
+
+
+def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: str,
+                 quantity: str = "line-integral", engine: str = "fast") -> list[int]:
+    """A Dask task: render projections ``indices`` of a scan and write each into the Zarr
+    ``store`` (chunk, then ``done`` flag). Projections already flagged are skipped.
+
+    Returns
+    -------
+    list of int
+        The projections this task wrote.
+    """
+    zarr = _zarr()
+    scene = _load_scene_text(scene_text, digest)
+    group = zarr.open_group(store, mode="r+")
+    wrote = []
+    for k in indices:
+        k = int(k)
+        if bool(group["done"][k]):
+            continue
+        _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
+                                               engine=engine))
+        wrote.append(k)
+    return wrote
+
+
+def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, progress):
+    import uuid
+
+    from distributed import as_completed
+
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise SceneError(f"batch must be a whole number >= 1, got {batch!r}")
+    text = _scene_text(scene)
+    digest = hashlib.sha256(text.encode()).hexdigest()
+    client.register_plugin(_scene_plugin(), name=PLUGIN_NAME)
+    if progress and sys.stderr.isatty():
+        print(f"xray-viz: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
+    run = uuid.uuid4().hex[:8]
+    store = str(Path(store).resolve())
+    futures = [client.submit(render_batch, text, digest, orbit, todo[i:i + batch],
+                             store=store, quantity=quantity, engine=engine,
+                             key=f"xray-viz-scan-{run}-{i}", retries=2)
+               for i in range(0, len(todo), batch)]
+    sizes = {f.key: len(todo[i * batch:(i + 1) * batch]) for i, f in enumerate(futures)}
+    bar = _bar(len(todo), progress)
+    try:
+        for future in as_completed(futures):
+            bar.update(sizes[future.key])
+            future.result()                 # a failed task raises here; finished ones stay
+    finally:
+        bar.close()
+        for future in futures:
+            future.cancel()
+
+
+def local_cluster(workers: int):
+    """A ``distributed.LocalCluster`` of ``workers`` processes on 127.0.0.1, one thread (and
+    one numba thread) each."""
+    from distributed import LocalCluster
+
+    return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                        host="127.0.0.1", dashboard_address="127.0.0.1:0",
+                        env={"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+
+
+# ---------------------------------------------------------------------------------- CLI
+
+def add_scan_parser(subparsers) -> None:
+    """Register ``xray-viz scan`` on an argparse sub-parser collection."""
+    p = subparsers.add_parser(
+        "scan", help="scan a scene along a CT orbit into a projection stack",
+        description="Render every projection of a CT orbit (the scene's [scan] table, "
+                    "changed by the options) and write the stack: OUT ending in .zarr is a "
+                    "Zarr v3 store (resumable: running the command again fills only the "
+                    "missing projections), .nxs/.h5 HDF5 NeXus NXtomo, no suffix a folder of "
+                    "TIFFs with geometry.json.")
+    p.add_argument("scene", metavar="SCENE", help="a scene .toml file or a bundled phantom")
+    p.add_argument("-o", "--output", required=True, metavar="OUT")
+    p.add_argument("--orbit", choices=("circular", "helical"), default=None)
+    p.add_argument("--projections", type=int, default=None, metavar="N")
+    p.add_argument("--arc", type=float, default=None, metavar="DEG")
+    p.add_argument("--pitch", type=float, default=None, metavar="MM",
+                   help="helical: mm along the axis per turn")
+    p.add_argument("--axis", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"))
+    p.add_argument("--center", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"))
+    p.add_argument("--quantity", choices=SCAN_QUANTITIES, default="line-integral")
+    p.add_argument("--engine", choices=("fast", "numpy"), default="fast")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="N > 1: a Dask LocalCluster of N worker processes on 127.0.0.1")
+    p.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="an existing Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument("--batch", type=int, default=8, metavar="N",
+                   help="projections per Dask task (default %(default)s)")
+    p.set_defaults(func=scan_command)
+
+
+def _cli_orbit(scene, args) -> Orbit:
+    table = scene.orbit.to_dict() if getattr(scene, "orbit", None) is not None else {}
+    for key in ("orbit", "projections", "arc", "pitch", "axis", "center"):
+        value = getattr(args, key)
+        if value is not None:
+            table[key] = value
+    if table.get("orbit") in ("circular", "helical"):
+        table.pop("poses", None)
+    if table.get("orbit") == "circular" and args.orbit == "circular":
+        table["pitch"] = 0.0
+    if table.get("orbit") == "helical" and "pitch" not in table:
+        raise SceneError("--orbit helical needs --pitch (mm per turn)")
+    return orbit_from_dict(table)
+
+
+def scan_command(args) -> int:
+    """``xray-viz scan``: see :func:`add_scan_parser`."""
+    from xray_viz.scene import load_scene
+
+    out = Path(args.output)
+    kind = {".zarr": "zarr", ".nxs": "nexus", ".h5": "nexus", ".hdf5": "nexus",
+            "": "tiff"}.get(out.suffix.lower())
+    if kind is None:
+        raise SceneError(f"-o {out}: end it in .zarr (Zarr store), .nxs/.h5 (NeXus) or give a "
+                         "folder name without a suffix (TIFF stack)")
+    if args.workers < 1:
+        raise SceneError(f"--workers must be >= 1, got {args.workers}")
+    if kind != "zarr" and (args.workers > 1 or args.scheduler):
+        raise SceneError("--workers/--scheduler write a Zarr store: give -o NAME.zarr")
+    if kind == "zarr" and out.exists() and not (out / "zarr.json").exists():
+        raise OutputError(f"{out} exists and is not a Zarr store; remove it or choose another -o")
+    scene = load_scene(args.scene)
+    orbit = _cli_orbit(scene, args)
+    geometry = scan_geometry(scene, orbit)
+    if kind == "zarr":
+        import contextlib
+
+        with contextlib.ExitStack() as stack:
+            client = None
+            if args.scheduler or args.workers > 1:
+                from distributed import Client
+
+                if args.scheduler:
+                    client = stack.enter_context(Client(args.scheduler))
+                else:
+                    cluster = stack.enter_context(local_cluster(args.workers))
+                    client = stack.enter_context(Client(cluster))
+            filled, total = _scan_to_store(scene, orbit, out, geometry=geometry,
+                                           quantity=args.quantity, engine=args.engine,
+                                           client=client, batch=args.batch, progress=True)
+        read_zarr(out, scene=scene)                  # complete, or one line saying what is not
+        print(f"{out}: {total} projections ({filled} rendered now), "
+              f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
+        return 0
+    result = scan(scene, orbit, quantity=args.quantity, engine=args.engine, progress=True)
+    (write_nexus if kind == "nexus" else write_tiff_stack)(result, out)
+    print(f"{out}: {len(result.projections)} projections, {args.quantity}")
+    return 0
+
