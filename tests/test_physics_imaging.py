@@ -258,3 +258,22 @@ def test_focal_spot_blur_conserves_signal_at_the_border(tmp_path):
     assert a[:, -1].std() > 0.1 or a[0].std() > 0.1          # the cube reaches a border
     assert np.abs(a - b).max() > 0.05
     assert b.sum() == pytest.approx(a.sum(), rel=1e-12)
+
+
+def test_tube_spectrum_with_noise_renders_without_warnings(tmp_path):
+    """A filtered tube spectrum's faintest bins have second-moment weights that underflow to
+    0 (log -inf): the noisy render is finite, warns nothing (warnings are errors here) and
+    scatters about the noiseless image."""
+    import dataclasses
+
+    scene = load(tmp_path, source={"position": [0.0, 0.0, 1000.0],
+                                   "spectrum": {"kvp": 80.0, "filters": {"Al": 2.5}, "bin": 2.0}},
+                 detector=parallel_detector(shape=(24, 24), pitch=4.0, I0=1000.0, noise=True,
+                                            seed=3),
+                 bodies=[("ball", box([40.0, 40.0, 40.0]),
+                          {"material": "Bone, Cortical (ICRP)"})])
+    noisy = xray_viz.render(scene).intensity
+    clean = xray_viz.render(scene.replace(detector=dataclasses.replace(
+        scene.detector, noise=False))).intensity
+    assert np.isfinite(noisy).all() and not np.array_equal(noisy, clean)
+    assert abs(noisy.mean() / clean.mean() - 1) < 0.05

@@ -192,7 +192,10 @@ def _log_sums(path_length, scene, *, rows=None, variance=False) -> list[np.ndarr
     if len(mu) == 1 and heel is None:
         line = -(L @ mu[0])
         return [line] + ([line.copy()] if variance else [])
-    log_w = [np.log(u) - np.log(u.sum()) for u in moments]
+    # a bin's weight can underflow to 0 (u2 ~ phi^2 of a bin the filters all but remove): its
+    # log is -inf, and exp(-inf) = 0 is exactly its share of the sums below
+    with np.errstate(divide="ignore"):
+        log_w = [np.log(u) - np.log(u.sum()) for u in moments]
     minus_mu_t = np.ascontiguousarray(-mu.T)                           # (B, K)
     outs = [np.zeros(len(L)) for _ in moments]
     # a ray through no body transmits everything (its weights sum to 1): ln T = 0
