@@ -163,6 +163,27 @@ def test_source_distance_keeps_the_beam_axis_of_an_oblique_source(scenes, tmp_pa
     assert a.tobytes() == b.tobytes()
 
 
+def test_angle_turns_the_acquisition_about_the_bodies(scenes, tmp_path, capsys):
+    """--angle renders what the turned acquisition renders, and equals the bodies turned the
+    other way about the same axis (to rounding: two different computations)."""
+    import trimesh as tm
+
+    path = scenes(BASE, "angle")
+    turned = _render([path, "--angle", "35"], tmp_path / "a.npy", capsys)
+    scene = xray_viz.load_scene(path)
+    expected = xray_viz.render(cli.turn_acquisition(scene, 35.0)).intensity
+    assert turned.tobytes() == expected.tobytes()
+    box = scene.bodies.bounds
+    centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2
+    m = tm.transformations.rotation_matrix(np.radians(-35.0), scene.detector.up, centre)
+    bodies_turned = xray_viz.render(scene.transform_bodies(m)).intensity
+    np.testing.assert_allclose(turned, bodies_turned, rtol=0, atol=1e-6)
+    assert not np.array_equal(turned, _render([path], tmp_path / "b.npy", capsys))
+    assert cli.main(["render", str(path), "-o", str(tmp_path / "c.npy"), "--angle", "nan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--angle nan" in err[0] and not (tmp_path / "c.npy").exists()
+
+
 def test_overrides_together_through_the_console_script(scenes, tmp_path):
     base = scenes(BASE, "together")
     edited = _edit(BASE, "source", energy=45.0, position=[0.0, 0.0, 400.0])
