@@ -78,6 +78,10 @@ def _render_command(args) -> int:
     from xray_viz.output import check_target
 
     check_target(out)                 # a read-only target is refused before the render
+    if args.engine == "fast":         # kernels missing from numba's cache: compiled meanwhile
+        from xray_viz.tracing._raster import prepare
+
+        prepare()
     scene = xray_viz.load_scene(args.scene)
     with _compile_notice(args.engine):
         image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample)

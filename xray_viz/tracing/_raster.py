@@ -51,7 +51,7 @@ NO_CODE = 1 | (1 << 16)
 CODE_MAX_SAMPLES = 16382
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _axis_code(x, n):
     """Cell code of a snapped coordinate on an axis of ``n`` samples (0 .. n - 1): 0 left of
     sample 0, ``2 n + 2`` right of sample ``n - 1``, ``2 k + 2`` strictly between samples k and
@@ -63,7 +63,6 @@ def _axis_code(x, n):
     return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
 
 
-@njit(cache=True, nogil=True)
 def first_use_rank(flat_faces, n_vertices):
     """New number of each vertex: its rank in order of first appearance in ``flat_faces``
     (vertices used by no face follow, in their previous order)."""
@@ -80,7 +79,11 @@ def first_use_rank(flat_faces, n_vertices):
     return rank
 
 
-@njit(cache=True, nogil=True)
+# (named first_use_rank in numba's cache files; the entry below is first_use_rank)
+_first_use_rank = njit(cache=True, nogil=True, error_model="numpy")(first_use_rank)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
     """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
 
@@ -123,12 +126,12 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
             K[i] = NO_CODE
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _split30(x):
     return x >> 30, x & _MASK30
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def exact_cross_sign(a, b, c, d):
     """Exact sign of ``a*b - c*d`` for int64 inputs of magnitude below 2**60."""
     ah, al = _split30(a)
@@ -151,7 +154,7 @@ def exact_cross_sign(a, b, c, d):
     return 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _tie(ex, ey):
     """Sign of an edge function at a sample point exactly on the edge, after moving the point
     by ``(eps, eps * delta)``: the lexicographic sign of ``(-ey, ex)``."""
@@ -162,7 +165,7 @@ def _tie(ex, ey):
     return 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _side_value(V, i, r0, planes, k):
     """``n . (V[i] - r0) - c`` for side plane ``k`` of the beam, and its rounding scale."""
     dx = V[i, 0] - r0[0]
@@ -176,7 +179,7 @@ def _side_value(V, i, r0, planes, k):
             abs(nx * dx) + abs(ny * dy) + abs(nz * dz) + abs(c))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def beyond_side(V, i0, i1, i2, r0, planes):
     """True when triangle (i0, i1, i2) lies wholly outside one of the beam's side planes
     (rows of ``planes``, see :func:`xray_viz.attenuation.beam_planes`): no ray meets it.
@@ -193,7 +196,7 @@ def beyond_side(V, i0, i1, i2, r0, planes):
     return False
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
     """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
 
@@ -257,7 +260,7 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
         box[t, 3] = Y1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
                  kind, orient, cbox, coef, wrange):
     """Compact per-triangle data of the triangles ``tri`` that cover samples.
@@ -290,7 +293,7 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
         wrange[m, 1] = max(w0, max(w1, w2))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _bin_triangles(box, band_height, n_bands):
     """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
     T = box.shape[0]
@@ -311,7 +314,7 @@ def _bin_triangles(box, band_height, n_bands):
     return counts, tris
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _depth(coef, wrange, t, X, Y):
     num = coef[t, 0] + coef[t, 1] * X + coef[t, 2] * Y
     den = coef[t, 3] + coef[t, 4] * X + coef[t, 5] * Y
@@ -327,7 +330,7 @@ def _depth(coef, wrange, t, X, Y):
     return W
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
            S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
     """Visit the samples of compact triangle ``m`` in rows ``y0..y1`` that it covers.
@@ -393,7 +396,7 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
                             nW, buf_off, buf_w, buf_b)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
             buf_w, buf_b):
     if mode == 1 and wrange[m, 1] <= FL:
@@ -415,7 +418,7 @@ def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW,
         buf_b[j] = body * 2 + (1 if dn > 0 else 0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _raster_single(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                   orient, coef, wrange, tri_body, FL, S, N, row0):
     """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid.
@@ -438,7 +441,7 @@ def _raster_single(lo, hi, order, band_start, band_tris, band_height, nH, nW, tr
                    S, N, dummy_i, row0, nW, dummy_i, dummy_f, dummy_b)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _raster_multi(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                  orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
                  H, L, ray0):
@@ -530,7 +533,7 @@ def _raster_multi(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                         L[ray - ray0, win] += seg * scale
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _finish(lo, hi, S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
 
@@ -568,7 +571,7 @@ def _finish(lo, hi, S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0,
                     L[ray, q] = Lf[Y - s_row0, X, q] * scale
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
     ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`).
@@ -597,7 +600,7 @@ def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
             nx * f[0] + ny * f[1] + nz * f[2], 0.0, 0.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
     Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
     if Wd != Wd:
@@ -612,7 +615,7 @@ def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
 _BLOCK = 1024
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
                   depth_ok, S, N, err, K, planes):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
@@ -786,7 +789,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         Nc[Y, X] += dn
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _reduce_chunks(lo, hi, S, N, FL, out):
     """``out = sum_c S[c] + N[c] * FL`` (depth span of each sample, one body)."""
     n_chunks, nH, nW = S.shape
@@ -839,7 +842,7 @@ def _types(spec: str) -> tuple:
 
 #: Argument types of the one specialisation of each kernel (see :func:`_types`).
 SIGNATURES = {
-    "first_use_rank": "i8[1]r i8",
+    "_first_use_rank": "i8[1]r i8",
     "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
@@ -860,7 +863,7 @@ SIGNATURES = {
 
 #: Kernels each engine path needs (what :func:`compile_kernels` compiles for a scene).
 PATHS = {
-    "setup": ("first_use_rank", "_project_vertices"),
+    "setup": ("_first_use_rank", "_project_vertices"),
     "direct": ("_raster_direct", "_reduce_chunks", "_finish"),
     "banded": ("_cull_triangles", "_setup_planes", "_bin_triangles"),
     "single": ("_raster_single", "_reduce_chunks", "_finish"),
@@ -877,6 +880,7 @@ def _kernel(name: str):
     if name not in _ready:
         with _compile_lock:
             if name not in _ready:
+                _wait(name)          # a background process compiling it into the cache
                 disp.compile(_types(SIGNATURES[name]))
                 disp.disable_compile()
                 _ready.add(name)
@@ -889,17 +893,107 @@ def compile_kernels(paths=None) -> list:
 
     Examples
     --------
-    >>> names = compile_kernels(["setup"])
-    >>> [len(globals()[n].signatures) for n in names]
+    >>> from xray_viz.tracing import _raster
+    >>> names = _raster.compile_kernels(["setup"])
+    >>> [len(getattr(_raster, n).signatures) for n in names]
     [1, 1]
     """
+    names = _names(paths)
+    for name in names:
+        _kernel(name)
+    return names
+
+
+def _names(paths=None) -> list:
     names = []
     for p in (PATHS if paths is None else paths):
-        for name in PATHS[p]:
-            if name not in names:
-                _kernel(name)
-                names.append(name)
+        names += [n for n in PATHS[p] if n not in names]
     return names
+
+
+#: Relative compile cost of each kernel (measured), to share them out among the workers;
+#: kernels of one tuple share helpers (``_cover``) and go to the same worker.
+_COSTS = {("_first_use_rank",): 0.7, ("_project_vertices",): 1.3, ("_cull_triangles",): 1.6,
+          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_multi", "_raster_single"): 5.4,
+          ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.3, ("_finish",): 0.5}
+#: Kernel name -> the background process compiling it into numba's cache.
+_workers: dict = {}
+_WORKER = ("import sys, warnings; warnings.simplefilter('ignore'); "
+           "from xray_viz.tracing import _raster as R; [R._kernel(n) for n in sys.argv[1:]]")
+
+
+def _is_cached(name: str) -> bool:
+    disp = globals()[name]
+    cache = getattr(disp, "_cache", None)
+    is_cached = getattr(cache, "is_cached", None)
+    return bool(is_cached and is_cached(_types(SIGNATURES[name]), disp.targetctx))
+
+
+def prepare(paths=None, *, workers: int | None = None) -> list:
+    """Start compiling, in background processes, the kernels of ``paths`` (keys of
+    :data:`PATHS`; default all) that numba's cache lacks, and return their names.
+
+    Meant for a process that has something else to do first (the command line loads the
+    scene meanwhile): each kernel is then loaded from the cache when first needed, after
+    waiting for the process compiling it. The kernels are shared out among ``workers``
+    processes (default: as many as there are processors, at most 2) by their compile cost;
+    at exit this process waits for the ones still running when a kernel was used, and stops
+    them otherwise. Nothing starts when every kernel is cached, or when there is no cache to
+    share them through (they are compiled in this process when needed, as without
+    :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile` is told.
+    """
+    import subprocess
+    import sys
+
+    from xray_viz.tracing import _numba_cache
+
+    names = [n for n in _names(paths)
+             if n not in _ready and n not in _workers]
+    missing = [n for n in names if not _is_cached(n)]
+    if not missing or not isinstance(getattr(globals()[missing[0]], "_cache", None),
+                                     _numba_cache.KernelCache):
+        return []
+    n_workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(missing)))
+    groups = [[] for _ in range(n_workers)]
+    load = [0.0] * n_workers
+    for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
+        todo = [n for n in unit if n in missing]
+        if todo:
+            k = load.index(min(load))
+            groups[k] += todo
+            load[k] += cost
+    _numba_cache.background_compile(globals()[missing[0]])
+    for group in groups:
+        if group:
+            proc = subprocess.Popen([sys.executable, "-c", _WORKER, *group],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
+            for n in group:
+                _workers[n] = proc
+    if not _atexit_set:
+        import atexit
+
+        atexit.register(_finish_workers)
+        _atexit_set.append(True)
+    return missing
+
+
+_atexit_set: list = []
+
+
+def _wait(name: str) -> None:
+    proc = _workers.pop(name, None)
+    if proc is not None:
+        proc.wait()          # then loaded from the cache (compiled here if the worker failed)
+
+
+def _finish_workers() -> None:
+    """At exit: wait for the workers if this process used a kernel, else stop them."""
+    for proc in set(_workers.values()):
+        if not _ready:
+            proc.terminate()
+        proc.wait()
+    _workers.clear()
 
 
 _pool = None
@@ -948,6 +1042,10 @@ def _faces(F, n_vertices):
 
 
 _f8 = np.float64
+
+
+def first_use_rank(flat_faces, n_vertices):
+    return _kernel("_first_use_rank")(_in(flat_faces, np.int64), int(n_vertices))
 
 
 def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
@@ -1043,7 +1141,7 @@ class _Entry:
         return f"<xray_viz kernel entry {self.__name__} ({self._kernel_name})>"
 
 
-for _name in ("project_vertices", "cull_triangles", "setup_planes", "bin_triangles",
+for _name in ("first_use_rank", "project_vertices", "cull_triangles", "setup_planes", "bin_triangles",
               "raster_single", "raster_multi", "finish", "raster_direct", "reduce_chunks"):
     globals()[_name] = _Entry("_" + _name, globals()[_name])
 del _name
