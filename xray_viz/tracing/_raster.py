@@ -997,16 +997,29 @@ def _finish_workers() -> None:
 
 
 _pool = None
+_pool_lock = threading.Lock()
 
 
-def _threads():
+#: Least vertices or triangles (rows, for the per-row kernels) given to a thread.
+_MIN_ITEMS = 4096
+_MIN_ROWS = 16
+
+
+def _threads() -> int:
+    """Threads to split a kernel's range over: numba's (``NUMBA_NUM_THREADS``,
+    ``numba.set_num_threads``), as the ``parallel=True`` kernels used."""
+    return numba.get_num_threads()
+
+
+def _pool_for(k: int):
+    """The pool of threads, with at least ``k - 1`` of them (the caller runs one piece)."""
     global _pool
-    k = numba.get_num_threads()
-    if k > 1 and (_pool is None or _pool._max_workers < k - 1):
-        from concurrent.futures import ThreadPoolExecutor
+    with _pool_lock:
+        if _pool is None or _pool._max_workers < k - 1:
+            from concurrent.futures import ThreadPoolExecutor
 
-        _pool = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="xray_viz-raster")
-    return k
+            _pool = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="xray_viz-raster")
+        return _pool
 
 
 def _split(name, lo, hi, args, min_each=1):
@@ -1016,8 +1029,9 @@ def _split(name, lo, hi, args, min_each=1):
     if k <= 1:
         kernel(lo, hi, *args)
         return
+    pool = _pool_for(k)
     cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
-    futures = [_pool.submit(kernel, cut[j], cut[j + 1], *args) for j in range(1, k)]
+    futures = [pool.submit(kernel, cut[j], cut[j + 1], *args) for j in range(1, k)]
     try:
         kernel(cut[0], cut[1], *args)
     finally:
@@ -1052,14 +1066,14 @@ def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
     V = _in(V, _f8)
     _split("_project_vertices", 0, V.shape[0],
            (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx), float(bx),
-            float(sy), float(by), bool(perspective), XY, w, huge, int(nW), int(nH), K), 4096)
+            float(sy), float(by), bool(perspective), XY, w, huge, int(nW), int(nH), K), _MIN_ITEMS)
 
 
 def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
     F = _faces(F, len(V))
     _split("_cull_triangles", 0, F.shape[0],
            (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
-            _in(V, _f8), _in(r0, _f8), _in(planes, _f8)), 4096)
+            _in(V, _f8), _in(r0, _f8), _in(planes, _f8)), _MIN_ITEMS)
 
 
 def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
@@ -1068,7 +1082,7 @@ def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
     _split("_setup_planes", 0, tri.shape[0],
            (tri, _in(V, _f8), _faces(F, len(V)), w, status, box, bool(perspective),
             _in(r0, _f8), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), _in(f, _f8), float(FL),
-            kind, orient, cbox, coef, wrange), 4096)
+            kind, orient, cbox, coef, wrange), _MIN_ITEMS)
 
 
 def bin_triangles(box, band_height, n_bands):
@@ -1104,7 +1118,7 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_ro
     _split("_finish", int(y0), int(y1),
            (_in(S, _f8), _in(Lf, _f8), bool(single), float(FL), bool(perspective),
             _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n), int(W), int(H), L, int(y0),
-            int(y1), int(s_row0), int(ray0)), 16)
+            int(y1), int(s_row0), int(ray0)), _MIN_ROWS)
 
 
 def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
@@ -1116,7 +1130,7 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
 
 
 def reduce_chunks(S, N, FL, out):
-    _split("_reduce_chunks", 0, S.shape[1], (_in(S, _f8), _in(N, np.int32), float(FL), out), 16)
+    _split("_reduce_chunks", 0, S.shape[1], (_in(S, _f8), _in(N, np.int32), float(FL), out), _MIN_ROWS)
 
 
 class _Entry:
