@@ -52,13 +52,28 @@ def test_every_kernel_has_exactly_its_one_explicit_signature():
         assert not disp._can_compile, name      # nothing else can be compiled
 
 
-def test_helpers_are_specialised_once():
-    """The helpers the kernels call are typed by their callers: each caller passes the same
-    types, so each helper is compiled once (``_cover`` no longer once per literal mode)."""
-    _every_path()
-    for name in ("_cover", "_record", "_plane", "exact_cross_sign", "beyond_side", "_tie",
-                 "_depth", "_clamped", "_axis_code", "_side_value"):
-        assert len(getattr(R, name).signatures) == 1, (name, getattr(R, name).signatures)
+HELPERS = ("_cover", "_record", "_plane", "exact_cross_sign", "beyond_side", "_tie", "_depth",
+           "_clamped", "_axis_code", "_side_value")
+EVERY_PATH = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import test_cold_start as T
+T._every_path()
+print(json.dumps({n: len(getattr(T.R, n).signatures) for n in T.HELPERS + tuple(T.R.SIGNATURES)}))
+"""
+
+
+@pytest.mark.slow
+def test_helpers_are_specialised_once(tmp_path):
+    """In a fresh cache (helpers are compiled only with a kernel that is compiled, not loaded):
+    every caller passes a helper the same types, so each is compiled once (``_cover`` no
+    longer once per literal mode)."""
+    here = os.path.dirname(__file__)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", EVERY_PATH, here], env=env, check=True,
+                         capture_output=True, text=True, timeout=1200, cwd=here)
+    counts = json.loads(out.stdout.splitlines()[-1])
+    assert counts == {n: 1 for n in HELPERS + tuple(R.SIGNATURES)}
 
 
 def test_arguments_of_other_types_are_normalised_not_compiled():
@@ -152,6 +167,7 @@ print(json.dumps(dict(started=started, again=again, compiled=compiled, hits=hits
 """
 
 
+@pytest.mark.slow
 def test_prepare_compiles_in_other_processes_and_this_one_loads(tmp_path):
     """In a fresh cache: prepare() starts workers for the missing kernels; this process
     compiles nothing and loads them from the cache; a second process finds them cached."""
