@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import tomli_w
+import tomlkit
 import trimesh
 
 import xray_viz
@@ -25,7 +25,7 @@ def _plain(value):
 
 
 def write_scene(tmp_path: Path, *, source: dict, detector: dict, bodies=(), name="scene"):
-    """Write meshes and a TOML scene (tomli-w); ``bodies`` are ``(name, trimesh, {key: value})``."""
+    """Write meshes and a TOML scene (tomlkit); ``bodies`` are ``(name, trimesh, {key: value})``."""
     doc = {"source": _plain(source), "detector": _plain(detector)}
     entries = []
     for body_name, mesh, keys in bodies:
@@ -35,7 +35,7 @@ def write_scene(tmp_path: Path, *, source: dict, detector: dict, bodies=(), name
     if entries:
         doc["body"] = entries
     path = tmp_path / f"{name}.toml"
-    path.write_text(tomli_w.dumps(doc))
+    path.write_text(tomlkit.dumps(doc))
     return path
 
 

@@ -4,7 +4,7 @@ A scan is ``n`` projections of the scene's one :class:`~xray_viz.bodies.Bodies` 
 acquisitions of an :class:`~xray_viz.orbit.Orbit` (circular, helical or explicit poses):
 every per-mesh set-up (mesh checks, bounds, the fast engine's spatial order) is paid once per
 process. The stack layout (in memory and in a Zarr v3 store) is the one ``CT-LAYOUT``
-documents and :mod:`xray_viz.reconstruct` reads: ``projections`` float32 ``(n, H, W)`` plus a
+documents and ``xray_viz.reconstruct`` reads: ``projections`` float32 ``(n, H, W)`` plus a
 JSON-serialisable ``geometry`` dict (:func:`scan_geometry`).
 
 * :func:`scan` renders in this process, or on a Dask cluster (``client=``): each task renders a

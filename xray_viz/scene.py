@@ -781,7 +781,7 @@ class Scene:
         return _scene_document(self, base=None if base is None else Path(base))
 
     def to_toml(self, *, base: str | Path | None = None) -> str:
-        """The scene as the text of a scene file (:meth:`to_dict` written by ``tomli_w``).
+        """The scene as the text of a scene file (:meth:`to_dict` written by tomlkit).
 
         Examples
         --------
@@ -791,9 +791,9 @@ class Scene:
         >>> bool((xray_viz.render(again).intensity == xray_viz.render(scene).intensity).all())
         True
         """
-        import tomli_w
+        import tomlkit
 
-        return tomli_w.dumps(self.to_dict(base=base))
+        return tomlkit.dumps(self.to_dict(base=base))
 
     @property
     def triangles(self) -> np.ndarray:
@@ -1412,7 +1412,8 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     if any(v is not None for v in volumes.values()):  # label maps and CTs: bodies after [[body]]
         from xray_viz.meshes.volumes import volume_bodies
 
-        parsed.extend((b, None) for b in volume_bodies(volumes, base_dir=base_dir, file=file))
+        parsed.extend((b, None) for b in volume_bodies(volumes, base_dir=base_dir, file=file,
+                                                        body=Body))
     bodies = [b for b, _ in parsed]
     _check_material_energies(src, energy, spectrum, bodies)
     from xray_viz.bodies import Bodies
@@ -1478,9 +1479,10 @@ def load_scene(path: str | Path) -> Scene:
                 f"(phantoms: {names})"
             )
     if p.suffix.lower() == ".json":  # a gVirtualXray scene
-        from xray_viz.meshes.gvxr import load_gvxr
+        from xray_viz.meshes.gvxr import gvxr_to_dict, read_json
 
-        return load_gvxr(p)
+        return scene_from_dict(gvxr_to_dict(read_json(p), base_dir=p.parent, file=p),
+                               base_dir=p.parent, file=p)
     try:
         text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError:

@@ -507,7 +507,7 @@ def walkthrough_command(args) -> int:
         from xray_viz.viz.command import require_display
 
         require_display("--off-screen to write the figures as PNGs")
-    from xray_viz.cli import _compile_notice
+    from xray_viz.scene_options import _compile_notice
 
     with _compile_notice("fast"), _progress.task(f"walkthrough {args.number}", unit="figures"):
         run_walkthrough(args.number, off_screen=True if args.off_screen else None)

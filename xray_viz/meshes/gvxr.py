@@ -8,31 +8,31 @@ scene format), so that ``xray-viz render scene.json`` renders it and
 
 What maps (gVXR -> xray-viz):
 
-==============================================  ==============================================
-``Source.Position [x, y, z, unit]``              ``[source] position`` (mm)
-``Source.Shape`` PointSource / Cone(Beam)        ``kind = "point"``; Parallel(Beam): ``"parallel"``
-``Source.Shape ["FocalSpot", size, unit, n]``    ``[detector] focal_spot`` (mm; gVXR's uniform
-                                                 spot taken as a Gaussian of that FWHM: a
-                                                 warning says so)
-``Source.Beam [{Energy, Unit, PhotonCount}]``    ``energy`` (keV) and ``[detector] I0``: one
-                                                 energy only (a line spectrum: error)
-``Source.Beam {kvp, tube angle, filter, mAs}``   ``spectrum = { kvp, anode_angle, filters }``,
-                                                 ``mas`` (also "Peak kilo voltage", "Tube angle")
-``Detector.Position``, ``UpVector``              ``[detector] center``, ``up``
-``Detector.NumberOfPixels [W, H]``               ``shape``
-``Detector.Spacing [dx, dy, unit]`` / ``Size``   ``pitch`` (gVXR's pitch is size / pixels)
-``Detector.Oversampling n``                      ``supersample``
-``Detector.Scintillator {Material, Thickness}``  ``scintillator``
-``Samples[].Label``, ``Path``, ``Unit``          ``[[body]] name``, ``mesh``, ``units``/``scale``
-``Samples[].Material ["Element", "Fe" or 26]``   ``material = "Fe"`` (density: ``Density``, else
-                                                 the element's)
-``["Mixture", "Ti90Al6V4"]`` / ``[Z, w, ...]``   a mixture by mass fraction (needs ``Density``)
-``["Compound", "H2O"]``                          ``material = "H2O"`` (needs ``Density``)
-``["mu", value]``                                ``mu`` (1/cm)
-``Samples[].Transform``                          ``position``, ``rotation``, ``scale`` (the
-                                                 transforms composed as gVXR's node matrix,
-                                                 ``M = T1 @ T2 @ ...``)
-==============================================  ==============================================
+================================================  ==============================================
+``Source.Position [x, y, z, unit]``                ``[source] position`` (mm)
+``Source.Shape`` PointSource / Cone(Beam)          ``kind = "point"``; Parallel(Beam): ``"parallel"``
+``Source.Shape ["FocalSpot", size, unit, n]``      ``[detector] focal_spot`` (mm; gVXR's uniform
+                                                   spot taken as a Gaussian of that FWHM: a
+                                                   warning says so)
+``Source.Beam [{Energy, Unit, PhotonCount}]``      ``energy`` (keV) and ``[detector] I0``: one
+                                                   energy only (a line spectrum: error)
+``Source.Beam {kvp, tube angle, filter, mAs}``     ``spectrum = { kvp, anode_angle, filters }``,
+                                                   ``mas`` (also "Peak kilo voltage", "Tube angle")
+``Detector.Position``, ``UpVector``                ``[detector] center``, ``up``
+``Detector.NumberOfPixels [W, H]``                 ``shape``
+``Detector.Spacing [dx, dy, unit]`` / ``Size``     ``pitch`` (gVXR's pitch is size / pixels)
+``Detector.Oversampling n``                        ``supersample``
+``Detector.Scintillator {Material, Thickness}``    ``scintillator``
+``Samples[].Label``, ``Path``, ``Unit``            ``[[body]] name``, ``mesh``, ``units``/``scale``
+``Samples[].Material ["Element", "Fe" or 26]``     ``material = "Fe"`` (density: ``Density``, else
+                                                   the element's)
+``["Mixture", "Ti90Al6V4"]`` / ``[Z, w, ...]``     a mixture by mass fraction (needs ``Density``)
+``["Compound", "H2O"]``                            ``material = "H2O"`` (needs ``Density``)
+``["mu", value]``                                  ``mu`` (1/cm)
+``Samples[].Transform``                            ``position``, ``rotation``, ``scale`` (the
+                                                   transforms composed as gVXR's node matrix,
+                                                   ``M = T1 @ T2 @ ...``)
+================================================  ==============================================
 
 No equivalent, an error (one line naming the key): a beam of several energies or from a text
 file or GATE macro, ``["HU", value]`` materials, primitive samples (``Cube``, ``Cuboid``,
@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import warnings
 from collections.abc import Mapping
@@ -73,8 +72,7 @@ import numpy as np
 
 from xray_viz.errors import SceneError, SceneFileNotFoundError, excerpt
 
-__all__ = ["gvxr_to_dict", "load_gvxr", "read_json", "not_toml", "to_toml", "convert_command",
-           "add_convert_parser", "GvxrWarning", "LENGTH_UNITS"]
+__all__ = ["gvxr_to_dict", "read_json", "not_toml", "to_toml", "GvxrWarning", "LENGTH_UNITS"]
 
 #: gVXR's length units, in mm.
 LENGTH_UNITS = {
@@ -549,30 +547,6 @@ def read_json(path):
                          f"{exc.colno})") from None
 
 
-def load_gvxr(path):
-    """Load a gVXR JSON scene file as a :class:`~xray_viz.scene.Scene`.
-
-    Examples
-    --------
-    >>> import json, tempfile, pathlib
-    >>> p = pathlib.Path(tempfile.mkdtemp()) / "empty.json"
-    >>> _ = p.write_text(json.dumps({
-    ...     "Source": {"Position": [0, 0, 1, "m"], "Shape": "Parallel", "Beam": [
-    ...         {"Energy": 0.05, "Unit": "MeV", "PhotonCount": 1}]},
-    ...     "Detector": {"Position": [0, 0, -0.2, "m"], "UpVector": [0, 1, 0],
-    ...                  "NumberOfPixels": [8, 8], "Spacing": [1, 1, "mm"]}, "Samples": []}))
-    >>> scene = load_gvxr(p)
-    >>> scene.source.kind, scene.source.energy, scene.detector.center.tolist()
-    ('parallel', 50.0, [0.0, 0.0, -200.0])
-    """
-    from xray_viz.scene import scene_from_dict
-
-    path = Path(path)
-    doc = read_json(path)
-    return scene_from_dict(gvxr_to_dict(doc, base_dir=path.parent, file=path),
-                           base_dir=path.parent, file=path)
-
-
 def not_toml(path, text: str) -> str | None:
     """The message for a JSON file given where TOML was expected, or None if it is not JSON.
 
@@ -602,29 +576,9 @@ def not_toml(path, text: str) -> str | None:
 # TOML writing and `xray-viz convert`
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        return repr(float(v))
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)   # a JSON string is a TOML basic string
-    if isinstance(v, Mapping):
-        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + " }"
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def _toml_key(k) -> str:
-    k = str(k)
-    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k, ensure_ascii=False)
-
-
 def to_toml(doc: Mapping, *, header: str = "") -> str:
-    """A scene dictionary (as :func:`gvxr_to_dict` returns) as TOML text.
+    """A scene dictionary (as :func:`gvxr_to_dict` returns) as TOML text (tomlkit), after
+    ``header`` as comment lines.
 
     Examples
     --------
@@ -636,71 +590,18 @@ def to_toml(doc: Mapping, *, header: str = "") -> str:
     name = "a"
     <BLANKLINE>
     """
-    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
-    for key, value in doc.items():
-        if isinstance(value, Mapping):
-            lines += (["", f"[{key}]"] if lines else [f"[{key}]"])
-            lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()]
-        elif isinstance(value, list) and all(isinstance(x, Mapping) for x in value):
-            for item in value:
-                lines += ["", f"[[{key}]]"]
-                lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in item.items()]
-        else:
-            lines.insert(0, f"{_toml_key(key)} = {_toml_value(value)}")
-    return "\n".join(lines) + "\n"
+    import tomlkit
 
+    def plain(v):
+        if isinstance(v, np.ndarray):
+            return v.tolist()
+        if isinstance(v, np.generic):
+            return v.item()
+        if isinstance(v, Mapping):
+            return {str(k): plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return v
 
-def add_convert_parser(subparsers):
-    """Register ``xray-viz convert IN.json -o OUT.toml``."""
-    import argparse
-
-    p = subparsers.add_parser(
-        "convert", help="convert a gVirtualXray JSON scene to a TOML scene file",
-        description="Convert a gVirtualXray (gVXR) JSON scene file to an xray-viz TOML scene "
-                    "file. Mesh paths are rewritten relative to OUT's folder. What has no "
-                    "equivalent is an error naming the gVXR key (see the README, 'Volumes and "
-                    "other scene formats').",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("input", metavar="IN", help="a gVXR .json scene file")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="the .toml to write")
-    p.set_defaults(func=convert_command)
-    return p
-
-
-def convert_command(args, *, stdout=None) -> int:
-    """Run ``xray-viz convert``: read, check (the scene is built), write atomically."""
-    import sys
-    import tomllib
-
-    from xray_viz.output import atomic_write, check_target
-    from xray_viz.scene import scene_from_dict
-
-    out = sys.stdout if stdout is None else stdout
-    src, dst = Path(args.input), Path(args.output)
-    if dst.suffix.lower() != ".toml":
-        raise SceneError(f"{dst}: convert writes a TOML scene file; name it .toml")
-    folder = dst.parent if str(dst.parent) else Path(".")
-    if not folder.is_dir():
-        raise SceneFileNotFoundError(f"{dst}: folder {folder} does not exist; create it first")
-    check_target(dst)
-    doc = gvxr_to_dict(read_json(src), base_dir=src.parent, file=src)
-    scene = scene_from_dict(doc, base_dir=src.parent, file=src)   # every mesh and value checked
-    for body in doc["body"]:
-        mesh = Path(body["mesh"])
-        full = mesh if mesh.is_absolute() else (src.parent / mesh).resolve()
-        try:
-            body["mesh"] = Path(os.path.relpath(full, folder.resolve())).as_posix()
-        except ValueError:   # another drive
-            body["mesh"] = str(full)
-    text = to_toml(doc, header=f"Converted from the gVirtualXray scene {src.name} by "
-                               "`xray-viz convert`.")
-
-    def verify(tmp):
-        if tomllib.loads(Path(tmp).read_text(encoding="utf-8")) != json.loads(json.dumps(doc)):
-            raise SceneError("the TOML written does not read back as the scene")
-
-    atomic_write(dst, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), verify=verify)
-    n = len(scene.bodies)
-    print(f"wrote {dst} ({n} bod{'y' if n == 1 else 'ies'}) from {src}", file=out)
-    return 0
-
+    comments = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
+    return comments + ("\n" if comments else "") + tomlkit.dumps(plain(doc))

@@ -201,7 +201,7 @@ def check_mesh(mesh, *, cache: bool = True) -> MeshReport:
         The mesh to check (not modified).
     cache : bool, optional
         Read and keep the report on disk by content hash (the mesh's arrays and the checking
-        code: :mod:`xray_viz.meshes._report_cache`), so that loading the same mesh again costs
+        code: ``xray_viz.meshes._report_cache``), so that loading the same mesh again costs
         a hash instead of the checks (seconds for a million faces). ``XRAY_VIZ_CACHE_DIR=off``
         turns it off everywhere.
 

@@ -1004,9 +1004,7 @@ def _volume_file(raw, where, base_dir: Path) -> Path:
     return p
 
 
-def _make_bodies(meshes: VolumeMeshes, entries: dict, path: Path, where: str):
-    from xray_viz.scene import Body
-
+def _make_bodies(meshes: VolumeMeshes, entries: dict, path: Path, where: str, Body):
     bodies = []
     for s in meshes.surfaces:
         kw = {k: v for k, v in entries[s.label].items() if k != "name"}
@@ -1018,7 +1016,7 @@ def _make_bodies(meshes: VolumeMeshes, entries: dict, path: Path, where: str):
     return bodies
 
 
-def _labels_bodies(raw, k, base_dir, file, cache):
+def _labels_bodies(raw, k, base_dir, file, cache, body):
     where = _where(file, "labels", k)
     _check_keys(raw, LABELS_KEYS, where)
     path = _volume_file(raw, where, base_dir)
@@ -1047,10 +1045,10 @@ def _labels_bodies(raw, k, base_dir, file, cache):
         warnings.warn(f"{where}: {path.name}: label{'s' * (len(sk) > 1)} "
                       f"{', '.join(map(str, sk))} not in 'materials': skipped (no body)",
                       LabelSkippedWarning, stacklevel=4)
-    return _make_bodies(meshes, entries, path, where)
+    return _make_bodies(meshes, entries, path, where, body)
 
 
-def _ct_bodies(raw, k, base_dir, file, cache):
+def _ct_bodies(raw, k, base_dir, file, cache, body):
     where = _where(file, "ct", k)
     _check_keys(raw, CT_KEYS, where)
     path = _volume_file(raw, where, base_dir)
@@ -1092,10 +1090,11 @@ def _ct_bodies(raw, k, base_dir, file, cache):
                              min_voxels=min_voxels, cache=cache)
     except XrayVizError as exc:
         raise type(exc)(f"{where}: {exc}") from None
-    return _make_bodies(meshes, entries, path, where)
+    return _make_bodies(meshes, entries, path, where, body)
 
 
-def volume_bodies(tables: Mapping, *, base_dir=".", file=None, cache: bool = True) -> list:
+def volume_bodies(tables: Mapping, *, base_dir=".", file=None, cache: bool = True,
+                  body=None) -> list:
     """The bodies of a scene's ``[[labels]]`` and ``[[ct]]`` tables (the scene file's hook).
 
     Parameters
@@ -1106,6 +1105,9 @@ def volume_bodies(tables: Mapping, *, base_dir=".", file=None, cache: bool = Tru
         Folder that ``file`` entries are relative to.
     file : Path, optional
         The scene file, named in messages.
+    body : type
+        The body class, :class:`xray_viz.scene.Body` (the scene reader passes it: this module
+        sits below the scene model and does not import it).
     cache : bool, optional
         Use the on-disk mesh cache.
 
@@ -1129,5 +1131,5 @@ def volume_bodies(tables: Mapping, *, base_dir=".", file=None, cache: bool = Tru
             raise SceneError(f"{file}: " * bool(file) + f"'{key}' must be an array of tables: "
                              f"write [[{key}]]")
         for k, t in enumerate(raw):
-            bodies.extend(make(t, k, base_dir, file, cache))
+            bodies.extend(make(t, k, base_dir, file, cache, body))
     return bodies

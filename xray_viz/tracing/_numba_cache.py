@@ -232,6 +232,14 @@ class KernelCache(caching.FunctionCache):
                        f"could not be loaded ({_why(exc)}): compiling it again")
             return None
 
+    def is_cached(self, sig, target_context) -> bool:
+        """Whether the cache index holds ``sig`` for this machine and source (nothing loaded)."""
+        try:
+            key = self._index_key(sig, target_context.codegen())
+            return key in self._cache_file._load_index()
+        except Exception:  # unreadable: not cached (loading it would compile it again)
+            return False
+
     def save_overload(self, sig, data):
         try:
             super().save_overload(sig, data)
@@ -306,17 +314,42 @@ def cache_path(kernel) -> str | None:
     return getattr(kernel, "_cache", caching.NullCache()).cache_path
 
 
+#: Cache path of kernels being compiled by background processes of this process (see
+#: :func:`background_compile`), until a notice has said so.
+_background: list = []
+
+
+def background_compile(kernel) -> None:
+    """Say that kernels are being compiled by other processes on behalf of this one (into the
+    cache of ``kernel``): the active :func:`on_first_compile` callbacks are called now, the
+    first one entered later is called on entry."""
+    with _lock:
+        _background[:] = [cache_path(kernel)]
+        listeners = list(_listeners)
+    for listener in listeners:
+        listener.fire(_background[0])
+
+
+_listeners: list = []
+
+
 class _FirstCompile(event.Listener):
     def __init__(self, callback):
         self.callback = callback
         self.done = False
 
+    def fire(self, where):
+        if not self.done:
+            self.done = True
+            with _lock:
+                _background.clear()
+            self.callback(where)
+
     def on_start(self, ev):
         disp = (ev.data or {}).get("dispatcher")
         module = str(getattr(getattr(disp, "py_func", None), "__module__", ""))
         if not self.done and module.startswith(PACKAGE):
-            self.done = True
-            self.callback(cache_path(disp))
+            self.fire(cache_path(disp))
 
     def on_end(self, ev):
         pass
@@ -328,12 +361,25 @@ def on_first_compile(callback):
 
     A kernel loaded from the cache is not compiled, so nothing is called on a warm cache.
     ``cache_path`` is where numba will cache the kernel (see :func:`cache_path`), None if the
-    kernels are not cached.
+    kernels are not cached. Kernels compiled for this process by background processes
+    (:func:`xray_viz.tracing._raster.prepare`) count: when that started before the context
+    was entered and no notice has said so yet, ``callback`` is called on entry.
 
     Parameters
     ----------
     callback : callable
-        Called at most once, before the compilation starts, in the compiling thread.
+        Called at most once, before the compilation starts (or on entry, see above), in the
+        compiling (or entering) thread.
     """
-    with event.install_listener("numba:compile", _FirstCompile(callback)):
-        yield
+    listener = _FirstCompile(callback)
+    with _lock:
+        pending = list(_background)
+        _listeners.append(listener)
+    try:
+        if pending:
+            listener.fire(pending[0])
+        with event.install_listener("numba:compile", listener):
+            yield
+    finally:
+        with _lock:
+            _listeners.remove(listener)

@@ -11,12 +11,13 @@ covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracin
 from __future__ import annotations
 
 import os
+import threading
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
+from xray_viz.tracing import _numba_cache  # where the kernels below are cached
 
 # An old TBB (Open3D brings one) makes numba warn when it tries its TBB threading layer first;
 # OpenMP or numba's own work queue serve these kernels equally well. A user's choice wins.
@@ -50,7 +51,7 @@ NO_CODE = 1 | (1 << 16)
 CODE_MAX_SAMPLES = 16382
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _axis_code(x, n):
     """Cell code of a snapped coordinate on an axis of ``n`` samples (0 .. n - 1): 0 left of
     sample 0, ``2 n + 2`` right of sample ``n - 1``, ``2 k + 2`` strictly between samples k and
@@ -62,7 +63,6 @@ def _axis_code(x, n):
     return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
 
 
-@njit(cache=True)
 def first_use_rank(flat_faces, n_vertices):
     """New number of each vertex: its rank in order of first appearance in ``flat_faces``
     (vertices used by no face follow, in their previous order)."""
@@ -79,17 +79,20 @@ def first_use_rank(flat_faces, n_vertices):
     return rank
 
 
-@njit(cache=True, parallel=True)
-def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
+# (named first_use_rank in numba's cache files; the entry below is first_use_rank)
+_first_use_rank = njit(cache=True, nogil=True, error_model="numpy")(first_use_rank)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
     """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
 
     ``K`` receives each vertex's cell code (x code in bits 0-15, y code in bits 16-31, see
     :func:`_axis_code`): a triangle whose three vertices have the same even x (or y) code lies
     strictly between two columns (rows) of samples, or outside the grid, and covers no sample.
     """
-    n = V.shape[0]
     codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
-    for i in prange(n):
+    for i in range(lo, hi):
         r0x = V[i, 0] - r0[0]
         r1 = V[i, 1] - r0[1]
         r2 = V[i, 2] - r0[2]
@@ -122,12 +125,12 @@ def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
             K[i] = NO_CODE
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _split30(x):
     return x >> 30, x & _MASK30
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def exact_cross_sign(a, b, c, d):
     """Exact sign of ``a*b - c*d`` for int64 inputs of magnitude below 2**60."""
     ah, al = _split30(a)
@@ -150,7 +153,7 @@ def exact_cross_sign(a, b, c, d):
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _tie(ex, ey):
     """Sign of an edge function at a sample point exactly on the edge, after moving the point
     by ``(eps, eps * delta)``: the lexicographic sign of ``(-ey, ex)``."""
@@ -161,7 +164,7 @@ def _tie(ex, ey):
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _side_value(V, i, r0, planes, k):
     """``n . (V[i] - r0) - c`` for side plane ``k`` of the beam, and its rounding scale."""
     dx = V[i, 0] - r0[0]
@@ -175,7 +178,7 @@ def _side_value(V, i, r0, planes, k):
             abs(nx * dx) + abs(ny * dy) + abs(nz * dz) + abs(c))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def beyond_side(V, i0, i1, i2, r0, planes):
     """True when triangle (i0, i1, i2) lies wholly outside one of the beam's side planes
     (rows of ``planes``, see :func:`xray_viz.attenuation.beam_planes`): no ray meets it.
@@ -192,16 +195,15 @@ def beyond_side(V, i0, i1, i2, r0, planes):
     return False
 
 
-@njit(cache=True, parallel=True)
-def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
     """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
 
     Only triangles that can cover a sample get a box; ``status`` is written for all. A triangle
     crossing the plane of the source is an error (ERR_STRADDLE) unless it lies wholly outside
     one of the beam's side ``planes`` (:func:`beyond_side`).
     """
-    T = F.shape[0]
-    for t in prange(T):
+    for t in range(lo, hi):
         i0 = F[t, 0]
         i1 = F[t, 1]
         i2 = F[t, 2]
@@ -256,16 +258,15 @@ def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, 
         box[t, 3] = Y1
 
 
-@njit(cache=True, parallel=True)
-def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
+@njit(cache=True, nogil=True, error_model="numpy")
+def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
                  kind, orient, cbox, coef, wrange):
     """Compact per-triangle data of the triangles ``tri`` that cover samples.
 
     Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
     ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
     """
-    M = tri.shape[0]
-    for m in prange(M):
+    for m in range(lo, hi):
         t = tri[m]
         st = status[t]
         orient[m] = 1 if st > 0 else -1
@@ -289,8 +290,8 @@ def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
         wrange[m, 1] = max(w0, max(w1, w2))
 
 
-@njit(cache=True)
-def bin_triangles(box, band_height, n_bands):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _bin_triangles(box, band_height, n_bands):
     """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
     T = box.shape[0]
     counts = np.zeros(n_bands + 1, np.int64)
@@ -310,7 +311,7 @@ def bin_triangles(box, band_height, n_bands):
     return counts, tris
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _depth(coef, wrange, t, X, Y):
     num = coef[t, 0] + coef[t, 1] * X + coef[t, 2] * Y
     den = coef[t, 3] + coef[t, 4] * X + coef[t, 5] * Y
@@ -326,7 +327,7 @@ def _depth(coef, wrange, t, X, Y):
     return W
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
            S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
     """Visit the samples of compact triangle ``m`` in rows ``y0..y1`` that it covers.
@@ -392,7 +393,7 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
                             nW, buf_off, buf_w, buf_b)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
             buf_w, buf_b):
     if mode == 1 and wrange[m, 1] <= FL:
@@ -414,15 +415,15 @@ def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW,
         buf_b[j] = body * 2 + (1 if dn > 0 else 0)
 
 
-@njit(cache=True, parallel=True)
-def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+@njit(cache=True, nogil=True, error_model="numpy")
+def _raster_single(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                   orient, coef, wrange, tri_body, FL, S, N, row0):
     """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid.
 
     Only the bands ``order`` are rastered; ``S[Y - row0, X]`` and ``N[Y - row0, X]`` receive
     sample (X, Y), so ``S`` and ``N`` need only hold the rows of those bands (a window).
     """
-    for k in prange(order.shape[0]):
+    for k in range(lo, hi):
         dummy_i = np.zeros(1, np.int64)
         dummy_f = np.zeros(1, np.float64)
         dummy_b = np.zeros(1, np.int32)
@@ -433,12 +434,12 @@ def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY,
             m = band_tris[idx]
             y0 = max(cbox[m, 2], r0)
             y1 = min(cbox[m, 3], r1)
-            _cover(m, y0, y1, 0, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
+            _cover(m, y0, y1, np.int64(0), tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
                    S, N, dummy_i, row0, nW, dummy_i, dummy_f, dummy_b)
 
 
-@njit(cache=True, parallel=True)
-def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+@njit(cache=True, nogil=True, error_model="numpy")
+def _raster_multi(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
                  orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
                  H, L, ray0):
     """Several bodies: per band, count then store every hit, then sort and sweep each sample.
@@ -451,7 +452,7 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
     stable sort by depth) do not depend on which bands are rastered together.
     """
     nb = precedence.shape[0]
-    for k in prange(order.shape[0]):
+    for k in range(lo, hi):
         dummy_S = np.zeros((1, 1), np.float64)
         dummy_N = np.zeros((1, 1), np.int32)
         b = order[k]
@@ -464,7 +465,7 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
         dummy_b = np.zeros(1, np.int32)
         for idx in range(band_start[b], band_start[b + 1]):
             m = band_tris[idx]
-            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), 1, tri, F, XY, kind, cbox,
+            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), np.int64(1), tri, F, XY, kind, cbox,
                    orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off,
                    dummy_w, dummy_b)
         for p in range(npix):
@@ -477,7 +478,7 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
         bb = np.empty(total, np.int32)
         for idx in range(band_start[b], band_start[b + 1]):
             m = band_tris[idx]
-            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), 2, tri, F, XY, kind, cbox,
+            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), np.int64(2), tri, F, XY, kind, cbox,
                    orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, bw,
                    bb)
         inside = np.zeros(nb, np.int64)
@@ -529,8 +530,8 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
                         L[ray - ray0, win] += seg * scale
 
 
-@njit(cache=True, parallel=True)
-def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _finish(lo, hi, S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
 
     ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis; sample (X, Y) is
@@ -543,7 +544,7 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_ro
     """
     nW = W * n
     nb = L.shape[1]
-    for Y in prange(y0, y1):
+    for Y in range(lo, hi):
         j = Y // n
         r = n - 1 - (Y - j * n)
         for X in range(nW):
@@ -567,7 +568,7 @@ def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_ro
                     L[ray, q] = Lf[Y - s_row0, X, q] * scale
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
     ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`).
@@ -596,7 +597,7 @@ def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
             nx * f[0] + ny * f[1] + nz * f[2], 0.0, 0.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
     Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
     if Wd != Wd:
@@ -611,8 +612,8 @@ def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
 _BLOCK = 1024
 
 
-@njit(cache=True, parallel=True)
-def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
+@njit(cache=True, nogil=True, error_model="numpy")
+def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
                   depth_ok, S, N, err, K, planes):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
@@ -632,7 +633,7 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
-    for c in prange(n_chunks):
+    for c in range(lo, hi):
         err[c] = -1
         Sc = S[c]
         Nc = N[c]
@@ -785,11 +786,11 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
                         Nc[Y, X] += dn
 
 
-@njit(cache=True, parallel=True)
-def reduce_chunks(S, N, FL, out):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reduce_chunks(lo, hi, S, N, FL, out):
     """``out = sum_c S[c] + N[c] * FL`` (depth span of each sample, one body)."""
     n_chunks, nH, nW = S.shape
-    for Y in prange(nH):
+    for Y in range(lo, hi):
         for X in range(nW):
             s = 0.0
             k = 0
@@ -797,3 +798,359 @@ def reduce_chunks(S, N, FL, out):
                 s += S[c, Y, X]
                 k += N[c, Y, X]
             out[Y, X] = s + k * FL
+
+
+# --------------------------------------------------------------------------------------------
+# Explicit signatures, compiled on first use, and the threads.
+#
+# Each kernel above has exactly one specialisation, ``SIGNATURES[name]``: it is compiled (or
+# loaded from numba's cache) the first time the engine needs it, then the dispatcher compiles
+# nothing else (:meth:`Dispatcher.disable_compile`), so no argument type can cost another
+# compilation. The functions below normalise their arguments to those types (inputs made
+# C-contiguous of the signature's dtype, without a copy when they already are; an input
+# signature type is read-only, which accepts writable arrays too).
+#
+# The kernels are serial and release the GIL (``nogil=True``); the functions below split the
+# loop that was a ``prange`` into one contiguous range per thread (``numba.get_num_threads()``
+# of them, as the ``parallel=True`` kernels had) and run them on a pool of threads. Every
+# iteration writes its own outputs, as before, so the results do not depend on the split (bit
+# for bit). Serial kernels compile in about a third of the time of ``parallel=True`` ones.
+
+from numba.core import types as _nt  # noqa: E402
+
+_SCALARS = {"i8": _nt.int64, "f8": _nt.float64, "b1": _nt.boolean}
+_DTYPES = {"i8": _nt.int64, "i4": _nt.int32, "i1": _nt.int8, "f8": _nt.float64,
+           "b1": _nt.boolean}
+
+
+def _types(spec: str) -> tuple:
+    """Numba types of a compact spec: ``i8`` (int64), ``f8``, ``b1`` scalars; ``f8[2]`` a
+    writable C-contiguous 2-d float64 array (an output); ``f8[2]r`` one that is only read."""
+    out = []
+    for tok in spec.split():
+        if "[" not in tok:
+            out.append(_SCALARS[tok])
+            continue
+        dt, rest = tok.split("[")
+        nd, flag = rest.split("]")
+        out.append(_nt.Array(_DTYPES[dt], int(nd), "C", readonly=flag == "r"))
+    return tuple(out)
+
+
+#: Argument types of the one specialisation of each kernel (see :func:`_types`).
+SIGNATURES = {
+    "_first_use_rank": "i8[1]r i8",
+    "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
+                         "b1[1] i8 i8 i4[1]",
+    "_cull_triangles": "i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
+                       "f8[2]r",
+    "_setup_planes": "i8 i8 i8[1]r f8[2]r i4[2]r f8[1]r i1[1]r i8[2]r b1 f8[1]r f8[1]r f8[1]r "
+                     "f8[1]r f8[1]r f8 i1[1] i1[1] i8[2] f8[2] f8[2]",
+    "_bin_triangles": "i8[2]r i8 i8",
+    "_raster_single": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
+                      "i1[1]r f8[2]r f8[2]r i4[1]r f8 f8[2] i4[2] i8",
+    "_raster_multi": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
+                     "i1[1]r f8[2]r f8[2]r i4[1]r f8 i8[1]r b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 "
+                     "f8[2] i8",
+    "_finish": "i8 i8 f8[2]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 i8",
+    "_raster_direct": "i8 i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r f8[2]r b1 f8[1]r f8[1]r f8[1]r "
+                      "f8[1]r f8[1]r f8 i8 i8 b1 f8[3] i4[3] i8[1] i4[1]r f8[2]r",
+    "_reduce_chunks": "i8 i8 f8[3]r i4[3]r f8 f8[2]",
+}
+
+#: Kernels each engine path needs (what :func:`compile_kernels` compiles for a scene).
+PATHS = {
+    "setup": ("_first_use_rank", "_project_vertices"),
+    "direct": ("_raster_direct", "_reduce_chunks", "_finish"),
+    "banded": ("_cull_triangles", "_setup_planes", "_bin_triangles"),
+    "single": ("_raster_single", "_reduce_chunks", "_finish"),
+    "multi": ("_raster_multi",),
+}
+
+_ready: set = set()
+_compile_lock = threading.Lock()
+
+
+def _kernel(name: str):
+    """The dispatcher of kernel ``name``, with its one specialisation compiled or loaded."""
+    disp = globals()[name]
+    if name not in _ready:
+        with _compile_lock:
+            if name not in _ready:
+                _wait(name)          # a background process compiling it into the cache
+                disp.compile(_types(SIGNATURES[name]))
+                disp.disable_compile()
+                _ready.add(name)
+    return disp
+
+
+def compile_kernels(paths=None) -> list:
+    """Compile (or load from the cache) the kernels of the engine ``paths`` (keys of
+    :data:`PATHS`; default all), in this thread; returns their names.
+
+    Examples
+    --------
+    >>> from xray_viz.tracing import _raster
+    >>> names = _raster.compile_kernels(["setup"])
+    >>> [len(getattr(_raster, n).signatures) for n in names]
+    [1, 1]
+    """
+    names = _names(paths)
+    for name in names:
+        _kernel(name)
+    return names
+
+
+def _names(paths=None) -> list:
+    names = []
+    for p in (PATHS if paths is None else paths):
+        names += [n for n in PATHS[p] if n not in names]
+    return names
+
+
+#: Relative compile cost of each kernel (measured), to share them out among the workers;
+#: kernels of one tuple share helpers (``_cover``) and go to the same worker.
+_COSTS = {("_first_use_rank",): 0.7, ("_project_vertices",): 1.3, ("_cull_triangles",): 1.6,
+          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_multi", "_raster_single"): 5.4,
+          ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.3, ("_finish",): 0.5}
+#: Kernel name -> the background process compiling it into numba's cache.
+_workers: dict = {}
+_WORKER = ("import sys, warnings; warnings.simplefilter('ignore'); "
+           "from xray_viz.tracing import _raster as R; [R._kernel(n) for n in sys.argv[1:]]")
+
+
+def _is_cached(name: str) -> bool:
+    disp = globals()[name]
+    cache = getattr(disp, "_cache", None)
+    is_cached = getattr(cache, "is_cached", None)
+    return bool(is_cached and is_cached(_types(SIGNATURES[name]), disp.targetctx))
+
+
+def prepare(paths=None, *, workers: int | None = None) -> list:
+    """Start compiling, in background processes, the kernels of ``paths`` (keys of
+    :data:`PATHS`; default all) that numba's cache lacks, and return their names.
+
+    Meant for a process that has something else to do first (the command line loads the
+    scene meanwhile): each kernel is then loaded from the cache when first needed, after
+    waiting for the process compiling it. The kernels are shared out among ``workers``
+    processes (default: as many as there are processors, at most 2) by their compile cost;
+    at exit this process waits for the ones still running when a kernel was used, and stops
+    them otherwise. Nothing starts when every kernel is cached, or when there is no cache to
+    share them through (they are compiled in this process when needed, as without
+    :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile` is told.
+    """
+    import subprocess
+    import sys
+
+    names = [n for n in _names(paths)
+             if n not in _ready and n not in _workers]
+    missing = [n for n in names if not _is_cached(n)]
+    if not missing or not isinstance(getattr(globals()[missing[0]], "_cache", None),
+                                     _numba_cache.KernelCache):
+        return []
+    n_workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(missing)))
+    groups = [[] for _ in range(n_workers)]
+    load = [0.0] * n_workers
+    for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
+        todo = [n for n in unit if n in missing]
+        if todo:
+            k = load.index(min(load))
+            groups[k] += todo
+            load[k] += cost
+    _numba_cache.background_compile(globals()[missing[0]])
+    for group in groups:
+        if group:
+            proc = subprocess.Popen([sys.executable, "-c", _WORKER, *group],
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.DEVNULL)
+            for n in group:
+                _workers[n] = proc
+    if not _atexit_set:
+        import atexit
+
+        atexit.register(_finish_workers)
+        _atexit_set.append(True)
+    return missing
+
+
+_atexit_set: list = []
+
+
+def _wait(name: str) -> None:
+    proc = _workers.pop(name, None)
+    if proc is not None:
+        proc.wait()          # then loaded from the cache (compiled here if the worker failed)
+
+
+def _finish_workers() -> None:
+    """At exit: wait for the workers if this process used a kernel, else stop them."""
+    for proc in set(_workers.values()):
+        if not _ready:
+            proc.terminate()
+        proc.wait()
+    _workers.clear()
+
+
+_pool = None
+_pool_lock = threading.Lock()
+
+
+#: Least vertices or triangles (rows, for the per-row kernels) given to a thread.
+_MIN_ITEMS = 4096
+_MIN_ROWS = 16
+
+
+def _threads() -> int:
+    """Threads to split a kernel's range over: numba's (``NUMBA_NUM_THREADS``,
+    ``numba.set_num_threads``), as the ``parallel=True`` kernels used."""
+    return numba.get_num_threads()
+
+
+def _pool_for(k: int):
+    """The pool of threads, with at least ``k - 1`` of them (the caller runs one piece)."""
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool._max_workers < k - 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _pool = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="xray_viz-raster")
+        return _pool
+
+
+def _split(name, lo, hi, args, min_each=1):
+    """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread."""
+    kernel = _kernel(name)
+    k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
+    if k <= 1:
+        kernel(lo, hi, *args)
+        return
+    pool = _pool_for(k)
+    cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
+    futures = [pool.submit(kernel, cut[j], cut[j + 1], *args) for j in range(1, k)]
+    try:
+        kernel(cut[0], cut[1], *args)
+    finally:
+        for fut in futures:
+            fut.result()
+
+
+def _in(a, dtype):
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+def _faces(F, n_vertices):
+    """Faces as C-contiguous int32 (the kernels' one index type)."""
+    if F.dtype != np.int32:
+        if n_vertices >= 2**31:
+            from xray_viz.errors import SceneError
+
+            raise SceneError(f"{n_vertices} vertices: the fast engine indexes at most 2**31 - 1 "
+                             "vertices; use the NumPy engine (engine='numpy')")
+        F = F.astype(np.int32)
+    return np.ascontiguousarray(F)
+
+
+_f8 = np.float64
+
+
+def first_use_rank(flat_faces, n_vertices):
+    return _kernel("_first_use_rank")(_in(flat_faces, np.int64), int(n_vertices))
+
+
+def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
+    V = _in(V, _f8)
+    _split("_project_vertices", 0, V.shape[0],
+           (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx), float(bx),
+            float(sy), float(by), bool(perspective), XY, w, huge, int(nW), int(nH), K), _MIN_ITEMS)
+
+
+def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
+    F = _faces(F, len(V))
+    _split("_cull_triangles", 0, F.shape[0],
+           (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
+            _in(V, _f8), _in(r0, _f8), _in(planes, _f8)), _MIN_ITEMS)
+
+
+def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
+                 kind, orient, cbox, coef, wrange):
+    tri = _in(tri, np.int64)
+    _split("_setup_planes", 0, tri.shape[0],
+           (tri, _in(V, _f8), _faces(F, len(V)), w, status, box, bool(perspective),
+            _in(r0, _f8), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), _in(f, _f8), float(FL),
+            kind, orient, cbox, coef, wrange), _MIN_ITEMS)
+
+
+def bin_triangles(box, band_height, n_bands):
+    return _kernel("_bin_triangles")(_in(box, np.int64), int(band_height), int(n_bands))
+
+
+def _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+               orient, coef, wrange, tri_body, FL):
+    return (_in(order, np.int64), _in(band_start, np.int64), _in(band_tris, np.int32),
+            int(band_height), int(nH), int(nW), _in(tri, np.int64), _faces(F, 0),
+            _in(XY, np.int64), _in(kind, np.int8), _in(cbox, np.int64), _in(orient, np.int8),
+            _in(coef, _f8), _in(wrange, _f8), _in(tri_body, np.int32), float(FL))
+
+
+def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+                  orient, coef, wrange, tri_body, FL, S, N, row0):
+    args = _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                      cbox, orient, coef, wrange, tri_body, FL)
+    _split("_raster_single", 0, len(args[0]), args + (S, N, int(row0)))
+
+
+def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
+                 orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
+                 H, L, ray0):
+    args = _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                      cbox, orient, coef, wrange, tri_body, FL)
+    _split("_raster_multi", 0, len(args[0]),
+           args + (_in(precedence, np.int64), bool(perspective), _in(P00, _f8), _in(Ex, _f8),
+                   _in(Ey, _f8), int(n), int(W), int(H), L, int(ray0)))
+
+
+def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
+    _split("_finish", int(y0), int(y1),
+           (_in(S, _f8), _in(Lf, _f8), bool(single), float(FL), bool(perspective),
+            _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n), int(W), int(H), L, int(y0),
+            int(y1), int(s_row0), int(ray0)), _MIN_ROWS)
+
+
+def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
+                  depth_ok, S, N, err, K, planes):
+    _split("_raster_direct", 0, int(n_chunks),
+           (int(n_chunks), _faces(F, len(V)), XY, w, huge, _in(V, _f8), bool(perspective),
+            _in(r0, _f8), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), _in(f, _f8), float(FL),
+            int(nW), int(nH), bool(depth_ok), S, N, err, K, _in(planes, _f8)))
+
+
+def reduce_chunks(S, N, FL, out):
+    _split("_reduce_chunks", 0, S.shape[1], (_in(S, _f8), _in(N, np.int32), float(FL), out), _MIN_ROWS)
+
+
+class _Entry:
+    """A kernel's entry point: normalises the arguments, then runs the kernel (over its range,
+    split over threads). The numba dispatcher's attributes (``_cache``, ``overloads``,
+    ``signatures``, ``stats``, ``py_func``) are read through, so the entry can be asked as the
+    dispatcher would."""
+
+    def __init__(self, kernel: str, call):
+        self._kernel_name = kernel
+        self._call = call
+        self.__name__ = call.__name__
+        self.__doc__ = globals()[kernel].py_func.__doc__
+
+    def __call__(self, *args):
+        return self._call(*args)
+
+    def __getattr__(self, attr):
+        return getattr(globals()[self.__dict__["_kernel_name"]], attr)
+
+    def __repr__(self):
+        return f"<xray_viz kernel entry {self.__name__} ({self._kernel_name})>"
+
+
+for _name in ("first_use_rank", "project_vertices", "cull_triangles", "setup_planes", "bin_triangles",
+              "raster_single", "raster_multi", "finish", "raster_direct", "reduce_chunks"):
+    globals()[_name] = _Entry("_" + _name, globals()[_name])
+del _name

@@ -2,7 +2,7 @@
 
 ``--size`` is the *window's* size in pixels; the detector's is ``--detector-size`` (mm) or
 ``--shape`` (pixels), the scene overrides that ``render`` has too
-(:func:`xray_viz.cli.add_scene_overrides`).
+(:func:`xray_viz.scene_options.add_scene_overrides`).
 
 The lead's :mod:`xray_viz.cli` wires it in with :func:`add_show_parser`.
 """
@@ -103,7 +103,7 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--view", choices=("side", "bodies"), default="side",
                    help="starting camera: the whole set-up from the side (default), or a "
                         "close-up of the bodies with the detector behind them (keys v and b)")
-    from xray_viz.cli import add_scene_overrides
+    from xray_viz.scene_options import add_scene_overrides
 
     add_scene_overrides(p)
     p.set_defaults(func=show_command)
@@ -125,7 +125,7 @@ def show_command(args) -> int:
         From :func:`xray_viz.load_scene`.
     """
     from xray_viz import progress
-    from xray_viz.cli import _compile_notice, load_scene_with_overrides
+    from xray_viz.scene_options import _compile_notice, load_scene_with_overrides
 
     out = Path(args.screenshot) if args.screenshot else None
     if out is not None and out.suffix.lower() not in SCREENSHOT_FORMATS:

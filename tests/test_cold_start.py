@@ -1,0 +1,183 @@
+"""The fast engine's kernels: one explicit specialisation each, threads that do not change a
+bit, and the background compilation of the command line (issue 18, cold start).
+
+Timings are in BENCHMARKS.md ("Cold start", ``benchmarks/cold_start.py``), never asserted here.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import xray_viz
+from xray_viz.errors import SceneError
+from xray_viz.tracing import _numba_cache as C
+from xray_viz.tracing import _raster as R
+from xray_viz.tracing import fast
+from helpers import make_scene
+
+
+def _sphere(r=20.0, subdivisions=3, center=(0.0, 0.0, 0.0)):
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=r)
+    m.apply_translation(center)
+    return m
+
+
+def _every_path():
+    """Renders that go through every kernel: one body (direct), one body by bands (single),
+    several bodies (multi), a parallel beam and supersampling."""
+    fast.fast_path_lengths(xray_viz.load_scene("sphere"), cache=False)
+    fast.fast_path_lengths(xray_viz.load_scene("nested_spheres"), supersample=2, cache=False)
+    beam = make_scene(_sphere(), kind="parallel", pitch=1.5)
+    fast.fast_path_lengths(beam, cache=False)
+    old = fast._DIRECT_MAX_SAMPLES
+    try:
+        fast._DIRECT_MAX_SAMPLES = 0            # one body, traced by bands
+        fast.fast_path_lengths(make_scene(_sphere(), pitch=1.5), cache=False)
+    finally:
+        fast._DIRECT_MAX_SAMPLES = old
+
+
+def test_every_kernel_has_exactly_its_one_explicit_signature():
+    _every_path()
+    assert set(R._names()) == set(R.SIGNATURES)
+    for name, spec in R.SIGNATURES.items():
+        disp = getattr(R, name)
+        assert disp.signatures == [R._types(spec)], name
+        assert not disp._can_compile, name      # nothing else can be compiled
+
+
+HELPERS = ("_cover", "_record", "_plane", "exact_cross_sign", "beyond_side", "_tie", "_depth",
+           "_clamped", "_axis_code", "_side_value")
+EVERY_PATH = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import test_cold_start as T
+T._every_path()
+print(json.dumps({n: len(getattr(T.R, n).signatures) for n in T.HELPERS + tuple(T.R.SIGNATURES)}))
+"""
+
+
+@pytest.mark.slow
+def test_helpers_are_specialised_once(tmp_path):
+    """In a fresh cache (helpers are compiled only with a kernel that is compiled, not loaded):
+    every caller passes a helper the same types, so each is compiled once (``_cover`` no
+    longer once per literal mode)."""
+    here = os.path.dirname(__file__)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", EVERY_PATH, here], env=env, check=True,
+                         capture_output=True, text=True, timeout=1200, cwd=here)
+    counts = json.loads(out.stdout.splitlines()[-1])
+    assert counts == {n: 1 for n in HELPERS + tuple(R.SIGNATURES)}
+
+
+def test_arguments_of_other_types_are_normalised_not_compiled():
+    """int64 faces, non-contiguous and writable inputs reach the one specialisation."""
+    scene = make_scene(_sphere(), pitch=1.5)
+    ref = fast.trace_once(scene)
+    v = np.asarray(scene.bodies[0].vertices, np.float64)
+    f = np.asarray(scene.bodies[0].faces, np.int64)
+    assert R._faces(f, len(v)).dtype == np.int32
+    np.testing.assert_array_equal(R._faces(f, len(v)), f)
+    nW = nH = 64
+    XY = np.empty((len(v), 2), np.int64)
+    w, huge, K = np.empty(len(v)), np.empty(len(v), np.bool_), np.empty(len(v), np.int32)
+    wide = np.zeros((len(v), 6))
+    wide[:, ::2] = v                             # a strided view: not C-contiguous
+    R.project_vertices(wide[:, ::2], np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
+                       np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
+                       True, XY, w, huge, nW, nH, K)
+    XY2, w2, huge2, K2 = XY.copy(), w.copy(), huge.copy(), K.copy()
+    R.project_vertices(v, np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
+                       np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
+                       True, XY2, w2, huge2, nW, nH, K2)
+    for a, b in ((XY, XY2), (w, w2), (huge, huge2), (K, K2)):
+        np.testing.assert_array_equal(a, b)
+    assert len(R._project_vertices.signatures) == 1
+    np.testing.assert_array_equal(fast.trace_once(scene), ref)
+
+
+def test_more_than_2_to_the_31_vertices_is_refused_in_one_line():
+    with pytest.raises(SceneError, match=r"2\*\*31 - 1 vertices; use the NumPy engine"):
+        R._faces(np.zeros((1, 3), np.int64), 2**31)
+
+
+@pytest.mark.parametrize("pieces", [2, 3, 7])
+def test_a_kernel_split_over_threads_gives_the_serial_result_bit_for_bit(monkeypatch, pieces):
+    """Every iteration of a split loop writes its own outputs: splitting the range over
+    threads changes nothing (projection, then culling with its bounding boxes)."""
+    rng = np.random.default_rng(5)
+    V = rng.normal(0, 30, (5000, 3))
+    F = rng.integers(0, len(V), (9000, 3)).astype(np.int32)
+    r0, f = np.array([0, 0, 1000.0]), np.array([0, 0, -1.0])
+    eu, ev = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    planes = np.zeros((4, 4))
+    planes[:, 0] = 1.0
+    planes[:, 3] = 1e9
+
+    def run(k):
+        monkeypatch.setattr(R, "_threads", lambda: k)
+        monkeypatch.setattr(R, "_MIN_ITEMS", 1)
+        XY, w = np.empty((len(V), 2), np.int64), np.empty(len(V))
+        huge, K = np.empty(len(V), np.bool_), np.empty(len(V), np.int32)
+        R.project_vertices(V, r0, f, eu, ev, 200.0, 255.5, 200.0, 255.5, True, XY, w, huge,
+                           512, 512, K)
+        status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)
+        R.cull_triangles(F, XY, w, huge, True, 1500.0, 512, 512, status, box, V, r0, planes)
+        return XY, w, huge, K, status, box * (status != 0)[:, None]
+
+    serial, split = run(1), run(pieces)
+    assert (serial[4] != 0).sum() > 1000         # the test covers triangles
+    for a, b in zip(serial, split):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_background_compile_is_announced_on_entry():
+    seen = []
+    C.background_compile(R._first_use_rank)
+    with C.on_first_compile(seen.append):
+        pass
+    with C.on_first_compile(seen.append):       # said once
+        pass
+    assert seen == [C.cache_path(R._first_use_rank)]
+
+
+PREPARE = """
+import json, sys
+from numba.core import event
+from xray_viz.tracing import _raster as R
+compiled = []
+class Listener(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__name__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Listener())
+started = R.prepare(["setup"])
+again = R.prepare(["setup"])             # already being compiled: nothing more
+names = R.compile_kernels(["setup"])
+hits = {n: sum(getattr(R, n).stats.cache_hits.values()) for n in names}
+print(json.dumps(dict(started=started, again=again, compiled=compiled, hits=hits,
+                      late=R.prepare(["setup"]))))
+"""
+
+
+@pytest.mark.slow
+def test_prepare_compiles_in_other_processes_and_this_one_loads(tmp_path):
+    """In a fresh cache: prepare() starts workers for the missing kernels; this process
+    compiles nothing and loads them from the cache; a second process finds them cached."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = [json.loads(subprocess.run([sys.executable, "-c", PREPARE], env=env, check=True,
+                                     capture_output=True, text=True, timeout=600).stdout)
+           for _ in range(2)]
+    first, second = out
+    assert sorted(first["started"]) == sorted(R.PATHS["setup"])
+    assert first["again"] == [] and first["late"] == []
+    assert first["compiled"] == []               # neither kernel nor helper compiled here
+    assert all(h == 1 for h in first["hits"].values()), first
+    assert second["started"] == [] and second["compiled"] == []
