@@ -367,10 +367,14 @@ def _seed(files, dest: Path, *, skip=(), owner=None):
     """Copy the warm cache files into ``dest`` (the kernels in ``skip`` left out, to be
     compiled), owned by ``owner``."""
     dest.mkdir(parents=True, exist_ok=True)
+    # a kernel reached under two names (a thin entry point and its dispatcher) has the same
+    # files under both: leave out the files, not only the name
+    left_out = {p.name for name in skip for p in files.get(name, ())}
     for name, paths in files.items():
         if name not in skip:
             for p in paths:
-                shutil.copy2(p, dest / p.name)
+                if p.name not in left_out:
+                    shutil.copy2(p, dest / p.name)
     if owner is not None:
         for p in [dest, *dest.rglob("*")]:
             os.chown(p, owner, owner)
