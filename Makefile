@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml .ci/system-deps
 	bash .ci/system-deps
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip 2>&1 | { grep -v '^WARNING: Location' || true; }
-	$(PY) -m pip install --quiet -e '.[test,docs]' 2>&1 | { grep -v '^WARNING: Location' || true; }
+	$(PY) -m pip install --quiet -e '.[test,docs,ct]' 2>&1 | { grep -v '^WARNING: Location' || true; }
 	touch $(STAMP)
 
 setup: $(STAMP)
