@@ -104,9 +104,21 @@ class Volume:
 
 
 def _rtk():
+    """``(itk, itk.RTK)``; ITK's SWIG modules' load-time DeprecationWarning (Python's, about
+    SWIG's ``swigvarlink``) is silenced: turned into an error inside SWIG's initialisation it
+    crashes the interpreter."""
+    import warnings
+
     try:
-        import itk
-        from itk import RTK as rtk
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import itk
+            from itk import RTK as rtk
+            for name in ("ThreeDCircularProjectionGeometry", "ConstantImageSource",
+                         "FDKConeBeamReconstructionFilter", "ParkerShortScanImageFilter",
+                         "DisplacedDetectorForOffsetFieldOfViewImageFilter"):
+                getattr(rtk, name)                     # load the lazy modules here
+            itk.image_from_array, itk.Matrix, itk.imwrite, itk.imread
     except ImportError as exc:      # pragma: no cover - the ct extra is installed in tests
         raise ReconstructionError(
             f"reconstruction needs RTK (itk-rtk), which is not installed ({exc}); "
