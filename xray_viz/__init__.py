@@ -18,6 +18,7 @@ Examples
 from xray_viz.errors import (MaterialError, MeshError, OutputError, SceneError,
                              SceneFileNotFoundError, SpectrumError, XrayVizError)
 from xray_viz.geometry import Rays, Viewport, detector_rays, viewport
+from xray_viz.reconstruct import reconstruct
 from xray_viz.render import Radiograph, render
 from xray_viz.scene import Body, Detector, Scene, Source, load_scene
 from xray_viz.scan import scan
@@ -28,6 +29,6 @@ __version__ = "0.1.0"
 __all__ = [
     "Body", "Detector", "Hits", "MaterialError", "MeshError", "OutputError", "Radiograph",
     "Rays", "Scene", "SceneError", "SceneFileNotFoundError", "Source", "SpectrumError",
-    "Viewport", "XrayVizError", "detector_rays", "load_scene", "render", "scan", "trace_rays",
-    "viewport",
+    "Viewport", "XrayVizError", "detector_rays", "load_scene", "reconstruct", "render", "scan",
+    "trace_rays", "viewport",
 ]

@@ -274,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     from xray_viz.scan import add_scan_parser
 
     add_scan_parser(sub)
+    from xray_viz.reconstruct import add_reconstruct_parser
+
+    add_reconstruct_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "

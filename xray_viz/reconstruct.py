@@ -1,0 +1,557 @@
+"""Reconstruction of a projection stack (issue 14): FDK (circular cone beam) and FBP (parallel
+beam) through RTK (``itk-rtk``, the ``ct`` extra), on the CPU.
+
+The stack and its geometry are those of :func:`xray_viz.scan` (the layout of CT-LAYOUT.md):
+``projections`` ``(n, H, W)`` line integrals (``-ln(I/I0)``, dimensionless), row 0 at the top of
+the detector (the +v side), column 0 at its left (the -u side seen from the source); a
+``geometry`` dict with, per projection, the source, the detector centre and the detector's unit
+``u`` (columns, left to right) and ``v`` (bottom to top) vectors in mm.
+
+How xray_viz's geometry maps onto RTK's (IEC 61217; the gantry turns about RTK's y axis through
+the isocentre at RTK's origin; a projection image's index ``(i, j)`` lies at
+``detector origin + i pu u + j pv v``):
+
+* an RTK frame: y along the rotation ``axis``, origin at ``center`` (:func:`rtk_frame`); a
+  world point ``p`` is at ``R (p - center)`` there;
+* each pose (source, detector centre, ``u``, ``v``) is given to RTK in that frame
+  (``AddProjection(source, detector, row vector u, column vector v)``: RTK finds the gantry,
+  out-of-plane and in-plane angles and the offsets itself), the detector's origin at its centre
+  and the projection image's origin at ``(-(W-1)/2 pu, -(H-1)/2 pv)``;
+* **one row flip**: RTK's row index ``j`` runs along ``v`` (bottom to top), xray_viz's rows top
+  down, so RTK's projection ``k`` is ``projections[k, ::-1, :]``;
+* a parallel beam: the same decomposition with the source at its start point, then the
+  projection re-added with ``SourceToDetectorDistance = 0`` (RTK's parallel geometry);
+* the volume: a grid along the world axes (x, y, z), given to RTK with direction ``R`` and
+  origin ``R (origin - center)``, so the array comes back as ``(z, y, x)`` of the world;
+* units: RTK returns 1/mm (line integrals over mm); xray_viz's mu is in 1/cm (x 10).
+
+``tests/test_reconstruct.py`` proves the mapping against RTK's own analytic projections of an
+off-centre ellipsoid (``RayEllipsoidIntersectionImageFilter``) and the render of the same
+ellipsoid's mesh.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from xray_viz.errors import OutputError, XrayVizError
+
+__all__ = ["Volume", "reconstruct", "reconstruct_file", "rtk_geometry", "rtk_frame",
+           "write_volume", "add_reconstruct_parser", "reconstruct_command", "METHODS"]
+
+#: Reconstruction methods: name -> (beam it needs, what it is).
+METHODS = {
+    "fdk": ("cone", "Feldkamp-Davis-Kress filtered back-projection (RTK), circular cone beam"),
+    "fbp": ("parallel", "filtered back-projection (RTK's FDK with a parallel geometry)"),
+}
+
+#: Other back-ends users ask for, and why they are refused here (one line each).
+REFUSED_BACKENDS = {
+    "astra": "ASTRA's PyPI/conda builds have no 3D CPU path (a 3D call without CUDA kills the "
+             "process); use method='fdk' (RTK, CPU), or ASTRA itself on a CUDA machine",
+    "tigre": "TIGRE needs CUDA (pip install git+https://github.com/CERN/TIGRE on a machine with "
+             "an NVIDIA GPU and the CUDA toolkit); use method='fdk' (RTK, CPU)",
+    "mbirjax": "the helical back-end (mbirjax) is not implemented yet (issue 14); circular "
+               "orbits reconstruct with method='fdk'",
+}
+
+
+class ReconstructionError(XrayVizError, ValueError):
+    """A projection stack or its geometry that cannot be reconstructed as asked."""
+
+
+@dataclass(frozen=True)
+class Volume:
+    """A reconstructed volume: ``mu[z, y, x]`` (1/cm, float32) on a grid along the world axes.
+
+    Attributes
+    ----------
+    mu : (nz, ny, nx) float32
+        Linear attenuation coefficient, 1/cm.
+    origin : (3,) float
+        World position (mm, x y z) of voxel ``[0, 0, 0]``'s centre.
+    spacing : (3,) float
+        Voxel size (mm) along x, y, z.
+    direction : (3, 3) float
+        Columns: the world directions of the x, y, z index axes (the identity: the grid is
+        along the world axes).
+    method : str
+    """
+
+    mu: np.ndarray
+    origin: np.ndarray
+    spacing: np.ndarray
+    direction: np.ndarray
+    method: str
+
+    @property
+    def affine(self) -> np.ndarray:
+        """(4, 4): world mm (x, y, z) of voxel index ``(i, j, k)`` = ``mu[k, j, i]``."""
+        a = np.eye(4)
+        a[:3, :3] = self.direction * self.spacing[None, :]
+        a[:3, 3] = self.origin
+        return a
+
+    def centers(self, axis: int) -> np.ndarray:
+        """World coordinate (mm) of the voxel centres along world axis 0 (x), 1 (y) or 2 (z)."""
+        n = self.mu.shape[2 - axis]
+        return self.origin[axis] + self.spacing[axis] * np.arange(n)
+
+
+def _rtk():
+    """``(itk, itk.RTK)``; ITK's SWIG modules' load-time DeprecationWarning (Python's, about
+    SWIG's ``swigvarlink``) is silenced: turned into an error inside SWIG's initialisation it
+    crashes the interpreter."""
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import itk
+            from itk import RTK as rtk
+            for name in ("ThreeDCircularProjectionGeometry", "ConstantImageSource",
+                         "FDKConeBeamReconstructionFilter", "ParkerShortScanImageFilter",
+                         "DisplacedDetectorForOffsetFieldOfViewImageFilter"):
+                getattr(rtk, name)                     # load the lazy modules here
+            itk.image_from_array, itk.Matrix, itk.imwrite, itk.imread
+    except ImportError as exc:      # pragma: no cover - the ct extra is installed in tests
+        raise ReconstructionError(
+            f"reconstruction needs RTK (itk-rtk), which is not installed ({exc}); "
+            "pip install 'xray_viz[ct]'") from None
+    return itk, rtk
+
+
+def _unit(v, what):
+    v = np.asarray(v, np.float64).reshape(-1)
+    n = np.linalg.norm(v) if v.shape == (3,) and np.all(np.isfinite(v)) else 0.0
+    if not n > 0:
+        raise ReconstructionError(f"geometry {what} must be 3 finite numbers, not all 0; got "
+                                  f"{np.asarray(v).tolist()!r}")
+    return v / n
+
+
+def rtk_frame(geometry) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, center)``: the RTK frame of a scan's geometry; a world point ``p`` is at
+    ``R @ (p - center)`` in RTK's fixed coordinates.
+
+    RTK's y is the rotation ``axis``; its z is the world axis least aligned with the rotation
+    axis (x before y before z on ties), made perpendicular to it; x completes a right-handed
+    frame. For an axis along a world axis, ``R`` is a signed permutation.
+
+    Examples
+    --------
+    >>> R, c = rtk_frame({"axis": [0, 0, 1], "center": [0, 0, 0]})
+    >>> (R + 0.0).tolist()            # RTK (x, y, z) = world (y, z, x)
+    [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]
+    """
+    ey = _unit(geometry.get("axis", (0.0, 0.0, 1.0)), "axis")
+    try:
+        center = np.asarray(geometry.get("center", (0.0, 0.0, 0.0)), np.float64).reshape(3)
+    except (TypeError, ValueError):
+        center = np.full(3, np.nan)
+    if not np.all(np.isfinite(center)):
+        raise ReconstructionError(f"geometry center must be 3 finite numbers (mm), got "
+                                  f"{geometry.get('center')!r}")
+    ref = np.eye(3)[int(np.argmin(np.abs(ey) + 1e-12 * np.arange(3)))]
+    ez = ref - (ref @ ey) * ey
+    ez /= np.linalg.norm(ez)
+    ex = np.cross(ey, ez)
+    return np.array([ex, ey, ez]), center
+
+
+def _poses(geometry):
+    poses = geometry.get("poses")
+    if not poses:
+        raise ReconstructionError("geometry has no 'poses' (source, detector_center, u, v per "
+                                  "projection); write the scan with xray_viz.scan")
+    out = []
+    for k, p in enumerate(poses):
+        try:
+            out.append({key: np.asarray(p[key], np.float64).reshape(3)
+                        for key in ("source", "detector_center", "u", "v")})
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ReconstructionError(f"geometry poses[{k}] is not 4 points/vectors of 3 numbers "
+                                      f"(source, detector_center, u, v): {exc}") from None
+    return out
+
+
+def _detector(geometry):
+    try:
+        det = geometry["detector"]
+        w, h = (int(v) for v in det["shape"])
+        pu, pv = (float(v) for v in det["pitch_mm"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ReconstructionError("geometry 'detector' needs shape [W, H] and pitch_mm [pu, pv] "
+                                  f"({exc})") from None
+    return (w, h), (pu, pv)
+
+
+def rtk_geometry(geometry):
+    """RTK's ``ThreeDCircularProjectionGeometry`` of a scan (in the frame :func:`rtk_frame`).
+
+    Returns
+    -------
+    rtk.ThreeDCircularProjectionGeometry
+        One projection per pose; the detector's origin at its centre (the projection images'
+        origin is ``(-(W-1)/2 pu, -(H-1)/2 pv)``). A parallel beam has
+        ``SourceToDetectorDistance = 0``.
+    """
+    _, rtk = _rtk()
+    R, center = rtk_frame(geometry)
+    parallel = geometry.get("beam", "cone") == "parallel"
+    cone = rtk.ThreeDCircularProjectionGeometry.New()
+    for k, p in enumerate(_poses(geometry)):
+        s, d = R @ (p["source"] - center), R @ (p["detector_center"] - center)
+        u, v = R @ p["u"], R @ p["v"]
+        if parallel:     # a point source on the detector's normal, far enough: RTK's angles
+            n = np.cross(u, v)
+            n /= np.linalg.norm(n)
+            s = d + n * max(1e3, 10 * np.linalg.norm(s - d))
+        ok = cone.AddProjection([float(x) for x in s], [float(x) for x in d],
+                                [float(x) for x in u], [float(x) for x in v])
+        if not ok:
+            raise ReconstructionError(f"geometry poses[{k}]: RTK cannot describe this source and "
+                                      "detector as a circular-orbit projection")
+    if not parallel:
+        return cone
+    out = rtk.ThreeDCircularProjectionGeometry.New()
+    deg = 180.0 / math.pi
+    sid = cone.GetSourceToIsocenterDistances()
+    for k in range(len(sid)):
+        out.AddProjection(float(sid[k]), 0.0, cone.GetGantryAngles()[k] * deg,
+                          cone.GetProjectionOffsetsX()[k], cone.GetProjectionOffsetsY()[k],
+                          cone.GetOutOfPlaneAngles()[k] * deg, cone.GetInPlaneAngles()[k] * deg,
+                          cone.GetSourceOffsetsX()[k], cone.GetSourceOffsetsY()[k])
+    return out
+
+
+def _default_grid(geometry, voxel, shape):
+    """Voxel size (mm) and shape (nx, ny, nz) of the volume, and its origin in world mm."""
+    (w, h), (pu, pv) = _detector(geometry)
+    R, center = rtk_frame(geometry)
+    mag = 1.0
+    if geometry.get("beam", "cone") != "parallel":
+        sid, sod = geometry.get("sid_mm"), geometry.get("sod_mm")
+        if sid and sod:
+            mag = float(sod) / float(sid)
+    if voxel is None:
+        voxel = min(pu, pv) * mag
+    voxel = np.broadcast_to(np.asarray(voxel, np.float64), (3,)).copy()
+    if not np.all(np.isfinite(voxel)) or not np.all(voxel > 0):
+        raise ReconstructionError(f"voxel must be a positive size in mm (one or three), got "
+                                  f"{np.asarray(voxel).tolist()}")
+    if shape is None:       # the detector seen at the isocentre: transaxial W, axial H
+        fov_t, fov_a = w * pu * mag, h * pv * mag
+        ax = np.abs(R[1])                  # the world axes' share of the rotation axis
+        extent = fov_t * (1 - ax) + fov_a * ax
+        shape = np.maximum(1, np.ceil(extent / voxel)).astype(int)
+    shape = np.asarray(shape).reshape(-1)
+    if shape.shape != (3,) or not np.all(shape >= 1) or not np.all(shape == np.round(shape)):
+        raise ReconstructionError(f"shape must be three whole numbers >= 1 (X Y Z), got "
+                                  f"{shape.tolist()}")
+    shape = shape.astype(int)
+    origin = center - (shape - 1) / 2 * voxel
+    return voxel, shape, origin
+
+
+def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = "fdk",
+                hann: float = 0.0) -> Volume:
+    """Reconstruct a projection stack with RTK: FDK (circular cone beam) or FBP (parallel).
+
+    Parameters
+    ----------
+    projections : (n, H, W) array
+        Line integrals ``-ln(I/I0)`` (xray_viz images: row 0 at the top of the detector).
+    geometry : dict
+        The scan's geometry (CT-LAYOUT.md): ``beam``, ``axis``, ``center``, ``poses``,
+        ``detector`` (and ``sid_mm``/``sod_mm`` for the default voxel).
+    voxel : float or (3,) float, optional
+        Voxel size in mm; default the detector pitch at the isocentre.
+    shape : (3,) int, optional
+        ``(nx, ny, nz)`` voxels; default the detector's field of view at the isocentre.
+    method : {"fdk", "fbp"}
+        ``"fdk"`` for a cone beam, ``"fbp"`` for a parallel beam. ``"astra"``, ``"tigre"``
+        and ``"mbirjax"`` are refused with the reason.
+    hann : float
+        RTK's Hann cut frequency in ]0, 1] (0: the plain ramp filter).
+
+    Returns
+    -------
+    Volume
+        ``mu[z, y, x]`` float32 in 1/cm on a grid along the world axes, centred on ``center``.
+
+    Raises
+    ------
+    ReconstructionError
+        (a ``ValueError``) for a method that does not fit the beam, a helical orbit, a stack
+        that does not match the geometry, or a refused back-end.
+
+    Examples
+    --------
+    >>> reconstruct(np.zeros((1, 2, 2)), {"beam": "cone"}, method="tigre")
+    Traceback (most recent call last):
+    ...
+    xray_viz.reconstruct.ReconstructionError: TIGRE needs CUDA (...
+    """
+    if method in REFUSED_BACKENDS:
+        raise ReconstructionError(REFUSED_BACKENDS[method])
+    if method not in METHODS:
+        raise ReconstructionError(f"unknown method {method!r}; choose one of "
+                                  f"{', '.join(METHODS)}")
+    beam = geometry.get("beam", "cone")
+    if beam not in ("cone", "parallel"):
+        raise ReconstructionError(f"geometry beam {beam!r}: expected 'cone' or 'parallel'")
+    if METHODS[method][0] != beam:
+        other = "fdk" if beam == "cone" else "fbp"
+        raise ReconstructionError(f"method {method!r} is for a {METHODS[method][0]} beam; this "
+                                  f"scan is {beam} beam: use method={other!r}")
+    orbit = geometry.get("orbit", "circular")
+    if orbit == "helical" or float(geometry.get("pitch_mm_per_turn", 0.0) or 0.0) != 0.0:
+        raise ReconstructionError(REFUSED_BACKENDS["mbirjax"].replace(
+            "the helical", "a helical orbit needs the helical"))
+    p = np.asarray(projections, dtype=np.float32)
+    (w, h), (pu, pv) = _detector(geometry)
+    n = len(_poses(geometry))
+    if p.shape != (n, h, w):
+        raise ReconstructionError(f"projections have shape {p.shape}; the geometry says "
+                                  f"(n, H, W) = {(n, h, w)}")
+    if not np.all(np.isfinite(p)):
+        raise ReconstructionError("projections hold non-finite values (NaN or inf); "
+                                  "reconstruct line integrals of a finished scan")
+    itk, rtk = _rtk()
+    R, center = rtk_frame(geometry)
+    voxel, shape, origin = _default_grid(geometry, voxel, shape)
+    rgeo = rtk_geometry(geometry)
+
+    image = itk.image_from_array(np.ascontiguousarray(p[:, ::-1, :]))   # the one row flip
+    image.SetSpacing([pu, pv, 1.0])
+    image.SetOrigin([-(w - 1) / 2 * pu, -(h - 1) / 2 * pv, 0.0])
+    ImageType = itk.Image[itk.F, 3]
+
+    vol = rtk.ConstantImageSource[ImageType].New()
+    vol.SetOrigin([float(x) for x in R @ (origin - center)])
+    vol.SetSpacing([float(x) for x in voxel])
+    vol.SetSize([int(x) for x in shape])
+    direction = itk.Matrix[itk.D, 3, 3](itk.GetVnlMatrixFromArray(np.ascontiguousarray(R)))
+    vol.SetDirection(direction)
+    vol.SetConstant(0.0)
+
+    weighted = image
+    if beam == "cone":
+        ddf = rtk.DisplacedDetectorForOffsetFieldOfViewImageFilter[ImageType].New()
+        ddf.SetInput(image)
+        ddf.SetGeometry(rgeo)
+        pssf = rtk.ParkerShortScanImageFilter[ImageType].New()
+        pssf.SetInput(ddf.GetOutput())
+        pssf.SetGeometry(rgeo)
+        pssf.InPlaceOff()
+        weighted = pssf.GetOutput()
+    fdk = rtk.FDKConeBeamReconstructionFilter[ImageType].New()
+    fdk.SetInput(0, vol.GetOutput())
+    fdk.SetInput(1, weighted)
+    fdk.SetGeometry(rgeo)
+    fdk.GetRampFilter().SetTruncationCorrection(0.0)
+    fdk.GetRampFilter().SetHannCutFrequency(float(hann))
+    fdk.Update()
+    mu = itk.array_from_image(fdk.GetOutput()).astype(np.float32) * np.float32(10.0)  # 1/cm
+    return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
+
+
+# --------------------------------------------------------------------------------------------
+# Files: the scan store in, the volume out
+
+VOLUME_FORMATS = {
+    ".nii.gz": "NIfTI-1, gzipped (nibabel): affine in mm, RAS+ = xray_viz's world x, y, z",
+    ".nii": "NIfTI-1 (nibabel): affine in mm, RAS+ = xray_viz's world x, y, z",
+    ".mha": "MetaImage (ITK): origin, spacing, direction in mm (ITK's LPS reading of x, y, z)",
+    ".nrrd": "NRRD (ITK): origin, spacing, direction in mm",
+}
+
+
+def _suffix(path) -> str:
+    name = Path(path).name.lower()
+    for s in VOLUME_FORMATS:
+        if name.endswith(s):
+            return s
+    raise OutputError(f"{path}: unknown volume format; end the name with one of "
+                      f"{', '.join(VOLUME_FORMATS)}")
+
+
+def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
+                     hann: float = 0.0) -> Volume:
+    """Reconstruct the Zarr store of a scan (CT-LAYOUT.md; :func:`xray_viz.scan`).
+
+    Reads ``projections`` and the group attribute ``xray_viz`` (``quantity``, ``geometry``);
+    an ``intensity`` stack is turned into line integrals with its ``flat`` field (else the
+    physics' ``I0``). Refuses a store whose ``done`` record misses projections.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``.zarr`` folder.
+    voxel, shape, method, hann
+        As for :func:`reconstruct`.
+
+    Returns
+    -------
+    Volume
+    """
+    try:
+        import zarr
+    except ImportError:     # pragma: no cover - the ct extra has it
+        raise ReconstructionError("reading a scan store needs zarr>=3: pip install "
+                                  "'xray_viz[ct]'") from None
+    path = Path(path)
+    if not path.exists():
+        raise ReconstructionError(f"{path}: no such scan store; write one with `xray-viz scan "
+                                  "SCENE -o scan.zarr`")
+    try:
+        group = zarr.open_group(str(path), mode="r")
+        attrs = dict(group.attrs).get("xray_viz")
+        names = set(group.array_keys())
+    except Exception as exc:    # zarr raises many kinds for a folder that is not a store
+        raise ReconstructionError(f"{path}: not a Zarr scan store ({type(exc).__name__}: "
+                                  f"{' '.join(str(exc).split())[:200]})") from None
+    if not isinstance(attrs, dict) or "geometry" not in attrs:
+        raise ReconstructionError(f"{path}: no 'xray_viz' attributes with a geometry; is it a "
+                                  "store written by `xray-viz scan`?")
+    if "projections" not in names:
+        raise ReconstructionError(f"{path}: has no 'projections' array")
+    geometry = attrs["geometry"]
+    if "done" in names:
+        done = np.asarray(group["done"][:], bool)
+        if not done.all():
+            missing = np.flatnonzero(~done)
+            raise ReconstructionError(
+                f"{path}: {len(missing)} of {len(done)} projections are not finished (first "
+                f"missing: {missing[0]}); re-run the same `xray-viz scan` command to fill them")
+    p = np.asarray(group["projections"][:], np.float32)
+    quantity = attrs.get("quantity", "line-integral")
+    if quantity == "intensity":
+        if "flat" in names:
+            flat = np.asarray(group["flat"][:], np.float64)
+            dark = np.asarray(group["dark"][:], np.float64) if "dark" in names else 0.0
+        else:
+            i0 = (attrs.get("physics") or {}).get("I0")
+            if not i0:
+                raise ReconstructionError(f"{path}: an intensity stack without a 'flat' array "
+                                          "or physics I0 cannot be turned into line integrals")
+            flat, dark = float(i0), 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            p = -np.log(np.clip((p - dark) / (flat - dark), 1e-30, None)).astype(np.float32)
+    elif quantity not in ("line-integral", "line_integral"):
+        raise ReconstructionError(f"{path}: quantity {quantity!r} cannot be reconstructed; "
+                                  "expected 'line-integral' or 'intensity'")
+    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, hann=hann)
+
+
+def write_volume(volume: Volume, path) -> Path:
+    """Write a volume: ``.nii.gz``/``.nii`` (nibabel) or ``.mha``/``.nrrd`` (ITK), safely
+    (written beside the target, read back, then renamed).
+
+    NIfTI: the affine maps voxel ``(i, j, k)`` (x, y, z index) to xray_viz's world mm, taken as
+    NIfTI's RAS+ (x to the Right, y Anterior, z Superior; qform and sform code 1, "scanner");
+    the data array is ``mu`` transposed to ``(x, y, z)``, float32, 1/cm. ITK formats carry the
+    same origin, spacing and direction (ITK reads them as LPS; the numbers are xray_viz's).
+    """
+    from xray_viz.output import atomic_write, check_target
+
+    suffix = _suffix(path)
+    check_target(path)
+    xyz = np.ascontiguousarray(np.transpose(volume.mu, (2, 1, 0)), dtype=np.float32)
+
+    if suffix in (".nii.gz", ".nii"):
+        import gzip
+
+        import nibabel as nib
+
+        img = nib.Nifti1Image(xyz, volume.affine)
+        img.header.set_xyzt_units("mm")
+        img.header["descrip"] = b"xray_viz mu 1/cm"
+        img.set_qform(volume.affine, code=1)
+        img.set_sform(volume.affine, code=1)
+        data = img.to_bytes()
+        if suffix == ".nii.gz":
+            data = gzip.compress(data, compresslevel=6)
+
+        def write(tmp):
+            Path(tmp).write_bytes(data)
+
+        def verify(tmp):
+            back = nib.Nifti1Image.from_bytes(gzip.decompress(Path(tmp).read_bytes())
+                                              if suffix == ".nii.gz" else Path(tmp).read_bytes())
+            if not (np.allclose(back.affine, volume.affine) and back.shape == xyz.shape):
+                raise OutputError("the NIfTI file read back differs")
+    else:
+        itk, _ = _rtk()
+
+        def write(tmp):
+            img = itk.image_from_array(np.ascontiguousarray(volume.mu, dtype=np.float32))
+            img.SetOrigin([float(x) for x in volume.origin])
+            img.SetSpacing([float(x) for x in volume.spacing])
+            img.SetDirection(itk.GetMatrixFromArray(np.ascontiguousarray(volume.direction)))
+            itk.imwrite(img, str(tmp), compression=True)
+
+        def verify(tmp):
+            back = itk.imread(str(tmp))
+            if tuple(back.GetLargestPossibleRegion().GetSize()) != tuple(xyz.shape):
+                raise OutputError("the volume file read back differs")
+    atomic_write(path, write, verify=verify)
+    return Path(path)
+
+
+# --------------------------------------------------------------------------------------------
+# The command line: `xray-viz reconstruct scan.zarr -o volume.nii.gz`
+
+def add_reconstruct_parser(subparsers) -> None:
+    """Register ``xray-viz reconstruct`` on the CLI's sub-parsers."""
+    p = subparsers.add_parser(
+        "reconstruct", help="reconstruct a scan (Zarr store) into a volume (FDK/FBP with RTK)",
+        description="Reconstruct the projection stack of `xray-viz scan` (a Zarr store) with "
+                    "RTK on the CPU: FDK for a circular cone-beam orbit, FBP for a parallel "
+                    "beam. The volume (mu in 1/cm, float32, on a grid along the scene's x, y, z "
+                    "axes) is written by OUT's suffix: "
+                    + "; ".join(f"{k} = {v}" for k, v in VOLUME_FORMATS.items()) + ".")
+    p.add_argument("store", metavar="SCAN", help="the scan's .zarr store")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="the volume: .nii.gz, .nii, .mha or .nrrd")
+    p.add_argument("--voxel", type=float, default=None, metavar="MM",
+                   help="voxel size in mm (default: the detector pitch at the rotation axis)")
+    p.add_argument("--shape", type=int, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="voxels along x, y, z (default: the detector's field of view)")
+    p.add_argument("--method", default=None, choices=sorted(METHODS),
+                   help="fdk (cone beam) or fbp (parallel beam); default: by the scan's beam")
+    p.add_argument("--hann", type=float, default=0.0, metavar="F",
+                   help="Hann window cut frequency in ]0, 1] against noise (default 0: none)")
+    p.set_defaults(func=reconstruct_command)
+
+
+def reconstruct_command(args) -> int:
+    """``xray-viz reconstruct``: read, reconstruct, write (nothing is written on bad input)."""
+    _suffix(args.output)                      # bad output names fail before the work
+    from xray_viz.output import check_target
+
+    check_target(args.output)
+    method = args.method
+    if method is None:
+        method = "fdk"
+        try:
+            import zarr
+
+            g = dict(zarr.open_group(str(args.store), mode="r").attrs)["xray_viz"]["geometry"]
+            method = "fbp" if g.get("beam") == "parallel" else "fdk"
+        except Exception:                     # reconstruct_file reports what is wrong
+            pass
+    volume = reconstruct_file(args.store, voxel=args.voxel,
+                              shape=tuple(args.shape) if args.shape else None,
+                              method=method, hann=args.hann)
+    out = write_volume(volume, args.output)
+    nz, ny, nx = volume.mu.shape
+    print(f"{out}: {nx} x {ny} x {nz} voxels of {', '.join(f'{s:g}' for s in volume.spacing)} "
+          f"mm, mu {float(volume.mu.min()):.4g} .. {float(volume.mu.max()):.4g} /cm "
+          f"({method})")
+    return 0
