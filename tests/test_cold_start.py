@@ -52,8 +52,8 @@ def test_every_kernel_has_exactly_its_one_explicit_signature():
         assert not disp._can_compile, name      # nothing else can be compiled
 
 
-HELPERS = ("_cover", "_record", "_plane", "exact_cross_sign", "beyond_side", "_tie", "_depth",
-           "_clamped", "_axis_code", "_side_value")
+HELPERS = ("_cover", "_record", "_plane", "_sample_ray", "_obliquity", "exact_cross_sign",
+           "beyond_side", "_tie", "_depth", "_clamped", "_axis_code", "_side_value")
 EVERY_PATH = """
 import json, sys
 sys.path.insert(0, sys.argv[1])

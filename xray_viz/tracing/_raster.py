@@ -502,15 +502,8 @@ def _raster_multi(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                 inside[q] = 0
             Y = r0 + p // nW
             X = p % nW
-            j = Y // n
-            i = X // n
-            ray = ((H - 1 - j) * W + i) * n * n + (n - 1 - (Y - j * n)) * n + (X - i * n)
-            scale = 1.0
-            if perspective:
-                dx = P00[0] + X * Ex[0] + Y * Ey[0]
-                dy = P00[1] + X * Ex[1] + Y * Ey[1]
-                dz = P00[2] + X * Ex[2] + Y * Ey[2]
-                scale = np.sqrt(dx * dx + dy * dy + dz * dz) / FL
+            ray = _sample_ray(X, Y, W, H, n)
+            scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
             for i in range(lo, hi):
                 code = bb[i]
                 if code & 1:
@@ -545,27 +538,40 @@ def _finish(lo, hi, S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0,
     nW = W * n
     nb = L.shape[1]
     for Y in range(lo, hi):
-        j = Y // n
-        r = n - 1 - (Y - j * n)
         for X in range(nW):
             if single:
                 v = S[Y - s_row0, X]
                 if v == 0.0:
                     continue
-            i = X // n
-            c = X - i * n
-            ray = ((H - 1 - j) * W + i) * n * n + r * n + c - ray0
-            scale = 1.0
-            if perspective:
-                dx = P00[0] + X * Ex[0] + Y * Ey[0]
-                dy = P00[1] + X * Ex[1] + Y * Ey[1]
-                dz = P00[2] + X * Ex[2] + Y * Ey[2]
-                scale = np.sqrt(dx * dx + dy * dy + dz * dz) / FL
+            ray = _sample_ray(X, Y, W, H, n) - ray0
+            scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
             if single:
                 L[ray, 0] = v * scale
             else:
                 for q in range(nb):
                     L[ray, q] = Lf[Y - s_row0, X, q] * scale
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sample_ray(X, Y, W, H, n):
+    """The image-order ray of fine sample (X, Y) of an ``n x n`` supersampled W x H grid:
+    with ``X = n i + c`` and ``Y = n j + (n - 1 - r)`` (Y up, image rows down), ray
+    ``((H - 1 - j) W + i) n n + r n + c`` of :func:`xray_viz.geometry.detector_rays`. The one
+    place of this index in the kernels."""
+    j = Y // n
+    i = X // n
+    return ((H - 1 - j) * W + i) * n * n + (n - 1 - (Y - j * n)) * n + (X - i * n)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _obliquity(X, Y, P00, Ex, Ey, FL):
+    """``|D| / FL`` of fine sample (X, Y), D from a point source to the sample's detector point:
+    a depth span along the beam axis times this is the length along the ray. The one place of
+    this scale in the kernels."""
+    dx = P00[0] + X * Ex[0] + Y * Ey[0]
+    dy = P00[1] + X * Ex[1] + Y * Ey[1]
+    dz = P00[2] + X * Ex[2] + Y * Ey[2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz) / FL
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
