@@ -122,18 +122,19 @@ def write_stl(mesh, path: Path, what: str):
     path.write_bytes(data)
 
 
-def fmt(v):
-    if isinstance(v, str):
-        return '"' + v + '"'
-    if isinstance(v, dict):  # a mixture by mass fraction: an inline table
-        return "{ " + ", ".join(f"{fmt(str(k))} = {fmt(x)}" for k, x in v.items()) + " }"
+def plain(v):
+    """A value as the scene file holds it: Python types, floats rounded to 6 decimals."""
+    if isinstance(v, dict):  # a mixture by mass fraction
+        return {str(k): plain(x) for k, x in v.items()}
     if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(fmt(x) for x in v) + "]"
+        return [plain(x) for x in v]
     if isinstance(v, (bool, np.bool_)):
-        return "true" if v else "false"
+        return bool(v)
     if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    return repr(round(float(v), 6))
+        return int(v)
+    if isinstance(v, str):
+        return v
+    return round(float(v), 6)
 
 
 def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0,
@@ -146,17 +147,14 @@ def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0
         mag = (source_z - detector_z) / (source_z - z_obj)
         pitch = max(2 * half_w * mag / (shape[0] - 1), 2 * half_h * mag / (shape[1] - 1)) / 0.9
         pitch = float(np.ceil(pitch * 1000) / 1000)
-    lines = [f"# {line}" if line else "#" for line in description]
-    lines += ["", "[source]", f"position = [0.0, 0.0, {fmt(source_z)}]", 'kind = "point"',
-              f"energy = {fmt(energy)}", "", "[detector]",
-              f"center = [0.0, 0.0, {fmt(detector_z)}]", "up = [0.0, 1.0, 0.0]",
-              f"shape = {fmt(list(shape))}", f"pitch = {fmt(pitch)}"]
-    lines += [f"{key} = {fmt(value)}" for key, value in (detector_extra or {}).items()]
-    for body in bodies:
-        lines += ["", "[[body]]"]
-        for key, value in body.items():
-            lines.append(f"{key} = {fmt(value)}")
-    (OUT / f"{name}.toml").write_text("\n".join(lines) + "\n")
+    import tomlkit
+
+    doc = {"source": {"position": [0.0, 0.0, source_z], "kind": "point", "energy": energy},
+           "detector": {"center": [0.0, 0.0, detector_z], "up": [0.0, 1.0, 0.0],
+                        "shape": list(shape), "pitch": pitch, **(detector_extra or {})},
+           "body": [dict(body) for body in bodies]}
+    header = "".join(f"# {line}\n" if line else "#\n" for line in description)
+    (OUT / f"{name}.toml").write_text(header + "\n" + tomlkit.dumps(plain(doc)))
 
 
 # ------------------------------------------------------------------------------------------
