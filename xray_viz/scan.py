@@ -36,7 +36,7 @@ from xray_viz.orbit import Orbit, orbit_from_dict
 
 __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
-           "write_nexus", "render_batch", "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
+           "write_nexus", "astra_vectors", "poses_from_astra", "render_batch", "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -107,6 +107,61 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "poses": [_pose(a) for a in acqs],
         "projection_matrices": [a.projection_matrix().tolist() for a in acqs],
     }
+
+
+def astra_vectors(geometry) -> np.ndarray:
+    """The scan's geometry as ASTRA's vector geometry: one row per projection, ``cone_vec``
+    ``(src, d, u, v)`` for a cone beam or ``parallel3d_vec`` ``(ray, d, u, v)`` for a parallel
+    beam (12 numbers, mm).
+
+    ``d`` is the detector centre, ``u`` the step from detector pixel (0, 0) to (0, 1) (one
+    column, along ``HO``) and ``v`` from (0, 0) to (1, 0) (one row: *down* the image, against
+    ``VE``), so that ASTRA's projection data are the stack as ``projections.transpose(1, 0, 2)``
+    (rows, angles, columns) with no flip.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=2, axis=[0, 1, 0]))
+    >>> (astra_vectors(g)[0].round(6) + 0.0).tolist()
+    [0.0, 0.0, 1000.0, 0.0, 0.0, -500.0, 0.5, 0.0, 0.0, 0.0, -0.5, 0.0]
+    """
+    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
+    rows = []
+    for pose in geometry["poses"]:
+        src, d = np.asarray(pose["source"], float), np.asarray(pose["detector_center"], float)
+        u, v = np.asarray(pose["u"], float) * pu, -np.asarray(pose["v"], float) * pv
+        first = src if geometry["beam"] == "cone" else _unit(d - src)
+        rows.append(np.concatenate([first, d, u, v]))
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 12)
+
+
+def poses_from_astra(vectors, *, beam: str = "cone", sid: float | None = None) -> list[dict]:
+    """The per-projection poses (source, detector centre, unit ``u`` = HO, unit ``v`` = VE) of
+    ASTRA vectors (:func:`astra_vectors`); a parallel beam's source lies ``sid`` mm before
+    the detector centre along the ray (ASTRA's rows do not say where).
+
+    Raises
+    ------
+    SceneError
+        Rows of the wrong shape, or a parallel beam without ``sid``.
+    """
+    from xray_viz.errors import SceneError
+
+    rows = np.asarray(vectors, dtype=np.float64)
+    if rows.ndim != 2 or rows.shape[1] != 12 or not np.all(np.isfinite(rows)):
+        raise SceneError(f"ASTRA vectors must be finite rows of 12 numbers, got shape "
+                         f"{rows.shape}")
+    if beam != "cone" and sid is None:
+        raise SceneError("a parallel beam's ASTRA rows give no source position: pass sid= "
+                         "(mm from the source plane to the detector)")
+    poses = []
+    for r in rows:
+        first, d, u, v = r[:3], r[3:6], r[6:9], r[9:12]
+        src = first if beam == "cone" else d - float(sid) * _unit(first)
+        poses.append({"source": src.tolist(), "detector_center": d.tolist(),
+                      "u": _unit(u).tolist(), "v": (-_unit(v)).tolist()})
+    return poses
 
 
 def _physics(scene) -> dict:
