@@ -387,7 +387,8 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
 
     Reads ``projections`` and the group attribute ``xray_viz`` (``quantity``, ``geometry``);
     an ``intensity`` stack is turned into line integrals with its ``flat`` field (else the
-    physics' ``I0``). Refuses a store whose ``done`` record misses projections.
+    physics' ``I0``). Read by :func:`xray_viz.scan.read_zarr`, which refuses in one line a
+    missing store, a folder that is not one, and one whose ``done`` record misses projections.
 
     Parameters
     ----------
@@ -400,43 +401,16 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
     -------
     Volume
     """
-    try:
-        import zarr
-    except ImportError:     # pragma: no cover - the ct extra has it
-        raise ReconstructionError("reading a scan store needs zarr>=3: pip install "
-                                  "'xray_viz[ct]'") from None
-    path = Path(path)
-    if not path.exists():
-        raise ReconstructionError(f"{path}: no such scan store; write one with `xray-viz scan "
-                                  "SCENE -o scan.zarr`")
-    try:
-        group = zarr.open_group(str(path), mode="r")
-        attrs = dict(group.attrs).get("xray_viz")
-        names = set(group.array_keys())
-    except Exception as exc:    # zarr raises many kinds for a folder that is not a store
-        raise ReconstructionError(f"{path}: not a Zarr scan store ({type(exc).__name__}: "
-                                  f"{' '.join(str(exc).split())[:200]})") from None
-    if not isinstance(attrs, dict) or "geometry" not in attrs:
-        raise ReconstructionError(f"{path}: no 'xray_viz' attributes with a geometry; is it a "
-                                  "store written by `xray-viz scan`?")
-    if "projections" not in names:
-        raise ReconstructionError(f"{path}: has no 'projections' array")
-    geometry = attrs["geometry"]
-    if "done" in names:
-        done = np.asarray(group["done"][:], bool)
-        if not done.all():
-            missing = np.flatnonzero(~done)
-            raise ReconstructionError(
-                f"{path}: {len(missing)} of {len(done)} projections are not finished (first "
-                f"missing: {missing[0]}); re-run the same `xray-viz scan` command to fill them")
-    p = np.asarray(group["projections"][:], np.float32)
-    quantity = attrs.get("quantity", "line-integral")
+    from xray_viz.scan import read_zarr
+
+    stack = read_zarr(path)                  # one line for a missing or unfinished store
+    p, geometry, quantity = stack.projections.astype(np.float32), stack.geometry, stack.quantity
     if quantity == "intensity":
-        if "flat" in names:
-            flat = np.asarray(group["flat"][:], np.float64)
-            dark = np.asarray(group["dark"][:], np.float64) if "dark" in names else 0.0
+        if stack.flat is not None:
+            flat = stack.flat
+            dark = stack.dark if stack.dark is not None else 0.0
         else:
-            i0 = (attrs.get("physics") or {}).get("I0")
+            i0 = stack.physics.get("I0")
             if not i0:
                 raise ReconstructionError(f"{path}: an intensity stack without a 'flat' array "
                                           "or physics I0 cannot be turned into line integrals")

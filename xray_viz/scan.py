@@ -217,6 +217,8 @@ class Scan:
     physics : dict
         Energy or spectrum, ``I0``, detector response, noise and seed.
     scene : Scene
+    flat, dark : (H, W) float or None
+        The open-beam and dark fields, where a store holds them.
     """
 
     projections: np.ndarray
@@ -224,6 +226,8 @@ class Scan:
     quantity: str
     physics: dict
     scene: object = dataclasses.field(repr=False, default=None)
+    flat: np.ndarray | None = dataclasses.field(repr=False, default=None)
+    dark: np.ndarray | None = dataclasses.field(repr=False, default=None)
 
     @property
     def units(self) -> str:
@@ -412,20 +416,44 @@ def write_zarr(result: Scan, path) -> None:
 def read_zarr(path, *, scene=None, require_complete: bool = True) -> Scan:
     """The :class:`Scan` of a Zarr store.
 
+    The one reader of the layout (CT-LAYOUT.md): :func:`xray_viz.reconstruct.reconstruct_file`
+    reads its stores through it.
+
     Raises
     ------
     OutputError
-        If projections are missing (their ``done`` flag unset) and ``require_complete``.
+        In one line: no such store, not a Zarr scan store (no ``xray_viz`` attributes with a
+        geometry, no ``projections``), or projections missing (their ``done`` flag unset) when
+        ``require_complete``.
     """
     zarr = _zarr()
-    group = zarr.open_group(str(path), mode="r")
-    meta = dict(group.attrs)["xray_viz"]
-    done = group["done"][:]
-    if require_complete and not done.all():
-        raise OutputError(f"{path}: {int((~done).sum())} of {len(done)} projections are "
-                          "missing; run the scan again to fill them")
-    return Scan(group["projections"][:], meta["geometry"], meta["quantity"], meta["physics"],
-                scene)
+    path = Path(path)
+    if not path.exists():
+        raise OutputError(f"{path}: no such scan store; write one with `xray-viz scan SCENE -o "
+                          "scan.zarr`")
+    try:
+        group = zarr.open_group(str(path), mode="r")
+        meta = dict(group.attrs).get("xray_viz")
+        names = set(group.array_keys())
+    except Exception as exc:    # zarr raises many kinds for a folder that is not a store
+        raise OutputError(f"{path}: not a Zarr scan store ({type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())[:200]})") from None
+    if not isinstance(meta, dict) or "geometry" not in meta:
+        raise OutputError(f"{path}: no 'xray_viz' attributes with a geometry; is it a store "
+                          "written by `xray-viz scan`?")
+    if "projections" not in names:
+        raise OutputError(f"{path}: has no 'projections' array")
+    if "done" in names:
+        done = np.asarray(group["done"][:], bool)
+        if require_complete and not done.all():
+            missing = np.flatnonzero(~done)
+            raise OutputError(f"{path}: {len(missing)} of {len(done)} projections are missing "
+                              f"(first: {missing[0]}); run the same scan again to fill them")
+
+    def field(name):
+        return np.asarray(group[name][:], np.float64) if name in names else None
+    return Scan(group["projections"][:], meta["geometry"], meta.get("quantity", "line-integral"),
+                meta.get("physics") or {}, scene, flat=field("flat"), dark=field("dark"))
 
 
 # ---------------------------------------------------------------------------------- TIFF, NeXus
