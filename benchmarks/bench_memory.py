@@ -80,7 +80,7 @@ def write_scene(kind: str, shape: int, bodies: int, folder) -> Path:
         k = int(np.ceil(np.sqrt(bodies)))
         spacing = 100.0 / k                               # a 100 mm field
         radius = 0.35 * spacing
-        import tomlkit
+        from xray_viz._toml import dumps
 
         doc = {"source": {"position": [0.0, 0.0, 1000.0], "energy": 60.0},
                "detector": {"center": [0.0, 0.0, -100.0], "up": [0.0, 1.0, 0.0],
@@ -90,7 +90,7 @@ def write_scene(kind: str, shape: int, bodies: int, folder) -> Path:
                                       (b // k - (k - 1) / 2) * spacing, 0.0],
                          "scale": radius} for b in range(bodies)]}
         path = folder / f"{kind}_{bodies}_{shape}.toml"
-        path.write_text(tomlkit.dumps(doc))
+        path.write_text(dumps(doc))
         return path
     raise ValueError(kind)
 

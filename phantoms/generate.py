@@ -147,14 +147,13 @@ def write_scene(name, description, bodies, *, source_z=1000.0, detector_z=-500.0
         mag = (source_z - detector_z) / (source_z - z_obj)
         pitch = max(2 * half_w * mag / (shape[0] - 1), 2 * half_h * mag / (shape[1] - 1)) / 0.9
         pitch = float(np.ceil(pitch * 1000) / 1000)
-    import tomlkit
+    from xray_viz._toml import dumps
 
     doc = {"source": {"position": [0.0, 0.0, source_z], "kind": "point", "energy": energy},
            "detector": {"center": [0.0, 0.0, detector_z], "up": [0.0, 1.0, 0.0],
                         "shape": list(shape), "pitch": pitch, **(detector_extra or {})},
            "body": [dict(body) for body in bodies]}
-    header = "".join(f"# {line}\n" if line else "#\n" for line in description)
-    (OUT / f"{name}.toml").write_text(header + "\n" + tomlkit.dumps(plain(doc)))
+    (OUT / f"{name}.toml").write_text(dumps(plain(doc), header="\n".join(description)))
 
 
 # ------------------------------------------------------------------------------------------

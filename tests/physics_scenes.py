@@ -5,27 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import tomlkit
 import trimesh
 
 import xray_viz
-
-
-def _plain(value):
-    """NumPy numbers and arrays as the Python values a TOML writer takes."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    return value
+from xray_viz._toml import dumps, plain as _plain
 
 
 def write_scene(tmp_path: Path, *, source: dict, detector: dict, bodies=(), name="scene"):
-    """Write meshes and a TOML scene (tomlkit); ``bodies`` are ``(name, trimesh, {key: value})``."""
+    """Write meshes and a TOML scene (xray_viz's TOML writer); ``bodies`` are ``(name, trimesh, {key: value})``."""
     doc = {"source": _plain(source), "detector": _plain(detector)}
     entries = []
     for body_name, mesh, keys in bodies:
@@ -35,7 +22,7 @@ def write_scene(tmp_path: Path, *, source: dict, detector: dict, bodies=(), name
     if entries:
         doc["body"] = entries
     path = tmp_path / f"{name}.toml"
-    path.write_text(tomlkit.dumps(doc))
+    path.write_text(dumps(doc))
     return path
 
 

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from xray_viz._toml import plain as _plain
 from xray_viz.errors import SceneError, SceneFileNotFoundError, XrayVizError
 from xray_viz.physics.spectra import DEFAULT_ENERGY
 
@@ -791,9 +792,9 @@ class Scene:
         >>> bool((xray_viz.render(again).intensity == xray_viz.render(scene).intensity).all())
         True
         """
-        import tomlkit
+        from xray_viz._toml import dumps
 
-        return tomlkit.dumps(self.to_dict(base=base))
+        return dumps(self.to_dict(base=base))
 
     @property
     def triangles(self) -> np.ndarray:
@@ -826,21 +827,6 @@ def _path_text(path, base: Path | None) -> str:
 
     path = Path(path).resolve()
     return str(path) if base is None else os.path.relpath(path, Path(base).resolve())
-
-
-def _plain(value):
-    """A value as TOML can hold it: lists of Python numbers, no NumPy types."""
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    return value
 
 
 def _with_paths(table: dict, base: Path | None) -> dict:

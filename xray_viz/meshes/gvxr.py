@@ -590,18 +590,6 @@ def to_toml(doc: Mapping, *, header: str = "") -> str:
     name = "a"
     <BLANKLINE>
     """
-    import tomlkit
+    from xray_viz._toml import dumps
 
-    def plain(v):
-        if isinstance(v, np.ndarray):
-            return v.tolist()
-        if isinstance(v, np.generic):
-            return v.item()
-        if isinstance(v, Mapping):
-            return {str(k): plain(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [plain(x) for x in v]
-        return v
-
-    comments = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
-    return comments + ("\n" if comments else "") + tomlkit.dumps(plain(doc))
+    return dumps(doc, header=header)
