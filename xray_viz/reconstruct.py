@@ -356,7 +356,14 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     fdk.SetGeometry(rgeo)
     fdk.GetRampFilter().SetTruncationCorrection(0.0)
     fdk.GetRampFilter().SetHannCutFrequency(float(hann))
-    fdk.Update()
+    try:
+        fdk.Update()
+    except RuntimeError as exc:          # RTK refuses a geometry it cannot handle
+        said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
+        text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
+        raise ReconstructionError(
+            f"RTK cannot reconstruct this scan ({text}): the orbit's axis must cross the beam "
+            "(a source turning about the beam axis sees the same view every time)") from None
     mu = itk.array_from_image(fdk.GetOutput()).astype(np.float32) * np.float32(10.0)  # 1/cm
     return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
 

@@ -36,7 +36,8 @@ from xray_viz.orbit import Orbit, orbit_from_dict
 
 __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
-           "write_nexus", "astra_vectors", "poses_from_astra", "render_batch", "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
+           "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
+           "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -235,9 +236,28 @@ class Scan:
         return "1" if self.quantity == "line-integral" else "photons"
 
 
+def default_orbit(scene, **changes) -> Orbit:
+    """The orbit of a scene without a ``[scan]`` table: a full circle of 360 projections about
+    the detector's up axis through the centre of the bodies (as ``--angle`` and the viewer
+    turn the acquisition), so the source goes round the bodies whatever way the scene faces.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> o = default_orbit(xray_viz.load_scene("sphere"), projections=4)
+    >>> o.axis.tolist(), o.projections
+    ([0.0, 1.0, 0.0], 4)
+    """
+    box = scene.bodies.bounds
+    centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2 if len(scene.bodies) \
+        else np.asarray(scene.detector.center, float)
+    return Orbit(**{"projections": 360, "axis": np.asarray(scene.detector.up, float),
+                    "center": centre, **changes})
+
+
 def _orbit_of(scene, orbit) -> Orbit:
     if orbit is None:
-        orbit = getattr(scene, "orbit", None) or Orbit()
+        orbit = getattr(scene, "orbit", None) or default_orbit(scene)
     elif isinstance(orbit, dict):
         orbit = orbit_from_dict(orbit)
     if not isinstance(orbit, Orbit):
@@ -694,7 +714,8 @@ def add_scan_parser(subparsers) -> None:
 
 
 def _cli_orbit(scene, args) -> Orbit:
-    table = scene.orbit.to_dict() if getattr(scene, "orbit", None) is not None else {}
+    table = (scene.orbit if getattr(scene, "orbit", None) is not None
+             else default_orbit(scene)).to_dict()
     for key in ("orbit", "projections", "arc", "pitch", "axis", "center"):
         value = getattr(args, key)
         if value is not None:
