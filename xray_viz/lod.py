@@ -62,9 +62,9 @@ Examples
 --------
 >>> import xray_viz
 >>> scene = xray_viz.load_scene("sphere")
->>> image = xray_viz.render(scene, max_error=0.02)
+>>> image = xray_viz.render(scene, max_error=0.1)
 >>> lod = image.lod
->>> lod.bodies[0].faces < lod.bodies[0].faces_full, lod.bodies[0].estimated_error <= 0.02
+>>> lod.bodies[0].faces < lod.bodies[0].faces_full, lod.bodies[0].estimated_error <= 0.1
 (True, True)
 """
 
@@ -84,7 +84,7 @@ import numpy as np
 from xray_viz.errors import SceneError
 
 __all__ = ["BodyLevel", "LevelOfDetail", "level_of_detail", "path_length_error",
-           "measuring_pitch", "check_max_error", "cache_dir", "SAFETY", "MIN_FACES", "DIRECTIONS", "LINES"]
+           "measuring_pitch", "check_max_error", "cache_dir", "forget", "SAFETY", "MIN_FACES", "DIRECTIONS", "LINES"]
 
 log = logging.getLogger("xray_viz.lod")
 
@@ -294,10 +294,10 @@ def path_length_error(mesh, reduced, *, pitch: float, report=None) -> float:
     Examples
     --------
     >>> import trimesh
-    >>> a = trimesh.creation.box(extents=[10, 10, 10])
-    >>> b = trimesh.creation.box(extents=[10, 10, 11])
-    >>> round(path_length_error(a, b, pitch=0.5), 6)          # along z: 11 - 10 mm
-    1.0
+    >>> a = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
+    >>> b = trimesh.creation.icosphere(subdivisions=4, radius=20.1)
+    >>> 0.2 < path_length_error(a, b, pitch=0.25) < 4 * (20 * 0.1) ** 0.5  # 2 dr .. rim
+    True
     """
     from xray_viz.bodies import Bodies
     from xray_viz.scene import Body
@@ -322,32 +322,47 @@ def measuring_pitch(extent: float, spacing: float) -> float:
 
     Examples
     --------
-    >>> measuring_pitch(80.0, 0.3)       # 80 / 128 = 0.625 > 0.3: the rays' spacing wins
-    0.25
+    >>> measuring_pitch(80.0, 0.3)       # 80 / 128 = 0.625 > 0.3, rounded down
+    0.5
     """
     p = max(float(spacing), float(extent) / LINES)
     return 2.0 ** math.floor(math.log2(p))
 
 
+#: Decimations of this process (key -> (vertices, faces, dL)), the most recent ones, so that
+#: renders in one session share them even with the disk cache off.
+_MEMORY: dict = {}
+_MEMORY_SIZE = 64
+
+
+def forget() -> None:
+    """Drop the decimations kept in memory (the disk cache stays)."""
+    _MEMORY.clear()
+
+
 def _decimation(mesh, target: int, pitch: float, report):
-    """``(reduced mesh, measured dL)`` for one level, from the disk cache when it is there."""
+    """``(reduced mesh, measured dL)`` for one level, from memory or the disk cache when it is
+    there."""
     import trimesh
 
-    from xray_viz.meshes.decimate import collapse
-
     key = _key(mesh, target, pitch)
-    hit = _load(key)
-    if hit is not None:
-        v, f, err = hit
-        return trimesh.Trimesh(v, f, process=False), err
-    reduced = collapse(mesh, target)
-    if not reduced.is_watertight:
-        err = math.inf
-    else:
-        err = path_length_error(mesh, reduced, pitch=pitch, report=report)
-    _store(key, np.asarray(reduced.vertices, np.float64), np.asarray(reduced.faces, np.int64),
-           err)
-    return reduced, err
+    hit = _MEMORY.get(key)
+    if hit is None:
+        hit = _load(key)
+        if hit is None:
+            from xray_viz.meshes.decimate import collapse
+
+            reduced = collapse(mesh, target)
+            err = path_length_error(mesh, reduced, pitch=pitch, report=report) \
+                if reduced.is_watertight else math.inf
+            hit = (np.asarray(reduced.vertices, np.float64), np.asarray(reduced.faces, np.int64),
+                   err)
+            _store(key, *hit)
+        while len(_MEMORY) >= _MEMORY_SIZE:
+            _MEMORY.pop(next(iter(_MEMORY)))
+        _MEMORY[key] = hit
+    v, f, err = hit
+    return trimesh.Trimesh(v.copy(), f.copy(), process=False), err
 
 
 # ------------------------------------------------------------------------------------------
@@ -475,7 +490,7 @@ def level_of_detail(scene, max_error, *, supersample: int = 1):
         if boxes[b] is not None and contrast[b] > 0:
             for target in _levels(n_full):
                 reduced, dl = _decimation(mesh, target, pitch, reports[b])
-                est = SAFETY * contrast[b] * dl
+                est = float(SAFETY * contrast[b] * dl)
                 log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g "
                           "(share %.4g)", body.name, len(reduced.faces), dl, est, share)
                 if not est <= share:
