@@ -87,6 +87,21 @@ def test_dask_scan_equals_the_serial_scan(cluster, tmp_path):
     assert max(loaded.values()) == 1 and set(loaded.values()) <= {0, 1}
 
 
+def test_dask_random_dataset_equals_the_serial_scan(cluster, tmp_path):
+    """Random poses drawn on the workers from (seed, k): the same stack as in this process."""
+    from xray_viz.orbit import orbit_from_dict
+
+    client, _ = cluster
+    scene = _scene(tmp_path, shape=(24, 24))
+    orbit = orbit_from_dict({"axis": [0.0, 1.0, 0.0], "poses": {
+        "random": 7, "seed": 7, "tilt": [-20.0, 20.0], "sod": [900.0, 1100.0],
+        "sid": [1400.0, 1600.0], "shift": [10.0, 10.0, 10.0]}})
+    serial = xray_viz.scan(scene, orbit)
+    got = xray_viz.scan(scene, orbit, client=client, store=tmp_path / "r.zarr", batch=2)
+    assert np.array_equal(got.projections, serial.projections)
+    assert got.geometry == serial.geometry
+
+
 @pytest.mark.slow
 def test_killed_worker_loses_nothing_and_a_rerun_completes(cluster, tmp_path):
     client, procs = cluster

@@ -94,7 +94,7 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         axis, center = orbit.axis.tolist(), orbit.center.tolist()
         rel = first.source - orbit.center
         sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
-    return {
+    out = {
         "orbit": orbit.kind,
         "beam": "parallel" if base.parallel else "cone",
         "projections": orbit.projections,
@@ -108,6 +108,10 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "poses": [_pose(a) for a in acqs],
         "projection_matrices": [a.projection_matrix().tolist() for a in acqs],
     }
+    if orbit.random is not None:           # how the poses were drawn (axis, centre, ranges)
+        out["random"] = {**orbit.random.to_dict(), "axis": orbit.axis.tolist(),
+                         "center": orbit.center.tolist()}
+    return out
 
 
 def astra_vectors(geometry) -> np.ndarray:
