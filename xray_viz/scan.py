@@ -37,7 +37,7 @@ from xray_viz.orbit import Orbit, orbit_from_dict
 __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
-           "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
+           "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -182,6 +182,38 @@ def _physics(scene) -> dict:
     return out
 
 
+def flat_dark(scene, geometry, quantity: str = "intensity"):
+    """The open-beam (flat) and dark fields of a scan, ``(H, W)`` float32 each, or
+    ``(None, None)`` for line integrals (already flat-field corrected).
+
+    ``flat`` is the detector model's noise-free reading without any body at projection 0's
+    pose (:func:`xray_viz.physics.imaging.flat_field`: ``gain * I0 * F * A``, the fall-off and
+    the heel effect included); ``dark`` the reading without any beam: zero, the detector model
+    having no electronic offset (its electronic noise has mean 0). So that
+    ``(projection - dark) / (flat - dark) = exp(-line integral)``. Every projection of a
+    circular or helical orbit shares projection 0's flat (the source and detector turn
+    together); poses at other distances (random ``sod``/``sid``) differ from it only through
+    the fall-off.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> flat, dark = flat_dark(scene, scan_geometry(scene, Orbit(projections=2, axis=[0, 1, 0])))
+    >>> flat.shape, float(flat.max()), float(dark.max())
+    ((256, 256), 1.0, 0.0)
+    """
+    from xray_viz.orbit import pose_acquisition
+    from xray_viz.physics.imaging import flat_field
+
+    _check_quantity(quantity)
+    if quantity != "intensity":
+        return None, None
+    first = pose_acquisition(scene.acquisition, geometry["poses"][0])
+    flat = np.asarray(flat_field(scene.replace(acquisition=first)), np.float32)
+    return flat, np.zeros_like(flat)
+
+
 # ---------------------------------------------------------------------------------- rendering
 
 def _check_quantity(quantity):
@@ -318,7 +350,8 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
             out[k] = projection(scene, orbit, k, quantity=quantity, engine=engine)
             bar.update(1)
         bar.close()
-        return Scan(out, geometry, quantity, _physics(scene), scene)
+        flat, dark = flat_dark(scene, geometry, quantity)
+        return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
     _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
                    client=client, batch=batch, progress=progress)
     return read_zarr(store, scene=scene)
@@ -380,8 +413,9 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
 
     Layout: array ``projections`` ``(n, H, W)`` float32 in chunks of one projection, array
     ``done`` ``(n,)`` bool (one chunk per projection, so concurrent writers never share a
-    chunk), attributes ``{"xray_viz": {"version", "quantity", "units", "geometry", "physics",
-    "scene"}}``.
+    chunk), for intensities arrays ``flat`` and ``dark`` ``(H, W)`` float32
+    (:func:`flat_dark`), attributes ``{"xray_viz": {"version", "quantity", "units",
+    "geometry", "physics", "scene"}}``.
 
     Raises
     ------
@@ -415,6 +449,11 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
         group.create_array("projections", shape=(n, h, w), chunks=(1, h, w), dtype="float32",
                            fill_value=np.nan)
         group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
+        flat, dark = flat_dark(scene, geometry, quantity)
+        for name, field in (("flat", flat), ("dark", dark)):
+            if field is not None:
+                group.create_array(name, shape=(h, w), chunks=(h, w), dtype="float32",
+                                   fill_value=np.nan)[:] = field
         group.attrs["xray_viz"] = attrs
         os.replace(tmp, path)
     except BaseException:

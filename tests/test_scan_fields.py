@@ -1,0 +1,46 @@
+"""Flat and dark fields of a scan store (CT-LAYOUT.md: arrays ``flat``, ``dark``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+
+import numpy as np
+
+import xray_viz
+from xray_viz.orbit import Orbit
+
+S = importlib.import_module("xray_viz.scan")
+
+
+def test_flat_and_dark_correct_an_intensity_scan_to_its_line_integrals(tmp_path):
+    """(proj - dark) / (flat - dark) = exp(-line integral) for a noiseless scan, with a
+    detector whose flat is not 1 everywhere (fall-off, gain, I0); and exp(-mu L) with the
+    path lengths of an independent render."""
+    scene = xray_viz.load_scene("sphere")
+    scene = scene.replace(detector=dataclasses.replace(
+        scene.detector, shape=(40, 30), pitch=(4.0, 4.0), falloff=True, gain=2.5, i0=1e4))
+    orbit = Orbit(projections=3, axis=[0, 1, 0])
+    store = tmp_path / "i.zarr"
+    got = xray_viz.scan(scene, orbit, quantity="intensity", store=store)
+    assert got.flat.shape == got.dark.shape == (30, 40) and not np.any(got.dark)
+    assert got.flat.max() / got.flat.min() > 1.005          # the fall-off shows
+    empty = scene.replace(bodies=[], acquisition=orbit.acquisition(scene.acquisition, 0))
+    np.testing.assert_allclose(got.flat, xray_viz.render(empty).intensity, rtol=1e-7)
+    assert got.flat.max() <= 2.5 * 1e4 * (1 + 1e-6)
+    li = xray_viz.scan(scene, orbit).projections
+    corrected = (np.asarray(got.projections[:], float) - got.dark) / (got.flat - got.dark)
+    np.testing.assert_allclose(corrected, np.exp(-li.astype(float)), rtol=2e-6, atol=0)
+    mu = scene.bodies[0].mu
+    for k, acq in enumerate(orbit.acquisitions(scene.acquisition)):
+        L = xray_viz.render(scene.replace(acquisition=acq)).total_path_length
+        np.testing.assert_allclose(corrected[k], np.exp(-mu * L / 10.0), rtol=2e-6)
+    # the in-memory scan carries the same fields; a line-integral store has none
+    mem = xray_viz.scan(scene, orbit, quantity="intensity")
+    assert np.array_equal(mem.flat, got.flat) and np.array_equal(mem.dark, got.dark)
+    line = xray_viz.scan(scene, orbit, store=tmp_path / "l.zarr")
+    assert line.flat is None and line.dark is None
+    import zarr
+
+    assert sorted(zarr.open_group(str(store), mode="r").array_keys()) == [
+        "dark", "done", "flat", "projections"]
