@@ -44,3 +44,29 @@ def test_flat_and_dark_correct_an_intensity_scan_to_its_line_integrals(tmp_path)
 
     assert sorted(zarr.open_group(str(store), mode="r").array_keys()) == [
         "dark", "done", "flat", "projections"]
+
+
+def test_a_scan_to_a_store_keeps_the_stack_on_disk(tmp_path):
+    """scan(store=) returns the store's lazy array (memory bounded by the batch), equal to
+    the in-memory scan, and the TIFF/NeXus writers take it projection by projection."""
+    import h5py
+    import tifffile
+    import zarr
+
+    scene = xray_viz.load_scene("sphere")
+    scene = scene.replace(detector=dataclasses.replace(scene.detector, shape=(20, 16),
+                                                       pitch=(10.0, 10.0)))
+    orbit = Orbit(projections=4, axis=[0, 1, 0])
+    mem = xray_viz.scan(scene, orbit)
+    lazy = xray_viz.scan(scene, orbit, store=tmp_path / "s.zarr")
+    assert isinstance(lazy.projections, zarr.Array) and not isinstance(lazy.projections,
+                                                                       np.ndarray)
+    assert np.array_equal(lazy.projections[2], mem.projections[2])
+    assert np.array_equal(lazy.projections[:], mem.projections)
+    full = S.read_zarr(tmp_path / "s.zarr")
+    assert isinstance(full.projections, np.ndarray)
+    folder = S.write_tiff_stack(lazy, tmp_path / "t")
+    assert np.array_equal(np.stack([tifffile.imread(f) for f in sorted(folder.glob("*.tif"))]),
+                          mem.projections)
+    with h5py.File(S.write_nexus(lazy, tmp_path / "s.nxs"), "r") as f:
+        assert np.array_equal(f["entry/instrument/detector/data"][:], mem.projections)

@@ -244,9 +244,10 @@ class Scan:
 
     Attributes
     ----------
-    projections : (n, H, W) float32
+    projections : (n, H, W) float32 numpy.ndarray or zarr.Array
         ``projections[k]`` is the image of projection ``k`` (row 0 at the top of the
-        detector, column 0 at its left seen from the source).
+        detector, column 0 at its left seen from the source). A scan written to a store (or
+        ``read_zarr(lazy=True)``) keeps the store's array, read on indexing.
     geometry : dict
         :func:`scan_geometry`.
     quantity : str
@@ -326,6 +327,9 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
     Returns
     -------
     Scan
+        With ``store``, its ``projections`` are the store's (lazy) ``zarr.Array``: memory stays
+        bounded by the batch whatever the stack's size (index it, ``projections[k]``, or
+        ``projections[:]`` for all of it in memory).
 
     Examples
     --------
@@ -354,7 +358,7 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
     _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
                    client=client, batch=batch, progress=progress)
-    return read_zarr(store, scene=scene)
+    return read_zarr(store, scene=scene, lazy=True)
 
 
 def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, batch,
@@ -476,8 +480,11 @@ def write_zarr(result: Scan, path) -> None:
         _write_projection(group, int(k), result.projections[k])
 
 
-def read_zarr(path, *, scene=None, require_complete: bool = True) -> Scan:
+def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = False) -> Scan:
     """The :class:`Scan` of a Zarr store.
+
+    ``lazy``: ``projections`` is the store's read-only ``zarr.Array`` (read projection by
+    projection as it is indexed) instead of the whole stack in memory.
 
     The one reader of the layout (CT-LAYOUT.md): :func:`xray_viz.reconstruct.reconstruct_file`
     reads its stores through it.
@@ -515,7 +522,8 @@ def read_zarr(path, *, scene=None, require_complete: bool = True) -> Scan:
 
     def field(name):
         return np.asarray(group[name][:], np.float64) if name in names else None
-    return Scan(group["projections"][:], meta["geometry"], meta.get("quantity", "line-integral"),
+    stack = group["projections"] if lazy else group["projections"][:]
+    return Scan(stack, meta["geometry"], meta.get("quantity", "line-integral"),
                 meta.get("physics") or {}, scene, flat=field("flat"), dark=field("dark"))
 
 
@@ -533,9 +541,11 @@ def write_tiff_stack(result: Scan, folder) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        digits = max(5, len(str(len(result.projections) - 1)))
-        for k, image in enumerate(result.projections):
-            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif", image)
+        n = result.projections.shape[0]
+        digits = max(5, len(str(n - 1)))
+        for k in range(n):               # one at a time: a store's lazy stack stays on disk
+            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif",
+                             np.asarray(result.projections[k], np.float32))
         meta = {"quantity": result.quantity, "units": result.units,
                 "geometry": result.geometry, "physics": result.physics}
         (tmp / "geometry.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
@@ -556,7 +566,7 @@ def write_nexus(result: Scan, path) -> Path:
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     g = result.geometry
-    n = len(result.projections)
+    n = result.projections.shape[0]
     angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
     try:
         with h5py.File(tmp, "w") as f:
@@ -571,8 +581,11 @@ def write_nexus(result: Scan, path) -> Path:
             src["probe"] = "x-ray"
             det = inst.create_group("detector")
             det.attrs["NX_class"] = "NXdetector"
-            data = det.create_dataset("data", data=result.projections, chunks=(1,) +
-                                      result.projections.shape[1:])
+            shape = tuple(result.projections.shape)
+            data = det.create_dataset("data", shape=shape, dtype="float32",
+                                      chunks=(1,) + shape[1:])
+            for k in range(n):           # one at a time: a store's lazy stack stays on disk
+                data[k] = np.asarray(result.projections[k], np.float32)
             data.attrs["units"] = result.units
             det["image_key"] = np.zeros(n, np.int32)          # 0: a projection
             for name, value in (("x_pixel_size", g["detector"]["pitch_mm"][0]),
@@ -807,7 +820,7 @@ def scan_command(args) -> int:
             filled, total = _scan_to_store(scene, orbit, out, geometry=geometry,
                                            quantity=args.quantity, engine=args.engine,
                                            client=client, batch=args.batch, progress=True)
-        read_zarr(out, scene=scene)                  # complete, or one line saying what is not
+        read_zarr(out, scene=scene, lazy=True)       # complete, or one line saying what is not
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
