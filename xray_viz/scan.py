@@ -37,7 +37,8 @@ from xray_viz.orbit import Orbit, orbit_from_dict
 __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
-           "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark"]
+           "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
+           "trim_memory", "warm_kernels"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -372,10 +373,12 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
                    batch=batch, progress=progress)
     else:
         bar = _bar(len(todo), progress)
-        for k in todo:
+        for i, k in enumerate(todo):
             _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
                                                    engine=engine))
             bar.update(1)
+            if (i + 1) % max(1, batch) == 0:
+                trim_memory()
         bar.close()
     return len(todo), orbit.projections
 
@@ -624,9 +627,54 @@ def _scene_text(scene) -> str:
                          f"scene has none: {exc}") from None
 
 
-def _scene_plugin():
-    """A worker plugin that holds the scenes a worker has loaded (by content hash) and runs
-    numba on one thread per worker process."""
+def trim_memory() -> bool:
+    """Give freed heap memory back to the operating system (glibc's ``malloc_trim(0)``): a
+    batch's scratch images, freed by Python, otherwise stay in the process's resident set.
+    True if memory was released; False where there is no glibc (macOS, Windows, musl).
+
+    Examples
+    --------
+    >>> trim_memory() in (True, False)
+    True
+    """
+    import ctypes
+    import ctypes.util
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return bool(libc.malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
+
+
+def _one_numba_thread() -> None:
+    """One numba thread for this thread's kernels (numba's count is per thread: the worker
+    plugin's ``setup`` runs on the event loop, the tasks on the executor's thread)."""
+    try:
+        import numba
+
+        if numba.get_num_threads() != 1:
+            numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
+
+
+def warm_kernels(engine: str = "fast") -> list:
+    """Compile, or load from numba's cache (shared by every process of the machine), the
+    fast engine's kernels now; their names. A worker calls it when it starts, so no task pays
+    for it."""
+    if engine != "fast":
+        return []
+    from xray_viz.tracing import _raster
+
+    return _raster.compile_kernels()
+
+
+def _scene_plugin(engine: str = "fast"):
+    """A worker plugin that holds the scenes a worker has loaded (by content hash), runs
+    numba on one thread per worker process and warms the kernels when the worker starts."""
     from distributed import WorkerPlugin
 
     class ScenePlugin(WorkerPlugin):
@@ -634,14 +682,25 @@ def _scene_plugin():
 
         def setup(self, worker):
             self.scenes = {}
-            try:
-                import numba
-
-                numba.set_num_threads(1)
-            except (ImportError, ValueError):
-                pass
+            _one_numba_thread()
+            # on the task thread, ahead of any task (the event loop stays free meanwhile)
+            executor = worker.executors.get("default")
+            self.warm = executor.submit(_warm_thread, engine) if executor is not None else None
 
     return ScenePlugin()
+
+
+def _warm_thread(engine: str) -> dict:
+    """A worker's start on its task thread: one numba thread, the kernels warmed."""
+    import time
+
+    _one_numba_thread()
+    t0 = time.perf_counter()
+    names = warm_kernels(engine)
+    import numba
+
+    return {"kernels": names, "seconds": time.perf_counter() - t0,
+            "numba_threads": numba.get_num_threads()}
 
 
 def _worker_scenes():
@@ -685,16 +744,21 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
         The projections this task wrote.
     """
     zarr = _zarr()
+    if _worker_scenes() is not None:
+        _one_numba_thread()
     scene = _load_scene_text(scene_text, digest)
     group = zarr.open_group(store, mode="r+")
     wrote = []
-    for k in indices:
-        k = int(k)
-        if bool(group["done"][k]):
-            continue
-        _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
-                                               engine=engine))
-        wrote.append(k)
+    try:
+        for k in indices:
+            k = int(k)
+            if bool(group["done"][k]):
+                continue
+            _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
+                                                   engine=engine))
+            wrote.append(k)
+    finally:
+        trim_memory()                   # the batch's scratch memory back to the system
     return wrote
 
 
@@ -707,7 +771,7 @@ def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, pr
         raise SceneError(f"batch must be a whole number >= 1, got {batch!r}")
     text = _scene_text(scene)
     digest = hashlib.sha256(text.encode()).hexdigest()
-    client.register_plugin(_scene_plugin(), name=PLUGIN_NAME)
+    client.register_plugin(_scene_plugin(engine), name=PLUGIN_NAME)
     if progress and sys.stderr.isatty():
         print(f"xray-viz: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
     run = uuid.uuid4().hex[:8]
