@@ -38,7 +38,7 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geome
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
-           "trim_memory", "warm_kernels"]
+           "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -167,6 +167,144 @@ def poses_from_astra(vectors, *, beam: str = "cone", sid: float | None = None) -
         src = first if beam == "cone" else d - float(sid) * _unit(first)
         poses.append({"source": src.tolist(), "detector_center": d.tolist(),
                       "u": _unit(u).tolist(), "v": (-_unit(v)).tolist()})
+    return poses
+
+
+def _tigre_rotation(alpha: float) -> np.ndarray:
+    """TIGRE's ``eulerZYZ`` with ``theta = psi = 0``: a turn by ``alpha`` radians about z."""
+    c, s = np.cos(alpha), np.sin(alpha)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def tigre_geometry(geometry, *, axis=None, center=None, tolerance: float = 1e-9) -> dict:
+    """The scan's geometry in TIGRE's conventions (``tigre.geometry`` fields, mm and radians).
+
+    TIGRE (``Common/CUDA/Siddon_projection.cu``, ``Python/tigre/utilities``) turns the source
+    ``(DSO, 0, 0)`` and the detector, centred at ``(-(DSD - DSO), offU, offV)`` with ``U`` along
+    +y and rows down -z, about its z axis by ``angles[:, 0]``, then subtracts ``offOrigin``.
+    Here TIGRE's z is the scan's rotation ``axis`` through ``center`` and its x the direction
+    from the axis to the source at angle 0 (``frame``): ``u`` (image columns) is TIGRE's U
+    and the image rows TIGRE's V from the top, so TIGRE's projections ``(angles, V, U)`` are
+    the stack as it is, no flip. Python-TIGRE's orders: ``nDetector``, ``dDetector``,
+    ``sDetector``, ``offDetector`` are ``(V, U)``, ``offOrigin`` is ``(z, y, x)``.
+
+    Parameters
+    ----------
+    geometry : dict
+        :func:`scan_geometry`.
+    axis, center : (3,) float, optional
+        The rotation axis (default the geometry's; needed for ``"poses"`` orbits).
+    tolerance : float
+        How far a pose's ``u`` may lean on the axis (TIGRE's detector turns about z only).
+
+    Returns
+    -------
+    dict
+        ``DSD``, ``DSO`` ``(n,)``; ``nDetector``, ``dDetector``, ``sDetector`` ``(2,)``;
+        ``offDetector`` ``(n, 2)``; ``offOrigin`` ``(n, 3)``; ``angles`` ``(n, 3)``
+        (ZYZ Euler angles, the last two 0); ``mode`` (``"cone"``/``"parallel"``); ``frame``
+        ``{"origin", "axes"}``: TIGRE's origin and x, y, z axes in scene coordinates.
+
+    Raises
+    ------
+    SceneError
+        A pose whose detector does not stand along the axis (``v`` not parallel to it: a
+        tilted pose would need TIGRE's ``rotDetector``), or no axis for a poses orbit.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
+    >>> t = tigre_geometry(g)
+    >>> t["DSO"].tolist(), t["DSD"].tolist()[:1], t["nDetector"].tolist(), t["mode"]
+    ([1000.0, 1000.0, 1000.0, 1000.0], [1500.0], [256, 256], 'cone')
+    >>> (t["angles"][:, 0].round(6)).tolist()
+    [0.0, 1.570796, 3.141593, 4.712389]
+    """
+    from xray_viz.orbit import _rotation
+
+    axis = geometry.get("axis") if axis is None else axis
+    center = geometry.get("center") if center is None else center
+    if axis is None or center is None:
+        raise SceneError("TIGRE's geometry turns about an axis: give tigre_geometry(axis=..., "
+                         "center=...) for a poses orbit")
+    z, center = _unit(axis), np.asarray(center, np.float64)
+    poses = geometry["poses"]
+    s0 = np.asarray(poses[0]["source"], float) - center
+    theta0 = (geometry.get("angles_deg") or [0.0])[0]
+    ref = _rotation(z, -theta0) @ s0                     # the source at angle 0
+    x = ref - (ref @ z) * z
+    if not np.linalg.norm(x) > 1e-9:
+        raise SceneError("the source lies on the rotation axis: TIGRE's frame is undefined")
+    x = x / np.linalg.norm(x)
+    M = np.array([x, np.cross(z, x), z])                 # rows: TIGRE's x, y, z in the scene
+    n = len(poses)
+    dso, dsd = np.empty(n), np.empty(n)
+    off_det, off_orig, alpha = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
+    for k, pose in enumerate(poses):
+        s = M @ (np.asarray(pose["source"], float) - center)
+        c = M @ (np.asarray(pose["detector_center"], float) - center)
+        u, v = M @ np.asarray(pose["u"], float), M @ np.asarray(pose["v"], float)
+        if abs(u[2]) > tolerance or abs(v[2] - 1.0) > tolerance:
+            raise SceneError(f"pose {k}: the detector is tilted against the rotation axis "
+                             f"(v = {np.round(M.T @ v, 9).tolist()}, axis {z.tolist()}); "
+                             "TIGRE's geometry needs rotDetector for it, not supported")
+        alpha[k] = np.arctan2(-u[0], u[1])
+        R = _tigre_rotation(alpha[k])
+        sp, cp = R.T @ s, R.T @ c                        # in the turned frame
+        o = np.array([0.0, -sp[1], -sp[2]])             # the volume moved, not the source
+        dso[k], dsd[k] = sp[0], sp[0] - cp[0]
+        off_det[k] = [cp[2] - sp[2], cp[1] - sp[1]]      # (V, U)
+        off_orig[k] = (R @ o)[::-1]                      # (z, y, x)
+    w, h = geometry["detector"]["shape"]
+    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
+    return {"DSD": dsd, "DSO": dso, "nDetector": np.array([h, w]),
+            "dDetector": np.array([pv, pu]), "sDetector": np.array([h * pv, w * pu]),
+            "offDetector": off_det, "offOrigin": off_orig,
+            "angles": np.c_[np.mod(alpha, 2 * np.pi), np.zeros(n), np.zeros(n)],
+            "mode": "parallel" if geometry["beam"] == "parallel" else "cone",
+            "frame": {"origin": center.tolist(), "axes": M.tolist()}}
+
+
+def poses_from_tigre(tigre) -> list[dict]:
+    """The per-projection poses (source, detector centre, unit ``u``, ``v``) of a TIGRE
+    geometry (:func:`tigre_geometry`; ``frame`` places TIGRE's axes in the scene, default
+    the scene's own). Inverse of :func:`tigre_geometry`.
+
+    Raises
+    ------
+    SceneError
+        Euler angles other than a turn about z (``angles[:, 1:]`` not 0), or fields of
+        mismatched lengths.
+    """
+    angles = np.atleast_1d(np.asarray(tigre["angles"], np.float64))
+    angles = angles[:, None] if angles.ndim == 1 else angles
+    n = len(angles)
+    if angles.shape[1] == 3 and np.any(angles[:, 1:] != 0):
+        raise SceneError("TIGRE angles with theta/psi (a tilted orbit) are not supported: "
+                         "angles[:, 1:] must be 0")
+
+    def per(name, width):
+        value = np.asarray(tigre.get(name, np.zeros(width)), np.float64)
+        out = np.broadcast_to(value, (n,) if width == 0 else (n, width))
+        return out
+
+    try:
+        dso, dsd = per("DSO", 0), per("DSD", 0)
+        off_det, off_orig = per("offDetector", 2), per("offOrigin", 3)
+    except ValueError as exc:
+        raise SceneError(f"TIGRE geometry fields do not match {n} angles: {exc}") from None
+    frame = tigre.get("frame") or {"origin": [0.0, 0.0, 0.0], "axes": np.eye(3).tolist()}
+    origin, M = np.asarray(frame["origin"], float), np.asarray(frame["axes"], float)
+    poses = []
+    for k in range(n):
+        R = _tigre_rotation(angles[k, 0])
+        o = off_orig[k][::-1]
+        s = R @ np.array([dso[k], 0.0, 0.0]) - o
+        c = R @ np.array([-(dsd[k] - dso[k]), off_det[k][1], off_det[k][0]]) - o
+        poses.append({"source": (origin + M.T @ s).tolist(),
+                      "detector_center": (origin + M.T @ c).tolist(),
+                      "u": (M.T @ R[:, 1]).tolist(), "v": (M.T @ R[:, 2]).tolist()})
     return poses
 
 
