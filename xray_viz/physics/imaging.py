@@ -538,7 +538,11 @@ def falloff_factor(scene) -> np.ndarray:
 
     The photons per pixel fall as ``1 / r^2`` (distance source -> pixel) times ``cos(theta)``
     (the pixel seen obliquely), so with ``r = SID / cos(theta)`` the factor is ``cos^3(theta)``.
-    1 everywhere for a parallel beam.
+    1 everywhere for a parallel beam. On a tilted detector ``theta`` is the angle between the
+    ray and the detector's normal and ``r = D / cos(theta)`` with ``D`` the distance from the
+    source to the detector plane (:attr:`~xray_viz.geometry.DetectorFrame.distance`), so the
+    factor is ``(D / r)^3``: 1 at the foot of the perpendicular from the source (which an
+    offset detector may not contain), where ``I0`` is then the photons per pixel.
 
     Examples
     --------
@@ -552,6 +556,10 @@ def falloff_factor(scene) -> np.ndarray:
     w, h = scene.detector.shape
     if scene.source.kind == "parallel":
         return np.ones((h, w))
+    frame = scene.acquisition.frame
+    if not frame.plain:               # tilted or offset: the pixels' own distances and angles
+        r = scene.acquisition.rays().t_max.reshape(h, w)
+        return (frame.distance / r) ** 3
     vp = viewport(scene.source.position, scene.detector)
     u, v = pixel_coordinates(vp.shape)
     r = np.linalg.norm(vp.point(u, v) - vp.r0, axis=-1)
