@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 import trimesh
 
-import xray_viz
 from xray_viz.errors import SceneError
 from xray_viz.geometry import Acquisition
 from xray_viz.scene import Body, Detector, Scene, Source, load_scene
