@@ -397,3 +397,24 @@ def test_rtk_geometry_refuses_a_parallel_beam_onto_a_tilted_detector():
     with pytest.raises(ReconstructionError, match="tilted detector") as info:
         rtk_geometry(geo)
     assert "\n" not in str(info.value)
+
+
+def test_heel_directions_follow_the_rays_of_an_offset_or_tilted_detector():
+    """SpekPy's pixel directions (tangents in the tube's frame, the beam axis) come from each
+    pixel's own ray: the derived axes given as u, v change nothing, and an offset of 20 mm
+    along u moves every pixel's across-tangent by 20 / SID."""
+    from xray_viz.physics.heel import pixel_directions
+
+    scene = Scene(source=Source(position=[0, 0, 1000.0], energy=None, heel=True,
+                                spectrum={"kvp": 80.0, "filters": {"Al": 2.5}}),
+                  detector=Detector(center=[0, 0, -500.0], shape=(9, 7), pitch=(10.0, 10.0)),
+                  bodies=[])
+    f = scene.acquisition.frame
+    plain = pixel_directions(scene)
+    same = pixel_directions(scene.replace(detector=dataclasses.replace(scene.detector, u=f.ho,
+                                                                        v=f.ve)))
+    np.testing.assert_allclose(same, plain, rtol=0, atol=1e-15)
+    moved = pixel_directions(scene.replace(detector=dataclasses.replace(scene.detector,
+                                                                         offset=(20.0, 0.0))))
+    np.testing.assert_allclose(moved[0], plain[0], rtol=0, atol=1e-15)   # along: anode-cathode
+    np.testing.assert_allclose(moved[1], plain[1] + 20.0 / 1500.0, rtol=0, atol=1e-15)
