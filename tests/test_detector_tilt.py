@@ -213,17 +213,24 @@ def test_a_tilt_stretches_a_cone_beam_shadow_as_the_rays_predict(angle):
 
 
 def test_falloff_uses_the_angle_to_the_detector_normal():
-    """On a tilted, offset detector the fall-off is cos^3 of the angle between each ray and
-    the detector's normal, (D / r)^3: 1 at the foot of the perpendicular from the source."""
+    """On a tilted, offset detector the fall-off is the inverse square from the source (1 at
+    SID) times the cosine of the angle between each ray and the detector's normal: cos of the
+    tilt at ``center``; an offset alone keeps cos^3 about the beam axis."""
     from xray_viz.physics.imaging import falloff_factor
 
-    scene = _with(load_scene("sphere"), **GEOMETRIES["tilt+offset"])
+    scene = _with(load_scene("sphere"), shape=(49, 41), **GEOMETRIES["tilt+offset"])
     f = scene.acquisition.frame
     rays = scene.acquisition.rays()
-    cos = rays.directions @ f.normal
-    np.testing.assert_allclose(falloff_factor(scene), (cos ** 3).reshape(40, 48), rtol=1e-12)
     r = np.linalg.norm(rays.ends - f.source, axis=1)
-    np.testing.assert_allclose(falloff_factor(scene).ravel(), (f.distance / r) ** 3, rtol=1e-12)
+    cos = rays.directions @ f.normal
+    np.testing.assert_allclose(falloff_factor(scene).ravel(), (1500.0 / r) ** 2 * cos,
+                               rtol=1e-12)
+    centred = _with(load_scene("sphere"), shape=(49, 41), u=U30, v=V30, offset=(0.0, 0.0))
+    assert falloff_factor(centred)[20, 24] == pytest.approx(float(f.forward @ f.normal),
+                                                            rel=1e-12)
+    shifted = _with(load_scene("sphere"), shape=(49, 41), offset=(40.0, 0.0))
+    cos_axis = shifted.acquisition.rays().directions @ [0.0, 0.0, -1.0]
+    np.testing.assert_allclose(falloff_factor(shifted).ravel(), cos_axis ** 3, rtol=1e-12)
 
 
 # ------------------------------------------------------------------------ projection matrices

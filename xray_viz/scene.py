@@ -347,14 +347,16 @@ class Detector:
         Energy-integrating (signal ~ sum fluence * E * transmission), photon counting, or air
         kerma (``fluence * E * (mu_en/rho)_air``, an ideal dosemeter).
     i0 : float
-        Unattenuated photons per pixel (at the detector centre). With noise off the image is just
+        Unattenuated photons per pixel (at the detector centre; with ``offset`` or ``u``/``v``,
+        of a pixel at ``center`` facing the source). With noise off the image is just
         ``i0 * I / I0``; with noise on it sets the photon statistics.
     noise : bool
         Poisson noise.
     seed : int or None
         Seed of the noise (None: fresh randomness each render).
     falloff : bool
-        Inverse-square and obliquity fall-off (``cos^3``) of a point source.
+        Inverse-square and obliquity fall-off (``cos^3``) of a point source (on a tilted
+        detector, the obliquity to its normal: :func:`~xray_viz.physics.imaging.falloff_factor`).
     supersample : int
         ``n x n`` rays per pixel, averaged in intensity.
     focal_spot : float

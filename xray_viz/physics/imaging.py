@@ -538,11 +538,13 @@ def falloff_factor(scene) -> np.ndarray:
 
     The photons per pixel fall as ``1 / r^2`` (distance source -> pixel) times ``cos(theta)``
     (the pixel seen obliquely), so with ``r = SID / cos(theta)`` the factor is ``cos^3(theta)``.
-    1 everywhere for a parallel beam. On a tilted detector ``theta`` is the angle between the
-    ray and the detector's normal and ``r = D / cos(theta)`` with ``D`` the distance from the
-    source to the detector plane (:attr:`~xray_viz.geometry.DetectorFrame.distance`), so the
-    factor is ``(D / r)^3``: 1 at the foot of the perpendicular from the source (which an
-    offset detector may not contain), where ``I0`` is then the photons per pixel.
+    1 everywhere for a parallel beam. On a tilted or offset detector the factor is
+    ``(SID / r)^2 cos(theta)`` with ``theta`` the angle between the pixel's ray and the
+    detector's normal, ``cos(theta) = D / r`` (``D`` the distance from the source to the
+    detector plane, :attr:`~xray_viz.geometry.DetectorFrame.distance`): ``I0`` stays the
+    photons of a pixel at ``center`` (on the beam axis, SID from the source) facing the source,
+    so the factor is ``cos`` of the tilt there and exceeds 1 on pixels nearer the source than
+    SID. (Untilted, ``D = SID`` and this is ``cos^3(theta)``.)
 
     Examples
     --------
@@ -559,7 +561,7 @@ def falloff_factor(scene) -> np.ndarray:
     frame = scene.acquisition.frame
     if not frame.plain:               # tilted or offset: the pixels' own distances and angles
         r = scene.acquisition.rays().t_max.reshape(h, w)
-        return (frame.distance / r) ** 3
+        return (frame.sid / r) ** 2 * (frame.distance / r)
     vp = viewport(scene.source.position, scene.detector)
     u, v = pixel_coordinates(vp.shape)
     r = np.linalg.norm(vp.point(u, v) - vp.r0, axis=-1)
