@@ -38,6 +38,7 @@ import numpy as np
 from xray_viz.errors import SceneError
 
 __all__ = ["Acquisition", "DetectorFrame", "FineGrid", "Viewport", "viewport", "detector_axes",
+           "tilted_normal", "TILT_TOLERANCE",
            "beam_direction", "pixel_coordinates", "detector_rays", "Rays", "check_supersample",
            "beam_planes", "boxes_outside_beam", "row_range", "UP_TOLERANCE"]
 
@@ -92,7 +93,8 @@ class Viewport:
 
     @property
     def normal(self) -> np.ndarray:
-        """Unit normal of the detector plane, pointing away from the source (= forward)."""
+        """Unit normal of the untilted detector plane, pointing away from the source (=
+        forward; a tilted detector's is :attr:`DetectorFrame.normal`)."""
         return self.forward
 
     def point(self, u, v) -> np.ndarray:
@@ -583,8 +585,9 @@ class Acquisition:
     Raises
     ------
     SceneError
-        If the source sits at the detector centre or the detector's ``up`` is parallel to the
-        beam.
+        If the source sits at the detector centre, the detector's ``up`` is parallel to the
+        beam, or a tilted detector's plane is parallel to the beam or faces away from the
+        source (:func:`tilted_normal`).
 
     Examples
     --------
