@@ -210,6 +210,9 @@ def rtk_geometry(geometry):
         if parallel:     # a point source on the detector's normal, far enough: RTK's angles
             n = np.cross(u, v)
             n /= np.linalg.norm(n)
+            if abs(abs(float(n @ _unit(d - s, "ray"))) - 1.0) > 1e-9:
+                raise ReconstructionError(f"geometry poses[{k}]: a parallel beam onto a tilted "
+                                          "detector (rays oblique to it) has no RTK geometry")
             s = d + n * max(1e3, 10 * np.linalg.norm(s - d))
         ok = cone.AddProjection([float(x) for x in s], [float(x) for x in d],
                                 [float(x) for x in u], [float(x) for x in v])

@@ -68,9 +68,10 @@ def projection_seed(seed: int | None, k: int) -> int | None:
 
 
 def _pose(acq: Acquisition) -> dict:
-    f = acq.frame
-    return {"source": f.source.tolist(), "detector_center": f.center.tolist(),
-            "u": f.ho.tolist(), "v": f.ve.tolist()}
+    f = acq.frame          # the pose's centre is the pixel grid's middle (offset included);
+    source = f.source if not f.parallel or f.plain else f.source + (f.middle - f.center)
+    return {"source": source.tolist(), "detector_center": f.middle.tolist(),   # a parallel
+            "u": f.ho.tolist(), "v": f.ve.tolist()}         # beam's source: on its middle ray
 
 
 def scan_geometry(scene, orbit: Orbit) -> dict:
@@ -105,7 +106,7 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "sid_mm": first.sid,
         "sod_mm": sod,
         "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
-                     "offset_mm": [0.0, 0.0]},
+                     "offset_mm": list(getattr(det, "offset", (0.0, 0.0)))},
         "poses": [_pose(a) for a in acqs],
         "projection_matrices": [a.projection_matrix().tolist() for a in acqs],
     }
