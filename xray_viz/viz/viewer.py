@@ -143,6 +143,8 @@ class Viewer:
             self.fixed_spectrum = source_spectrum(scene.source)
         self.resolution = int(resolution or max(scene.detector.shape))
         self.profile = None
+        self.picked_pixel = None
+        self._listeners = []
         self._shots = itertools.count()
         self.scene = self._build_scene()
         from xray_viz.render import render
@@ -210,6 +212,16 @@ class Viewer:
             w, h = self.scene.detector.shape
             self.pick_pixel(min(int(picked.i[0]), w - 1), min(int(picked.j[0]), h - 1))
         self._update_status()
+        self._notify()
+
+    def add_listener(self, listener) -> None:
+        """Call ``listener(viewer)`` after every change: a re-render, a picked pixel, a
+        window/level, a toggled group (the web page follows the viewer this way)."""
+        self._listeners.append(listener)
+
+    def _notify(self) -> None:
+        for listener in self._listeners:
+            listener(self)
 
     # ------------------------------------------------------------------ callbacks
     def set_source_distance(self, distance: float) -> None:
@@ -281,6 +293,7 @@ class Viewer:
         re-render the image."""
         self.view.set_window_level(window, level)
         self._sync_sliders()
+        self._notify()
 
     def pick_pixel(self, i: int, j: int):
         """Show pixel (i, j)'s ray in 3D and mu along it in the chart.
@@ -346,6 +359,7 @@ class Viewer:
         top = float(max(profile.mu.max(), 1e-3)) * 1.15
         self.chart.y_range = [0.0, top]
         self.chart.visible = True
+        self._notify()
         return profile
 
     def on_pick(self, point) -> None:
@@ -362,6 +376,7 @@ class Viewer:
         if visible is None:
             visible = not self.view.is_visible(group)
         self.view.set_visible(group, visible)
+        self._notify()
 
     def view_side(self) -> None:
         """Camera: the whole set-up from the side (key ``v``)."""
