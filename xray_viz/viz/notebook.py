@@ -63,14 +63,14 @@ class NotebookViewer:
 
     def _ipython_display_(self) -> None:
         from IPython import get_ipython
-        from IPython.display import HTML, display
+        from IPython.display import display_html
 
         cell = getattr(get_ipython(), "execution_count", None)
         if self._shown_in == cell:           # show() displayed it already in this cell
             self._shown_in = None
             return
         self._shown_in = cell
-        display(HTML(self._repr_html_()))
+        display_html(self._repr_html_(), raw=True)
 
     def __repr__(self) -> str:
         return f"<xray_viz viewer at {self.url}>"
