@@ -268,3 +268,73 @@ def test_web_viewer_follows_the_viewer_model():
         assert 0.5 * 1.6 < profile.line_integral <= 1.6 * (1 + 1e-9)
     finally:
         web.close()
+
+
+# --------------------------------------------------------------------------------------------
+# The layout at the page's size: the web view resizes the render window to the browser's
+
+
+def _text_box(actor, renderer):
+    """Display box (x0, x1, y0, y1) of a text actor, in pixels (VTK gives it relative to the
+    actor's anchor)."""
+    box = [0.0] * 4
+    actor.GetBoundingBox(renderer, box)
+    x, y = actor.GetPositionCoordinate().GetComputedDisplayValue(renderer)
+    return [box[0] + x, box[1] + x, box[2] + y, box[3] + y]
+
+
+def _legend_box(legend, renderer):
+    x0, y0 = legend.GetPositionCoordinate().GetComputedDisplayValue(renderer)
+    x1, y1 = legend.GetPosition2Coordinate().GetComputedDisplayValue(renderer)
+    return [x0, x1, y0, y1]
+
+
+def _overlap(a, b) -> bool:
+    return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
+
+
+def _check_layout(viewer, size):
+    pl = viewer.plotter
+    pl.render()
+    r3d, rimg = pl.renderers[0], pl.renderers[1]
+    help_box = _text_box(r3d.actors["help"], r3d)
+    legend = _legend_box(r3d.legend, r3d)
+    labels = [_text_box(r3d.actors[f"check-{g}"], r3d) for g in ("rays", "grid", "hits",
+                                                                  "vectors")]
+    title = _text_box(rimg.actors["radiograph-title"], rimg)
+    w, h = size
+    assert not _overlap(help_box, legend), (help_box, legend)
+    assert 0 <= help_box[0] and help_box[1] <= w / 2 and help_box[3] <= h
+    assert w / 2 <= title[0] and title[1] <= w and title[3] <= h
+    for a, b in zip(labels, labels[1:]):
+        assert not _overlap(a, b), (a, b)
+    assert all(not _overlap(lab, legend) for lab in labels)
+
+
+@pytest.mark.parametrize("scene, size", [
+    ("sphere", (800, 400)),
+    # the frog's legend has eleven entries; 1034 px: JupyterLab's output width
+    *(pytest.param("frog", s, marks=pytest.mark.slow) for s in [(800, 400), (1034, 700),
+                                                                (1400, 700)]),
+])
+def test_viewer_texts_do_not_overlap_at_any_window_size(scene, size):
+    """The key help, the legend, the check boxes' labels and the
+    radiograph's title stay apart and inside their panes, in a window made at that size and
+    in one resized to it (as the web page's view does); a resize to the reference size brings
+    the font sizes back."""
+    import xray_viz
+    from xray_viz.viz.viewer import Viewer
+
+    viewer = Viewer(xray_viz.load_scene(scene), resolution=32, window_size=size,
+                    off_screen=True)
+    try:
+        _check_layout(viewer, size)
+        base = viewer.view._fixed_texts["help"][1]
+        viewer.plotter.render_window.SetSize(1200, 600)
+        assert viewer.plotter.renderers[0].actors["help"].GetTextProperty().GetFontSize() \
+            == base
+        _check_layout(viewer, (1200, 600))
+        viewer.plotter.render_window.SetSize(*size)
+        _check_layout(viewer, size)
+    finally:
+        viewer.close()
