@@ -97,13 +97,22 @@ def show(scene, *, host="127.0.0.1", port=0, height=700, **viewer_options):
         In a notebook, the object displayed (its ``viewer`` is the model; displaying it again
         in another cell shows a second view of the same viewer); else the desktop
         :class:`~xray_viz.viz.viewer.Viewer`, once its window is closed.
+
+    Raises
+    ------
+    XrayVizError
+        Outside a notebook, when there is no display to open a window on.
     """
     from xray_viz.scene import load_scene
 
     if isinstance(scene, (str, bytes)) or hasattr(scene, "__fspath__"):
         scene = load_scene(scene)
     if not in_notebook():
+        from xray_viz.viz.command import require_display
         from xray_viz.viz.viewer import Viewer
+
+        require_display("xray_viz.show in a Jupyter notebook, or `xray-viz show SCENE --web` "
+                        "to serve the viewer to a browser")
 
         viewer = Viewer(scene, **viewer_options)
         viewer.show()

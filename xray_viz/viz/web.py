@@ -55,8 +55,10 @@ def _use_egl_if_headless() -> None:
         os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 
-#: The HTML sliders: (state name, Viewer attribute, setter, label, range from the viewer).
 def _slider_specs(viewer) -> list[tuple[str, str, float, float, float, float]]:
+    """The page's HTML sliders: (state name, label, min, max, step, value), with the ranges
+    of the viewer's own VTK sliders (a tube's kVp or a monochromatic energy; neither for a
+    fixed spectrum)."""
     fl0 = viewer.source_distance
     specs = [("source_distance", "source distance (mm)", 0.3 * fl0, 3.0 * fl0, 1.0,
               viewer.source_distance),
