@@ -338,3 +338,17 @@ def test_viewer_texts_do_not_overlap_at_any_window_size(scene, size):
         _check_layout(viewer, size)
     finally:
         viewer.close()
+
+
+def test_show_outside_a_notebook_without_a_display(monkeypatch):
+    """``xray_viz.show`` in a script on a machine without a display: one line that names the
+    notebook and ``--web`` instead of a window that never opens."""
+    import xray_viz
+    from xray_viz.errors import XrayVizError
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(XrayVizError, match=r"no display .*notebook.*--web") as exc:
+        xray_viz.show("sphere")
+    assert "\n" not in str(exc.value)
+    assert xray_viz.show.__module__ == "xray_viz.viz.notebook"
