@@ -26,9 +26,18 @@ from xray_viz.tracing import Hits, trace_rays
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name):
+    if name == "show":    # the viewer (VTK, and trame in a notebook) only when asked for
+        from xray_viz.viz.notebook import show
+
+        return show
+    raise AttributeError(f"module 'xray_viz' has no attribute {name!r}")
+
+
 __all__ = [
     "Body", "Detector", "Hits", "MaterialError", "MeshError", "OutputError", "Radiograph",
     "Rays", "Scene", "SceneError", "SceneFileNotFoundError", "Source", "SpectrumError",
     "Viewport", "XrayVizError", "detector_rays", "load_scene", "reconstruct", "render", "scan",
-    "trace_rays", "viewport",
+    "show", "trace_rays", "viewport",
 ]
