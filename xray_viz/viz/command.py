@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from xray_viz.errors import OutputError, XrayVizError
+from xray_viz.viz.display import require_display
 
 __all__ = ["add_show_parser", "show_command", "require_display", "SCREENSHOT_FORMATS",
            "MAX_RESOLUTION"]
@@ -34,28 +35,6 @@ MAX_SIZE = 8192
 #: Largest preview resolution ``--resolution`` accepts, pixels along the detector's longer side
 #: (the viewer re-renders at it on every slider move; 2048 x 2048 already takes seconds).
 MAX_RESOLUTION = 2048
-
-
-def require_display(remedy: str) -> None:
-    """Raise unless there is a display to open a window on (always true off Linux).
-
-    Without ``DISPLAY`` (or ``WAYLAND_DISPLAY``) VTK only logs "bad X server connection"
-    and shows nothing; this says so in one line instead.
-
-    Parameters
-    ----------
-    remedy : str
-        What to use instead, e.g. ``"--off-screen to write the figures as PNGs"``.
-
-    Raises
-    ------
-    XrayVizError
-        ``no display to open a window on (DISPLAY is not set); use <remedy>``.
-    """
-    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
-            and not os.environ.get("WAYLAND_DISPLAY"):
-        raise XrayVizError(f"no display to open a window on (DISPLAY is not set); use "
-                           f"{remedy}")
 
 
 def _use_egl_if_headless() -> None:

@@ -108,7 +108,7 @@ def show(scene, *, host="127.0.0.1", port=0, height=700, **viewer_options):
     if isinstance(scene, (str, bytes)) or hasattr(scene, "__fspath__"):
         scene = load_scene(scene)
     if not in_notebook():
-        from xray_viz.viz.command import require_display
+        from xray_viz.viz.display import require_display
         from xray_viz.viz.viewer import Viewer
 
         require_display("xray_viz.show in a Jupyter notebook, or `xray-viz show SCENE --web` "
