@@ -566,7 +566,7 @@ def _corrupt_vtk_files(folder: Path) -> dict[str, str]:
     for name, data in files.items():
         (folder / name).write_bytes(data)
     return {"latin1_header.vtk": "legacy VTK", "junk.vtk": "legacy VTK",
-            "truncated.vtk": "binary data", "junk.vtp": "XML", "junk.vtu": "unsupported",
+            "truncated.vtk": "binary data", "junk.vtp": "XML", "junk.vtu": "cannot read mesh",
             "bad_dataset.vtk": "DATASET"}
 
 
