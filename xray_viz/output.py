@@ -469,8 +469,8 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     taken: the pixel pitch in the format's own resolution fields and the scene's geometry
     (source, detector centre, up, shape, pitch, energy or spectrum, SID, SOD), the quantity,
     the xray_viz version and the scene file itself (:meth:`~xray_viz.scene.Scene.to_toml`;
-    left out when the scene cannot be written as a file, e.g. bodies built in Python) as
-    JSON (:func:`image_metadata`), which :func:`load_image` returns as an
+    left out when the scene cannot be written as a file: bodies built in Python or meshed from
+    a label map) as JSON (:func:`image_metadata`), which :func:`load_image` returns as an
     :class:`ImageMetadata`:
 
     * ``.tiff``/``.tif`` (tifffile): float32, the JSON in ``ImageDescription``. TIFF has no
