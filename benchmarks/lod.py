@@ -78,8 +78,8 @@ def _machine() -> str:
     except OSError:
         commit, dirty = "?", ""
     return (f"nproc {os.cpu_count()}, {cpu}, {platform.system()} {platform.machine()}; "
-            f"Python {platform.python_version()}, numpy {numpy.__version__}, numba "
-            f"{numba.__version__}, pymeshlab {getattr(pymeshlab, '__version__', '?')}; "
+            f"Python {platform.python_version()}, numpy {version('numpy')}, numba "
+            f"{version('numba')}, pymeshlab {version('pymeshlab')}; "
             f"commit {commit}{' (xray_viz modified)' if dirty else ''}; "
             f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
