@@ -28,9 +28,13 @@ def _small(name, size=96):
     return scene.replace(detector=det)
 
 
-def _check_budget(scene, budget):
+def _check_budget(scene, budget, **options):
     full = xray_viz.render(scene)
-    image = xray_viz.render(scene, max_error=budget)
+    if options:
+        reduced, report = lod.level_of_detail(scene, budget, **options)
+        image = dataclasses.replace(xray_viz.render(reduced), lod=report)
+    else:
+        image = xray_viz.render(scene, max_error=budget)
     err = float(np.abs(image.line_integral - full.line_integral).max())
     assert err <= budget, (scene.path, budget, err, image.lod)
     assert image.lod.estimated_error <= budget
@@ -50,6 +54,46 @@ def test_measured_error_within_budget_default_sample(name, budget):
 @pytest.mark.parametrize("name", phantoms.names())
 def test_measured_error_within_budget_every_phantom(name, budget):
     _check_budget(_small(name, 128), budget)
+
+
+def test_frog_within_budget_and_reduced():
+    """16 nested and overlapping bodies (up to 10 footprints on one ray): within the budget
+    with equal shares and with the leftover spent, and reduced either way; spending the
+    leftover is not coarser than the budget allows and not finer than the equal shares."""
+    scene = _small("frog", 32)
+    equal, _ = _check_budget(scene, 0.2)
+    spent, err = _check_budget(scene, 0.2, spend_leftover=True)
+    assert equal.lod.faces < equal.lod.faces_full
+    assert spent.lod.faces <= equal.lod.faces
+    assert all(b.estimated_error <= b.share for b in equal.lod.bodies)
+    assert all(b.estimated_error <= b.allowance for b in spent.lod.bodies)
+
+
+def test_traced_footprints_are_tighter_than_boxes_and_cover_the_rays():
+    """A sphere beside a box in its bounding box's corner region: the boxes overlap, the
+    footprints do not, so neither shares; every ray of the full render that meets a body lies
+    in that body's traced footprint."""
+    from xray_viz.bodies import Bodies
+    from xray_viz.scene import Body
+
+    scene = _small("sphere", 64)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
+    cube = trimesh.creation.box(extents=[8.0, 8.0, 8.0])
+    cube.apply_translation([23.0, 23.0, 0.0])          # its corner in the ball's box, not the ball
+    two = scene.replace(bodies=Bodies([Body(name="ball", mesh=ball, mu=0.02),
+                                       Body(name="cube", mesh=cube, mu=0.02)]))
+    boxes = lod._boxes(two)
+    assert boxes[0][0] < boxes[1][1] and boxes[1][0] < boxes[0][1]    # the boxes do overlap
+    assert boxes[0][2] < boxes[1][3] and boxes[1][2] < boxes[0][3]
+    foot = lod._footprints(two, boxes)
+    assert lod._sharing(foot) == [1, 1]
+    L = xray_viz.render(two, path_lengths=True).path_length      # (H, W, 2); 64 px: s = 1
+    assert foot.shape[1:] == L.shape[:2]
+    for b in range(2):
+        assert np.all(foot[b][L[..., b] > 0])
+    # a box narrower than THIN coarse pixels is taken whole
+    tiny = lod._box_mask((10, 12, 40, 41), 1, (64, 64), (64, 64))
+    assert tiny[64 - 1 - 40, 11] and tiny.sum() >= 2 * 1
 
 
 def test_a_loose_budget_is_cheaper_and_a_tighter_one_is_not_looser():
