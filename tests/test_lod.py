@@ -43,10 +43,34 @@ def _check_budget(scene, budget, **options):
     return image, err
 
 
-@pytest.mark.parametrize("budget", BUDGETS)
-@pytest.mark.parametrize("name", ["sphere", "nested_spheres", "step_wedge"])
+@pytest.mark.parametrize("name, budget", [
+    ("nested_spheres", 0.2), pytest.param("nested_spheres", 0.05, marks=pytest.mark.slow),
+    ("step_wedge", 0.05), ("step_wedge", 0.2)])
 def test_measured_error_within_budget_default_sample(name, budget):
+    # (the sphere at both budgets: test_a_loose_budget_is_cheaper...; the frog:
+    # test_frog_organs_within_budget, all 16 bodies behind slow)
     _check_budget(_small(name, 64), budget)
+
+
+def _frog_organs(names=("heart", "spleen")):
+    """Some of the frog's smaller organs (overlapping footprints; 4,000 and 1,500 faces)."""
+    from xray_viz.bodies import Bodies
+
+    scene = _small("frog", 32)
+    keep = [b for b in scene.bodies if b.name in names]
+    assert len(keep) == len(names)
+    return scene.replace(bodies=Bodies(keep, check=False))
+
+
+@pytest.mark.parametrize("spend", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_frog_organs_within_budget(spend):
+    """Overlapping bodies of unequal shares, both allocations (the equal shares alone by
+    default in test_overlapping_bodies_share_the_budget)."""
+    scene = _frog_organs()
+    image, _ = _check_budget(scene, 0.2, spend_leftover=spend)
+    assert all(b.share < 0.2 for b in image.lod.bodies)          # they do overlap
+    bound = "allowance" if spend else "share"
+    assert all(b.estimated_error <= getattr(b, bound) for b in image.lod.bodies)
 
 
 @pytest.mark.slow
@@ -56,6 +80,7 @@ def test_measured_error_within_budget_every_phantom(name, budget):
     _check_budget(_small(name, 128), budget)
 
 
+@pytest.mark.slow
 def test_frog_within_budget_and_reduced():
     """16 nested and overlapping bodies (up to 10 footprints on one ray): within the budget
     with equal shares and with the leftover spent, and reduced either way; spending the
