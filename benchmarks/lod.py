@@ -1,7 +1,7 @@
 """Error-budgeted level of detail: what ``render(scene, max_error=...)`` saves, and what the
 choice costs.
 
-For each bundled phantom, its detector rescaled to ``--size`` pixels along its longest side
+For each bundled phantom (and the sphere phantom's ball as a finer icosphere, ``--large``), its detector rescaled to ``--size`` pixels along its longest side
 (same field of view), and each budget:
 
 - ``full ms``: median render of the full-resolution scene (fast engine, per-mesh set-up done,
@@ -12,8 +12,11 @@ For each bundled phantom, its detector rescaled to ``--size`` pixels along its l
   in memory (decimations and their measurements computed); ``choice disk ms``: the same with
   the disk cache filled by that run (nothing in memory: a new process); ``choice memory ms``:
   a second choice in the same process;
-- ``render(max_error) ms``: the whole ``render(scene, max_error=...)`` call of a new scene of the
-  same bodies with the decimations in memory (what each view of an orbit pays);
+- ``render(max_error) ms``: the choice and the render of a new scene of the same bodies with the
+  decimations in memory (what each view of an orbit pays; ``render(scene, max_error=...)``
+  with equal shares);
+- ``shares``: equal (``max_error / k``, what ``render(scene, max_error=...)`` does) or the
+  leftover spent (``level_of_detail(..., spend_leftover=True)``), for scenes of several bodies;
 - faces before and after, the measured largest change of a pixel's line integral against the
   full render (same rays) and the estimate.
 
@@ -92,6 +95,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=512)
     p.add_argument("--budgets", type=float, nargs="+", default=[0.05, 0.2])
     p.add_argument("--phantoms", nargs="+", default=None)
+    p.add_argument("--large", type=int, default=7, metavar="SUBDIVISIONS",
+                   help="also the sphere phantom's ball as an icosphere of this subdivision "
+                        "(7: 327,680 faces; 0: not)")
     args = p.parse_args(argv)
 
     root = Path(tempfile.mkdtemp(prefix="xray-viz-lod-bench-"))
@@ -101,33 +107,48 @@ def main(argv=None) -> int:
     import xray_viz
     from xray_viz import lod, phantoms
 
-    names = args.phantoms or phantoms.names()
+    names = list(args.phantoms or phantoms.names())
+    if args.large:
+        names.append("large")
     print(f"machine: {_machine()}")
     print(f"command: {' '.join([Path(sys.executable).name, *sys.argv])}")
     print()
-    print("| phantom | detector | budget | faces full | faces | full ms | reduced ms | "
+    print("| phantom | detector | budget | shares | faces full | faces | full ms | reduced ms | "
           "reduced / full | choice cold s | choice disk ms | choice memory ms | "
           "render(max_error) ms | measured error | estimated |")
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     try:
         for name in names:
-            scene = _scaled(xray_viz.load_scene(name), args.size)
+            if name == "large":
+                import trimesh
+
+                from xray_viz.bodies import Bodies
+
+                base = xray_viz.load_scene("sphere")
+                ball = trimesh.creation.icosphere(subdivisions=args.large, radius=40.0)
+                scene = _scaled(base.replace(bodies=Bodies(
+                    [dataclasses.replace(base.bodies[0], mesh=ball)])), args.size)
+                name = f"sphere, {len(ball.faces):,} faces"
+            else:
+                scene = _scaled(xray_viz.load_scene(name), args.size)
             w, h = scene.detector.shape
             full = xray_viz.render(scene)                      # compile, set-up
-            for budget in args.budgets:
+            modes = [False, True] if len(scene.bodies) > 1 else [False]
+            for budget, spend in ((b, m) for b in args.budgets for m in modes):
                 cache = root / "lod"
+                options = {"spend_leftover": spend}
 
                 def cold():
                     shutil.rmtree(cache, ignore_errors=True)
                     lod.forget()
-                    return lod.level_of_detail(scene, budget)
+                    return lod.level_of_detail(scene, budget, **options)
 
                 t_cold = _median_time(cold, args.cold_repeat)
-                t_disk = _median_time(lambda: lod.level_of_detail(scene, budget), args.repeat,
+                t_disk = _median_time(lambda: lod.level_of_detail(scene, budget, **options), args.repeat,
                                       before=lod.forget)
-                t_mem = _median_time(lambda: lod.level_of_detail(scene, budget), args.repeat)
-                reduced_scene, report = lod.level_of_detail(scene, budget)
-                image = xray_viz.render(scene, max_error=budget)
+                t_mem = _median_time(lambda: lod.level_of_detail(scene, budget, **options), args.repeat)
+                reduced_scene, report = lod.level_of_detail(scene, budget, **options)
+                image = xray_viz.render(reduced_scene)
                 err = float(np.abs(image.line_integral - full.line_integral).max())
                 xray_viz.render(reduced_scene)                 # set-up of the reduced meshes
 
@@ -142,10 +163,12 @@ def main(argv=None) -> int:
                                                 before=fresh(s)))
                     new = scene.replace(acquisition=scene.acquisition)
                     t_call.append(_median_time(
-                        lambda new=new: xray_viz.render(new, max_error=budget), 1,
+                        lambda new=new: xray_viz.render(
+                            lod.level_of_detail(new, budget, **options)[0]), 1,
                         before=fresh(reduced_scene)))
                 tf, tr, tc = (statistics.median(t) for t in (t_full, t_red, t_call))
-                print(f"| {name} | {w} x {h} | {budget:g} | {report.faces_full:,} | "
+                print(f"| {name} | {w} x {h} | {budget:g} | "
+                      f"{'leftover spent' if spend else 'equal'} | {report.faces_full:,} | "
                       f"{report.faces:,} | {tf * 1e3:.1f} | {tr * 1e3:.1f} | {tr / tf:.2f} | "
                       f"{t_cold:.2f} | {t_disk * 1e3:.0f} | {t_mem * 1e3:.0f} | "
                       f"{tc * 1e3:.1f} | {err:.3g} | {report.estimated_error:.3g} |",
