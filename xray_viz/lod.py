@@ -308,7 +308,8 @@ def path_length_error(mesh, reduced, *, pitch: float, report=None, keep=None) ->
         ``mesh``'s report when known (skips its check).
     keep : dict, optional
         Where ``mesh``'s own path lengths are kept between calls with the same ``mesh`` and
-        ``pitch`` (the levels of one body: the full mesh is traced once, not per level).
+        ``pitch`` (the levels of one body: the full mesh is traced once, not per level); one
+        dict per mesh (an entry made for another mesh is replaced).
 
     Returns
     -------
@@ -328,7 +329,7 @@ def path_length_error(mesh, reduced, *, pitch: float, report=None, keep=None) ->
 
     fast = ENGINES["fast"]
     views = _parallel_views(mesh, pitch)
-    key = (id(mesh), float(pitch))
+    key = float(pitch)                               # (one dict per mesh: see below)
     ref = None if keep is None else keep.get(key)
     if ref is None or ref[0] is not mesh:
         full = Bodies([Body(name="full", mesh=mesh, mu=1.0)], check=False,
@@ -605,7 +606,7 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
             log.debug("lod: body %r is outside the detector: kept as it is", bodies[b].name)
 
     last = [None] * n                                # the last level made of each body
-    keep = {}                                        # the full meshes' measuring traces
+    keeps = [{} for _ in range(n)]                   # each full mesh's measuring traces
 
     def step(b):
         """The next level of body ``b``: ``(mesh, dL, estimate)``, or None."""
@@ -613,7 +614,7 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
         if target is None:
             return None
         reduced, dl = _decimation(bodies[b].mesh, target, pitches[b], reports[b],
-                                  source=last[b], keep=keep)
+                                  source=last[b], keep=keeps[b])
         last[b] = reduced
         est = float(SAFETY * contrast[b] * dl)
         log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g (share %.4g)",
