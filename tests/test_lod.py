@@ -275,3 +275,19 @@ def test_cli_bad_max_error_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("xray-viz: error: --max-error must be")
     assert not list(tmp_path.iterdir())
+
+
+def test_footprints_kept_per_acquisition(monkeypatch):
+    """A second choice for the same bodies and acquisition does not trace the footprints
+    again (kept on the bodies); a moved source does, and its choice is still within budget."""
+    scene = _small("nested_spheres", 32)
+    first = lod.level_of_detail(scene, 0.2)[1]
+    calls = []
+    real = lod._footprints
+    monkeypatch.setattr(lod, "_footprints", lambda *a: calls.append(1) or real(*a))
+    again = lod.level_of_detail(scene.replace(acquisition=scene.acquisition), 0.2)[1]
+    assert again == first and calls == []
+    moved = scene.replace(source=dataclasses.replace(
+        scene.source, position=np.asarray(scene.source.position) + [5.0, 0.0, 0.0]))
+    _check_budget(moved, 0.2)
+    assert calls == [1]

@@ -211,14 +211,23 @@ def _code_digest() -> bytes:
     return h.digest()
 
 
-def _key(mesh, target_faces: int, pitch: float) -> str:
+def _mesh_digest(mesh) -> "hashlib._Hash":
+    """SHA-256 state of the mesh arrays and the code (:func:`_key` finishes a copy of it)."""
     h = hashlib.sha256()
-    h.update(f"xray_viz lod {FORMAT} {int(target_faces)} {float(pitch).hex()}".encode())
+    h.update(f"xray_viz lod {FORMAT}".encode())
     h.update(_code_digest())
     for a in (np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)):
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())
         h.update(memoryview(a).cast("B"))
+    return h
+
+
+def _key(mesh, target_faces: int, pitch: float, digest=None) -> str:
+    """The stored name of one level (``digest``: :func:`_mesh_digest` of ``mesh``, when known:
+    the mesh is then not hashed again for every level)."""
+    h = (_mesh_digest(mesh) if digest is None else digest).copy()
+    h.update(f" {int(target_faces)} {float(pitch).hex()}".encode())
     return h.hexdigest()
 
 
@@ -370,7 +379,8 @@ def forget() -> None:
     _MEMORY.clear()
 
 
-def _decimation(mesh, target: int, pitch: float, report, source=None, keep=None):
+def _decimation(mesh, target: int, pitch: float, report, source=None, keep=None,
+                digest=None):
     """``(reduced mesh, measured dL)`` for one level, from memory or the disk cache when it is
     there. ``source``: the previous (finer) level of the halving sequence of :func:`_levels`,
     collapsed further instead of ``mesh`` (the collapse's cost goes with the faces it starts
@@ -378,7 +388,7 @@ def _decimation(mesh, target: int, pitch: float, report, source=None, keep=None)
     ``target``); the error is measured against ``mesh``."""
     import trimesh
 
-    key = _key(mesh, target, pitch)
+    key = _key(mesh, target, pitch, digest)
     hit = _MEMORY.get(key)
     if hit is None:
         hit = _load(key)
@@ -590,7 +600,11 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
     contrast = np.array([max(mu[b], float(np.abs(mu[b] - mu[near[b]]).max()))
                          for b in range(len(bodies))])
     boxes = _boxes(scene)
-    footprints = _footprints(scene, boxes)
+    acq = scene.acquisition
+    fkey = ("lod", "footprints", acq.projection_matrix().tobytes(),
+            np.asarray(acq.source.position, np.float64).tobytes(), tuple(scene.detector.shape),
+            bool(acq.frame.parallel))
+    footprints = bodies.cached(fkey, lambda: _footprints(scene, boxes), limit=4)
     k_max = _sharing(footprints)
     reports = bodies.reports
     n = len(bodies)
@@ -607,14 +621,18 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
 
     last = [None] * n                                # the last level made of each body
     keeps = [{} for _ in range(n)]                   # each full mesh's measuring traces
+    digests = [None] * n                             # each full mesh hashed once
 
     def step(b):
         """The next level of body ``b``: ``(mesh, dL, estimate)``, or None."""
         target = next(steps[b], None)
         if target is None:
             return None
+        if digests[b] is None:
+            digests[b] = _mesh_digest(bodies[b].mesh)
         reduced, dl = _decimation(bodies[b].mesh, target, pitches[b], reports[b],
-                                  source=last[b], keep=keeps[b])
+                                  source=last[b], keep=keeps[b],
+                                  digest=digests[b])
         last[b] = reduced
         est = float(SAFETY * contrast[b] * dl)
         log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g (share %.4g)",
