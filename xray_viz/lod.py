@@ -60,7 +60,7 @@ Caching
 -------
 Decimated meshes and their measured ``dL`` are kept on disk by the SHA-256 of the mesh arrays,
 the face count, the measuring pitch and the source of :mod:`xray_viz.meshes.decimate` and of this
-module, in ``lod/`` next to the mesh reports (:mod:`xray_viz.meshes._report_cache`: the same
+module, in ``lod/`` next to the mesh reports (``xray_viz.meshes._report_cache``: the same
 ``XRAY_VIZ_CACHE_DIR``, ``off`` turns it off), so a second run pays nothing; in memory, the
 reduced :class:`~xray_viz.bodies.Bodies` are kept on the scene's bodies, so a CT orbit or a viewer
 pays the set-up once.
