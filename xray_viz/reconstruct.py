@@ -25,6 +25,14 @@ the isocentre at RTK's origin; a projection image's index ``(i, j)`` lies at
   origin ``R (origin - center)``, so the array comes back as ``(z, y, x)`` of the world;
 * units: RTK returns 1/mm (line integrals over mm); xray_viz's mu is in 1/cm (x 10).
 
+RTK's own files, for RTK's command-line tools: :func:`write_rtk_geometry` (RTK's
+``ThreeDCircularProjectionGeometry`` XML, RTK's writer) and :func:`write_rtk_projections` (the
+stack as one ``.mha`` in RTK's image convention);
+``xray-viz reconstruct scan.zarr --rtk-geometry geometry.xml --rtk-projections proj.mha``
+writes both (``-o`` is then optional), and ``rtkfdk -g geometry.xml -p . -r proj.mha -o
+volume.mha`` reconstructs the scan in RTK's frame (``--like`` an image on our grid gives our
+volume, ``tests/test_reconstruct_rtk_files.py``).
+
 ``tests/test_reconstruct.py`` proves the mapping against RTK's own analytic projections of an
 off-centre ellipsoid (``RayEllipsoidIntersectionImageFilter``) and the render of the same
 ellipsoid's mesh.
@@ -41,6 +49,8 @@ import numpy as np
 from xray_viz.errors import OutputError, XrayVizError
 
 __all__ = ["Volume", "reconstruct", "reconstruct_file", "rtk_geometry", "rtk_frame",
+           "rtk_matrices", "write_rtk_geometry", "read_rtk_geometry", "write_rtk_projections",
+           "read_line_integrals",
            "write_volume", "add_reconstruct_parser", "reconstruct_command", "METHODS"]
 
 #: Reconstruction methods: name -> (beam it needs, what it is).
@@ -229,6 +239,155 @@ def rtk_geometry(geometry):
     return out
 
 
+def _projection_image(p, geometry):
+    """The stack as RTK's projection image: rows flipped once, origin and spacing of the
+    detector in RTK's projection coordinates (mm, centred)."""
+    itk, _ = _rtk()
+    (w, h), (pu, pv) = _detector(geometry)
+    image = itk.image_from_array(np.ascontiguousarray(p[:, ::-1, :]))   # the one row flip
+    image.SetSpacing([pu, pv, 1.0])
+    image.SetOrigin([-(w - 1) / 2 * pu, -(h - 1) / 2 * pv, 0.0])
+    return image
+
+
+def rtk_matrices(rgeo) -> np.ndarray:
+    """``(n, 3, 4)`` float64: the projection matrices of an RTK geometry (RTK's ``GetMatrix``;
+    from RTK's fixed coordinates to the projection image's physical coordinates, mm).
+
+    Examples
+    --------
+    >>> from xray_viz.reconstruct import _rtk
+    >>> g = _rtk()[1].ThreeDCircularProjectionGeometry.New()
+    >>> g.AddProjection(1000.0, 1300.0, 0.0)
+    >>> rtk_matrices(g)[0].tolist()
+    [[-1300.0, 0.0, 0.0, 0.0], [0.0, -1300.0, 0.0, 0.0], [0.0, 0.0, 1.0, -1000.0]]
+    """
+    n = len(rgeo.GetGantryAngles())
+    out = np.empty((n, 3, 4))
+    for k in range(n):
+        m = rgeo.GetMatrix(k)
+        out[k] = [[m(i, j) for j in range(4)] for i in range(3)]
+    return out
+
+
+def write_rtk_geometry(geometry, path) -> Path:
+    """Write a scan's geometry as RTK's ``ThreeDCircularProjectionGeometry`` XML file (RTK's
+    own ``ThreeDCircularProjectionGeometryXMLFileWriter``), for ``rtkfdk --geometry`` and the
+    other RTK command-line tools.
+
+    The geometry is :func:`rtk_geometry`'s, in the frame :func:`rtk_frame` (RTK's y along the
+    rotation axis, its origin at the scan's ``center``); RTK's tools also need the projections
+    in RTK's image convention: :func:`write_rtk_projections`. The file is written beside the
+    target, read back with RTK's reader (same projection matrices to 1e-9 relative: the XML holds
+    15 significant digits), then renamed.
+
+    Parameters
+    ----------
+    geometry : dict
+        The scan's geometry (CT-LAYOUT.md).
+    path : str or Path
+        The ``.xml`` file.
+
+    Returns
+    -------
+    Path
+    """
+    from xray_viz.output import atomic_write, check_target
+
+    if not str(path).lower().endswith(".xml"):
+        raise OutputError(f"{path}: RTK's geometry file is XML; end the name with .xml")
+    check_target(path)
+    _, rtk = _rtk()
+    rgeo = rtk_geometry(geometry)
+    want = rtk_matrices(rgeo)
+
+    def write(tmp):
+        w = rtk.ThreeDCircularProjectionGeometryXMLFileWriter.New()
+        w.SetObject(rgeo)
+        w.SetFilename(str(tmp))
+        w.WriteFile()
+
+    def verify(tmp):
+        back = rtk_matrices(read_rtk_geometry(tmp))
+        scale = np.abs(want).max(axis=(1, 2), keepdims=True)
+        if back.shape != want.shape or not np.all(np.abs(back - want) <= 1e-9 * scale):
+            raise OutputError(f"{path}: the RTK geometry read back differs")
+
+    atomic_write(path, write, verify=verify)
+    return Path(path)
+
+
+def read_rtk_geometry(path):
+    """Read an RTK ``ThreeDCircularProjectionGeometry`` XML file (RTK's own reader).
+
+    Returns
+    -------
+    rtk.ThreeDCircularProjectionGeometry
+
+    Raises
+    ------
+    ReconstructionError
+        A missing file, or one that holds no projection (RTK's reader reads any other XML as
+        an empty geometry).
+    """
+    _, rtk = _rtk()
+    if not Path(path).is_file():
+        raise ReconstructionError(f"{path}: no such RTK geometry file")
+    reader = rtk.ThreeDCircularProjectionGeometryXMLFileReader.New()
+    reader.SetFilename(str(path))
+    try:
+        reader.GenerateOutputInformation()
+    except RuntimeError as exc:
+        said = [ln for ln in str(exc).splitlines() if ln.strip()]
+        raise ReconstructionError(f"{path}: RTK cannot read this geometry file "
+                                  f"({said[-1] if said else type(exc).__name__})") from None
+    rgeo = reader.GetOutputObject()
+    if not len(rgeo.GetGantryAngles()):
+        raise ReconstructionError(f"{path}: not an RTK geometry file (no <Projection> in a "
+                                  "<RTKThreeDCircularGeometry>)")
+    return rgeo
+
+
+def write_rtk_projections(projections, geometry, path) -> Path:
+    """Write a stack as RTK's command-line tools read projections: one 3D image (``.mha``,
+    ``.mhd``, ``.nrrd``) of ``W x H x n`` float32 line integrals, rows flipped once (RTK's row
+    index runs along ``v``, bottom to top), spacing ``(pu, pv, 1)`` and origin
+    ``(-(W-1)/2 pu, -(H-1)/2 pv, 0)`` mm: with :func:`write_rtk_geometry`'s file,
+    ``rtkfdk -g geometry.xml -p FOLDER -r NAME.mha -o volume.mha`` reconstructs the scan
+    (``tests/test_reconstruct_rtk_files.py`` runs it).
+
+    Returns
+    -------
+    Path
+    """
+    from xray_viz.output import atomic_write, check_target
+
+    name = str(path).lower()
+    if not name.endswith((".mha", ".mhd", ".nrrd")):
+        raise OutputError(f"{path}: RTK's projections are written as an ITK image; end the "
+                          "name with .mha, .mhd or .nrrd")
+    check_target(path)
+    itk, _ = _rtk()
+    p = np.asarray(projections, dtype=np.float32)
+    (w, h), _ = _detector(geometry)
+    n = len(_poses(geometry))
+    if p.shape != (n, h, w):
+        raise ReconstructionError(f"projections have shape {p.shape}; the geometry says "
+                                  f"(n, H, W) = {(n, h, w)}")
+    image = _projection_image(p, geometry)
+
+    def write(tmp):
+        itk.imwrite(image, str(tmp), compression=True)
+
+    def verify(tmp):
+        back = itk.imread(str(tmp))
+        if tuple(back.GetLargestPossibleRegion().GetSize()) != (w, h, n):
+            raise OutputError(f"{path}: the projections read back differ")
+
+    atomic_write(path, write, verify=verify)
+    return Path(path)
+
+
 def _default_grid(geometry, voxel, shape):
     """Voxel size (mm) and shape (nx, ny, nz) of the volume, and its origin in world mm."""
     (w, h), (pu, pv) = _detector(geometry)
@@ -327,9 +486,7 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     voxel, shape, origin = _default_grid(geometry, voxel, shape)
     rgeo = rtk_geometry(geometry)
 
-    image = itk.image_from_array(np.ascontiguousarray(p[:, ::-1, :]))   # the one row flip
-    image.SetSpacing([pu, pv, 1.0])
-    image.SetOrigin([-(w - 1) / 2 * pu, -(h - 1) / 2 * pv, 0.0])
+    image = _projection_image(p, geometry)
     ImageType = itk.Image[itk.F, 3]
 
     vol = rtk.ConstantImageSource[ImageType].New()
@@ -408,6 +565,15 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
     -------
     Volume
     """
+    p, geometry = read_line_integrals(path)
+    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, hann=hann)
+
+
+def read_line_integrals(path) -> tuple[np.ndarray, dict]:
+    """``(projections, geometry)`` of a scan's Zarr store: float32 line integrals (an
+    ``intensity`` stack is turned into them with its ``flat``/``dark`` fields, else the
+    physics' ``I0``) and the geometry dict (CT-LAYOUT.md).
+    """
     from xray_viz.scan import read_zarr
 
     stack = read_zarr(path)                  # one line for a missing or unfinished store
@@ -427,7 +593,7 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
     elif quantity not in ("line-integral", "line_integral"):
         raise ReconstructionError(f"{path}: quantity {quantity!r} cannot be reconstructed; "
                                   "expected 'line-integral' or 'intensity'")
-    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, hann=hann)
+    return p, geometry
 
 
 def write_volume(volume: Volume, path) -> Path:
@@ -498,8 +664,9 @@ def add_reconstruct_parser(subparsers) -> None:
                     "axes) is written by OUT's suffix: "
                     + "; ".join(f"{k} = {v}" for k, v in VOLUME_FORMATS.items()) + ".")
     p.add_argument("store", metavar="SCAN", help="the scan's .zarr store")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="the volume: .nii.gz, .nii, .mha or .nrrd")
+    p.add_argument("-o", "--output", default=None, metavar="OUT",
+                   help="the volume: .nii.gz, .nii, .mha or .nrrd (optional with --rtk-geometry "
+                        "or --rtk-projections: then only those files are written)")
     p.add_argument("--voxel", type=float, default=None, metavar="MM",
                    help="voxel size in mm (default: the detector pitch at the rotation axis)")
     p.add_argument("--shape", type=int, nargs=3, default=None, metavar=("X", "Y", "Z"),
@@ -508,15 +675,35 @@ def add_reconstruct_parser(subparsers) -> None:
                    help="fdk (cone beam) or fbp (parallel beam); default: by the scan's beam")
     p.add_argument("--hann", type=float, default=0.0, metavar="F",
                    help="Hann window cut frequency in ]0, 1] against noise (default 0: none)")
+    p.add_argument("--rtk-geometry", default=None, metavar="XML",
+                   help="also write the scan's geometry as RTK's "
+                        "ThreeDCircularProjectionGeometry XML file (rtkfdk --geometry XML)")
+    p.add_argument("--rtk-projections", default=None, metavar="MHA",
+                   help="also write the projections as RTK's tools read them (.mha/.mhd/.nrrd: "
+                        "rows flipped, centred origin): rtkfdk -g XML -p DIR -r NAME.mha")
     p.set_defaults(func=reconstruct_command)
 
 
 def reconstruct_command(args) -> int:
     """``xray-viz reconstruct``: read, reconstruct, write (nothing is written on bad input)."""
-    _suffix(args.output)                      # bad output names fail before the work
     from xray_viz.output import check_target
 
-    check_target(args.output)
+    if not (args.output or args.rtk_geometry or args.rtk_projections):
+        raise ReconstructionError("nothing to write: give -o VOLUME (.nii.gz, .nii, .mha, "
+                                  ".nrrd), --rtk-geometry FILE.xml or --rtk-projections FILE.mha")
+    if args.output:
+        _suffix(args.output)                  # bad output names fail before the work
+        check_target(args.output)
+    if args.rtk_geometry and not args.rtk_geometry.lower().endswith(".xml"):
+        raise OutputError(f"{args.rtk_geometry}: RTK's geometry file is XML; end the name "
+                          "with .xml")
+    if args.rtk_projections and not args.rtk_projections.lower().endswith(
+            (".mha", ".mhd", ".nrrd")):
+        raise OutputError(f"{args.rtk_projections}: RTK's projections are an ITK image; end "
+                          "the name with .mha, .mhd or .nrrd")
+    for extra in (args.rtk_geometry, args.rtk_projections):
+        if extra:
+            check_target(extra)
     method = args.method
     if method is None:
         method = "fdk"
@@ -527,9 +714,22 @@ def reconstruct_command(args) -> int:
             method = "fbp" if g.get("beam") == "parallel" else "fdk"
         except Exception:                     # reconstruct_file reports what is wrong
             pass
-    volume = reconstruct_file(args.store, voxel=args.voxel,
-                              shape=tuple(args.shape) if args.shape else None,
-                              method=method, hann=args.hann)
+    projections, geometry = read_line_integrals(args.store)
+    volume = None
+    if args.output:                    # the work first: nothing is written if it fails
+        volume = reconstruct(projections, geometry, voxel=args.voxel,
+                             shape=tuple(args.shape) if args.shape else None,
+                             method=method, hann=args.hann)
+    else:
+        rtk_geometry(geometry)         # refuses a geometry RTK cannot hold before writing
+    if args.rtk_geometry:
+        print(f"{write_rtk_geometry(geometry, args.rtk_geometry)}: RTK geometry, "
+              f"{len(geometry['poses'])} projections")
+    if args.rtk_projections:
+        print(f"{write_rtk_projections(projections, geometry, args.rtk_projections)}: RTK "
+              "projections (line integrals)")
+    if volume is None:
+        return 0
     out = write_volume(volume, args.output)
     nz, ny, nx = volume.mu.shape
     print(f"{out}: {nx} x {ny} x {nz} voxels of {', '.join(f'{s:g}' for s in volume.spacing)} "
