@@ -48,7 +48,7 @@ import numpy as np
 
 from xray_viz.errors import OutputError, XrayVizError
 
-__all__ = ["Volume", "reconstruct", "reconstruct_file", "rtk_geometry", "rtk_frame",
+__all__ = ["Volume", "reconstruct", "ITERATIVE", "reconstruct_file", "rtk_geometry", "rtk_frame",
            "rtk_matrices", "write_rtk_geometry", "read_rtk_geometry", "write_rtk_projections",
            "read_line_integrals",
            "write_volume", "add_reconstruct_parser", "reconstruct_command", "METHODS"]
@@ -59,14 +59,24 @@ METHODS = {
     "fbp": ("parallel", "filtered back-projection (RTK's FDK with a parallel geometry)"),
 }
 
+#: Iterative methods (RTK, CPU, any beam and orbit RTK's geometry holds): name ->
+#: (default iterations, what it is).
+ITERATIVE = {
+    "sart": (10, "SART (RTK's SARTConeBeamReconstructionFilter): one projection per update, "
+                 "relaxation 0.3, mu >= 0 enforced"),
+    "cg": (20, "conjugate gradient on the unweighted least-squares problem (RTK's "
+               "ConjugateGradientConeBeamReconstructionFilter)"),
+}
+METHODS.update({k: ("any", v[1]) for k, v in ITERATIVE.items()})
+METHODS["mbirjax"] = ("cone", "MBIR (mbirjax, JAX on the CPU; the ct-mbir extra): circular or "
+                              "helical cone beam, untilted flat detector")
+
 #: Other back-ends users ask for, and why they are refused here (one line each).
 REFUSED_BACKENDS = {
     "astra": "ASTRA's PyPI/conda builds have no 3D CPU path (a 3D call without CUDA kills the "
              "process); use method='fdk' (RTK, CPU), or ASTRA itself on a CUDA machine",
     "tigre": "TIGRE needs CUDA (pip install git+https://github.com/CERN/TIGRE on a machine with "
              "an NVIDIA GPU and the CUDA toolkit); use method='fdk' (RTK, CPU)",
-    "mbirjax": "the helical back-end (mbirjax) is not implemented yet (issue 14); circular "
-               "orbits reconstruct with method='fdk'",
 }
 
 
@@ -418,8 +428,10 @@ def _default_grid(geometry, voxel, shape):
 
 
 def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = "fdk",
-                hann: float = 0.0) -> Volume:
-    """Reconstruct a projection stack with RTK: FDK (circular cone beam) or FBP (parallel).
+                hann: float = 0.0, iterations: int | None = None,
+                relaxation: float | None = None) -> Volume:
+    """Reconstruct a projection stack with RTK: FDK (circular cone beam), FBP (parallel), or
+    an iterative method (SART, conjugate gradient) for few-view and helical scans.
 
     Parameters
     ----------
@@ -432,11 +444,19 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
         Voxel size in mm; default the detector pitch at the isocentre.
     shape : (3,) int, optional
         ``(nx, ny, nz)`` voxels; default the detector's field of view at the isocentre.
-    method : {"fdk", "fbp"}
-        ``"fdk"`` for a cone beam, ``"fbp"`` for a parallel beam. ``"astra"``, ``"tigre"``
-        and ``"mbirjax"`` are refused with the reason.
+    method : {"fdk", "fbp", "sart", "cg"}
+        ``"fdk"`` for a cone beam, ``"fbp"`` for a parallel beam; the iterative ones
+        (:data:`ITERATIVE`; RTK's Joseph projectors, either beam) fit few-view scans better
+        than FDK (BENCHMARKS.md, "CT reconstruction"), at ``iterations`` times a forward and
+        a back projection. ``"astra"`` and ``"tigre"`` are refused with the reason.
     hann : float
-        RTK's Hann cut frequency in ]0, 1] (0: the plain ramp filter).
+        RTK's Hann cut frequency in ]0, 1] (0: the plain ramp filter); FDK/FBP only.
+    iterations : int, optional
+        Iterative methods: SART passes over all projections, CG steps (default:
+        :data:`ITERATIVE`'s). Unregularised CG fits noise and few-view gaps as it goes on
+        (semi-convergence): keep it short.
+    relaxation : float, optional
+        SART's relaxation ``lambda`` (default 0.3).
 
     Returns
     -------
@@ -464,14 +484,16 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     beam = geometry.get("beam", "cone")
     if beam not in ("cone", "parallel"):
         raise ReconstructionError(f"geometry beam {beam!r}: expected 'cone' or 'parallel'")
-    if METHODS[method][0] != beam:
+    if METHODS[method][0] not in (beam, "any"):
         other = "fdk" if beam == "cone" else "fbp"
         raise ReconstructionError(f"method {method!r} is for a {METHODS[method][0]} beam; this "
                                   f"scan is {beam} beam: use method={other!r}")
     orbit = geometry.get("orbit", "circular")
-    if orbit == "helical" or float(geometry.get("pitch_mm_per_turn", 0.0) or 0.0) != 0.0:
-        raise ReconstructionError(REFUSED_BACKENDS["mbirjax"].replace(
-            "the helical", "a helical orbit needs the helical"))
+    helical = orbit == "helical" or float(geometry.get("pitch_mm_per_turn", 0.0) or 0.0) != 0.0
+    if helical and method not in ITERATIVE and method != "mbirjax":
+        raise ReconstructionError(f"method {method!r} (filtered back-projection) is for a "
+                                  "circular orbit; a helical orbit reconstructs with an "
+                                  "iterative method: method='sart', 'cg' or 'mbirjax'")
     p = np.asarray(projections, dtype=np.float32)
     (w, h), (pu, pv) = _detector(geometry)
     n = len(_poses(geometry))
@@ -481,6 +503,11 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     if not np.all(np.isfinite(p)):
         raise ReconstructionError("projections hold non-finite values (NaN or inf); "
                                   "reconstruct line integrals of a finished scan")
+    if method == "mbirjax":                  # no RTK needed
+        voxel, shape, origin = _default_grid(geometry, voxel, shape)
+        mu = _mbirjax(p, geometry, voxel, shape, origin, iterations or 15)
+        return Volume(mu=(mu * 10.0).astype(np.float32), origin=origin, spacing=voxel,
+                      direction=np.eye(3), method=method)
     itk, rtk = _rtk()
     R, center = rtk_frame(geometry)
     voxel, shape, origin = _default_grid(geometry, voxel, shape)
@@ -496,6 +523,12 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     direction = itk.Matrix[itk.D, 3, 3](itk.GetVnlMatrixFromArray(np.ascontiguousarray(R)))
     vol.SetDirection(direction)
     vol.SetConstant(0.0)
+
+    if method in ITERATIVE:
+        out = _iterative(method, vol.GetOutput(), image, rgeo, iterations=iterations,
+                         relaxation=relaxation)
+        mu = itk.array_from_image(out).astype(np.float32) * np.float32(10.0)    # 1/cm
+        return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
 
     weighted = image
     if beam == "cone":
@@ -513,16 +546,165 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     fdk.SetGeometry(rgeo)
     fdk.GetRampFilter().SetTruncationCorrection(0.0)
     fdk.GetRampFilter().SetHannCutFrequency(float(hann))
-    try:
-        fdk.Update()
-    except RuntimeError as exc:          # RTK refuses a geometry it cannot handle
-        said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
-        text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
-        raise ReconstructionError(
-            f"RTK cannot reconstruct this scan ({text}): the orbit's axis must cross the beam "
-            "(a source turning about the beam axis sees the same view every time)") from None
+    _update(fdk)
     mu = itk.array_from_image(fdk.GetOutput()).astype(np.float32) * np.float32(10.0)  # 1/cm
     return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
+
+
+def mbirjax_geometry(geometry) -> dict:
+    """The scan's geometry as mbirjax's ``ConeBeamModel`` wants it (cone beam, flat detector,
+    circular or helical orbit about ``axis``; ALU = mm).
+
+    mbirjax's object frame: its z along the rotation ``axis`` through ``center``; its y
+    (``e_y``) is :func:`rtk_frame`'s z, its x ``e_y x axis``. At view angle ``theta`` the
+    source is at ``SID (sin theta e_x + cos theta e_y) + shift axis`` (mbirjax turns the object
+    by ``theta``, source fixed on +y; ``helical_z_shifts`` move it along z) and the detector's
+    channels run along ``cos theta e_x - sin theta e_y``, its rows along +z. Each pose is
+    decomposed so; the detector must be untilted (its ``u``/``v`` those directions up to sign:
+    a reversed one is a flipped image axis) and SID/SDD the same for every view.
+
+    Returns
+    -------
+    dict
+        ``angles`` (rad), ``helical_z_shifts`` (mm), ``source_iso_dist``,
+        ``source_detector_dist``, ``det_channel_offset``, ``det_row_offset`` (mm),
+        ``flip_rows``, ``flip_channels`` (bool), ``frame`` ((3, 3): rows e_x, e_y, axis).
+    """
+    R, center = rtk_frame(geometry)
+    a, ey = R[1], R[2]
+    ex = np.cross(ey, a)
+    (w, h), (pu, pv) = _detector(geometry)
+    out = {k: [] for k in ("angles", "helical_z_shifts", "sid", "sdd", "oc", "or", "su", "sv")}
+    for k, p in enumerate(_poses(geometry)):
+        s = p["source"] - center
+        theta = math.atan2(s @ ex, s @ ey)
+        radial = math.sin(theta) * ex + math.cos(theta) * ey
+        chan = math.cos(theta) * ex - math.sin(theta) * ey
+        su, sv = float(p["u"] @ chan), float(p["v"] @ a)
+        if abs(abs(su) - 1) > 1e-6 or abs(abs(sv) - 1) > 1e-6 or abs(s @ chan) > 1e-6 * (
+                1 + np.linalg.norm(s)):
+            raise ReconstructionError(
+                f"geometry poses[{k}]: mbirjax needs the source on a circle about the axis and "
+                "an untilted detector (u across the axis, v along it); use method='sart' or "
+                "'cg' (RTK) for this orbit")
+        d = p["detector_center"] - center
+        sid = float(s @ radial)
+        sdd = float((s - d) @ radial)
+        # where the central ray (source -> axis) meets the detector, in detector mm from its
+        # centre along mbirjax's (channel, row) directions
+        out["oc"].append(-float((d - (s - sdd * radial)) @ chan))
+        out["or"].append(-float((d - (s - sdd * radial)) @ a))
+        out["angles"].append(theta)
+        out["helical_z_shifts"].append(float(s @ a))
+        for key, val in (("sid", sid), ("sdd", sdd), ("su", su), ("sv", sv)):
+            out[key].append(val)
+    for key in ("sid", "sdd", "oc", "or", "su", "sv"):
+        v = np.asarray(out[key])
+        if np.ptp(v) > 1e-6 * max(1.0, np.abs(v).max()):
+            raise ReconstructionError(f"geometry: mbirjax needs one {key} for every view "
+                                      f"(got {v.min():g} .. {v.max():g}); use method='sart' "
+                                      "or 'cg' (RTK) for this orbit")
+    return {"angles": np.unwrap(out["angles"]), "helical_z_shifts": np.asarray(
+                out["helical_z_shifts"]),
+            "source_iso_dist": out["sid"][0], "source_detector_dist": out["sdd"][0],
+            "det_channel_offset": out["oc"][0], "det_row_offset": out["or"][0],
+            "flip_channels": out["su"][0] < 0, "flip_rows": out["sv"][0] > 0,
+            "frame": np.array([ex, ey, a])}
+
+
+def _mbirjax(p, geometry, voxel, shape, origin, iterations):
+    """mbirjax's MBIR reconstruction (:func:`mbirjax_geometry`), resampled (trilinear) onto
+    the world grid ``origin + index * voxel``: ``mu[z, y, x]`` in 1/mm."""
+    try:
+        import warnings
+
+        import matplotlib
+
+        backend = matplotlib.get_backend()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import mbirjax as mj               # its viewer switches matplotlib to TkAgg
+        if matplotlib.get_backend() != backend:
+            matplotlib.use(backend)
+    except ImportError as exc:
+        raise ReconstructionError(f"method 'mbirjax' needs mbirjax, which is not installed "
+                                  f"({exc}); pip install 'xray_viz[ct-mbir]'") from None
+    from scipy.ndimage import map_coordinates
+
+    g = mbirjax_geometry(geometry)
+    (w, h), (pu, pv) = _detector(geometry)
+    sino = p[:, ::-1, :] if g["flip_rows"] else p
+    sino = sino[:, :, ::-1] if g["flip_channels"] else sino
+    delta = float(np.min(voxel))
+    F, center = g["frame"], np.asarray(geometry.get("center", (0, 0, 0)), np.float64)
+    # the world grid's corners in mbirjax's frame: its box, centred on the axis
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    pts = origin + (corners * (shape - 1)) * voxel - center
+    half = np.abs(pts @ F.T).max(axis=0)
+    n = (np.ceil(2 * half / delta).astype(int) + 3) | 1     # odd: a voxel on the axis
+    model = mj.ConeBeamModel(sino.shape, g["angles"],
+                             source_detector_dist=g["source_detector_dist"],
+                             source_iso_dist=g["source_iso_dist"],
+                             helical_z_shifts=g["helical_z_shifts"])
+    model.set_params(delta_det_channel=pu, delta_det_row=pv,
+                     det_channel_offset=g["det_channel_offset"],
+                     det_row_offset=g["det_row_offset"], delta_voxel=delta,
+                     recon_shape=(int(n[1]), int(n[0]), int(n[2])), verbose=0)
+    import io
+    from contextlib import redirect_stdout
+
+    np.random.seed(0)                          # mbirjax draws its partitions from NumPy's RNG
+    with redirect_stdout(io.StringIO()):
+        recon, _ = model.recon(np.ascontiguousarray(sino, dtype=np.float32),
+                               max_iterations=int(iterations), logfile_path=None,
+                               print_logs=False)
+    recon = np.asarray(recon, np.float64)       # (rows: e_y, cols: e_x, slices: axis)
+    # world voxel centres -> mbirjax (row, col, slice) indices
+    zz, yy, xx = np.meshgrid(*(origin[i] + voxel[i] * np.arange(shape[i]) for i in (2, 1, 0)),
+                             indexing="ij")
+    q = np.stack([xx, yy, zz], -1) - center
+    fx, fy, fz = (q @ F[i] for i in range(3))
+    idx = [fy / delta + (n[1] - 1) / 2, fx / delta + (n[0] - 1) / 2, fz / delta + (n[2] - 1) / 2]
+    return map_coordinates(recon, idx, order=1, mode="constant", cval=0.0)
+
+
+def _update(f, hint=": the orbit's axis must cross the beam (a source turning about the beam "
+                    "axis sees the same view every time)"):
+    """``f.Update()``; RTK's refusal of a geometry it cannot handle is one line."""
+    try:
+        f.Update()
+    except RuntimeError as exc:
+        said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
+        text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
+        raise ReconstructionError(f"RTK cannot reconstruct this scan ({text}){hint}") from None
+
+
+def _iterative(method, volume, image, rgeo, *, iterations, relaxation):
+    """RTK's iterative reconstruction (Joseph forward and back projectors, CPU) of ``image``
+    (RTK's projections) onto the grid of ``volume`` (a zero image): the output image, 1/mm."""
+    itk, rtk = _rtk()
+    ImageType = itk.Image[itk.F, 3]
+    n_iter = int(iterations if iterations is not None else ITERATIVE[method][0])
+    if n_iter < 1:
+        raise ReconstructionError(f"iterations must be a whole number >= 1, got {iterations!r}")
+    if method == "sart":
+        f = rtk.SARTConeBeamReconstructionFilter[ImageType, ImageType].New()
+        f.SetLambda(float(relaxation if relaxation is not None else 0.3))
+        f.SetEnforcePositivity(True)
+        f.SetNumberOfProjectionsPerSubset(1)            # SART: one projection per update
+    elif method == "cg":
+        f = rtk.ConjugateGradientConeBeamReconstructionFilter[ImageType].New()
+        ones = rtk.ConstantImageSource[ImageType].New()  # unweighted least squares
+        ones.SetInformationFromImage(image)
+        ones.SetConstant(1.0)
+        ones.Update()
+        f.SetInput(2, ones.GetOutput())
+    f.SetNumberOfIterations(n_iter)
+    f.SetInput(0, volume)
+    f.SetInput(1, image)
+    f.SetGeometry(rgeo)
+    _update(f)
+    return f.GetOutput()
 
 
 # --------------------------------------------------------------------------------------------
@@ -546,7 +728,7 @@ def _suffix(path) -> str:
 
 
 def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
-                     hann: float = 0.0) -> Volume:
+                     **options) -> Volume:
     """Reconstruct the Zarr store of a scan (CT-LAYOUT.md; :func:`xray_viz.scan`).
 
     Reads ``projections`` and the group attribute ``xray_viz`` (``quantity``, ``geometry``);
@@ -558,15 +740,15 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
     ----------
     path : str or Path
         The ``.zarr`` folder.
-    voxel, shape, method, hann
-        As for :func:`reconstruct`.
+    voxel, shape, method, **options
+        As for :func:`reconstruct` (``hann``, ``iterations``, ``relaxation``).
 
     Returns
     -------
     Volume
     """
     p, geometry = read_line_integrals(path)
-    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, hann=hann)
+    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, **options)
 
 
 def read_line_integrals(path) -> tuple[np.ndarray, dict]:
@@ -657,7 +839,8 @@ def write_volume(volume: Volume, path) -> Path:
 def add_reconstruct_parser(subparsers) -> None:
     """Register ``xray-viz reconstruct`` on the CLI's sub-parsers."""
     p = subparsers.add_parser(
-        "reconstruct", help="reconstruct a scan (Zarr store) into a volume (FDK/FBP with RTK)",
+        "reconstruct", help="reconstruct a scan (Zarr store) into a volume (RTK: FDK/FBP, SART, "
+                            "CG)",
         description="Reconstruct the projection stack of `xray-viz scan` (a Zarr store) with "
                     "RTK on the CPU: FDK for a circular cone-beam orbit, FBP for a parallel "
                     "beam. The volume (mu in 1/cm, float32, on a grid along the scene's x, y, z "
@@ -672,9 +855,13 @@ def add_reconstruct_parser(subparsers) -> None:
     p.add_argument("--shape", type=int, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="voxels along x, y, z (default: the detector's field of view)")
     p.add_argument("--method", default=None, choices=sorted(METHODS),
-                   help="fdk (cone beam) or fbp (parallel beam); default: by the scan's beam")
+                   help="fdk (cone beam) or fbp (parallel beam), or iterative: sart, cg "
+                        "(few-view or helical scans); default: fdk/fbp by the scan's beam")
     p.add_argument("--hann", type=float, default=0.0, metavar="F",
                    help="Hann window cut frequency in ]0, 1] against noise (default 0: none)")
+    p.add_argument("--iterations", type=int, default=None, metavar="N",
+                   help="iterative methods (sart, cg): passes / steps (default "
+                        + ", ".join(f"{k} {v[0]}" for k, v in ITERATIVE.items()) + ")")
     p.add_argument("--rtk-geometry", default=None, metavar="XML",
                    help="also write the scan's geometry as RTK's "
                         "ThreeDCircularProjectionGeometry XML file (rtkfdk --geometry XML)")
@@ -719,7 +906,7 @@ def reconstruct_command(args) -> int:
     if args.output:                    # the work first: nothing is written if it fails
         volume = reconstruct(projections, geometry, voxel=args.voxel,
                              shape=tuple(args.shape) if args.shape else None,
-                             method=method, hann=args.hann)
+                             method=method, hann=args.hann, iterations=args.iterations)
     else:
         rtk_geometry(geometry)         # refuses a geometry RTK cannot hold before writing
     if args.rtk_geometry:
