@@ -74,7 +74,7 @@ def test_mbirjax_geometry_refuses_what_it_cannot_hold():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("pitch", [0.0])
+@pytest.mark.parametrize("pitch", [0.0, 40.0])
 def test_mbirjax_puts_the_object_where_it_is(pitch):
     """A circular and a helical (2 turns, 40 mm per turn) scan of the off-centre ellipsoid:
     mbirjax's MBIR, resampled onto the world grid, has mean mu inside within 3 % and the

@@ -1,5 +1,10 @@
 """Reconstruction of a projection stack (issue 14): FDK (circular cone beam) and FBP (parallel
-beam) through RTK (``itk-rtk``, the ``ct`` extra), on the CPU.
+beam) through RTK (``itk-rtk``, the ``ct`` extra), on the CPU; RTK's iterative SART and
+conjugate gradient (few-view scans; also helical orbits, which RTK's circular geometry holds as
+per-view source and detector offsets along the axis); mbirjax's MBIR (``method="mbirjax"``,
+the ``ct-mbir`` extra: JAX on the CPU, circular and helical cone beam, see
+:func:`mbirjax_geometry`). ASTRA (no 3D CPU path: a 3D call without CUDA kills the process)
+and TIGRE (CUDA only) are refused in one line without being imported.
 
 The stack and its geometry are those of :func:`xray_viz.scan` (the layout of CT-LAYOUT.md):
 ``projections`` ``(n, H, W)`` line integrals (``-ln(I/I0)``, dimensionless), row 0 at the top of
@@ -649,7 +654,8 @@ def _mbirjax(p, geometry, voxel, shape, origin, iterations):
     model.set_params(delta_det_channel=pu, delta_det_row=pv,
                      det_channel_offset=g["det_channel_offset"],
                      det_row_offset=g["det_row_offset"], delta_voxel=delta,
-                     recon_shape=(int(n[1]), int(n[0]), int(n[2])), verbose=0)
+                     recon_shape=(int(n[1]), int(n[0]), int(n[2])), verbose=0,
+                     recon_slice_offset=0.0)   # mbirjax centres a helix's recon on its travel
     import io
     from contextlib import redirect_stdout
 
@@ -843,8 +849,11 @@ def add_reconstruct_parser(subparsers) -> None:
                             "CG)",
         description="Reconstruct the projection stack of `xray-viz scan` (a Zarr store) with "
                     "RTK on the CPU: FDK for a circular cone-beam orbit, FBP for a parallel "
-                    "beam. The volume (mu in 1/cm, float32, on a grid along the scene's x, y, z "
-                    "axes) is written by OUT's suffix: "
+                    "beam, SART or conjugate gradient (--method sart|cg --iterations N) for "
+                    "few-view or helical scans; or mbirjax (--method mbirjax, the ct-mbir "
+                    "extra). --rtk-geometry/--rtk-projections write RTK's own files for its "
+                    "command-line tools (rtkfdk -g XML -p DIR -r NAME.mha). The volume (mu "
+                    "in 1/cm, float32, on a grid along the scene's x, y, z axes) is written by OUT's suffix: "
                     + "; ".join(f"{k} = {v}" for k, v in VOLUME_FORMATS.items()) + ".")
     p.add_argument("store", metavar="SCAN", help="the scan's .zarr store")
     p.add_argument("-o", "--output", default=None, metavar="OUT",
@@ -856,12 +865,14 @@ def add_reconstruct_parser(subparsers) -> None:
                    help="voxels along x, y, z (default: the detector's field of view)")
     p.add_argument("--method", default=None, choices=sorted(METHODS),
                    help="fdk (cone beam) or fbp (parallel beam), or iterative: sart, cg "
-                        "(few-view or helical scans); default: fdk/fbp by the scan's beam")
+                        "(RTK), mbirjax (MBIR, cone beam; few-view or helical scans); default: "
+                        "fdk/fbp by the scan's beam")
     p.add_argument("--hann", type=float, default=0.0, metavar="F",
                    help="Hann window cut frequency in ]0, 1] against noise (default 0: none)")
     p.add_argument("--iterations", type=int, default=None, metavar="N",
-                   help="iterative methods (sart, cg): passes / steps (default "
-                        + ", ".join(f"{k} {v[0]}" for k, v in ITERATIVE.items()) + ")")
+                   help="iterative methods: passes / steps (default "
+                        + ", ".join(f"{k} {v[0]}" for k, v in ITERATIVE.items())
+                        + ", mbirjax 15)")
     p.add_argument("--rtk-geometry", default=None, metavar="XML",
                    help="also write the scan's geometry as RTK's "
                         "ThreeDCircularProjectionGeometry XML file (rtkfdk --geometry XML)")
