@@ -71,6 +71,8 @@ def test_mbirjax_geometry_refuses_what_it_cannot_hold():
              for k, p in enumerate(geo["poses"])]
     with pytest.raises(ReconstructionError, match="one sid for every view"):
         mbirjax_geometry(dict(geo, poses=moved))
+    with pytest.raises(ReconstructionError, match="iterations must be a whole number >= 1"):
+        reconstruct(np.zeros((24, 24, 40), np.float32), geo, method="mbirjax", iterations=0)
 
 
 @pytest.mark.slow

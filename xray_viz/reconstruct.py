@@ -499,6 +499,8 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
         raise ReconstructionError(f"method {method!r} (filtered back-projection) is for a "
                                   "circular orbit; a helical orbit reconstructs with an "
                                   "iterative method: method='sart', 'cg' or 'mbirjax'")
+    if iterations is not None and not (float(iterations) == int(iterations) >= 1):
+        raise ReconstructionError(f"iterations must be a whole number >= 1, got {iterations!r}")
     p = np.asarray(projections, dtype=np.float32)
     (w, h), (pu, pv) = _detector(geometry)
     n = len(_poses(geometry))
@@ -510,7 +512,7 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
                                   "reconstruct line integrals of a finished scan")
     if method == "mbirjax":                  # no RTK needed
         voxel, shape, origin = _default_grid(geometry, voxel, shape)
-        mu = _mbirjax(p, geometry, voxel, shape, origin, iterations or 15)
+        mu = _mbirjax(p, geometry, voxel, shape, origin, 15 if iterations is None else iterations)
         return Volume(mu=(mu * 10.0).astype(np.float32), origin=origin, spacing=voxel,
                       direction=np.eye(3), method=method)
     itk, rtk = _rtk()
@@ -691,8 +693,6 @@ def _iterative(method, volume, image, rgeo, *, iterations, relaxation):
     itk, rtk = _rtk()
     ImageType = itk.Image[itk.F, 3]
     n_iter = int(iterations if iterations is not None else ITERATIVE[method][0])
-    if n_iter < 1:
-        raise ReconstructionError(f"iterations must be a whole number >= 1, got {iterations!r}")
     if method == "sart":
         f = rtk.SARTConeBeamReconstructionFilter[ImageType, ImageType].New()
         f.SetLambda(float(relaxation if relaxation is not None else 0.3))
