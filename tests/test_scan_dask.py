@@ -31,7 +31,8 @@ def _free_port() -> int:
 
 
 def _worker(address, tmp_path, k):
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    env.pop("NUMBA_NUM_THREADS", None)      # the scan itself must give each task one thread
     return subprocess.Popen(
         [str(BIN / "dask"), "worker", address, "--nthreads", "1", "--nworkers", "1",
          "--host", "127.0.0.1", "--no-dashboard", "--no-nanny",
@@ -85,6 +86,33 @@ def test_dask_scan_equals_the_serial_scan(cluster, tmp_path):
     loaded = client.run(lambda dask_worker: len(
         dask_worker.plugins["xray_viz-scenes"].scenes))
     assert max(loaded.values()) == 1 and set(loaded.values()) <= {0, 1}
+    # each worker warmed every fast-engine kernel when it started, on its task thread, and its
+    # tasks run numba on one thread (not the machine's cores)
+    from xray_viz.tracing import _raster
+
+    warm = client.run(lambda dask_worker: dask_worker.plugins["xray_viz-scenes"].warm.result(
+        timeout=120))
+    assert len(warm) == 2
+    for state in warm.values():
+        assert state["kernels"] == _raster.compile_kernels() and state["numba_threads"] == 1
+    threads = [client.submit(lambda: __import__("numba").get_num_threads(), workers=[w],
+                             pure=False).result() for w in warm]
+    assert threads == [1, 1]
+
+
+def test_dask_random_dataset_equals_the_serial_scan(cluster, tmp_path):
+    """Random poses drawn on the workers from (seed, k): the same stack as in this process."""
+    from xray_viz.orbit import orbit_from_dict
+
+    client, _ = cluster
+    scene = _scene(tmp_path, shape=(24, 24))
+    orbit = orbit_from_dict({"axis": [0.0, 1.0, 0.0], "poses": {
+        "random": 7, "seed": 7, "tilt": [-20.0, 20.0], "sod": [900.0, 1100.0],
+        "sid": [1400.0, 1600.0], "shift": [10.0, 10.0, 10.0]}})
+    serial = xray_viz.scan(scene, orbit)
+    got = xray_viz.scan(scene, orbit, client=client, store=tmp_path / "r.zarr", batch=2)
+    assert np.array_equal(got.projections, serial.projections)
+    assert got.geometry == serial.geometry
 
 
 @pytest.mark.slow

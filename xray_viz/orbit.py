@@ -9,7 +9,10 @@ An :class:`Orbit` turns the acquisition of a scene into the acquisitions of a sc
 * ``"poses"``: an explicit source position, detector centre and detector ``u``/``v`` per
   projection (like ASTRA's ``cone_vec``); untilted detectors only for now (``u``, ``v`` must
   be the frame that :class:`~xray_viz.geometry.Acquisition` derives from the source and the
-  centre).
+  centre);
+* ``"poses"`` drawn at random (:class:`RandomPoses`, ``[scan] poses = { random = N, seed = 7,
+  ... }``): a training set of DRRs, each projection's pose a function of ``(seed, k)`` only,
+  so the same on every worker in any batch order.
 
 Lives below :mod:`xray_viz.scene` (which reads the ``[scan]`` table with
 :func:`orbit_from_dict`); :mod:`xray_viz.scan` renders and writes.
@@ -29,7 +32,7 @@ from xray_viz.errors import SceneError
 from xray_viz.geometry import Acquisition, detector_axes
 
 __all__ = ["Orbit", "ORBITS", "SCAN_KEYS", "orbit_from_dict", "pose_acquisition", "check_pose",
-           "read_poses"]
+           "read_poses", "RandomPoses", "RANDOM_KEYS"]
 
 ORBITS = ("circular", "helical", "poses")
 #: Keys of the ``[scan]`` table of a scene file.
@@ -70,6 +73,9 @@ class Orbit:
         Angle (degrees) of the first projection.
     poses : tuple of dict, optional
         ``{"source", "detector_center", "u", "v"}`` per projection (``"poses"`` orbits).
+    random : RandomPoses or dict, optional
+        Poses drawn at random about ``axis`` through ``center`` (a ``"poses"`` orbit without
+        ``poses``; ``projections`` is ``random.count``).
 
     Examples
     --------
@@ -90,6 +96,7 @@ class Orbit:
     pitch: float = 0.0
     start: float = 0.0
     poses: tuple | None = None
+    random: "RandomPoses | None" = None
 
     def __post_init__(self):
         if self.kind not in ORBITS:
@@ -114,7 +121,15 @@ class Orbit:
         object.__setattr__(self, "center", _vector(self.center, "center", "[scan] "))
         if self.kind == "circular" and self.pitch != 0:
             raise SceneError(f"[scan] pitch = {self.pitch:g} needs orbit = \"helical\"")
-        if self.kind == "poses":
+        if self.random is not None:
+            rnd = self.random if isinstance(self.random, RandomPoses) \
+                else RandomPoses.from_dict(self.random)
+            if self.kind != "poses" or self.poses is not None:
+                raise SceneError("[scan] random poses are an orbit of their own: no orbit "
+                                 "= \"circular\"/\"helical\" and no explicit poses with them")
+            object.__setattr__(self, "random", rnd)
+            object.__setattr__(self, "projections", rnd.count)
+        elif self.kind == "poses":
             if not self.poses:
                 raise SceneError("[scan] a poses orbit needs poses (a JSON file of poses)")
             object.__setattr__(self, "poses", tuple(self.poses))
@@ -130,6 +145,8 @@ class Orbit:
 
     def acquisition(self, base: Acquisition, k: int) -> Acquisition:
         """Projection ``k``'s acquisition: ``base`` moved along the orbit."""
+        if self.random is not None:
+            return self.random.acquisition(base, k, axis=self.axis, center=self.center)
         if self.kind == "poses":
             return pose_acquisition(base, self.poses[k], where=f"pose {k}: ")
         angle = float(self.angles()[k])
@@ -150,12 +167,185 @@ class Orbit:
     def to_dict(self) -> dict:
         """The orbit as a ``[scan]`` table (poses inline)."""
         out = {"orbit": self.kind, "projections": self.projections}
+        if self.random is not None:
+            out.update(poses=self.random.to_dict(), axis=self.axis.tolist(),
+                       center=self.center.tolist())
+            return out
         if self.kind == "poses":
             out["poses"] = [dict(p) for p in self.poses]
             return out
         out.update(arc=self.arc, axis=self.axis.tolist(), center=self.center.tolist(),
                    pitch=self.pitch, start=self.start)
         return out
+
+
+#: Keys of a ``[scan] poses = { random = N, ... }`` table (:class:`RandomPoses`).
+RANDOM_KEYS = ("random", "seed", "angle", "tilt", "roll", "sod", "sid", "shift")
+#: The spawn key of the pose stream (the noise stream, ``scan.projection_seed``, is another).
+POSE_STREAM = 0x706F7365
+
+
+def _range(value, key, *, positive=False):
+    where = f"[scan] poses.{key}"
+    try:
+        lo, hi = value
+        ok = not any(isinstance(x, bool) for x in value) and \
+            math.isfinite(float(lo)) and math.isfinite(float(hi)) and float(lo) <= float(hi)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise SceneError(f"{where} must be [low, high], two finite numbers with low <= high, "
+                         f"got {value!r}")
+    lo, hi = float(lo), float(hi)
+    if positive and not lo > 0:
+        raise SceneError(f"{where} must be > 0 mm, got {value!r}")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class RandomPoses:
+    """Poses drawn at random, for training sets of DRRs: ``[scan] poses = { random = N, ... }``.
+
+    Projection ``k``'s pose is a function of ``(seed, k)`` only (NumPy's ``SeedSequence(seed,
+    spawn_key=(POSE_STREAM, k))``): the same in any order, batching or worker. Starting from
+    the scene's acquisition, in this order:
+
+    1. ``sod``, ``sid`` (mm, ``[low, high]``, default: the scene's own): the source slides
+       along the beam axis to ``sod`` mm before the rotation centre (its foot on the beam
+       axis) and the detector centre to ``sid`` mm from the source, facing it;
+    2. ``roll`` (degrees): source and detector turned about the beam axis (the object's
+       in-plane rotation);
+    3. ``tilt`` (degrees): turned about ``beam x axis`` through ``center`` (a cranio-caudal
+       tilt for a vertical ``axis``);
+    4. ``angle`` (degrees, default ``[0, 360]``): turned about the ``[scan]`` ``axis`` through
+       ``center`` (the gantry angle);
+    5. ``shift`` (mm, ``[sx, sy, sz]``, default 0): source and detector moved together by a
+       uniform draw in ``[-s, s]`` per scene axis (the object shifted by the opposite).
+
+    Each value is uniform in its range; every projection draws the same eight numbers
+    whichever keys are given, so fixing a range changes no other draw.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> r = RandomPoses(count=3, seed=7, tilt=(-10.0, 10.0))
+    >>> acq = xray_viz.load_scene("sphere").acquisition
+    >>> a = r.acquisition(acq, 1, axis=[0, 1, 0], center=[0, 0, 0])
+    >>> b = RandomPoses(count=500, seed=7, tilt=(-10.0, 10.0)).acquisition(
+    ...     acq, 1, axis=[0, 1, 0], center=[0, 0, 0])
+    >>> bool((a.frame.source == b.frame.source).all())     # (seed, k) only: not the count
+    True
+    """
+
+    count: int
+    seed: int = 0
+    angle: tuple = (0.0, 360.0)
+    tilt: tuple = (0.0, 0.0)
+    roll: tuple = (0.0, 0.0)
+    sod: tuple | None = None
+    sid: tuple | None = None
+    shift: tuple = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        n = self.count
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+            raise SceneError(f"[scan] poses.random must be a whole number >= 1 (how many "
+                             f"poses), got {n!r}")
+        object.__setattr__(self, "count", int(n))
+        s = self.seed
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
+            raise SceneError(f"[scan] poses.seed must be a whole number >= 0, got {s!r}")
+        object.__setattr__(self, "seed", int(s))
+        for key in ("angle", "tilt", "roll"):
+            object.__setattr__(self, key, _range(getattr(self, key), key))
+        for key in ("sod", "sid"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, _range(getattr(self, key), key, positive=True))
+        if self.sod is not None and self.sid is not None and not self.sid[0] > self.sod[1]:
+            raise SceneError(f"[scan] poses.sid {list(self.sid)} must lie beyond poses.sod "
+                             f"{list(self.sod)} (low sid > high sod): the detector behind the "
+                             "rotation centre")
+        shift = self.shift
+        try:
+            ok = len(shift) == 3 and not any(isinstance(x, bool) for x in shift) and \
+                all(math.isfinite(float(x)) and float(x) >= 0 for x in shift)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise SceneError(f"[scan] poses.shift must be 3 numbers >= 0 (mm, the largest "
+                             f"move along x, y, z), got {shift!r}")
+        object.__setattr__(self, "shift", tuple(float(x) for x in shift))
+
+    @classmethod
+    def from_dict(cls, table) -> "RandomPoses":
+        """From the ``poses = { random = N, ... }`` table (:data:`RANDOM_KEYS`)."""
+        if not isinstance(table, dict) or "random" not in table:
+            raise SceneError(f"[scan] random poses are a table with random = N, got {table!r}")
+        unknown = sorted(set(table) - set(RANDOM_KEYS))
+        if unknown:
+            raise SceneError(f"[scan] poses: unknown key(s) {unknown}; known: "
+                             f"{', '.join(RANDOM_KEYS)}")
+        kwargs = {k: table[k] for k in RANDOM_KEYS[1:] if k in table}
+        return cls(count=table["random"], **kwargs)
+
+    def to_dict(self) -> dict:
+        """The ``poses`` table (JSON/TOML-serialisable; inverse of :meth:`from_dict`)."""
+        out = {"random": self.count, "seed": self.seed, "angle": list(self.angle),
+               "tilt": list(self.tilt), "roll": list(self.roll), "shift": list(self.shift)}
+        for key in ("sod", "sid"):
+            if getattr(self, key) is not None:
+                out[key] = list(getattr(self, key))
+        return out
+
+    def draws(self, k: int) -> np.ndarray:
+        """The eight uniform numbers in [0, 1) of projection ``k`` (its own stream)."""
+        seq = np.random.SeedSequence(self.seed, spawn_key=(POSE_STREAM, int(k)))
+        return np.random.default_rng(seq).random(8)
+
+    def acquisition(self, base: Acquisition, k: int, *, axis, center) -> Acquisition:
+        """Projection ``k``'s acquisition (see the class)."""
+        if not 0 <= k < self.count:
+            raise IndexError(f"pose {k} of {self.count}")
+        u = self.draws(k)
+
+        def pick(rng, x):
+            return rng[0] + x * (rng[1] - rng[0])
+
+        axis = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+        center = np.asarray(center, np.float64)
+        f = base.frame
+        foot = f.source + ((center - f.source) @ f.forward) * f.forward   # centre on the beam
+        sod = float(np.linalg.norm(foot - f.source)) if self.sod is None else pick(self.sod, u[0])
+        sid = f.sid if self.sid is None else pick(self.sid, u[1])
+        # points relative to `center`, directions: composed rotations, one Acquisition at the end
+        src, det = foot - sod * f.forward - center, foot + (sid - sod) * f.forward - center
+        up = np.asarray(base.detector.up, np.float64)
+        rot = _rotation(f.forward, pick(self.roll, u[2]))             # about the beam axis
+        src, det = (foot - center) + rot @ (src - (foot - center)), \
+            (foot - center) + rot @ (det - (foot - center))
+        up = rot @ up
+        tilt = pick(self.tilt, u[3])
+        if tilt:
+            across = np.cross(f.forward, axis)
+            if not np.linalg.norm(across) > 1e-9:
+                raise SceneError("[scan] poses.tilt needs an axis across the beam, got axis "
+                                 f"{axis.tolist()} along it")
+            rot = _rotation(across, tilt)
+            src, det, up = rot @ src, rot @ det, rot @ up
+        rot = _rotation(axis, pick(self.angle, u[4]))
+        move = center + (2 * u[5:8] - 1) * np.asarray(self.shift)
+        return Acquisition(
+            source=dataclasses.replace(base.source, position=rot @ src + move),
+            detector=dataclasses.replace(base.detector, center=rot @ det + move, up=rot @ up))
+
+
+def _rotation(axis, degrees) -> np.ndarray:
+    """(3, 3): Rodrigues' rotation by ``degrees`` about the direction ``axis`` (as
+    :meth:`Acquisition.rotated`)."""
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    t = math.radians(degrees)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)
 
 
 def check_pose(pose, *, where: str = "") -> tuple:
@@ -238,11 +428,18 @@ def orbit_from_dict(table, *, base_dir=".", file=None) -> Orbit:
             if kind != "poses":
                 raise SceneError(f"[scan] poses are given, so orbit must be \"poses\" "
                                  f"(or left out), got {kind!r}")
+            if isinstance(poses, dict):
+                random = RandomPoses.from_dict(poses)
+                if "projections" in kwargs and kwargs["projections"] != random.count:
+                    raise SceneError(f"[scan] projections = {kwargs['projections']!r} but "
+                                     f"poses.random = {random.count}")
+                kwargs.pop("projections", None)
+                return Orbit("poses", random=random, **kwargs)
             if isinstance(poses, str):
                 poses = read_poses(Path(base_dir) / poses)
             elif not isinstance(poses, list):
-                raise SceneError(f"[scan] poses must be a JSON file name or a list, got "
-                                 f"{poses!r}")
+                raise SceneError(f"[scan] poses must be a JSON file name, a list or a table "
+                                 f"{{ random = N, seed = ... }}, got {poses!r}")
             if "projections" in kwargs and kwargs["projections"] != len(poses):
                 raise SceneError(f"[scan] projections = {kwargs['projections']!r} but the "
                                  f"poses give {len(poses)}")

@@ -79,6 +79,9 @@ class Radiograph:
         Every hit of every ray, when asked for with ``keep_hits=True`` (numpy engine).
     supersample : int
         Rays per pixel along each axis.
+    lod : LevelOfDetail or None
+        What ``render(..., max_error=...)`` chose per body (:mod:`xray_viz.lod`); None
+        without ``max_error``. :attr:`scene` is then the scene with the reduced meshes.
     """
 
     intensity: np.ndarray
@@ -91,6 +94,7 @@ class Radiograph:
     hits: Hits | None = field(repr=False, default=None)
     supersample: int = 1
     _path_length: np.ndarray | None = field(repr=False, default=None)
+    lod: object = field(repr=False, default=None)
 
     @property
     def scope(self) -> str:
@@ -460,7 +464,8 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
 
 
 def render(scene, *, engine: str = "fast", supersample: int | None = None,
-           keep_hits: bool = False, path_lengths: bool = False) -> Radiograph:
+           keep_hits: bool = False, path_lengths: bool = False,
+           max_error: float | None = None) -> Radiograph:
     """Render the radiograph of a scene.
 
     Parameters
@@ -481,6 +486,13 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     path_lengths : bool
         Also fill :attr:`Radiograph.path_length`, ``(H, W, n_bodies)`` (``8 x n_bodies``
         bytes per pixel). Without it that array is computed on first access (a second trace).
+    max_error : float, optional
+        Level of detail: trace each body at the coarsest pymeshlab decimation that keeps every
+        pixel's line integral ``-ln(I/I0)`` within ``max_error`` (dimensionless, ~ the relative
+        error of the intensity) of the full-resolution render at the same supersampling
+        (:mod:`xray_viz.lod`: a measured estimate, with the budget shared by overlapping
+        bodies; the pixel-scale sampling error is not part of it). The choice is in
+        :attr:`Radiograph.lod`. None (default): the meshes as they are.
 
     Returns
     -------
@@ -511,6 +523,11 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     from xray_viz.physics.imaging import _blur_sigmas, _needs_variance, detect_log
 
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
+    lod = None
+    if max_error is not None:
+        from xray_viz.lod import level_of_detail
+
+        scene, lod = level_of_detail(scene, max_error, supersample=n)
     _blur_sigmas(scene)                # a focal spot wider than the detector: refused now
     check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths,
                  keep_hits=keep_hits)
@@ -540,4 +557,5 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         hits=hits,
         supersample=n,
         _path_length=per_body,
+        lod=lod,
     )

@@ -37,7 +37,8 @@ from xray_viz.orbit import Orbit, orbit_from_dict
 __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
-           "add_scan_parser", "scan_command", "SCAN_QUANTITIES"]
+           "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
+           "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -94,7 +95,7 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         axis, center = orbit.axis.tolist(), orbit.center.tolist()
         rel = first.source - orbit.center
         sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
-    return {
+    out = {
         "orbit": orbit.kind,
         "beam": "parallel" if base.parallel else "cone",
         "projections": orbit.projections,
@@ -108,6 +109,10 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "poses": [_pose(a) for a in acqs],
         "projection_matrices": [a.projection_matrix().tolist() for a in acqs],
     }
+    if orbit.random is not None:           # how the poses were drawn (axis, centre, ranges)
+        out["random"] = {**orbit.random.to_dict(), "axis": orbit.axis.tolist(),
+                         "center": orbit.center.tolist()}
+    return out
 
 
 def astra_vectors(geometry) -> np.ndarray:
@@ -165,6 +170,144 @@ def poses_from_astra(vectors, *, beam: str = "cone", sid: float | None = None) -
     return poses
 
 
+def _tigre_rotation(alpha: float) -> np.ndarray:
+    """TIGRE's ``eulerZYZ`` with ``theta = psi = 0``: a turn by ``alpha`` radians about z."""
+    c, s = np.cos(alpha), np.sin(alpha)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def tigre_geometry(geometry, *, axis=None, center=None, tolerance: float = 1e-9) -> dict:
+    """The scan's geometry in TIGRE's conventions (``tigre.geometry`` fields, mm and radians).
+
+    TIGRE (``Common/CUDA/Siddon_projection.cu``, ``Python/tigre/utilities``) turns the source
+    ``(DSO, 0, 0)`` and the detector, centred at ``(-(DSD - DSO), offU, offV)`` with ``U`` along
+    +y and rows down -z, about its z axis by ``angles[:, 0]``, then subtracts ``offOrigin``.
+    Here TIGRE's z is the scan's rotation ``axis`` through ``center`` and its x the direction
+    from the axis to the source at angle 0 (``frame``): ``u`` (image columns) is TIGRE's U
+    and the image rows TIGRE's V from the top, so TIGRE's projections ``(angles, V, U)`` are
+    the stack as it is, no flip. Python-TIGRE's orders: ``nDetector``, ``dDetector``,
+    ``sDetector``, ``offDetector`` are ``(V, U)``, ``offOrigin`` is ``(z, y, x)``.
+
+    Parameters
+    ----------
+    geometry : dict
+        :func:`scan_geometry`.
+    axis, center : (3,) float, optional
+        The rotation axis (default the geometry's; needed for ``"poses"`` orbits).
+    tolerance : float
+        How far a pose's ``u`` may lean on the axis (TIGRE's detector turns about z only).
+
+    Returns
+    -------
+    dict
+        ``DSD``, ``DSO`` ``(n,)``; ``nDetector``, ``dDetector``, ``sDetector`` ``(2,)``;
+        ``offDetector`` ``(n, 2)``; ``offOrigin`` ``(n, 3)``; ``angles`` ``(n, 3)``
+        (ZYZ Euler angles, the last two 0); ``mode`` (``"cone"``/``"parallel"``); ``frame``
+        ``{"origin", "axes"}``: TIGRE's origin and x, y, z axes in scene coordinates.
+
+    Raises
+    ------
+    SceneError
+        A pose whose detector does not stand along the axis (``v`` not parallel to it: a
+        tilted pose would need TIGRE's ``rotDetector``), or no axis for a poses orbit.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
+    >>> t = tigre_geometry(g)
+    >>> t["DSO"].tolist(), t["DSD"].tolist()[:1], t["nDetector"].tolist(), t["mode"]
+    ([1000.0, 1000.0, 1000.0, 1000.0], [1500.0], [256, 256], 'cone')
+    >>> (t["angles"][:, 0].round(6)).tolist()
+    [0.0, 1.570796, 3.141593, 4.712389]
+    """
+    from xray_viz.orbit import _rotation
+
+    axis = geometry.get("axis") if axis is None else axis
+    center = geometry.get("center") if center is None else center
+    if axis is None or center is None:
+        raise SceneError("TIGRE's geometry turns about an axis: give tigre_geometry(axis=..., "
+                         "center=...) for a poses orbit")
+    z, center = _unit(axis), np.asarray(center, np.float64)
+    poses = geometry["poses"]
+    s0 = np.asarray(poses[0]["source"], float) - center
+    theta0 = (geometry.get("angles_deg") or [0.0])[0]
+    ref = _rotation(z, -theta0) @ s0                     # the source at angle 0
+    x = ref - (ref @ z) * z
+    if not np.linalg.norm(x) > 1e-9:
+        raise SceneError("the source lies on the rotation axis: TIGRE's frame is undefined")
+    x = x / np.linalg.norm(x)
+    M = np.array([x, np.cross(z, x), z])                 # rows: TIGRE's x, y, z in the scene
+    n = len(poses)
+    dso, dsd = np.empty(n), np.empty(n)
+    off_det, off_orig, alpha = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
+    for k, pose in enumerate(poses):
+        s = M @ (np.asarray(pose["source"], float) - center)
+        c = M @ (np.asarray(pose["detector_center"], float) - center)
+        u, v = M @ np.asarray(pose["u"], float), M @ np.asarray(pose["v"], float)
+        if abs(u[2]) > tolerance or abs(v[2] - 1.0) > tolerance:
+            raise SceneError(f"pose {k}: the detector is tilted against the rotation axis "
+                             f"(v = {np.round(M.T @ v, 9).tolist()}, axis {z.tolist()}); "
+                             "TIGRE's geometry needs rotDetector for it, not supported")
+        alpha[k] = np.arctan2(-u[0], u[1])
+        R = _tigre_rotation(alpha[k])
+        sp, cp = R.T @ s, R.T @ c                        # in the turned frame
+        o = np.array([0.0, -sp[1], -sp[2]])             # the volume moved, not the source
+        dso[k], dsd[k] = sp[0], sp[0] - cp[0]
+        off_det[k] = [cp[2] - sp[2], cp[1] - sp[1]]      # (V, U)
+        off_orig[k] = (R @ o)[::-1]                      # (z, y, x)
+    w, h = geometry["detector"]["shape"]
+    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
+    return {"DSD": dsd, "DSO": dso, "nDetector": np.array([h, w]),
+            "dDetector": np.array([pv, pu]), "sDetector": np.array([h * pv, w * pu]),
+            "offDetector": off_det, "offOrigin": off_orig,
+            "angles": np.c_[np.mod(alpha, 2 * np.pi), np.zeros(n), np.zeros(n)],
+            "mode": "parallel" if geometry["beam"] == "parallel" else "cone",
+            "frame": {"origin": center.tolist(), "axes": M.tolist()}}
+
+
+def poses_from_tigre(tigre) -> list[dict]:
+    """The per-projection poses (source, detector centre, unit ``u``, ``v``) of a TIGRE
+    geometry (:func:`tigre_geometry`; ``frame`` places TIGRE's axes in the scene, default
+    the scene's own). Inverse of :func:`tigre_geometry`.
+
+    Raises
+    ------
+    SceneError
+        Euler angles other than a turn about z (``angles[:, 1:]`` not 0), or fields of
+        mismatched lengths.
+    """
+    angles = np.atleast_1d(np.asarray(tigre["angles"], np.float64))
+    angles = angles[:, None] if angles.ndim == 1 else angles
+    n = len(angles)
+    if angles.shape[1] == 3 and np.any(angles[:, 1:] != 0):
+        raise SceneError("TIGRE angles with theta/psi (a tilted orbit) are not supported: "
+                         "angles[:, 1:] must be 0")
+
+    def per(name, width):
+        value = np.asarray(tigre.get(name, np.zeros(width)), np.float64)
+        out = np.broadcast_to(value, (n,) if width == 0 else (n, width))
+        return out
+
+    try:
+        dso, dsd = per("DSO", 0), per("DSD", 0)
+        off_det, off_orig = per("offDetector", 2), per("offOrigin", 3)
+    except ValueError as exc:
+        raise SceneError(f"TIGRE geometry fields do not match {n} angles: {exc}") from None
+    frame = tigre.get("frame") or {"origin": [0.0, 0.0, 0.0], "axes": np.eye(3).tolist()}
+    origin, M = np.asarray(frame["origin"], float), np.asarray(frame["axes"], float)
+    poses = []
+    for k in range(n):
+        R = _tigre_rotation(angles[k, 0])
+        o = off_orig[k][::-1]
+        s = R @ np.array([dso[k], 0.0, 0.0]) - o
+        c = R @ np.array([-(dsd[k] - dso[k]), off_det[k][1], off_det[k][0]]) - o
+        poses.append({"source": (origin + M.T @ s).tolist(),
+                      "detector_center": (origin + M.T @ c).tolist(),
+                      "u": (M.T @ R[:, 1]).tolist(), "v": (M.T @ R[:, 2]).tolist()})
+    return poses
+
+
 def _physics(scene) -> dict:
     src, det = scene.source, scene.detector
     out = {"I0": det.i0, "response": det.response, "noise": det.noise, "seed": det.seed}
@@ -176,6 +319,38 @@ def _physics(scene) -> dict:
     else:
         out["energy_kev"] = src.energy
     return out
+
+
+def flat_dark(scene, geometry, quantity: str = "intensity"):
+    """The open-beam (flat) and dark fields of a scan, ``(H, W)`` float32 each, or
+    ``(None, None)`` for line integrals (already flat-field corrected).
+
+    ``flat`` is the detector model's noise-free reading without any body at projection 0's
+    pose (:func:`xray_viz.physics.imaging.flat_field`: ``gain * I0 * F * A``, the fall-off and
+    the heel effect included); ``dark`` the reading without any beam: zero, the detector model
+    having no electronic offset (its electronic noise has mean 0). So that
+    ``(projection - dark) / (flat - dark) = exp(-line integral)``. Every projection of a
+    circular or helical orbit shares projection 0's flat (the source and detector turn
+    together); poses at other distances (random ``sod``/``sid``) differ from it only through
+    the fall-off.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> flat, dark = flat_dark(scene, scan_geometry(scene, Orbit(projections=2, axis=[0, 1, 0])))
+    >>> flat.shape, float(flat.max()), float(dark.max())
+    ((256, 256), 1.0, 0.0)
+    """
+    from xray_viz.orbit import pose_acquisition
+    from xray_viz.physics.imaging import flat_field
+
+    _check_quantity(quantity)
+    if quantity != "intensity":
+        return None, None
+    first = pose_acquisition(scene.acquisition, geometry["poses"][0])
+    flat = np.asarray(flat_field(scene.replace(acquisition=first)), np.float32)
+    return flat, np.zeros_like(flat)
 
 
 # ---------------------------------------------------------------------------------- rendering
@@ -208,9 +383,10 @@ class Scan:
 
     Attributes
     ----------
-    projections : (n, H, W) float32
+    projections : (n, H, W) float32 numpy.ndarray or zarr.Array
         ``projections[k]`` is the image of projection ``k`` (row 0 at the top of the
-        detector, column 0 at its left seen from the source).
+        detector, column 0 at its left seen from the source). A scan written to a store (or
+        ``read_zarr(lazy=True)``) keeps the store's array, read on indexing.
     geometry : dict
         :func:`scan_geometry`.
     quantity : str
@@ -290,6 +466,9 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
     Returns
     -------
     Scan
+        With ``store``, its ``projections`` are the store's (lazy) ``zarr.Array``: memory stays
+        bounded by the batch whatever the stack's size (index it, ``projections[k]``, or
+        ``projections[:]`` for all of it in memory).
 
     Examples
     --------
@@ -314,10 +493,11 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
             out[k] = projection(scene, orbit, k, quantity=quantity, engine=engine)
             bar.update(1)
         bar.close()
-        return Scan(out, geometry, quantity, _physics(scene), scene)
+        flat, dark = flat_dark(scene, geometry, quantity)
+        return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
     _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
                    client=client, batch=batch, progress=progress)
-    return read_zarr(store, scene=scene)
+    return read_zarr(store, scene=scene, lazy=True)
 
 
 def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, batch,
@@ -331,10 +511,12 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
                    batch=batch, progress=progress)
     else:
         bar = _bar(len(todo), progress)
-        for k in todo:
+        for i, k in enumerate(todo):
             _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
                                                    engine=engine))
             bar.update(1)
+            if (i + 1) % max(1, batch) == 0:
+                trim_memory()
         bar.close()
     return len(todo), orbit.projections
 
@@ -376,8 +558,9 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
 
     Layout: array ``projections`` ``(n, H, W)`` float32 in chunks of one projection, array
     ``done`` ``(n,)`` bool (one chunk per projection, so concurrent writers never share a
-    chunk), attributes ``{"xray_viz": {"version", "quantity", "units", "geometry", "physics",
-    "scene"}}``.
+    chunk), for intensities arrays ``flat`` and ``dark`` ``(H, W)`` float32
+    (:func:`flat_dark`), attributes ``{"xray_viz": {"version", "quantity", "units",
+    "geometry", "physics", "scene"}}``.
 
     Raises
     ------
@@ -411,6 +594,11 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
         group.create_array("projections", shape=(n, h, w), chunks=(1, h, w), dtype="float32",
                            fill_value=np.nan)
         group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
+        flat, dark = flat_dark(scene, geometry, quantity)
+        for name, field in (("flat", flat), ("dark", dark)):
+            if field is not None:
+                group.create_array(name, shape=(h, w), chunks=(h, w), dtype="float32",
+                                   fill_value=np.nan)[:] = field
         group.attrs["xray_viz"] = attrs
         os.replace(tmp, path)
     except BaseException:
@@ -433,8 +621,11 @@ def write_zarr(result: Scan, path) -> None:
         _write_projection(group, int(k), result.projections[k])
 
 
-def read_zarr(path, *, scene=None, require_complete: bool = True) -> Scan:
+def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = False) -> Scan:
     """The :class:`Scan` of a Zarr store.
+
+    ``lazy``: ``projections`` is the store's read-only ``zarr.Array`` (read projection by
+    projection as it is indexed) instead of the whole stack in memory.
 
     The one reader of the layout (CT-LAYOUT.md): :func:`xray_viz.reconstruct.reconstruct_file`
     reads its stores through it.
@@ -472,7 +663,8 @@ def read_zarr(path, *, scene=None, require_complete: bool = True) -> Scan:
 
     def field(name):
         return np.asarray(group[name][:], np.float64) if name in names else None
-    return Scan(group["projections"][:], meta["geometry"], meta.get("quantity", "line-integral"),
+    stack = group["projections"] if lazy else group["projections"][:]
+    return Scan(stack, meta["geometry"], meta.get("quantity", "line-integral"),
                 meta.get("physics") or {}, scene, flat=field("flat"), dark=field("dark"))
 
 
@@ -490,9 +682,11 @@ def write_tiff_stack(result: Scan, folder) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        digits = max(5, len(str(len(result.projections) - 1)))
-        for k, image in enumerate(result.projections):
-            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif", image)
+        n = result.projections.shape[0]
+        digits = max(5, len(str(n - 1)))
+        for k in range(n):               # one at a time: a store's lazy stack stays on disk
+            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif",
+                             np.asarray(result.projections[k], np.float32))
         meta = {"quantity": result.quantity, "units": result.units,
                 "geometry": result.geometry, "physics": result.physics}
         (tmp / "geometry.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
@@ -513,7 +707,7 @@ def write_nexus(result: Scan, path) -> Path:
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     g = result.geometry
-    n = len(result.projections)
+    n = result.projections.shape[0]
     angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
     try:
         with h5py.File(tmp, "w") as f:
@@ -528,8 +722,11 @@ def write_nexus(result: Scan, path) -> Path:
             src["probe"] = "x-ray"
             det = inst.create_group("detector")
             det.attrs["NX_class"] = "NXdetector"
-            data = det.create_dataset("data", data=result.projections, chunks=(1,) +
-                                      result.projections.shape[1:])
+            shape = tuple(result.projections.shape)
+            data = det.create_dataset("data", shape=shape, dtype="float32",
+                                      chunks=(1,) + shape[1:])
+            for k in range(n):           # one at a time: a store's lazy stack stays on disk
+                data[k] = np.asarray(result.projections[k], np.float32)
             data.attrs["units"] = result.units
             det["image_key"] = np.zeros(n, np.int32)          # 0: a projection
             for name, value in (("x_pixel_size", g["detector"]["pitch_mm"][0]),
@@ -568,9 +765,54 @@ def _scene_text(scene) -> str:
                          f"scene has none: {exc}") from None
 
 
-def _scene_plugin():
-    """A worker plugin that holds the scenes a worker has loaded (by content hash) and runs
-    numba on one thread per worker process."""
+def trim_memory() -> bool:
+    """Give freed heap memory back to the operating system (glibc's ``malloc_trim(0)``): a
+    batch's scratch images, freed by Python, otherwise stay in the process's resident set.
+    True if memory was released; False where there is no glibc (macOS, Windows, musl).
+
+    Examples
+    --------
+    >>> trim_memory() in (True, False)
+    True
+    """
+    import ctypes
+    import ctypes.util
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return bool(libc.malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
+
+
+def _one_numba_thread() -> None:
+    """One numba thread for this thread's kernels (numba's count is per thread: the worker
+    plugin's ``setup`` runs on the event loop, the tasks on the executor's thread)."""
+    try:
+        import numba
+
+        if numba.get_num_threads() != 1:
+            numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
+
+
+def warm_kernels(engine: str = "fast") -> list:
+    """Compile, or load from numba's cache (shared by every process of the machine), the
+    fast engine's kernels now; their names. A worker calls it when it starts, so no task pays
+    for it."""
+    if engine != "fast":
+        return []
+    from xray_viz.tracing import _raster
+
+    return _raster.compile_kernels()
+
+
+def _scene_plugin(engine: str = "fast"):
+    """A worker plugin that holds the scenes a worker has loaded (by content hash), runs
+    numba on one thread per worker process and warms the kernels when the worker starts."""
     from distributed import WorkerPlugin
 
     class ScenePlugin(WorkerPlugin):
@@ -578,14 +820,25 @@ def _scene_plugin():
 
         def setup(self, worker):
             self.scenes = {}
-            try:
-                import numba
-
-                numba.set_num_threads(1)
-            except (ImportError, ValueError):
-                pass
+            _one_numba_thread()
+            # on the task thread, ahead of any task (the event loop stays free meanwhile)
+            executor = worker.executors.get("default")
+            self.warm = executor.submit(_warm_thread, engine) if executor is not None else None
 
     return ScenePlugin()
+
+
+def _warm_thread(engine: str) -> dict:
+    """A worker's start on its task thread: one numba thread, the kernels warmed."""
+    import time
+
+    _one_numba_thread()
+    t0 = time.perf_counter()
+    names = warm_kernels(engine)
+    import numba
+
+    return {"kernels": names, "seconds": time.perf_counter() - t0,
+            "numba_threads": numba.get_num_threads()}
 
 
 def _worker_scenes():
@@ -629,16 +882,21 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
         The projections this task wrote.
     """
     zarr = _zarr()
+    if _worker_scenes() is not None:
+        _one_numba_thread()
     scene = _load_scene_text(scene_text, digest)
     group = zarr.open_group(store, mode="r+")
     wrote = []
-    for k in indices:
-        k = int(k)
-        if bool(group["done"][k]):
-            continue
-        _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
-                                               engine=engine))
-        wrote.append(k)
+    try:
+        for k in indices:
+            k = int(k)
+            if bool(group["done"][k]):
+                continue
+            _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
+                                                   engine=engine))
+            wrote.append(k)
+    finally:
+        trim_memory()                   # the batch's scratch memory back to the system
     return wrote
 
 
@@ -651,7 +909,7 @@ def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, pr
         raise SceneError(f"batch must be a whole number >= 1, got {batch!r}")
     text = _scene_text(scene)
     digest = hashlib.sha256(text.encode()).hexdigest()
-    client.register_plugin(_scene_plugin(), name=PLUGIN_NAME)
+    client.register_plugin(_scene_plugin(engine), name=PLUGIN_NAME)
     if progress and sys.stderr.isatty():
         print(f"xray-viz: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
     run = uuid.uuid4().hex[:8]
@@ -764,7 +1022,7 @@ def scan_command(args) -> int:
             filled, total = _scan_to_store(scene, orbit, out, geometry=geometry,
                                            quantity=args.quantity, engine=args.engine,
                                            client=client, batch=args.batch, progress=True)
-        read_zarr(out, scene=scene)                  # complete, or one line saying what is not
+        read_zarr(out, scene=scene, lazy=True)       # complete, or one line saying what is not
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0

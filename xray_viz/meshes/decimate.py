@@ -3,7 +3,9 @@
 Quadric edge collapse (pymeshlab, preserving topology, normals and boundary so that a closed
 mesh stays closed), either to a target face count or to an error budget: the largest face
 count whose symmetric Hausdorff distance to the original stays within ``max_error`` mm, found
-by bisection on the face count. The time-vs-error benchmark uses these levels.
+by bisection on the face count. The time-vs-error benchmark uses these levels, and
+``render(scene, max_error=...)`` (:mod:`xray_viz.lod`) the single collapses of
+:func:`collapse`. Vertices stay float64 through pymeshlab (no float32 round trip).
 
 Examples
 --------
@@ -22,7 +24,7 @@ import numpy as np
 from xray_viz import progress as _progress
 from xray_viz.errors import MeshError
 
-__all__ = ["decimate", "hausdorff_distance"]
+__all__ = ["decimate", "collapse", "hausdorff_distance"]
 
 
 def _meshset(*meshes):
@@ -67,7 +69,31 @@ def hausdorff_distance(a, b, *, samples: int = 20000) -> float:
     return d
 
 
-def _collapse(mesh, target_faces: int):
+def collapse(mesh, target_faces: int):
+    """One quadric edge collapse of ``mesh`` to ``target_faces`` faces (topology, normals and
+    boundary preserved), in float64 throughout.
+
+    pymeshlab (2025.7) keeps vertices as float64: a vertex the collapse does not move comes
+    back bit for bit (``tests/test_lod.py`` checks it on a mesh 1 m from the origin, where a
+    float32 round trip would move it by ~6e-5 mm).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+    target_faces : int
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Not checked for closedness (see :func:`decimate`).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> ball = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    >>> len(collapse(ball, 320).faces)
+    320
+    """
     import trimesh
 
     ms = _meshset(mesh)
@@ -130,7 +156,7 @@ def decimate(mesh, *, target_faces: int | None = None, max_error: float | None =
             raise MeshError(f"decimate: target_faces must be >= 4, got {target_faces}")
         if target_faces >= n:
             return mesh, 0.0
-        out = _collapse(mesh, target_faces)
+        out = collapse(mesh, target_faces)
         _check_closed(mesh, out)
         return out, hausdorff_distance(mesh, out, samples=samples)
 
@@ -140,7 +166,7 @@ def decimate(mesh, *, target_faces: int | None = None, max_error: float | None =
     lo, hi = max(int(min_faces), 4), n  # hi always meets the budget (the mesh itself)
     while hi - lo > max(2, hi // 50):  # 2 % resolution in face count
         mid = (lo + hi) // 2
-        cand = _collapse(mesh, mid)
+        cand = collapse(mesh, mid)
         err = hausdorff_distance(mesh, cand, samples=samples)
         _progress.advance()
         if err <= max_error and cand.is_watertight:

@@ -1,0 +1,539 @@
+"""Error-budgeted level of detail: ``render(scene, max_error=...)``.
+
+Each body is traced with the coarsest quadric decimation of its mesh
+(:func:`xray_viz.meshes.decimate.decimate`) whose estimated error stays within its share of the
+budget.
+
+What the budget is
+------------------
+``max_error`` bounds, for **every pixel**, the absolute change of the line integral
+``-ln(I / I0)`` (dimensionless) that the decimation causes, against the same render of the
+full-resolution meshes (same rays, same supersampling, same detector model): to first order the
+relative change of the intensity, ``|dI| / I <= exp(max_error) - 1``. It is the error of the
+tessellation only: the pixel-scale (sampling) error of the full-resolution render - the
+difference between a pixel and the exact average over its area - is not part of it, and the
+supersampling is left as the caller set it (the Pareto benchmark, BENCHMARKS.md, says which
+supersampling a given accuracy against the exact object needs). A noisy detector's budget holds
+for the expected (noise-free) image.
+
+How it is estimated
+-------------------
+A pixel's line integral is ``-ln`` of the mean of ``exp(-sum_b mu_b L_b)`` over its rays (and,
+for a spectrum, over energies), so a pixel changes by at most the largest change of a ray's
+``sum_b mu_b L_b``. Decimating body ``b`` moves its surface, changing the material along a ray
+over the length where the two surfaces disagree; that changes the line integral by at most
+``contrast_b x dL_b``, with ``contrast_b`` the largest ``|mu_b - mu_c|`` or ``mu_b`` between
+``b`` and any body ``c`` whose bounding box meets ``b``'s (at the energy of the spectrum where
+it is largest) and ``dL_b`` the largest change of the body's own path length along a line.
+
+``dL_b`` is **measured**, not assumed from the Hausdorff distance: both meshes are traced alone
+by the fast engine with parallel beams from :data:`DIRECTIONS` directions over the body, rays
+:func:`measuring_pitch` apart (the ray spacing the scene traces the body at, or finer), and the
+largest difference is kept. The largest change is at silhouettes, where it grows like the square
+root of the surface's displacement (``2 sqrt(2 R h)`` for a sphere of radius ``R`` whose surface
+moves by ``h``), not like ``2 h``; a Hausdorff bound per crossing (``2 h / cos``) would miss it
+there. The estimate is ``SAFETY x contrast_b x dL_b``; :data:`SAFETY` covers rays of the scene
+that meet a silhouette closer than the measuring lines did. It is validated, not proven: the
+tests render every bundled phantom at full and reduced detail and check the measured error
+against the budget.
+
+Bodies whose footprints overlap share the budget: each pixel is covered by the projected bounding
+boxes of ``k`` bodies at most, and a body gets ``max_error / k_max`` where ``k_max`` is the most
+boxes covering any pixel of its own box, so the shares of the bodies on any ray add up to at most
+``max_error``.
+
+Footprint
+---------
+A small body far from the source is traced by few rays: its measuring lines are then as far
+apart as the scene's rays at its depth (pixel pitch x source-body / source-detector distance /
+supersampling), so detail finer than the rays can resolve does not count against it, and it is
+decimated as far as its footprint allows (down to :data:`MIN_FACES`).
+
+Caching
+-------
+Decimated meshes and their measured ``dL`` are kept on disk by the SHA-256 of the mesh arrays,
+the face count, the measuring pitch and the source of :mod:`xray_viz.meshes.decimate` and of this
+module, in ``lod/`` next to the mesh reports (:mod:`xray_viz.meshes._report_cache`: the same
+``XRAY_VIZ_CACHE_DIR``, ``off`` turns it off), so a second run pays nothing; in memory, the
+reduced :class:`~xray_viz.bodies.Bodies` are kept on the scene's bodies, so a CT orbit or a viewer
+pays the set-up once.
+
+Examples
+--------
+>>> import xray_viz
+>>> scene = xray_viz.load_scene("sphere")
+>>> image = xray_viz.render(scene, max_error=0.1)
+>>> lod = image.lod
+>>> lod.bodies[0].faces < lod.bodies[0].faces_full, lod.bodies[0].estimated_error <= 0.1
+(True, True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import logging
+import math
+import os
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from xray_viz.errors import SceneError
+
+__all__ = ["BodyLevel", "LevelOfDetail", "level_of_detail", "path_length_error",
+           "measuring_pitch", "check_max_error", "cache_dir", "forget", "SAFETY", "MIN_FACES", "DIRECTIONS", "LINES"]
+
+log = logging.getLogger("xray_viz.lod")
+
+#: Factor on the measured error (see the module docstring).
+SAFETY = 1.5
+
+#: No body is decimated below this many faces.
+MIN_FACES = 64
+
+#: Directions of the parallel beams that measure a decimation's path-length error.
+DIRECTIONS = 9
+
+#: Measuring lines across a body's bounding sphere (along each detector axis), at most.
+LINES = 128
+
+#: Bumped when the stored format changes.
+FORMAT = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class BodyLevel:
+    """The detail one body is traced at.
+
+    Attributes
+    ----------
+    name : str
+    faces_full, faces : int
+        Faces of the scene's mesh, and of the mesh traced.
+    estimated_error : float
+        Estimated largest change of a pixel's line integral caused by this body's decimation
+        (``SAFETY x contrast x path_error_mm``; 0 at full resolution).
+    share : float
+        This body's share of the budget.
+    path_error_mm : float
+        Measured largest change of the body's path length along a line (mm).
+    contrast : float
+        Largest attenuation difference at the body's surface (1/mm).
+    pitch_mm : float
+        Spacing of the measuring lines (mm).
+    """
+
+    name: str
+    faces_full: int
+    faces: int
+    estimated_error: float
+    share: float
+    path_error_mm: float
+    contrast: float
+    pitch_mm: float
+
+
+@dataclasses.dataclass(frozen=True)
+class LevelOfDetail:
+    """What ``render(scene, max_error=...)`` chose (:attr:`xray_viz.render.Radiograph.lod`).
+
+    Attributes
+    ----------
+    max_error : float
+        The budget: the largest change of any pixel's line integral ``-ln(I/I0)``.
+    bodies : tuple of BodyLevel
+    estimated_error : float
+        Estimated largest change of a pixel's line integral: the largest sum of the bodies'
+        estimates over the bodies whose footprints overlap (at most ``max_error``).
+    """
+
+    max_error: float
+    bodies: tuple
+    estimated_error: float
+
+    @property
+    def faces_full(self) -> int:
+        """Faces of the scene's meshes."""
+        return sum(b.faces_full for b in self.bodies)
+
+    @property
+    def faces(self) -> int:
+        """Faces traced."""
+        return sum(b.faces for b in self.bodies)
+
+    def summary(self) -> str:
+        """One line: faces before and after, the estimated error and the budget."""
+        return (f"level of detail for max_error {self.max_error:g}: {self.faces_full} -> "
+                f"{self.faces} faces, estimated error {self.estimated_error:.3g}")
+
+
+# ------------------------------------------------------------------------------------------
+# the disk cache of decimations
+
+
+def cache_dir() -> Path | None:
+    """The folder of the stored decimations (``lod/`` beside the mesh reports), or None when
+    caching is off (``XRAY_VIZ_CACHE_DIR=off``)."""
+    from xray_viz.meshes import _report_cache
+
+    folder = _report_cache.cache_dir()
+    return None if folder is None else folder.parent / "lod"
+
+
+@lru_cache(maxsize=1)
+def _code_digest() -> bytes:
+    h = hashlib.sha256()
+    for path in (Path(__file__).parent / "meshes" / "decimate.py", Path(__file__)):
+        h.update(path.read_bytes())
+    return h.digest()
+
+
+def _key(mesh, target_faces: int, pitch: float) -> str:
+    h = hashlib.sha256()
+    h.update(f"xray_viz lod {FORMAT} {int(target_faces)} {float(pitch).hex()}".encode())
+    h.update(_code_digest())
+    for a in (np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def _load(key: str):
+    folder = cache_dir()
+    if folder is None:
+        return None
+    try:
+        with np.load(folder / f"{key}.npz") as data:
+            if int(data["format"]) != FORMAT:
+                return None
+            return (np.array(data["vertices"], np.float64), np.array(data["faces"], np.int64),
+                    float(data["path_error"]))
+    except (OSError, ValueError, KeyError, EOFError):
+        return None
+
+
+def _store(key: str, vertices, faces, path_error: float) -> None:
+    folder = cache_dir()
+    if folder is None:
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key[:16]}-", suffix=".npz")
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, format=FORMAT, vertices=vertices, faces=faces,
+                         path_error=path_error)
+            os.replace(tmp, folder / f"{key}.npz")
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+    except OSError:
+        return
+
+
+# ------------------------------------------------------------------------------------------
+# measuring a decimation
+
+
+def _directions(n: int = DIRECTIONS) -> np.ndarray:
+    """``n`` unit vectors spread over a half sphere (a line and its reverse are the same)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - k / n                                   # (0, 1]: one hemisphere
+    phi = np.pi * (3.0 - math.sqrt(5.0)) * np.arange(n)
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _parallel_views(mesh, pitch: float):
+    """Parallel-beam acquisitions through the mesh's bounding sphere, rays ``pitch`` mm apart
+    (coarser when more than :data:`LINES` lines would be needed)."""
+    from xray_viz.geometry import Acquisition
+    from xray_viz.scene import Detector, Source
+
+    v = np.asarray(mesh.vertices, np.float64)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    c = (lo + hi) / 2
+    r = float(np.linalg.norm(hi - lo)) / 2 * 1.01 + pitch
+    pitch = max(float(pitch), 2 * r / LINES)
+    n = int(math.ceil(2 * r / pitch)) + 1
+    views = []
+    for d in _directions():
+        up = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+        src = Source(position=c - 2 * r * d, kind="parallel", energy=60.0)
+        det = Detector(center=c + 2 * r * d, up=up, shape=(n, n), pitch=(pitch, pitch))
+        views.append(Acquisition(source=src, detector=det))
+    return views
+
+
+def path_length_error(mesh, reduced, *, pitch: float, report=None) -> float:
+    """The largest difference of the path lengths of two meshes along a line (mm), measured.
+
+    Both meshes are traced alone by the fast engine along parallel lines ``pitch`` mm apart
+    (at most :data:`LINES` across the bounding sphere) from :data:`DIRECTIONS` directions.
+
+    Parameters
+    ----------
+    mesh, reduced : trimesh.Trimesh
+        Closed meshes (the original and a decimation of it).
+    pitch : float
+        Spacing of the lines (mm).
+    report : MeshReport, optional
+        ``mesh``'s report when known (skips its check).
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> a = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
+    >>> b = trimesh.creation.icosphere(subdivisions=4, radius=20.1)
+    >>> 0.2 < path_length_error(a, b, pitch=0.25) < 4 * (20 * 0.1) ** 0.5  # 2 dr .. rim
+    True
+    """
+    from xray_viz.bodies import Bodies
+    from xray_viz.scene import Body
+    from xray_viz.tracing.engines import ENGINES
+
+    full = Bodies([Body(name="full", mesh=mesh, mu=1.0)], check=False,
+                  reports=None if report is None else (report,))
+    part = Bodies([Body(name="reduced", mesh=reduced, mu=1.0)], check=False)
+    fast = ENGINES["fast"]
+    worst = 0.0
+    for acq in _parallel_views(mesh, pitch):
+        a = fast.path_lengths(full, acq, supersample=1)
+        b = fast.path_lengths(part, acq, supersample=1)
+        worst = max(worst, float(np.abs(a - b).max()))
+    return worst
+
+
+def measuring_pitch(extent: float, spacing: float) -> float:
+    """The spacing of a body's measuring lines: the scene's ray spacing at the body's depth,
+    or ``extent / LINES`` when finer, rounded down to a power of two (mm) so that nearby
+    acquisitions share the cached measurements.
+
+    Examples
+    --------
+    >>> measuring_pitch(80.0, 0.3)       # 80 / 128 = 0.625 > 0.3, rounded down
+    0.5
+    """
+    p = max(float(spacing), float(extent) / LINES)
+    return 2.0 ** math.floor(math.log2(p))
+
+
+#: Decimations of this process (key -> (vertices, faces, dL)), the most recent ones, so that
+#: renders in one session share them even with the disk cache off.
+_MEMORY: dict = {}
+_MEMORY_SIZE = 64
+
+
+def forget() -> None:
+    """Drop the decimations kept in memory (the disk cache stays)."""
+    _MEMORY.clear()
+
+
+def _decimation(mesh, target: int, pitch: float, report):
+    """``(reduced mesh, measured dL)`` for one level, from memory or the disk cache when it is
+    there."""
+    import trimesh
+
+    key = _key(mesh, target, pitch)
+    hit = _MEMORY.get(key)
+    if hit is None:
+        hit = _load(key)
+        if hit is None:
+            from xray_viz.meshes.decimate import collapse
+
+            reduced = collapse(mesh, target)
+            err = path_length_error(mesh, reduced, pitch=pitch, report=report) \
+                if reduced.is_watertight else math.inf
+            hit = (np.asarray(reduced.vertices, np.float64), np.asarray(reduced.faces, np.int64),
+                   err)
+            _store(key, *hit)
+        while len(_MEMORY) >= _MEMORY_SIZE:
+            _MEMORY.pop(next(iter(_MEMORY)))
+        _MEMORY[key] = hit
+    v, f, err = hit
+    return trimesh.Trimesh(v.copy(), f.copy(), process=False), err
+
+
+# ------------------------------------------------------------------------------------------
+# the choice
+
+
+def _mu_max(scene) -> np.ndarray:
+    """(n,) 1/mm: each body's attenuation at the energy of the beam where it is largest."""
+    from xray_viz.physics.imaging import MM_PER_CM, body_mu
+    from xray_viz.physics.spectra import source_spectrum
+
+    spectrum = source_spectrum(scene.source)
+    energies = np.asarray(spectrum.energies)[np.asarray(spectrum.weights) > 0]
+    return body_mu(scene, energies).max(axis=0) / MM_PER_CM
+
+
+def _overlaps(bounds) -> np.ndarray:
+    """(n, n) bool: bounding boxes that meet (each meets itself)."""
+    lo, hi = bounds[:, 0], bounds[:, 1]
+    return np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
+
+
+def _footprints(scene):
+    """``(boxes, k_max)``: each body's projected bounding box on the detector as pixel index
+    ranges ``(i0, i1, j0, j1)`` (None outside the detector) and the most boxes covering any
+    pixel of its own."""
+    acq = scene.acquisition
+    w, h = scene.detector.shape
+    p = acq.projection_matrix()
+    count = np.zeros((h, w), np.int32)
+    boxes = []
+    for lo, hi in scene.bodies.bounds:
+        corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        q = corners @ p.T
+        if np.any(q[:, 2] <= 0):                     # reaches behind a point source: anywhere
+            box = (0, w, 0, h)
+        else:
+            ij = q[:, :2] / q[:, 2:]
+            i0, j0 = np.floor(ij.min(axis=0)).astype(int) - 1
+            i1, j1 = np.ceil(ij.max(axis=0)).astype(int) + 2
+            box = (max(i0, 0), min(i1, w), max(j0, 0), min(j1, h))
+            if box[0] >= box[1] or box[2] >= box[3]:
+                box = None
+        boxes.append(box)
+        if box is not None:
+            count[box[2]:box[3], box[0]:box[1]] += 1
+    k_max = [int(count[b[2]:b[3], b[0]:b[1]].max()) if b is not None else 1 for b in boxes]
+    return boxes, k_max
+
+
+def _ray_spacing(scene, bounds, n: int) -> float:
+    """The distance between neighbouring rays (mm) at the depth of a body's nearest point."""
+    f = scene.acquisition.frame
+    pitch = min(f.pitch)
+    if f.parallel:
+        return pitch / n
+    lo, hi = bounds
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])])
+    depth = max(float(((corners - f.source) @ f.forward).min()), 1e-9 * f.sid)
+    return pitch * depth / f.sid / n
+
+
+def _levels(n_faces: int):
+    """Face counts tried, finest first: halving down to :data:`MIN_FACES`."""
+    out, t = [], n_faces // 2
+    while t >= MIN_FACES:
+        out.append(t)
+        t //= 2
+    return out
+
+
+def check_max_error(max_error) -> float:
+    """``max_error`` as a float, or the one-line refusal of a value that is not > 0."""
+    if isinstance(max_error, bool) or not isinstance(max_error, (int, float, np.floating,
+                                                                 np.integer)) \
+            or not (math.isfinite(float(max_error)) and float(max_error) > 0):
+        raise SceneError(f"max_error must be a number > 0 (the largest change of a pixel's line "
+                         f"integral -ln(I/I0) allowed, e.g. 0.01), got {max_error!r}")
+    return float(max_error)
+
+
+def level_of_detail(scene, max_error, *, supersample: int = 1):
+    """The scene with each body at the coarsest decimation its share of the budget allows.
+
+    Parameters
+    ----------
+    scene : Scene
+    max_error : float
+        Largest change of any pixel's line integral ``-ln(I/I0)`` allowed (see the module
+        docstring for what is estimated and how).
+    supersample : int, optional
+        Rays per pixel along each axis of the render (sets the ray spacing at each body).
+
+    Returns
+    -------
+    scene : Scene
+        The same acquisition; bodies with reduced meshes (names, materials and precedence
+        unchanged). The scene itself when no body is reduced.
+    report : LevelOfDetail
+
+    Raises
+    ------
+    SceneError
+        ``max_error`` not a number > 0.
+    """
+    budget = check_max_error(max_error)
+    bodies = scene.bodies
+    if not len(bodies):
+        return scene, LevelOfDetail(budget, (), 0.0)
+    mu = _mu_max(scene)
+    near = _overlaps(bodies.bounds)
+    contrast = np.array([max(mu[b], float(np.abs(mu[b] - mu[near[b]]).max()))
+                         for b in range(len(bodies))])
+    boxes, k_max = _footprints(scene)
+    reports = bodies.reports
+    chosen, levels = [], []
+    for b, body in enumerate(bodies):
+        mesh, n_full = body.mesh, len(body.faces)
+        share = budget / k_max[b]
+        extent = float(np.linalg.norm(bodies.bounds[b, 1] - bodies.bounds[b, 0]))
+        pitch = measuring_pitch(extent, _ray_spacing(scene, bodies.bounds[b], supersample))
+        best, best_err, best_dl = mesh, 0.0, 0.0
+        if boxes[b] is not None and contrast[b] > 0:
+            for target in _levels(n_full):
+                reduced, dl = _decimation(mesh, target, pitch, reports[b])
+                est = float(SAFETY * contrast[b] * dl)
+                log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g "
+                          "(share %.4g)", body.name, len(reduced.faces), dl, est, share)
+                if not est <= share:
+                    break
+                best, best_err, best_dl = reduced, est, dl
+        elif boxes[b] is None:
+            log.debug("lod: body %r is outside the detector: kept as it is", body.name)
+        chosen.append(best)
+        levels.append(BodyLevel(name=body.name, faces_full=n_full, faces=len(best.faces),
+                                estimated_error=best_err, share=share, path_error_mm=best_dl,
+                                contrast=float(contrast[b]), pitch_mm=pitch))
+    total = _overlap_sum(scene, boxes, [lv.estimated_error for lv in levels])
+    report = LevelOfDetail(budget, tuple(levels), total)
+    log.info("%s", report.summary())
+    for lv in levels:
+        log.debug("  %s: %d -> %d faces, estimated error %.3g (share %.3g)", lv.name,
+                 lv.faces_full, lv.faces, lv.estimated_error, lv.share)
+    if all(m is body.mesh for m, body in zip(chosen, bodies)):
+        return scene, report
+    key = ("lod", "bodies", tuple(lv.faces for lv in levels),
+           tuple(float(lv.pitch_mm) for lv in levels))
+
+    def build():
+        from xray_viz.bodies import Bodies
+
+        new = [body if m is body.mesh else dataclasses.replace(body, mesh=m)
+               for m, body in zip(chosen, bodies)]
+        out = Bodies(new, check=False)
+        # Where bodies overlap, the same body gives the material as at full resolution
+        # (the decimated surfaces of touching bodies may cross where the originals did not).
+        if len(bodies) > 1:
+            out._d.values["precedence"] = bodies.precedence
+        return out
+
+    reduced_bodies = bodies.cached(key, build, limit=4)
+    return scene.replace(bodies=reduced_bodies), report
+
+
+def _overlap_sum(scene, boxes, errors) -> float:
+    """The largest sum of the bodies' estimated errors over any pixel (by their boxes)."""
+    w, h = scene.detector.shape
+    acc = np.zeros((h, w))
+    for box, e in zip(boxes, errors):
+        if box is not None and e > 0:
+            acc[box[2]:box[3], box[0]:box[1]] += e
+    return float(acc.max())
