@@ -64,8 +64,8 @@ def _frog_organs(names=("heart", "spleen")):
 
 @pytest.mark.parametrize("spend", [True, pytest.param(False, marks=pytest.mark.slow)])
 def test_frog_organs_within_budget(spend):
-    """Overlapping bodies of unequal shares, both allocations (the equal shares alone by
-    default in test_overlapping_bodies_share_the_budget)."""
+    """Overlapping bodies of unequal shares, both allocations (the equal shares alone in
+    test_overlapping_bodies_share_the_budget)."""
     scene = _frog_organs()
     image, _ = _check_budget(scene, 0.2, spend_leftover=spend)
     assert all(b.share < 0.2 for b in image.lod.bodies)          # they do overlap
@@ -86,8 +86,8 @@ def test_frog_within_budget_and_reduced():
     with equal shares and with the leftover spent, and reduced either way; spending the
     leftover is not coarser than the budget allows and not finer than the equal shares."""
     scene = _small("frog", 32)
-    equal, _ = _check_budget(scene, 0.2)
-    spent, err = _check_budget(scene, 0.2, spend_leftover=True)
+    equal, _ = _check_budget(scene, 0.2, spend_leftover=False)
+    spent, err = _check_budget(scene, 0.2)
     assert equal.lod.faces < equal.lod.faces_full
     assert spent.lod.faces <= equal.lod.faces
     assert all(b.estimated_error <= b.share for b in equal.lod.bodies)
@@ -143,11 +143,16 @@ def test_no_max_error_is_bit_identical():
 
 def test_overlapping_bodies_share_the_budget():
     scene = _small("nested_spheres", 48)
-    report = xray_viz.render(scene, max_error=0.1).lod
+    report = lod.level_of_detail(scene, 0.1, spend_leftover=False)[1]
     # three concentric spheres: every pixel of the innermost is covered by all three boxes
     assert [round(b.share, 12) for b in report.bodies] == [round(0.1 / 3, 12)] * 3
     assert all(b.estimated_error <= b.share for b in report.bodies)
     assert report.estimated_error <= sum(b.estimated_error for b in report.bodies) + 1e-15
+    # render(max_error=) spends what the equal shares leave: never finer, within the budget
+    spent = xray_viz.render(scene, max_error=0.1).lod
+    assert spent.faces <= report.faces
+    assert all(b.estimated_error <= b.allowance for b in spent.bodies)
+    assert spent.estimated_error <= 0.1
 
 
 def test_a_small_footprint_is_decimated_further():

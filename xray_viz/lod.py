@@ -46,8 +46,8 @@ narrower than :data:`THIN` coarse pixels takes its box: it could lie between the
 the shares of the bodies on any ray add up to at most ``max_error``. (Bounding boxes, the first
 version, overcounted: a box covers pixels its body does not; for the frog's 16 bodies ``k`` goes
 from 11 to 10 at most, the bodies really are that deep in places.)
-``level_of_detail(..., spend_leftover=True)`` then hands what is left on each pixel to the
-levels that save the most faces, keeping every pixel's sum of estimates within the budget.
+Then (``spend_leftover``, on by default) what is left on each pixel goes to the levels that
+save the most faces, keeping every pixel's sum of estimates within the budget.
 
 Footprint
 ---------
@@ -560,7 +560,7 @@ def check_max_error(max_error) -> float:
 
 
 def level_of_detail(scene, max_error, *, supersample: int = 1,
-                    spend_leftover: bool = False):
+                    spend_leftover: bool = True):
     """The scene with each body at the coarsest decimation its share of the budget allows.
 
     Parameters
@@ -577,7 +577,8 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
         most faces per unit of estimated error while every pixel's sum of the estimates of
         the bodies on it stays within ``max_error`` (as safe as the equal shares, by the same
         footprints; the frog, 16 overlapping bodies: 173,500 -> 111,874 faces at 0.2 instead
-        of 168,500). Off by default: :attr:`BodyLevel.share` then bounds every estimate.
+        of 168,500). On by default (what ``render(max_error=...)`` and ``--max-error`` do);
+        False: the equal shares only, :attr:`BodyLevel.share` then bounds every estimate.
 
     Returns
     -------
