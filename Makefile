@@ -27,8 +27,9 @@ demo: setup
 test: setup
 	$(PY) -m pytest -q
 
-## Everything, including every slow stress case.
+## Everything, including every slow stress case (and mbirjax, ~1 GB, for its slow reconstructions).
 test-all: setup
+	$(PY) -m pip install --quiet -e '.[test,docs,ct,ct-mbir]' 2>&1 | { grep -v '^WARNING: Location' || true; }
 	$(PY) -m pytest -q -m "slow or not slow"
 
 ## The documentation site: build/docs/html/index.html (every walkthrough executed; warnings are
