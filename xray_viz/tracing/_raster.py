@@ -959,12 +959,18 @@ def _names(paths=None) -> list:
 #: Relative compile cost of each kernel (measured), to share them out among the workers;
 #: kernels of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.7, ("_project_vertices",): 1.3, ("_cull_triangles",): 1.6,
-          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_bands",): 3.0,
+          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_bands",): 3.5,
           ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.3, ("_finish",): 0.5}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
-_WORKER = ("import sys, warnings; warnings.simplefilter('ignore'); "
-           "from xray_viz.tracing import _raster as R; [R._kernel(n) for n in sys.argv[1:]]")
+#: A worker compiles its kernels in turn, and names each on its output once it is cached (a
+#: closed output - this process gone - does not stop it).
+_WORKER = ("import sys, warnings\nwarnings.simplefilter('ignore')\n"
+           "from xray_viz.tracing import _raster as R\n"
+           "for n in sys.argv[1:]:\n    R._kernel(n)\n"
+           "    try:\n        print(n, flush=True)\n    except OSError:\n        pass\n")
+#: Kernel names each worker has said are cached.
+_done: dict = {}
 
 
 def _is_cached(name: str) -> bool:
@@ -974,16 +980,19 @@ def _is_cached(name: str) -> bool:
     return bool(is_cached and is_cached(_types(SIGNATURES[name]), disp.targetctx))
 
 
-def prepare(paths=None, *, workers: int | None = None) -> list:
+def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     """Start compiling, in background processes, the kernels of ``paths`` (keys of
     :data:`PATHS`; default all) that numba's cache lacks, and return their names.
 
     Meant for a process that has something else to do first (the command line loads the
     scene meanwhile): each kernel is then loaded from the cache when first needed, after
     waiting for the process compiling it. The kernels are shared out among ``workers``
-    processes (default: as many as there are processors, at most 2) by their compile cost;
-    at exit this process waits for the ones still running when a kernel was used, and stops
-    them otherwise. Nothing starts when every kernel is cached, or when there is no cache to
+    processes (default: as many as there are processors, at most 2) by their compile cost,
+    the kernels of the paths ``first`` (the ones the scene most likely needs) before the
+    others, so that they are ready soonest. At exit this process waits for a worker still
+    compiling a kernel of ``first`` if it used a kernel, and stops the workers if it used
+    none; a worker left with only other kernels goes on alone, filling the cache for later
+    processes (its kernels are not needed by this one). Nothing starts when every kernel is cached, or when there is no cache to
     share them through (they are compiled in this process when needed, as without
     :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile` is told.
     """
@@ -999,18 +1008,21 @@ def prepare(paths=None, *, workers: int | None = None) -> list:
     n_workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(missing)))
     groups = [[] for _ in range(n_workers)]
     load = [0.0] * n_workers
-    for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
-        todo = [n for n in unit if n in missing]
-        if todo:
-            k = load.index(min(load))
-            groups[k] += todo
-            load[k] += cost
+    urgent = set(_names(first)) if first is not None else set(missing)
+    for pass_ in (True, False):          # the urgent kernels first, shared out by cost
+        for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
+            todo = [n for n in unit if n in missing and (n in urgent) == pass_]
+            if todo:
+                k = load.index(min(load))
+                groups[k] += todo
+                load[k] += cost
+    _urgent.update(n for n in missing if n in urgent)
     _numba_cache.background_compile(globals()[missing[0]])
     for group in groups:
         if group:
             proc = subprocess.Popen([sys.executable, "-c", _WORKER, *group],
-                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.DEVNULL)
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                    stderr=subprocess.DEVNULL, text=True)
             for n in group:
                 _workers[n] = proc
     if not _atexit_set:
@@ -1022,21 +1034,40 @@ def prepare(paths=None, *, workers: int | None = None) -> list:
 
 
 _atexit_set: list = []
+#: Kernels whose worker this process waits for at exit (when it used a kernel).
+_urgent: set = set()
 
 
 def _wait(name: str) -> None:
+    """Wait until the worker compiling ``name`` says it is cached (or ends): then it is loaded
+    from the cache (compiled here if the worker failed)."""
     proc = _workers.pop(name, None)
-    if proc is not None:
-        proc.wait()          # then loaded from the cache (compiled here if the worker failed)
+    if proc is None:
+        return
+    done = _done.setdefault(id(proc), set())
+    while name not in done:
+        line = proc.stdout.readline()
+        if not line:
+            proc.wait()
+            break
+        done.add(line.strip())
 
 
 def _finish_workers() -> None:
-    """At exit: wait for the workers if this process used a kernel, else stop them."""
-    for proc in set(_workers.values()):
-        if not _ready:
+    """At exit: stop the workers if this process used no kernel; else wait for those still
+    compiling an urgent kernel (see :func:`prepare`) and leave the others to finish alone."""
+    if not _ready:
+        for proc in {id(p): p for p in _workers.values()}.values():
             proc.terminate()
-        proc.wait()
+            proc.wait()
+    else:
+        for name in [n for n in _workers if n in _urgent]:
+            _wait(name)
+        _detached.extend(_workers.values())     # left running: kept referenced to the end
     _workers.clear()
+
+
+_detached: list = []
 
 
 _pool = None
