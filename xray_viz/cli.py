@@ -83,9 +83,10 @@ def _render_command(args) -> int:
 
     check_target(out)                 # a read-only target is refused before the render
     if args.engine == "fast":         # kernels missing from numba's cache: compiled meanwhile
+        from xray_viz._kernel_hint import likely_paths
         from xray_viz.tracing._raster import prepare
 
-        prepare()
+        prepare(first=likely_paths(args.scene))
     scene = load_scene_with_overrides(args)
     h = scene.detector.shape[1]
     log.debug("rendering with engine %s, supersample %s", args.engine,

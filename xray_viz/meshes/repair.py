@@ -232,20 +232,14 @@ def check_mesh(mesh, *, cache: bool = True) -> MeshReport:
 
 
 def _check_mesh(mesh) -> MeshReport:
-    import trimesh
-
     faces = np.asarray(mesh.faces, dtype=np.int64)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     if len(faces):
-        edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-        boundary = len(trimesh.grouping.group_rows(edges, require_count=1))
-        with np.errstate(all="ignore"):  # a flat mesh: zero volume, NaN centre of mass
-            volume = float(mesh.volume)
-        labels, components = _piece_labels(mesh)
+        boundary, watertight, winding, labels, components = _edge_facts(faces, len(vertices))
+        volume = _volume(vertices, faces)
     else:
         boundary, volume, components = 0, 0.0, 0
-    watertight = bool(mesh.is_watertight) if len(faces) else False
-    winding = bool(mesh.is_winding_consistent) if len(faces) else False
+        watertight = winding = False
     flat = _is_flat(vertices, volume) if len(faces) else True
     misoriented = crossing = 0
     self_crossing = None                     # not checked: only a closed surface is tested
@@ -267,6 +261,54 @@ def _check_mesh(mesh) -> MeshReport:
         misoriented=misoriented, flat=flat, crossing=crossing, simple=simple,
         self_intersections=self_crossing,
     )
+
+
+def _edge_facts(faces, n_vertices):
+    """``(boundary, watertight, winding, labels, n_pieces)`` of a face array, from one sort of
+    its edges: trimesh's answers (``group_rows`` of the sorted edges, ``is_watertight``,
+    ``is_winding_consistent``, the connected components of ``face_adjacency``), computed once.
+
+    An edge used by one face is a boundary edge; the mesh is watertight when every edge is
+    used by exactly two faces; the winding is consistent when each edge used by two faces is
+    traversed in opposite directions by them; two faces sharing an edge used by exactly two
+    faces are in the same piece.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    lo = np.minimum(directed[:, 0], directed[:, 1])
+    hi = np.maximum(directed[:, 0], directed[:, 1])
+    key = lo * np.int64(max(n_vertices, 1)) + hi
+    order = np.argsort(key)        # the order within an edge's uses does not matter below
+    ks = key[order]
+    first = np.empty(len(ks), bool)
+    first[0] = True
+    np.not_equal(ks[1:], ks[:-1], out=first[1:])
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.append(starts, len(ks)))
+    boundary = int((counts == 1).sum())
+    pairs = starts[counts == 2]
+    a, b = order[pairs], order[pairs + 1]            # the two uses of each two-face edge
+    watertight = bool(len(pairs) * 2 == len(directed))
+    winding = bool(np.array_equal(directed[a, 1], directed[b, 0]))
+    fa, fb = a // 3, b // 3
+    n = len(faces)
+    graph = coo_matrix((np.ones(len(fa), np.int8), (fa, fb)), shape=(n, n))
+    count, labels = connected_components(graph, directed=False)
+    return boundary, watertight, winding, np.asarray(labels, np.int64), int(count)
+
+
+def _volume(vertices, faces) -> float:
+    """Enclosed volume (trimesh's ``mass_properties`` integral, its volume term only: the same
+    arithmetic, so the same float)."""
+    tri = vertices[faces]
+    a = tri[:, 1] - tri[:, 0]
+    b = tri[:, 2] - tri[:, 1]
+    cross_x = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    f1 = tri[:, 0, 0] + tri[:, 1, 0] + tri[:, 2, 0]
+    with np.errstate(all="ignore"):
+        return float(np.sum(cross_x * f1) / 6.0)
 
 
 def self_intersecting_faces(vertices, faces) -> np.ndarray:

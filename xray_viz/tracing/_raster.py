@@ -328,14 +328,13 @@ def _depth(coef, wrange, t, X, Y):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
-           S, N, cnt, row0, nW, buf_off, buf_w, buf_b):
-    """Visit the samples of compact triangle ``m`` in rows ``y0..y1`` that it covers.
-
-    mode 0: ``S[Y - row0, X] += sign * W`` and ``N[Y - row0, X] += entering`` (one body).
-    mode 1: count hits per sample of the band (``cnt``). mode 2: fill the band's hit buffers.
-    Hits beyond the detector (depth > FL) are dropped.
-    """
+def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange, FL, hk, hw,
+                nh):
+    """Append the hits of compact triangle ``m`` in rows ``y0..y1`` of the band starting at
+    row ``r0`` to ``hk`` (sample index in the band) and ``hw`` (depth) from ``nh`` on; returns
+    the new count. A sample is hit when the triangle covers it (exact edge functions and the
+    tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the depth there is not
+    beyond the detector (FL). Samples in row, then column order."""
     t = tri[m]
     i0 = F[t, 0]
     i1 = F[t, 1]
@@ -349,10 +348,6 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
     o = np.int64(orient[m])
     X0 = cbox[m, 0]
     X1 = cbox[m, 1]
-    entering = o > 0
-    sgn = -1.0 if entering else 1.0
-    dn = 1 if entering else -1
-    body = tri_body[t]
     # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
     e0x = bx - ax
     e0y = by - ay
@@ -375,8 +370,11 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
             E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
             for X in range(X0, X1 + 1):
                 if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                    _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
-                            nW, buf_off, buf_w, buf_b)
+                    Wd = _depth(coef, wrange, m, X, Y)
+                    if Wd <= FL:
+                        hk[nh] = (Y - r0) * nW + X
+                        hw[nh] = Wd
+                        nh += 1
                 E0 += stepx0
                 E1 += stepx1
                 E2 += stepx2
@@ -389,138 +387,184 @@ def _cover(m, y0, y1, mode, tri, F, XY, kind, cbox, orient, coef, wrange, tri_bo
                 s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
                 s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
                 if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                    _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0,
-                            nW, buf_off, buf_w, buf_b)
+                    Wd = _depth(coef, wrange, m, X, Y)
+                    if Wd <= FL:
+                        hk[nh] = (Y - r0) * nW + X
+                        hw[nh] = Wd
+                        nh += 1
+    return nh
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _record(m, X, Y, mode, coef, wrange, FL, sgn, dn, body, S, N, cnt, row0, nW, buf_off,
-            buf_w, buf_b):
-    if mode == 1 and wrange[m, 1] <= FL:
-        cnt[(Y - row0) * nW + X] += 1      # counting pass: the hit is before the detector
-        return
-    W = _depth(coef, wrange, m, X, Y)
-    if W > FL:
-        return
-    if mode == 0:
-        S[Y - row0, X] += sgn * W
-        N[Y - row0, X] += dn
-    elif mode == 1:
-        cnt[(Y - row0) * nW + X] += 1
-    else:
-        k = (Y - row0) * nW + X
-        j = buf_off[k] + cnt[k]
-        cnt[k] += 1
-        buf_w[j] = W
-        buf_b[j] = body * 2 + (1 if dn > 0 else 0)
+def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
+                  cbox, orient, coef, wrange, tri_body, FL, single, S, N, row0, rank, by_rank,
+                  perspective, P00, Ex, Ey, n, W, H, L, ray0):
+    """The banded raster, one body (``single``) or several: bands ``order[lo:hi]``.
 
+    Each band's triangles (``band_tris``, in triangle order) visit the samples of their rows
+    that they cover (exact edge functions and the tie rule, int64 for SMALL triangles, limbs
+    for GIANT ones); a hit beyond the detector (depth > FL) is dropped.
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _raster_single(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-                  orient, coef, wrange, tri_body, FL, S, N, row0):
-    """One body: signed depth sums ``S`` and entry counts ``N`` on the fine grid.
+    ``single``: ``S[Y - row0, X] += sign * depth`` and ``N[Y - row0, X] += entering`` (so
+    ``S`` and ``N`` need only hold the rows of the bands rastered, a window).
 
-    Only the bands ``order`` are rastered; ``S[Y - row0, X]`` and ``N[Y - row0, X]`` receive
-    sample (X, Y), so ``S`` and ``N`` need only hold the rows of those bands (a window).
+    Several bodies: the band's hits are stored in triangle order, grouped by sample (a stable
+    counting sort), sorted by depth per sample (a stable insertion sort: few hits each) and
+    swept: ``L[ray - ray0, b]`` receives the length (mm) of the ray of sample (X, Y) whose
+    material is body ``b``, the body of highest precedence among those the ray is inside
+    (entries minus exits > 0), up to the detector (depth FL): the body of lowest ``rank``
+    (``by_rank[r]`` is the body of rank r; rank -1 never wins; :func:`body_ranks`). Rays are in image order (see
+    :func:`finish`), so ``L`` need only hold the rays of the bands rastered. A sample's hits
+    and their order do not depend on which bands are rastered together.
     """
+    nb = rank.shape[0]
+    few = by_rank.shape[0] <= 65           # ranks fit the bits of a uint64
+    npix_max = band_height * nW
+    cap = 1024
+    hk = np.empty(cap, np.int64)          # sample of each hit (index in the band)
+    hw = np.empty(cap, np.float64)        # its depth
+    hb = np.empty(cap, np.int64)          # body * 2 + entering
+    cnt = np.zeros(npix_max + 1, np.int64)
+    inside = np.zeros(max(nb, 1), np.int64)
     for k in range(lo, hi):
-        dummy_i = np.zeros(1, np.int64)
-        dummy_f = np.zeros(1, np.float64)
-        dummy_b = np.zeros(1, np.int32)
-        b = order[k]
-        r0 = b * band_height
-        r1 = min(nH, r0 + band_height) - 1
-        for idx in range(band_start[b], band_start[b + 1]):
-            m = band_tris[idx]
-            y0 = max(cbox[m, 2], r0)
-            y1 = min(cbox[m, 3], r1)
-            _cover(m, y0, y1, np.int64(0), tri, F, XY, kind, cbox, orient, coef, wrange, tri_body, FL,
-                   S, N, dummy_i, row0, nW, dummy_i, dummy_f, dummy_b)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _raster_multi(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-                 orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
-                 H, L, ray0):
-    """Several bodies: per band, count then store every hit, then sort and sweep each sample.
-
-    ``L[ray - ray0, b]`` receives the length (mm) of the ray of sample (X, Y) whose material is
-    body ``b``: the body of highest ``precedence`` among those the ray is inside (entries minus
-    exits > 0), up to the detector (depth FL). Rays are in image order (see :func:`finish`).
-    Only the bands ``order`` are rastered, so ``L`` need only hold their rays (a window of
-    image rows starting at ray ``ray0``). A sample's hits and their order (by triangle, then a
-    stable sort by depth) do not depend on which bands are rastered together.
-    """
-    nb = precedence.shape[0]
-    for k in range(lo, hi):
-        dummy_S = np.zeros((1, 1), np.float64)
-        dummy_N = np.zeros((1, 1), np.int32)
         b = order[k]
         r0 = b * band_height
         r1 = min(nH, r0 + band_height) - 1
         npix = (r1 - r0 + 1) * nW
-        cnt = np.zeros(npix, np.int64)
-        off = np.zeros(npix + 1, np.int64)
-        dummy_w = np.zeros(1, np.float64)
-        dummy_b = np.zeros(1, np.int32)
+        nh = np.int64(0)
         for idx in range(band_start[b], band_start[b + 1]):
             m = band_tris[idx]
-            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), np.int64(1), tri, F, XY, kind, cbox,
-                   orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off,
-                   dummy_w, dummy_b)
-        for p in range(npix):
-            off[p + 1] = off[p] + cnt[p]
-            cnt[p] = 0
-        total = off[npix]
-        if total == 0:
+            y0 = max(cbox[m, 2], r0)
+            y1 = min(cbox[m, 3], r1)
+            X0 = cbox[m, 0]
+            X1 = cbox[m, 1]
+            need = nh + (X1 - X0 + 1) * (y1 - y0 + 1)
+            if need > cap:
+                cap = max(2 * cap, need)
+                hk2 = np.empty(cap, np.int64)
+                hw2 = np.empty(cap, np.float64)
+                hb2 = np.empty(cap, np.int64)
+                for i in range(nh):
+                    hk2[i] = hk[i]
+                    hw2[i] = hw[i]
+                    hb2[i] = hb[i]
+                hk = hk2
+                hw = hw2
+                hb = hb2
+            n0 = nh
+            nh = _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
+                             FL, hk, hw, nh)
+            if single:
+                sgn = -1.0 if orient[m] > 0 else 1.0
+                dn = 1 if orient[m] > 0 else -1
+                for i in range(n0, nh):
+                    Y = r0 + hk[i] // nW
+                    X = hk[i] - (Y - r0) * nW
+                    S[Y - row0, X] += sgn * hw[i]
+                    N[Y - row0, X] += dn
+                nh = np.int64(0)
+            else:
+                code = np.int64(tri_body[tri[m]]) * 2 + (1 if orient[m] > 0 else 0)
+                for i in range(n0, nh):
+                    hb[i] = code
+        if single or nh == 0:
             continue
-        bw = np.empty(total, np.float64)
-        bb = np.empty(total, np.int32)
-        for idx in range(band_start[b], band_start[b + 1]):
-            m = band_tris[idx]
-            _cover(m, max(cbox[m, 2], r0), min(cbox[m, 3], r1), np.int64(2), tri, F, XY, kind, cbox,
-                   orient, coef, wrange, tri_body, FL, dummy_S, dummy_N, cnt, r0, nW, off, bw,
-                   bb)
-        inside = np.zeros(nb, np.int64)
+        # Group the hits by sample, keeping their order (counting sort).
+        for p in range(npix + 1):
+            cnt[p] = 0
+        for i in range(nh):
+            cnt[hk[i] + 1] += 1
         for p in range(npix):
-            lo = off[p]
-            hi = off[p + 1]
-            if hi == lo:
+            cnt[p + 1] += cnt[p]
+        bw = np.empty(nh, np.float64)
+        bb = np.empty(nh, np.int64)
+        for i in range(nh):
+            j = cnt[hk[i]]
+            cnt[hk[i]] = j + 1
+            bw[j] = hw[i]
+            bb[j] = hb[i]
+        # cnt[p] is now the end of sample p's hits (the start of p + 1's).
+        start = 0
+        for p in range(npix):
+            lo_ = start
+            hi_ = cnt[p]
+            start = hi_
+            if hi_ == lo_:
                 continue
             # Insertion sort of the sample's hits by depth (few per sample).
-            for i in range(lo + 1, hi):
+            for i in range(lo_ + 1, hi_):
                 kw = bw[i]
                 kb = bb[i]
                 j = i - 1
-                while j >= lo and bw[j] > kw:
+                while j >= lo_ and bw[j] > kw:
                     bw[j + 1] = bw[j]
                     bb[j + 1] = bb[j]
                     j -= 1
                 bw[j + 1] = kw
                 bb[j + 1] = kb
-            for q in range(nb):
-                inside[q] = 0
             Y = r0 + p // nW
             X = p % nW
             ray = _sample_ray(X, Y, W, H, n)
             scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
-            for i in range(lo, hi):
-                code = bb[i]
-                if code & 1:
-                    inside[code >> 1] += 1
+            # The winner (highest precedence among the bodies the ray is inside, the lowest
+            # index among equals) is the lowest set bit of ``mask`` over the bodies' ranks.
+            mask = np.uint64(0)
+            for i in range(lo_, hi_):
+                c = bb[i]
+                q = c >> 1
+                if c & 1:
+                    inside[q] += 1
                 else:
-                    inside[code >> 1] -= 1
+                    inside[q] -= 1
                 win = -1
-                best = -1
-                for q in range(nb):
-                    if inside[q] > 0 and precedence[q] > best:
-                        best = precedence[q]
-                        win = q
+                if few:
+                    r = rank[q]
+                    if r >= 0:
+                        if inside[q] > 0:
+                            mask |= np.uint64(1) << np.uint64(r)
+                        else:
+                            mask &= ~(np.uint64(1) << np.uint64(r))
+                    if mask:
+                        win = by_rank[_lowest_bit(mask)]
+                else:                      # more than 64 ranked bodies: look at each
+                    best = nb
+                    for qq in range(nb):
+                        if inside[qq] > 0 and 0 <= rank[qq] < best:
+                            best = rank[qq]
+                            win = qq
                 if win >= 0:
-                    nxt = bw[i + 1] if i + 1 < hi else FL
+                    nxt = bw[i + 1] if i + 1 < hi_ else FL
                     seg = nxt - bw[i]
                     if seg > 0.0:
                         L[ray - ray0, win] += seg * scale
+            for i in range(lo_, hi_):
+                inside[bb[i] >> 1] = 0
+
+
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_INDEX = np.array([0, 1, 48, 2, 57, 49, 28, 3, 61, 58, 50, 42, 38, 29, 17, 4, 62, 55,
+                            59, 36, 53, 51, 43, 22, 45, 39, 33, 30, 24, 18, 12, 5, 63, 47, 56,
+                            27, 60, 41, 37, 16, 54, 35, 52, 21, 44, 32, 23, 11, 46, 26, 40, 15,
+                            34, 20, 31, 10, 25, 14, 19, 9, 13, 8, 7, 6], np.int64)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _lowest_bit(x):
+    """Index of the lowest set bit of a non-zero uint64 (de Bruijn multiplication)."""
+    iso = x & (~x + np.uint64(1))
+    return _DEBRUIJN_INDEX[(iso * _DEBRUIJN) >> np.uint64(58)]
+
+
+def body_ranks(precedence):
+    """``(rank, by_rank)``: each body's place in the order of the banded sweep's winners
+    (precedence descending, then index ascending; -1 for a precedence below 0, which never
+    wins), and the body of each place (and one more entry, unused)."""
+    precedence = np.asarray(precedence, np.int64)
+    order = [q for q in sorted(range(len(precedence)), key=lambda q: (-precedence[q], q))
+             if precedence[q] > -1]
+    rank = np.full(len(precedence), -1, np.int64)
+    rank[order] = np.arange(len(order))
+    return rank, np.array(order + [0], np.int64)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -853,11 +897,9 @@ SIGNATURES = {
     "_setup_planes": "i8 i8 i8[1]r f8[2]r i4[2]r f8[1]r i1[1]r i8[2]r b1 f8[1]r f8[1]r f8[1]r "
                      "f8[1]r f8[1]r f8 i1[1] i1[1] i8[2] f8[2] f8[2]",
     "_bin_triangles": "i8[2]r i8 i8",
-    "_raster_single": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
-                      "i1[1]r f8[2]r f8[2]r i4[1]r f8 f8[2] i4[2] i8",
-    "_raster_multi": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
-                     "i1[1]r f8[2]r f8[2]r i4[1]r f8 i8[1]r b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 "
-                     "f8[2] i8",
+    "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
+                     "i1[1]r f8[2]r f8[2]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
+                     "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
     "_finish": "i8 i8 f8[2]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 i8",
     "_raster_direct": "i8 i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r f8[2]r b1 f8[1]r f8[1]r f8[1]r "
                       "f8[1]r f8[1]r f8 i8 i8 b1 f8[3] i4[3] i8[1] i4[1]r f8[2]r",
@@ -869,8 +911,8 @@ PATHS = {
     "setup": ("_first_use_rank", "_project_vertices"),
     "direct": ("_raster_direct", "_reduce_chunks", "_finish"),
     "banded": ("_cull_triangles", "_setup_planes", "_bin_triangles"),
-    "single": ("_raster_single", "_reduce_chunks", "_finish"),
-    "multi": ("_raster_multi",),
+    "single": ("_raster_bands", "_reduce_chunks", "_finish"),
+    "multi": ("_raster_bands",),
 }
 
 _ready: set = set()
@@ -915,14 +957,20 @@ def _names(paths=None) -> list:
 
 
 #: Relative compile cost of each kernel (measured), to share them out among the workers;
-#: kernels of one tuple share helpers (``_cover``) and go to the same worker.
+#: kernels of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.7, ("_project_vertices",): 1.3, ("_cull_triangles",): 1.6,
-          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_multi", "_raster_single"): 5.4,
+          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_bands",): 3.5,
           ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.3, ("_finish",): 0.5}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
-_WORKER = ("import sys, warnings; warnings.simplefilter('ignore'); "
-           "from xray_viz.tracing import _raster as R; [R._kernel(n) for n in sys.argv[1:]]")
+#: A worker compiles its kernels in turn, and names each on its output once it is cached (a
+#: closed output - this process gone - does not stop it).
+_WORKER = ("import sys, warnings\nwarnings.simplefilter('ignore')\n"
+           "from xray_viz.tracing import _raster as R\n"
+           "for n in sys.argv[1:]:\n    R._kernel(n)\n"
+           "    try:\n        print(n, flush=True)\n    except OSError:\n        pass\n")
+#: Kernel names each worker has said are cached.
+_done: dict = {}
 
 
 def _is_cached(name: str) -> bool:
@@ -932,16 +980,19 @@ def _is_cached(name: str) -> bool:
     return bool(is_cached and is_cached(_types(SIGNATURES[name]), disp.targetctx))
 
 
-def prepare(paths=None, *, workers: int | None = None) -> list:
+def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     """Start compiling, in background processes, the kernels of ``paths`` (keys of
     :data:`PATHS`; default all) that numba's cache lacks, and return their names.
 
     Meant for a process that has something else to do first (the command line loads the
     scene meanwhile): each kernel is then loaded from the cache when first needed, after
     waiting for the process compiling it. The kernels are shared out among ``workers``
-    processes (default: as many as there are processors, at most 2) by their compile cost;
-    at exit this process waits for the ones still running when a kernel was used, and stops
-    them otherwise. Nothing starts when every kernel is cached, or when there is no cache to
+    processes (default: as many as there are processors, at most 2) by their compile cost,
+    the kernels of the paths ``first`` (the ones the scene most likely needs) before the
+    others, so that they are ready soonest. At exit this process waits for a worker still
+    compiling a kernel of ``first`` if it used a kernel, and stops the workers if it used
+    none; a worker left with only other kernels goes on alone, filling the cache for later
+    processes (its kernels are not needed by this one). Nothing starts when every kernel is cached, or when there is no cache to
     share them through (they are compiled in this process when needed, as without
     :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile` is told.
     """
@@ -957,18 +1008,21 @@ def prepare(paths=None, *, workers: int | None = None) -> list:
     n_workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(missing)))
     groups = [[] for _ in range(n_workers)]
     load = [0.0] * n_workers
-    for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
-        todo = [n for n in unit if n in missing]
-        if todo:
-            k = load.index(min(load))
-            groups[k] += todo
-            load[k] += cost
+    urgent = set(_names(first)) if first is not None else set(missing)
+    for pass_ in (True, False):          # the urgent kernels first, shared out by cost
+        for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
+            todo = [n for n in unit if n in missing and (n in urgent) == pass_]
+            if todo:
+                k = load.index(min(load))
+                groups[k] += todo
+                load[k] += cost
+    _urgent.update(n for n in missing if n in urgent)
     _numba_cache.background_compile(globals()[missing[0]])
     for group in groups:
         if group:
             proc = subprocess.Popen([sys.executable, "-c", _WORKER, *group],
-                                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.DEVNULL)
+                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                    stderr=subprocess.DEVNULL, text=True)
             for n in group:
                 _workers[n] = proc
     if not _atexit_set:
@@ -980,21 +1034,40 @@ def prepare(paths=None, *, workers: int | None = None) -> list:
 
 
 _atexit_set: list = []
+#: Kernels whose worker this process waits for at exit (when it used a kernel).
+_urgent: set = set()
 
 
 def _wait(name: str) -> None:
+    """Wait until the worker compiling ``name`` says it is cached (or ends): then it is loaded
+    from the cache (compiled here if the worker failed)."""
     proc = _workers.pop(name, None)
-    if proc is not None:
-        proc.wait()          # then loaded from the cache (compiled here if the worker failed)
+    if proc is None:
+        return
+    done = _done.setdefault(id(proc), set())
+    while name not in done:
+        line = proc.stdout.readline()
+        if not line:
+            proc.wait()
+            break
+        done.add(line.strip())
 
 
 def _finish_workers() -> None:
-    """At exit: wait for the workers if this process used a kernel, else stop them."""
-    for proc in set(_workers.values()):
-        if not _ready:
+    """At exit: stop the workers if this process used no kernel; else wait for those still
+    compiling an urgent kernel (see :func:`prepare`) and leave the others to finish alone."""
+    if not _ready:
+        for proc in {id(p): p for p in _workers.values()}.values():
             proc.terminate()
-        proc.wait()
+            proc.wait()
+    else:
+        for name in [n for n in _workers if n in _urgent]:
+            _wait(name)
+        _detached.extend(_workers.values())     # left running: kept referenced to the end
     _workers.clear()
+
+
+_detached: list = []
 
 
 _pool = None
@@ -1102,7 +1175,11 @@ def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY,
                   orient, coef, wrange, tri_body, FL, S, N, row0):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
                       cbox, orient, coef, wrange, tri_body, FL)
-    _split("_raster_single", 0, len(args[0]), args + (S, N, int(row0)))
+    z3 = np.zeros(3)
+    _split("_raster_bands", 0, len(args[0]),
+           args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64), False,
+                   z3, z3, z3, 1, 1, 1,
+                   np.zeros((1, 1)), 0))
 
 
 def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
@@ -1110,8 +1187,10 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
                  H, L, ray0):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
                       cbox, orient, coef, wrange, tri_body, FL)
-    _split("_raster_multi", 0, len(args[0]),
-           args + (_in(precedence, np.int64), bool(perspective), _in(P00, _f8), _in(Ex, _f8),
+    rank, by_rank = body_ranks(precedence)
+    _split("_raster_bands", 0, len(args[0]),
+           args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
+                   bool(perspective), _in(P00, _f8), _in(Ex, _f8),
                    _in(Ey, _f8), int(n), int(W), int(H), L, int(ray0)))
 
 
@@ -1156,7 +1235,9 @@ class _Entry:
         return f"<xray_viz kernel entry {self.__name__} ({self._kernel_name})>"
 
 
-for _name in ("first_use_rank", "project_vertices", "cull_triangles", "setup_planes", "bin_triangles",
-              "raster_single", "raster_multi", "finish", "raster_direct", "reduce_chunks"):
-    globals()[_name] = _Entry("_" + _name, globals()[_name])
-del _name
+for _name, _kern in (("first_use_rank", None), ("project_vertices", None),
+                     ("cull_triangles", None), ("setup_planes", None), ("bin_triangles", None),
+                     ("raster_single", "_raster_bands"), ("raster_multi", "_raster_bands"),
+                     ("finish", None), ("raster_direct", None), ("reduce_chunks", None)):
+    globals()[_name] = _Entry(_kern or "_" + _name, globals()[_name])
+del _name, _kern
