@@ -305,7 +305,7 @@ class RandomPoses:
     def draws_many(self, ks) -> np.ndarray:
         """``(len(ks), 8)``: :meth:`draws` of every ``k`` at once, the same numbers bit for bit
         (NumPy's ``SeedSequence`` and ``PCG64`` evaluated over all ``k`` together,
-        :func:`_pcg64_uniforms`).
+        ``_pcg64_uniforms``).
 
         Examples
         --------

@@ -41,10 +41,12 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geome
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
-           "pose_table", "done_flags"]
+           "pose_table", "done_flags", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
+           "INLINE_POSES_MAX", "POSE_ROWS"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
+#: The layout version of a store that keeps its whole geometry in its JSON attributes.
 LAYOUT_VERSION = 1
 #: The layout version of a store whose per-projection poses and projection matrices are
 #: Zarr arrays (``per_projection_arrays`` in the geometry attributes), not JSON.
