@@ -28,9 +28,13 @@ def _small(name, size=96):
     return scene.replace(detector=det)
 
 
-def _check_budget(scene, budget):
+def _check_budget(scene, budget, **options):
     full = xray_viz.render(scene)
-    image = xray_viz.render(scene, max_error=budget)
+    if options:
+        reduced, report = lod.level_of_detail(scene, budget, **options)
+        image = dataclasses.replace(xray_viz.render(reduced), lod=report)
+    else:
+        image = xray_viz.render(scene, max_error=budget)
     err = float(np.abs(image.line_integral - full.line_integral).max())
     assert err <= budget, (scene.path, budget, err, image.lod)
     assert image.lod.estimated_error <= budget
@@ -39,10 +43,34 @@ def _check_budget(scene, budget):
     return image, err
 
 
-@pytest.mark.parametrize("budget", BUDGETS)
-@pytest.mark.parametrize("name", ["sphere", "nested_spheres", "step_wedge"])
+@pytest.mark.parametrize("name, budget", [
+    ("nested_spheres", 0.2), pytest.param("nested_spheres", 0.05, marks=pytest.mark.slow),
+    ("step_wedge", 0.05), ("step_wedge", 0.2)])
 def test_measured_error_within_budget_default_sample(name, budget):
+    # (the sphere at both budgets: test_a_loose_budget_is_cheaper...; the frog:
+    # test_frog_organs_within_budget, all 16 bodies behind slow)
     _check_budget(_small(name, 64), budget)
+
+
+def _frog_organs(names=("heart", "spleen")):
+    """Some of the frog's smaller organs (overlapping footprints; 4,000 and 1,500 faces)."""
+    from xray_viz.bodies import Bodies
+
+    scene = _small("frog", 32)
+    keep = [b for b in scene.bodies if b.name in names]
+    assert len(keep) == len(names)
+    return scene.replace(bodies=Bodies(keep, check=False))
+
+
+@pytest.mark.parametrize("spend", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_frog_organs_within_budget(spend):
+    """Overlapping bodies of unequal shares, both allocations (the equal shares alone by
+    default in test_overlapping_bodies_share_the_budget)."""
+    scene = _frog_organs()
+    image, _ = _check_budget(scene, 0.2, spend_leftover=spend)
+    assert all(b.share < 0.2 for b in image.lod.bodies)          # they do overlap
+    bound = "allowance" if spend else "share"
+    assert all(b.estimated_error <= getattr(b, bound) for b in image.lod.bodies)
 
 
 @pytest.mark.slow
@@ -50,6 +78,47 @@ def test_measured_error_within_budget_default_sample(name, budget):
 @pytest.mark.parametrize("name", phantoms.names())
 def test_measured_error_within_budget_every_phantom(name, budget):
     _check_budget(_small(name, 128), budget)
+
+
+@pytest.mark.slow
+def test_frog_within_budget_and_reduced():
+    """16 nested and overlapping bodies (up to 10 footprints on one ray): within the budget
+    with equal shares and with the leftover spent, and reduced either way; spending the
+    leftover is not coarser than the budget allows and not finer than the equal shares."""
+    scene = _small("frog", 32)
+    equal, _ = _check_budget(scene, 0.2)
+    spent, err = _check_budget(scene, 0.2, spend_leftover=True)
+    assert equal.lod.faces < equal.lod.faces_full
+    assert spent.lod.faces <= equal.lod.faces
+    assert all(b.estimated_error <= b.share for b in equal.lod.bodies)
+    assert all(b.estimated_error <= b.allowance for b in spent.lod.bodies)
+
+
+def test_traced_footprints_are_tighter_than_boxes_and_cover_the_rays():
+    """A sphere beside a box in its bounding box's corner region: the boxes overlap, the
+    footprints do not, so neither shares; every ray of the full render that meets a body lies
+    in that body's traced footprint."""
+    from xray_viz.bodies import Bodies
+    from xray_viz.scene import Body
+
+    scene = _small("sphere", 64)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=20.0)
+    cube = trimesh.creation.box(extents=[8.0, 8.0, 8.0])
+    cube.apply_translation([23.0, 23.0, 0.0])          # its corner in the ball's box, not the ball
+    two = scene.replace(bodies=Bodies([Body(name="ball", mesh=ball, mu=0.02),
+                                       Body(name="cube", mesh=cube, mu=0.02)]))
+    boxes = lod._boxes(two)
+    assert boxes[0][0] < boxes[1][1] and boxes[1][0] < boxes[0][1]    # the boxes do overlap
+    assert boxes[0][2] < boxes[1][3] and boxes[1][2] < boxes[0][3]
+    foot = lod._footprints(two, boxes)
+    assert lod._sharing(foot) == [1, 1]
+    L = xray_viz.render(two, path_lengths=True).path_length      # (H, W, 2); 64 px: s = 1
+    assert foot.shape[1:] == L.shape[:2]
+    for b in range(2):
+        assert np.all(foot[b][L[..., b] > 0])
+    # a box narrower than THIN coarse pixels is taken whole
+    tiny = lod._box_mask((10, 12, 40, 41), 1, (64, 64), (64, 64))
+    assert tiny[64 - 1 - 40, 11] and tiny.sum() >= 2 * 1
 
 
 def test_a_loose_budget_is_cheaper_and_a_tighter_one_is_not_looser():
@@ -206,3 +275,19 @@ def test_cli_bad_max_error_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("xray-viz: error: --max-error must be")
     assert not list(tmp_path.iterdir())
+
+
+def test_footprints_kept_per_acquisition(monkeypatch):
+    """A second choice for the same bodies and acquisition does not trace the footprints
+    again (kept on the bodies); a moved source does, and its choice is still within budget."""
+    scene = _small("nested_spheres", 32)
+    first = lod.level_of_detail(scene, 0.2)[1]
+    calls = []
+    real = lod._footprints
+    monkeypatch.setattr(lod, "_footprints", lambda *a: calls.append(1) or real(*a))
+    again = lod.level_of_detail(scene.replace(acquisition=scene.acquisition), 0.2)[1]
+    assert again == first and calls == []
+    moved = scene.replace(source=dataclasses.replace(
+        scene.source, position=np.asarray(scene.source.position) + [5.0, 0.0, 0.0]))
+    _check_budget(moved, 0.2)
+    assert calls == [1]

@@ -147,6 +147,16 @@ def test_a_file_that_does_not_read_back_is_refused_and_the_previous_kept(scene_p
         real = pydicom.dcmwrite
         monkeypatch.setattr(pydicom, "dcmwrite", lambda fp, ds, **k: _truncate_after(
             lambda d, f: real(f, d, **k))(ds, fp))
+    elif suffix == ".tiff":                     # written by tifffile
+        import tifffile
+
+        real = tifffile.imwrite
+
+        def truncated(fh, data, **kwargs):
+            real(fh, data, **kwargs)
+            fh.flush()
+            os.truncate(fh.name, os.path.getsize(fh.name) // 2)
+        monkeypatch.setattr(tifffile, "imwrite", truncated)
     else:
         monkeypatch.setattr(PIL.Image.Image, "save", _truncate_after(PIL.Image.Image.save))
     with pytest.raises(OutputError) as info:
@@ -283,6 +293,7 @@ SLOW_WRITER = textwrap.dedent('''
 
     import numpy as np
     import PIL.Image
+    import tifffile
 
     ready = int(sys.argv[1])
 
@@ -296,6 +307,7 @@ SLOW_WRITER = textwrap.dedent('''
 
     np.save = slowly(np.save)
     PIL.Image.Image.save = slowly(PIL.Image.Image.save)
+    tifffile.imwrite = slowly(tifffile.imwrite)
     from xray_viz.cli import main
     sys.exit(main(sys.argv[2:]))
 ''')
@@ -554,7 +566,7 @@ def _corrupt_vtk_files(folder: Path) -> dict[str, str]:
     for name, data in files.items():
         (folder / name).write_bytes(data)
     return {"latin1_header.vtk": "legacy VTK", "junk.vtk": "legacy VTK",
-            "truncated.vtk": "binary data", "junk.vtp": "XML", "junk.vtu": "unsupported",
+            "truncated.vtk": "binary data", "junk.vtp": "XML", "junk.vtu": "cannot read mesh",
             "bad_dataset.vtk": "DATASET"}
 
 

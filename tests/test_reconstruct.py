@@ -254,11 +254,14 @@ def test_refused_backends_and_mismatches():
     scene, _ = ellipsoid_scene([0, 0, 1], subdivisions=2, shape=(8, 8), pitch=8.0)
     projs, geo = scan(scene, [0.0, 90.0], axis=[0, 0, 1], center=CENTER)
     for method, words in (("astra", "no 3D CPU path"), ("tigre", "needs CUDA"),
-                          ("mbirjax", "not implemented"), ("fbp", "use method='fdk'"),
-                          ("art", "unknown method")):
+                          ("fbp", "use method='fdk'"), ("art", "unknown method")):
         with pytest.raises(ReconstructionError, match=words) as info:
             reconstruct(projs, geo, method=method)
         assert "\n" not in str(info.value)
+    # mbirjax is a method now (tests/test_reconstruct_mbirjax.py); it refuses a parallel beam
+    with pytest.raises(ReconstructionError, match="is for a cone beam") as info:
+        reconstruct(projs, dict(geo, beam="parallel"), method="mbirjax")
+    assert "\n" not in str(info.value)
     with pytest.raises(ReconstructionError, match="helical"):
         reconstruct(projs, dict(geo, orbit="helical", pitch_mm_per_turn=10.0))
     with pytest.raises(ReconstructionError, match=r"shape \(2, 8, 7\)"):

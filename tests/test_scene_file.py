@@ -85,8 +85,8 @@ BAD = [
      "unknown key 'rotaton' (did you mean 'rotation'?); known keys: density, material, mesh, mu, "
      "name, position, repair, rotation, scale, units"),
     ("pitch = 2.0", "pitch = 2.0\npich = 2.0", "known keys: I0, center, electronic_noise, "
-     "falloff, focal_spot, gain, mtf, noise, pitch, response, scintillator, seed, shape, size, "
-     "supersample, up"),
+     "falloff, focal_spot, gain, mtf, noise, offset, pitch, response, scintillator, seed, shape, "
+     "size, supersample, u, up, v"),
 ]
 
 

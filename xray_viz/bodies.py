@@ -387,7 +387,9 @@ class Bodies(Sequence):
         boxes = self.bounds
         if parallel:
             fr = acq.frame
-            forward, eu, ev = fr.forward, fr.ho, fr.ve
+            forward, eu, ev = fr.depth_axis, fr.project_u, fr.project_v
+            if not fr.plain:       # tilted or offset: the source plane from the middle ray
+                r0 = fr.source + (fr.middle - fr.center)
             hu, hv = acq.half_widths
             slab = beam_planes(r0, forward, eu, ev, 0.0, hu, hv, False)[:4]
             aside = boxes_outside_beam(boxes[:, 0], boxes[:, 1], r0, slab)

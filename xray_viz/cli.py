@@ -67,15 +67,11 @@ from xray_viz.scene_options import (OVERRIDES, _compile_notice, add_scene_overri
 
 def _render_command(args) -> int:
     import xray_viz
-    from xray_viz.output import FORMATS, save_image
+    from xray_viz.output import check_format, save_image
     from xray_viz.render import ENGINES
 
     out = Path(args.output)
-    if out.suffix.lower() not in FORMATS:
-        from xray_viz.errors import OutputError
-
-        raise OutputError(f"{out}: unknown output format {out.suffix or '(none)'!r}; "
-                          f"use one of {', '.join(FORMATS)}")
+    check_format(out)                 # an unknown suffix (.nii.gz is one format) is refused
     if args.supersample is not None and args.supersample < 1:
         raise XrayVizError(f"--supersample must be >= 1, got {args.supersample}")
     if args.max_error is not None and not (args.max_error > 0 and args.max_error < float("inf")):
@@ -248,7 +244,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a scene .toml file (or a gVirtualXray .json scene), or a bundled phantom "
                         "name (`xray-viz phantoms`)")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="output file: .npy, .tiff, .png or .dcm (DICOM with the geometry)")
+                   help="output file: .npy, .tiff, .png, .dcm (DICOM), .nii/.nii.gz (NIfTI) "
+                        "or .h5 (HDF5); all but .npy keep the pixel pitch and the scene's "
+                        "geometry (xray_viz.load_image reads them back)")
     p.add_argument("--quantity", choices=QUANTITIES, default="intensity",
                    help="what to write: intensity I = I0 exp(-line integral) (default), the "
                         "line integral sum(mu L), or the total path length in mm")

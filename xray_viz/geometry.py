@@ -14,6 +14,14 @@ Conventions (thesis section 1.0.1, with its errata fixed):
 * Parallel beam: ray (i, j) starts at ``r0 + (u_i - 1/2) HO + (v_j - 1/2) VE`` and runs along
   ``forward``.
 
+A tilted or offset detector (:class:`~xray_viz.scene.Detector` ``u``, ``v``, ``offset``) keeps
+these names for the untilted, unshifted case: the beam axis is still ``source -> center``, but
+the pixel points lie on the detector's own plane (through ``center``, normal ``v x u``), at
+``middle + (u_i - 1/2) |HO| u + (v_j - 1/2) |VE| v`` with ``middle = center + du u + dv v``
+(:class:`DetectorFrame`). A point source's rays run from the source through the pixel points;
+a parallel beam's run along the beam axis through them, from the plane through the source
+parallel to the detector (for an untilted detector, the plane across the beam, as above).
+
 Rays are returned in *image order*: ray ``k = row * W + col`` with ``col = i`` and
 ``row = H - 1 - j``, so that ``array.reshape(H, W)`` is an image whose row 0 is the top (v = 1)
 and column 0 the left (u = 0).
@@ -21,6 +29,7 @@ and column 0 the left (u = 0).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -29,12 +38,18 @@ import numpy as np
 from xray_viz.errors import SceneError
 
 __all__ = ["Acquisition", "DetectorFrame", "FineGrid", "Viewport", "viewport", "detector_axes",
+           "tilted_normal", "TILT_TOLERANCE",
            "beam_direction", "pixel_coordinates", "detector_rays", "Rays", "check_supersample",
            "beam_planes", "boxes_outside_beam", "row_range", "UP_TOLERANCE"]
 
 #: ``up`` is refused as parallel to the beam when ``|forward x unit(up)|`` is below this (the
 #: sine of the angle between them): ``unit(forward x up)`` would lose most of its digits.
 UP_TOLERANCE = 1e-9
+
+#: A tilted detector is refused as (nearly) parallel to the beam when the cosine of the angle
+#: between the beam axis and its normal is below this (an angle above 89.99994 degrees): its
+#: pixels would be seen edge-on, and a parallel beam's oblique projection would blow up.
+TILT_TOLERANCE = 1e-6
 
 
 def beam_direction(source_position, detector_center) -> np.ndarray:
@@ -78,7 +93,8 @@ class Viewport:
 
     @property
     def normal(self) -> np.ndarray:
-        """Unit normal of the detector plane, pointing away from the source (= forward)."""
+        """Unit normal of the untilted detector plane, pointing away from the source (=
+        forward; a tilted detector's is :attr:`DetectorFrame.normal`)."""
         return self.forward
 
     def point(self, u, v) -> np.ndarray:
@@ -109,6 +125,32 @@ def detector_axes(source_position, detector_center, up) -> tuple[np.ndarray, np.
                          "detector centre); choose an up vector across the beam")
     ho_dir /= norm
     return forward, ho_dir, np.cross(ho_dir, forward)
+
+
+def tilted_normal(source_position, detector_center, u, v) -> np.ndarray:
+    """Unit normal ``v x u`` of a tilted detector's plane, checked to face the source.
+
+    Raises
+    ------
+    SceneError
+        When the plane is (nearly, :data:`TILT_TOLERANCE`) parallel to the beam axis (source
+        -> detector centre) or its front (``u x v``) faces away from the source.
+    """
+    forward = beam_direction(source_position, detector_center)
+    u = np.asarray(u, np.float64)
+    v = np.asarray(v, np.float64)
+    n = np.cross(v, u)
+    n /= np.linalg.norm(n)
+    cos = float(n @ forward)
+    if not abs(cos) >= TILT_TOLERANCE:
+        raise SceneError(f"[detector] u {u.tolist()}, v {v.tolist()}: the detector plane is "
+                         f"parallel to the beam (source -> detector centre, cos = {cos:.3g}); "
+                         "tilt it less than 89.9999 degrees")
+    if cos < 0:
+        raise SceneError(f"[detector] u {u.tolist()}, v {v.tolist()}: the detector faces away "
+                         "from the source (u x v must point towards it, as unit(HO) x unit(VE) "
+                         "does); negate u or v")
+    return n
 
 
 def viewport(source_position, detector) -> Viewport:
@@ -254,7 +296,9 @@ def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
     """
     n = check_supersample(supersample)
     acq = scene if isinstance(scene, Acquisition) else getattr(scene, "acquisition", None)
-    vp = acq.viewport if acq is not None else viewport(scene.source.position, scene.detector)
+    if acq is None:
+        acq = Acquisition(source=scene.source, detector=scene.detector)
+    vp = acq.viewport
     w, h = vp.shape
     start, stop = row_range(rows, h)
     # The rows of pixel_coordinates(vp.shape), computed for these rows only (same values).
@@ -269,7 +313,21 @@ def detector_rays(scene, *, supersample: int = 1, rows=None) -> Rays:
         ou, ov = np.meshgrid(offs * du, offs[::-1] * dv)
         u = (u[:, None] + ou.ravel()[None, :]).ravel()
         v = (v[:, None] + ov.ravel()[None, :]).ravel()
-    if scene.source.kind == "parallel":
+    fr = acq.frame
+    if not fr.plain:                 # a tilted or offset detector: its own pixel points
+        width, height = acq.detector.size
+        points = fr.middle + (u[:, None] - 0.5) * (width * fr.ho) \
+            + (v[:, None] - 0.5) * (height * fr.ve)
+        if fr.parallel:
+            origins = points - fr.sid * fr.forward
+            directions = np.broadcast_to(fr.forward, origins.shape).copy()
+            t_max = np.full(len(origins), fr.sid)
+        else:
+            d = points - fr.source
+            t_max = np.linalg.norm(d, axis=1)
+            directions = d / t_max[:, None]
+            origins = np.broadcast_to(fr.source, directions.shape).copy()
+    elif scene.source.kind == "parallel":
         forward = vp.forward
         origins = vp.r0 + (u[:, None] - 0.5) * vp.HO + (v[:, None] - 0.5) * vp.VE
         directions = np.broadcast_to(forward, origins.shape).copy()
@@ -292,8 +350,14 @@ class FineGrid:
     """Where the rays of an ``n x n`` supersampled detector grid lie, in its frame.
 
     The fine (sub-ray) grid has ``n W`` columns and ``n H`` rows, sample ``(x, y)`` (x to the
-    right, y up) at ``center + p00 + x * ex + y * ey``; a point ``(a, b)`` mm from the detector
-    centre along ``ho``, ``ve`` has fine coordinates ``(a * sx + bx, b * sy + by)``.
+    right, y up) at ``middle + p00 + x * ex + y * ey`` (:attr:`DetectorFrame.middle`, the
+    detector centre). The projection of a point ``p`` onto the detector has fine coordinates
+    ``(sx * a + bx, sy * b + by)`` with ``(a, b) = D (ho . (p - r0), ve . (p - r0)) /
+    normal . (p - r0)`` for a point source (a plane-to-plane homography, ``D`` =
+    :attr:`DetectorFrame.distance`) and ``(a, b) = (project_u . (p - r0), project_v . (p -
+    r0))`` for a parallel beam (:attr:`DetectorFrame.project_u`): ``(bx, by)`` is the
+    principal point, the projection of the source (:attr:`DetectorFrame.principal`; the
+    detector centre when it is untilted and not offset).
 
     Attributes
     ----------
@@ -302,11 +366,15 @@ class FineGrid:
     sx, sy : float
         Fine samples per mm along ``ho`` and ``ve``.
     bx, by : float
-        Fine coordinates of the detector centre.
+        Fine coordinates of the principal point.
     ex, ey : (3,) float
         One fine step along ``ho`` and ``ve`` (mm vectors).
     p00 : (3,) float
         Offset of fine sample ``(0, 0)`` from the detector centre (mm).
+    q00 : (3,) float
+        Where the ray of fine sample ``(0, 0)`` is taken from the source ``r0`` (mm): its
+        detector point minus ``r0`` for a point source, its origin minus ``r0`` for a parallel
+        beam (on the plane through the source parallel to the detector).
     """
 
     n: int
@@ -317,6 +385,7 @@ class FineGrid:
     ex: np.ndarray
     ey: np.ndarray
     p00: np.ndarray
+    q00: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -330,10 +399,10 @@ class DetectorFrame:
     center : (3,) float
         The detector centre (mm).
     forward : (3,) float
-        Unit beam axis, from the source to the detector centre (``unit(-FL)``).
+        Unit beam axis, from the source to ``center`` (``unit(-FL)``).
     ho, ve : (3,) float
         Unit vectors along the detector's rows (left to right, ``unit(HO)``) and columns
-        (bottom to top, ``unit(VE)``).
+        (bottom to top, ``unit(VE)``); a tilted detector's own ``u`` and ``v``.
     sid : float
         Source-to-detector distance along the axis, ``|FL|`` (mm).
     parallel : bool
@@ -342,6 +411,18 @@ class DetectorFrame:
         ``(W, H)`` rays.
     pitch : (float, float)
         mm between neighbouring rays along ``ho`` and ``ve``.
+    normal : (3,) float
+        Unit normal of the detector plane, away from the source: ``forward`` when untilted,
+        else ``ve x ho``.
+    distance : float
+        Source-to-detector-plane distance along ``normal``, ``D = normal . (center - r0)``
+        (``sid`` when untilted).
+    offset : (float, float)
+        ``(du, dv)`` mm: the detector centre ``middle = center + du ho + dv ve``.
+    middle : (3,) float
+        The middle of the pixel grid (``center`` unless offset).
+    tilted : bool
+        The detector has its own axes (``ho``, ``ve`` were given, not derived).
     """
 
     source: np.ndarray
@@ -353,6 +434,72 @@ class DetectorFrame:
     parallel: bool
     shape: tuple
     pitch: tuple
+    normal: np.ndarray = None
+    distance: float = None
+    offset: tuple = (0.0, 0.0)
+    middle: np.ndarray = None
+    tilted: bool = False
+
+    def __post_init__(self):
+        if self.normal is None:
+            object.__setattr__(self, "normal", self.forward)
+        if self.distance is None:
+            object.__setattr__(self, "distance", self.sid)
+        if self.middle is None:
+            object.__setattr__(self, "middle", self.center)
+
+    @property
+    def plain(self) -> bool:
+        """Untilted and not offset: the thesis' detector (every formula as before)."""
+        return not self.tilted and tuple(self.offset) == (0.0, 0.0)
+
+    @cached_property
+    def depth_axis(self) -> np.ndarray:
+        """(3,) float: ``g`` with ``g . (p - r0)`` the depth of a point ``p`` that the fast
+        engine uses: the distance from the source plane along the normal for a point source
+        (``normal``), the distance along a parallel beam's ray from the plane through the
+        source parallel to the detector (``normal / (normal . forward)``; ``forward`` when
+        untilted). The detector lies at depth :attr:`depth`."""
+        if self.parallel and self.tilted:
+            return self.normal / float(self.normal @ self.forward)
+        return self.normal
+
+    @property
+    def depth(self) -> float:
+        """Depth of the detector along :attr:`depth_axis` (mm): ``distance`` for a point
+        source, ``sid`` for a parallel beam (every ray's length from the source plane)."""
+        return self.sid if self.parallel else self.distance
+
+    @cached_property
+    def project_u(self) -> np.ndarray:
+        """(3,) float: the linear part of the projection onto the detector along ``ho``: ``ho``
+        itself for a point source or an untilted detector; for a parallel beam onto a tilted
+        one, the oblique projection along ``forward``, ``ho - (ho . forward) / (normal .
+        forward) normal``."""
+        return self._oblique(self.ho)
+
+    @cached_property
+    def project_v(self) -> np.ndarray:
+        """(3,) float: as :attr:`project_u`, along ``ve``."""
+        return self._oblique(self.ve)
+
+    def _oblique(self, e):
+        if self.parallel and self.tilted:
+            return e - float(e @ self.forward) / float(self.normal @ self.forward) * self.normal
+        return e
+
+    @cached_property
+    def principal(self) -> tuple[float, float]:
+        """``(cu, cv)`` mm: where the source projects onto the detector, from its middle along
+        ``ho`` and ``ve`` (the principal point: the foot of the perpendicular from a point
+        source, the ray through ``center`` of a parallel beam); ``(0, 0)`` when untilted and
+        not offset."""
+        if self.tilted and not self.parallel:
+            rel = self.source - self.center
+            base = (float(self.ho @ rel), float(self.ve @ rel))
+        else:            # the beam axis meets the plane at ``center``
+            base = (0.0, 0.0)
+        return (base[0] - self.offset[0], base[1] - self.offset[1])
 
     def grid(self, n: int = 1) -> FineGrid:
         """The ``n x n`` supersampled ray grid in this frame (:class:`FineGrid`)."""
@@ -361,29 +508,44 @@ class DetectorFrame:
         bx = n * (w - 1) / 2 + (n - 1) / 2
         by = n * (h - 1) / 2 + (n - 1) / 2
         ex, ey = (px / n) * self.ho, (py / n) * self.ve
-        return FineGrid(n=n, sx=n / px, sy=n / py, bx=bx, by=by, ex=ex, ey=ey,
-                        p00=-bx * ex - by * ey)
+        p00 = -bx * ex - by * ey
+        if not self.parallel:
+            q00 = (self.middle + p00) - self.source
+        elif self.plain:
+            q00 = p00
+        else:
+            q00 = (self.middle + p00 - self.sid * self.forward) - self.source
+        cu, cv = self.principal
+        return FineGrid(n=n, sx=n / px, sy=n / py, bx=bx + (n / px) * cu, by=by + (n / py) * cv,
+                        ex=ex, ey=ey, p00=p00, q00=q00)
 
 
-def beam_planes(r0, forward, eu, ev, FL, half_u, half_v, perspective) -> np.ndarray:
+def beam_planes(r0, forward, eu, ev, FL, half_u, half_v, perspective, *,
+                principal=(0.0, 0.0)) -> np.ndarray:
     """Planes bounding the beam: every ray point ``x`` has ``n . (x - r0) <= c`` for each row
     ``(nx, ny, nz, c)`` of the result.
 
     Rows 0-3 are the side planes (through the source for a point source: the pyramid from the
     source through the detector rectangle of half-widths ``half_u``, ``half_v`` mm along ``eu``
     and ``ev``; the slab box of a parallel beam), row 4 the source plane (nothing behind it),
-    row 5 the detector plane (rays end there, ``FL`` from the source).
+    row 5 the detector plane (rays end there, ``FL`` from the source). ``forward`` is the depth
+    axis (:attr:`DetectorFrame.depth_axis`), ``eu``, ``ev`` the projection's linear parts
+    (:attr:`DetectorFrame.project_u`) and ``principal`` the projection of the source relative
+    to the middle of the rectangle (mm, :attr:`DetectorFrame.principal`): a point ``x``
+    projects to ``a = FL eu . (x - r0) / forward . (x - r0) + cu`` (point source) or ``a = eu .
+    (x - r0) + cu`` (parallel beam).
     """
     f = np.asarray(forward, np.float64)
     eu = np.asarray(eu, np.float64)
     ev = np.asarray(ev, np.float64)
+    cu, cv = (float(c) for c in principal)
     rows = []
-    for e, h in ((eu, half_u), (ev, half_v)):
+    for e, h, c in ((eu, half_u, cu), (ev, half_v, cv)):
         for s in (1.0, -1.0):
             if perspective:
-                rows.append(np.append(s * FL * e - h * f, 0.0))   # |a| FL <= h w
+                rows.append(np.append(s * FL * e - (h - s * c) * f, 0.0))   # |a| w <= h w
             else:
-                rows.append(np.append(s * e, h))                  # |a| <= h
+                rows.append(np.append(s * e, h - s * c))                    # |a| <= h
     rows.append(np.append(-f, 0.0))
     rows.append(np.append(f, FL))
     return np.ascontiguousarray(rows, dtype=np.float64)
@@ -423,8 +585,9 @@ class Acquisition:
     Raises
     ------
     SceneError
-        If the source sits at the detector centre or the detector's ``up`` is parallel to the
-        beam.
+        If the source sits at the detector centre, the detector's ``up`` is parallel to the
+        beam, or a tilted detector's plane is parallel to the beam or faces away from the
+        source (:func:`tilted_normal`).
 
     Examples
     --------
@@ -446,13 +609,25 @@ class Acquisition:
     @cached_property
     def frame(self) -> DetectorFrame:
         """The :class:`DetectorFrame` (beam axis, detector axes, distance)."""
+        det = self.detector
         r0 = np.asarray(self.source.position, np.float64)
-        center = np.asarray(self.detector.center, np.float64)
-        forward, ho, ve = detector_axes(r0, center, self.detector.up)
-        return DetectorFrame(source=r0, center=center, forward=forward, ho=ho, ve=ve,
-                             sid=float(np.linalg.norm(r0 - center)),
-                             parallel=self.source.kind == "parallel",
-                             shape=tuple(self.detector.shape), pitch=tuple(self.detector.pitch))
+        center = np.asarray(det.center, np.float64)
+        sid = float(np.linalg.norm(r0 - center))
+        tilted = getattr(det, "u", None) is not None
+        offset = tuple(float(x) for x in getattr(det, "offset", (0.0, 0.0)))
+        if tilted:
+            forward = beam_direction(r0, center)
+            ho, ve = np.asarray(det.u, np.float64), np.asarray(det.v, np.float64)
+            normal = tilted_normal(r0, center, ho, ve)
+            distance = float(normal @ (center - r0))
+        else:
+            forward, ho, ve = detector_axes(r0, center, det.up)
+            normal, distance = forward, sid
+        middle = center if offset == (0.0, 0.0) else center + offset[0] * ho + offset[1] * ve
+        return DetectorFrame(source=r0, center=center, forward=forward, ho=ho, ve=ve, sid=sid,
+                             parallel=self.source.kind == "parallel", shape=tuple(det.shape),
+                             pitch=tuple(det.pitch), normal=normal, distance=distance,
+                             offset=offset, middle=middle, tilted=tilted)
 
     @cached_property
     def viewport(self) -> Viewport:
@@ -487,7 +662,8 @@ class Acquisition:
         (:func:`beam_planes`, :attr:`half_widths`)."""
         f = self.frame
         hu, hv = self.half_widths
-        out = beam_planes(f.source, f.forward, f.ho, f.ve, f.sid, hu, hv, not f.parallel)
+        out = beam_planes(f.source, f.depth_axis, f.project_u, f.project_v, f.depth, hu, hv,
+                          not f.parallel, principal=f.principal)
         out.setflags(write=False)
         return out
 
@@ -503,9 +679,13 @@ class Acquisition:
     def key(self) -> tuple:
         """Hashable: equal for acquisitions whose rays are the same (results may be shared)."""
         src, det = self.source, self.detector
+        f = self.frame
+        tilt = (tuple(f.offset), tuple(f.ho.tolist()), tuple(f.ve.tolist())) if not f.plain \
+            else ()
         return (tuple(np.asarray(src.position, float).tolist()), src.kind,
                 tuple(np.asarray(det.center, float).tolist()),
-                tuple(np.asarray(det.up, float).tolist()), tuple(det.shape), tuple(det.pitch))
+                tuple(np.asarray(det.up, float).tolist()), tuple(det.shape), tuple(det.pitch)
+                ) + tilt
 
     def rotated(self, angle: float, *, axis=(0.0, 0.0, 1.0), center=(0.0, 0.0, 0.0)
                 ) -> "Acquisition":
@@ -542,8 +722,10 @@ class Acquisition:
         k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
         rot = np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)     # Rodrigues
         source = dataclasses.replace(self.source, position=c + rot @ (self.source.position - c))
+        turned = {"u": rot @ self.detector.u, "v": rot @ self.detector.v} \
+            if getattr(self.detector, "u", None) is not None else {}
         detector = dataclasses.replace(self.detector, center=c + rot @ (self.detector.center - c),
-                                       up=rot @ self.detector.up)
+                                       up=rot @ self.detector.up, **turned)
         return Acquisition(source=source, detector=detector)
 
     def projection_matrix(self) -> np.ndarray:
@@ -551,8 +733,13 @@ class Acquisition:
 
         ``P @ [x, y, z, 1] = w * [i, j, 1]`` with ``i`` the image column (0 at the left) and
         ``j`` the row counted from the *bottom* (``j = H - 1 - row``), both in pixels; ``w > 0``
-        is the depth along the beam of a point in front of a point source. A parallel beam's
-        matrix is affine (last row ``[0, 0, 0, 1]``).
+        is the depth along the detector's normal of a point in front of a point source. A
+        point source's matrix is ``K [R | -R r0]`` with ``R`` the rows ``ho``, ``ve``,
+        ``normal`` and ``K = [[D/pu, 0, cx + cu/pu], [0, D/pv, cy + cv/pv], [0, 0, 1]]``
+        (``D`` the distance to the detector plane, ``(cu, cv)`` the principal point,
+        :attr:`DetectorFrame.principal`, ``(cx, cy)`` the middle pixel): a tilted or offset
+        detector is a general pinhole camera. A parallel beam's matrix is affine (last row
+        ``[0, 0, 0, 1]``; oblique for a tilted detector).
 
         Examples
         --------
@@ -566,11 +753,13 @@ class Acquisition:
         (w, h), (pu, pv) = f.shape, f.pitch
         cx, cy = (w - 1) / 2, (h - 1) / 2
         if f.parallel:
-            rows = [np.append(f.ho / pu, cx - f.ho @ f.center / pu),
-                    np.append(f.ve / pv, cy - f.ve @ f.center / pv), [0.0, 0.0, 0.0, 1.0]]
+            eu, ev = f.project_u, f.project_v
+            rows = [np.append(eu / pu, cx - eu @ f.middle / pu),
+                    np.append(ev / pv, cy - ev @ f.middle / pv), [0.0, 0.0, 0.0, 1.0]]
             return np.array(rows, np.float64)
-        m = np.array([f.sid / pu * f.ho + cx * f.forward, f.sid / pv * f.ve + cy * f.forward,
-                      f.forward])
+        cu, cv = f.principal
+        n, d = f.normal, f.distance
+        m = np.array([d / pu * f.ho + (cx + cu / pu) * n, d / pv * f.ve + (cy + cv / pv) * n, n])
         return np.hstack([m, -(m @ f.source)[:, None]])
 
     @classmethod
@@ -578,6 +767,15 @@ class Acquisition:
                                sid: float | None = None, depth: float = 0.0, like
                                ) -> "Acquisition":
         """The acquisition whose :meth:`projection_matrix` is ``matrix`` (to a scale factor).
+
+        A point source's matrix is a general pinhole camera, decomposed by an RQ
+        factorisation (:func:`scipy.linalg.rq`) into the source, the detector plane (its
+        normal and distance) and the principal point. A tilted detector and an untilted one
+        through the foot of the perpendicular from the source, offset to the same pixels, have
+        the same rays and the same matrix: the untilted, offset one is returned. A parallel
+        beam's affine matrix gives the ray direction and the detector axes seen along it; of
+        the two mirror-image tilts that project alike, the one with ``u . forward >= 0`` is
+        returned (untilted when the axes are across the beam).
 
         Parameters
         ----------
@@ -594,14 +792,14 @@ class Acquisition:
             detector centre``, mm; default 0).
         like : Acquisition
             Gives the source's and the detector's other fields (energy, spectrum, ``I0``,
-            noise, ...); its position, centre, up, shape and pitch are replaced.
+            noise, ...); its position, centre, up, axes, offset, shape and pitch are replaced.
 
         Raises
         ------
         SceneError
-            A matrix that is not finite or not of this form: skewed or mirrored pixel axes,
-            a principal point off the detector centre (an offset detector) or different
-            distances along the two axes (tilted detectors and offsets are not supported yet).
+            A matrix that is not finite or not of this form: skewed pixel axes or different
+            distances along the two axes at the given pitch (a non-square or skewed pixel grid
+            is not supported yet).
 
         Examples
         --------
@@ -624,43 +822,68 @@ class Acquisition:
         tol = 1e-9
 
         def refuse(what):
-            raise SceneError(f"projection matrix: {what} (tilted or offset detectors are not "
-                             "supported yet)")
+            raise SceneError(f"projection matrix: {what} (skewed or non-square pixel grids are "
+                             "not supported yet)")
 
+        u = v = None
+        offset = (0.0, 0.0)
         if parallel:
             if not abs(p[2, 3]) > 0 or np.any(p[2, :3] != 0):
                 refuse("a parallel beam's matrix has the last row [0, 0, 0, 1]")
             if sid is None:
                 raise SceneError("from_projection_matrix: a parallel beam needs sid= (mm)")
             p = p / p[2, 3]
-            ho, ve = p[0, :3] * pu, p[1, :3] * pv
+            eu, ev = p[0, :3] * pu, p[1, :3] * pv            # the projection's linear parts
+            forward = np.cross(ev, eu)
+            if not np.linalg.norm(forward) > 0:
+                refuse("its pixel axes are parallel")
+            forward /= np.linalg.norm(forward)
+            # The axes seen along the beam (the dual basis of eu, ev across it) ...
+            g = np.linalg.inv(np.array([eu, ev, forward]))
+            u0, v0 = g[:, 0], g[:, 1]
+            # ... lifted along the beam to unit, perpendicular detector axes.
+            # (the tilt is known to ~1e-8 rad only: 1 - |u0|^2 is its square; below 1e-12,
+            # untilted)
+            def lift(a0):
+                a2 = 1.0 - float(a0 @ a0)
+                return math.sqrt(a2) if a2 > 1e-12 else 0.0
+
+            alpha = lift(u0)
+            beta = -float(u0 @ v0) / alpha if alpha > 0 else lift(v0)
+            ho, ve = u0 + alpha * forward, v0 + beta * forward
             if abs(np.linalg.norm(ho) - 1) > tol or abs(np.linalg.norm(ve) - 1) > tol \
                     or abs(ho @ ve) > tol:
-                refuse("its pixel axes are not orthogonal at the given pitch")
-            forward = np.cross(ve, ho)
-            center = ho * (cx - p[0, 3]) * pu + ve * (cy - p[1, 3]) * pv + forward * depth
+                refuse("its pixel axes are not those of a detector of this pitch")
+            center = u0 * (cx - p[0, 3]) * pu + v0 * (cy - p[1, 3]) * pv + forward * depth
             position = center - float(sid) * forward
+            if alpha > 0 or abs(beta) > 0:
+                u, v = ho, ve
         else:
+            import scipy.linalg
+
             p = p / np.linalg.norm(p[2, :3])
             if np.linalg.det(p[:, :3]) > 0:
                 p = -p
             m = p[:, :3]
-            forward = m[2]
             position = -np.linalg.solve(m, p[:, 3])
-            pcx, pcy = m[0] @ forward, m[1] @ forward
-            hs, vs = m[0] - pcx * forward, m[1] - pcy * forward
-            ku, kv = np.linalg.norm(hs), np.linalg.norm(vs)
-            ho, ve = hs / ku, vs / kv
-            if abs(ho @ ve) > tol or not np.allclose(np.cross(ho, forward), ve, atol=tol):
-                refuse("its pixel axes are skewed or mirrored")
-            if abs(pcx - cx) > tol * max(1.0, cx) or abs(pcy - cy) > tol * max(1.0, cy):
-                refuse(f"its principal point ({pcx:.6g}, {pcy:.6g}) is not the detector centre "
-                       f"({cx:g}, {cy:g})")
-            if abs(ku * pu - kv * pv) > tol * ku * pu:
+            k, q = scipy.linalg.rq(m)
+            signs = np.sign(np.diag(k))
+            if np.any(signs == 0):
+                refuse("it is singular")
+            k, q = k * signs, signs[:, None] * q              # K with a positive diagonal
+            k = k / k[2, 2]
+            ho, ve, forward = q
+            if abs(k[0, 1]) > tol * k[0, 0]:
+                refuse("its pixel axes are skewed")
+            if abs(k[0, 0] * pu - k[1, 1] * pv) > tol * k[0, 0] * pu:
                 refuse("the pitch gives different source-to-detector distances along u and v")
-            center = position + ku * pu * forward
+            distance = k[0, 0] * pu
+            center = position + distance * forward            # the foot of the perpendicular
+            du, dv = (cx - k[0, 2]) * pu, (cy - k[1, 2]) * pv
+            offset = tuple(0.0 if abs(x) <= tol * max(1.0, distance) else float(x)
+                           for x in (du, dv))
         source = dataclasses.replace(like.source, position=position,
                                      kind="parallel" if parallel else "point")
         detector = dataclasses.replace(like.detector, center=center, up=ve, shape=(w, h),
-                                       pitch=(pu, pv))
+                                       pitch=(pu, pv), u=u, v=v, offset=offset)
         return cls(source=source, detector=detector)

@@ -37,10 +37,17 @@ that meet a silhouette closer than the measuring lines did. It is validated, not
 tests render every bundled phantom at full and reduced detail and check the measured error
 against the budget.
 
-Bodies whose footprints overlap share the budget: each pixel is covered by the projected bounding
-boxes of ``k`` bodies at most, and a body gets ``max_error / k_max`` where ``k_max`` is the most
-boxes covering any pixel of its own box, so the shares of the bodies on any ray add up to at most
-``max_error``.
+Bodies whose footprints overlap share the budget. The footprints are traced: the
+full-resolution bodies are rendered by the fast engine at the scene's own acquisition on a coarse
+grid (:data:`COARSE` pixels across at most), a body's footprint is where its path length is > 0,
+dilated by one coarse pixel for the rays between the coarse ones (a body whose projected box is
+narrower than :data:`THIN` coarse pixels takes its box: it could lie between them). A body gets
+``max_error / k`` where ``k`` is the most footprints meeting on any coarse pixel of its own, so
+the shares of the bodies on any ray add up to at most ``max_error``. (Bounding boxes, the first
+version, overcounted: a box covers pixels its body does not; for the frog's 16 bodies ``k`` goes
+from 11 to 10 at most, the bodies really are that deep in places.)
+``level_of_detail(..., spend_leftover=True)`` then hands what is left on each pixel to the
+levels that save the most faces, keeping every pixel's sum of estimates within the budget.
 
 Footprint
 ---------
@@ -53,7 +60,7 @@ Caching
 -------
 Decimated meshes and their measured ``dL`` are kept on disk by the SHA-256 of the mesh arrays,
 the face count, the measuring pitch and the source of :mod:`xray_viz.meshes.decimate` and of this
-module, in ``lod/`` next to the mesh reports (:mod:`xray_viz.meshes._report_cache`: the same
+module, in ``lod/`` next to the mesh reports (``xray_viz.meshes._report_cache``: the same
 ``XRAY_VIZ_CACHE_DIR``, ``off`` turns it off), so a second run pays nothing; in memory, the
 reduced :class:`~xray_viz.bodies.Bodies` are kept on the scene's bodies, so a CT orbit or a viewer
 pays the set-up once.
@@ -100,6 +107,13 @@ DIRECTIONS = 9
 #: Measuring lines across a body's bounding sphere (along each detector axis), at most.
 LINES = 128
 
+#: Coarse grid of the traced footprints (pixels along the detector's longest side, at most).
+COARSE = 128
+
+#: A body whose projected box spans fewer coarse pixels than this (either way) shares the
+#: budget by its box (it could lie between the coarse rays).
+THIN = 4
+
 #: Bumped when the stored format changes.
 FORMAT = 1
 
@@ -117,7 +131,12 @@ class BodyLevel:
         Estimated largest change of a pixel's line integral caused by this body's decimation
         (``SAFETY x contrast x path_error_mm``; 0 at full resolution).
     share : float
-        This body's share of the budget.
+        This body's equal share of the budget, ``max_error / k`` (``k``: the most bodies whose
+        footprints meet on a pixel of its own); every body is first decimated within it.
+    allowance : float
+        What the budget leaves this body once the others' estimates are counted on every pixel
+        of its footprint (>= ``estimated_error``): the budget left over after the equal shares
+        is spent where it saves the most faces.
     path_error_mm : float
         Measured largest change of the body's path length along a line (mm).
     contrast : float
@@ -134,6 +153,7 @@ class BodyLevel:
     path_error_mm: float
     contrast: float
     pitch_mm: float
+    allowance: float = math.nan
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,14 +211,23 @@ def _code_digest() -> bytes:
     return h.digest()
 
 
-def _key(mesh, target_faces: int, pitch: float) -> str:
+def _mesh_digest(mesh) -> "hashlib._Hash":
+    """SHA-256 state of the mesh arrays and the code (:func:`_key` finishes a copy of it)."""
     h = hashlib.sha256()
-    h.update(f"xray_viz lod {FORMAT} {int(target_faces)} {float(pitch).hex()}".encode())
+    h.update(f"xray_viz lod {FORMAT}".encode())
     h.update(_code_digest())
     for a in (np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)):
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())
         h.update(memoryview(a).cast("B"))
+    return h
+
+
+def _key(mesh, target_faces: int, pitch: float, digest=None) -> str:
+    """The stored name of one level (``digest``: :func:`_mesh_digest` of ``mesh``, when known:
+    the mesh is then not hashed again for every level)."""
+    h = (_mesh_digest(mesh) if digest is None else digest).copy()
+    h.update(f" {int(target_faces)} {float(pitch).hex()}".encode())
     return h.hexdigest()
 
 
@@ -272,7 +301,7 @@ def _parallel_views(mesh, pitch: float):
     return views
 
 
-def path_length_error(mesh, reduced, *, pitch: float, report=None) -> float:
+def path_length_error(mesh, reduced, *, pitch: float, report=None, keep=None) -> float:
     """The largest difference of the path lengths of two meshes along a line (mm), measured.
 
     Both meshes are traced alone by the fast engine along parallel lines ``pitch`` mm apart
@@ -286,6 +315,10 @@ def path_length_error(mesh, reduced, *, pitch: float, report=None) -> float:
         Spacing of the lines (mm).
     report : MeshReport, optional
         ``mesh``'s report when known (skips its check).
+    keep : dict, optional
+        Where ``mesh``'s own path lengths are kept between calls with the same ``mesh`` and
+        ``pitch`` (the levels of one body: the full mesh is traced once, not per level); one
+        dict per mesh (an entry made for another mesh is replaced).
 
     Returns
     -------
@@ -303,13 +336,19 @@ def path_length_error(mesh, reduced, *, pitch: float, report=None) -> float:
     from xray_viz.scene import Body
     from xray_viz.tracing.engines import ENGINES
 
-    full = Bodies([Body(name="full", mesh=mesh, mu=1.0)], check=False,
-                  reports=None if report is None else (report,))
-    part = Bodies([Body(name="reduced", mesh=reduced, mu=1.0)], check=False)
     fast = ENGINES["fast"]
+    views = _parallel_views(mesh, pitch)
+    key = float(pitch)                               # (one dict per mesh: see below)
+    ref = None if keep is None else keep.get(key)
+    if ref is None or ref[0] is not mesh:
+        full = Bodies([Body(name="full", mesh=mesh, mu=1.0)], check=False,
+                      reports=None if report is None else (report,))
+        ref = (mesh, [np.array(fast.path_lengths(full, acq, supersample=1)) for acq in views])
+        if keep is not None:
+            keep[key] = ref
+    part = Bodies([Body(name="reduced", mesh=reduced, mu=1.0)], check=False)
     worst = 0.0
-    for acq in _parallel_views(mesh, pitch):
-        a = fast.path_lengths(full, acq, supersample=1)
+    for acq, a in zip(views, ref[1]):
         b = fast.path_lengths(part, acq, supersample=1)
         worst = max(worst, float(np.abs(a - b).max()))
     return worst
@@ -340,20 +379,24 @@ def forget() -> None:
     _MEMORY.clear()
 
 
-def _decimation(mesh, target: int, pitch: float, report):
+def _decimation(mesh, target: int, pitch: float, report, source=None, keep=None,
+                digest=None):
     """``(reduced mesh, measured dL)`` for one level, from memory or the disk cache when it is
-    there."""
+    there. ``source``: the previous (finer) level of the halving sequence of :func:`_levels`,
+    collapsed further instead of ``mesh`` (the collapse's cost goes with the faces it starts
+    from; the levels are a fixed sequence, so the result still depends only on ``mesh`` and
+    ``target``); the error is measured against ``mesh``."""
     import trimesh
 
-    key = _key(mesh, target, pitch)
+    key = _key(mesh, target, pitch, digest)
     hit = _MEMORY.get(key)
     if hit is None:
         hit = _load(key)
         if hit is None:
             from xray_viz.meshes.decimate import collapse
 
-            reduced = collapse(mesh, target)
-            err = path_length_error(mesh, reduced, pitch=pitch, report=report) \
+            reduced = collapse(mesh if source is None else source, target)
+            err = path_length_error(mesh, reduced, pitch=pitch, report=report, keep=keep) \
                 if reduced.is_watertight else math.inf
             hit = (np.asarray(reduced.vertices, np.float64), np.asarray(reduced.faces, np.int64),
                    err)
@@ -385,14 +428,12 @@ def _overlaps(bounds) -> np.ndarray:
     return np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
 
 
-def _footprints(scene):
-    """``(boxes, k_max)``: each body's projected bounding box on the detector as pixel index
-    ranges ``(i0, i1, j0, j1)`` (None outside the detector) and the most boxes covering any
-    pixel of its own."""
+def _boxes(scene):
+    """Each body's projected bounding box on the detector as pixel index ranges
+    ``(i0, i1, j0, j1)`` (``j`` counted from the bottom; None outside the detector)."""
     acq = scene.acquisition
     w, h = scene.detector.shape
     p = acq.projection_matrix()
-    count = np.zeros((h, w), np.int32)
     boxes = []
     for lo, hi in scene.bodies.bounds:
         corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
@@ -408,10 +449,82 @@ def _footprints(scene):
             if box[0] >= box[1] or box[2] >= box[3]:
                 box = None
         boxes.append(box)
-        if box is not None:
-            count[box[2]:box[3], box[0]:box[1]] += 1
-    k_max = [int(count[b[2]:b[3], b[0]:b[1]].max()) if b is not None else 1 for b in boxes]
-    return boxes, k_max
+    return boxes
+
+
+def _coarse_acquisition(scene):
+    """``(acquisition, s)``: the scene's acquisition with pixels ``s`` times larger, at most
+    :data:`COARSE` across, covering the whole detector."""
+    from xray_viz.geometry import Acquisition
+
+    det = scene.detector
+    w, h = det.shape
+    s = max(1, math.ceil(max(w, h) / COARSE))
+    if s == 1:
+        return scene.acquisition, 1
+    coarse = dataclasses.replace(det, shape=(math.ceil(w / s), math.ceil(h / s)),
+                                 pitch=tuple(float(p) * s for p in det.pitch))
+    return Acquisition(source=scene.source, detector=coarse), s
+
+
+def _box_mask(box, s, fine, coarse):
+    """(ch, cw) bool: a box ``(i0, i1, j0, j1)`` of fine pixels (``j`` from the bottom) on the
+    coarse grid of :func:`_coarse_acquisition` (same centre, row 0 at the top), one coarse
+    pixel wider each way."""
+    (w, h), (cw, ch) = fine, coarse
+    i0, i1, j0, j1 = box
+
+    def col(i):
+        return (i - (w - 1) / 2) / s + (cw - 1) / 2
+
+    def row(j):                                       # fine row from the bottom -> coarse row
+        return (h - 1 - j - (h - 1) / 2) / s + (ch - 1) / 2
+
+    m = np.zeros((ch, cw), bool)
+    c0, c1 = max(math.floor(col(i0)) - 1, 0), min(math.ceil(col(i1)) + 2, cw)
+    r0, r1 = max(math.floor(row(j1)) - 1, 0), min(math.ceil(row(j0)) + 2, ch)
+    m[r0:r1, c0:c1] = True
+    return m
+
+
+def _footprints(scene, boxes):
+    """(n, ch, cw) bool: where each body's rays may run, on a coarse grid of the detector.
+
+    The full-resolution bodies are traced by the fast engine at :func:`_coarse_acquisition`;
+    a body's footprint is where its path length is > 0, dilated by one coarse pixel (the
+    scene's rays between the coarse ones, and the decimated surface's small displacement). A
+    body whose box spans fewer than :data:`THIN` coarse pixels in either direction (it could
+    lie between the coarse rays) takes its box instead; so does every body when the coarse
+    trace is refused (a triangle across the plane of a point source)."""
+    from scipy.ndimage import binary_dilation
+
+    from xray_viz.tracing.engines import ENGINES
+
+    acq, s = _coarse_acquisition(scene)
+    cw, ch = acq.detector.shape
+    n = len(scene.bodies)
+    try:
+        L = np.asarray(ENGINES["fast"].path_lengths(scene.bodies, acq, supersample=1))
+        inside = (L > 0).reshape(ch, cw, n).transpose(2, 0, 1)
+    except SceneError:
+        inside = None
+    out = np.zeros((n, ch, cw), bool)
+    for b, box in enumerate(boxes):
+        if box is None:
+            continue
+        thin = min(box[1] - box[0], box[3] - box[2]) < THIN * s
+        if inside is None or thin:
+            out[b] = _box_mask(box, s, scene.detector.shape, (cw, ch))
+        else:
+            out[b] = binary_dilation(inside[b], structure=np.ones((3, 3), bool))
+    return out
+
+
+def _sharing(footprints) -> list:
+    """Each body's ``k``: the most bodies whose footprints meet at any coarse pixel of its own
+    (1 for a body with no footprint)."""
+    count = footprints.sum(axis=0)
+    return [int(count[f].max()) if f.any() else 1 for f in footprints]
 
 
 def _ray_spacing(scene, bounds, n: int) -> float:
@@ -446,7 +559,8 @@ def check_max_error(max_error) -> float:
     return float(max_error)
 
 
-def level_of_detail(scene, max_error, *, supersample: int = 1):
+def level_of_detail(scene, max_error, *, supersample: int = 1,
+                    spend_leftover: bool = False):
     """The scene with each body at the coarsest decimation its share of the budget allows.
 
     Parameters
@@ -457,6 +571,13 @@ def level_of_detail(scene, max_error, *, supersample: int = 1):
         docstring for what is estimated and how).
     supersample : int, optional
         Rays per pixel along each axis of the render (sets the ray spacing at each body).
+    spend_leftover : bool, optional
+        After every body is decimated within its equal share ``max_error / k``, give what the
+        budget leaves on each coarse pixel, step by step, to the next level that saves the
+        most faces per unit of estimated error while every pixel's sum of the estimates of
+        the bodies on it stays within ``max_error`` (as safe as the equal shares, by the same
+        footprints; the frog, 16 overlapping bodies: 173,500 -> 111,874 faces at 0.2 instead
+        of 168,500). Off by default: :attr:`BodyLevel.share` then bounds every estimate.
 
     Returns
     -------
@@ -478,31 +599,85 @@ def level_of_detail(scene, max_error, *, supersample: int = 1):
     near = _overlaps(bodies.bounds)
     contrast = np.array([max(mu[b], float(np.abs(mu[b] - mu[near[b]]).max()))
                          for b in range(len(bodies))])
-    boxes, k_max = _footprints(scene)
+    boxes = _boxes(scene)
+    acq = scene.acquisition
+    fkey = ("lod", "footprints", acq.projection_matrix().tobytes(),
+            np.asarray(acq.source.position, np.float64).tobytes(), tuple(scene.detector.shape),
+            bool(acq.frame.parallel))
+    footprints = bodies.cached(fkey, lambda: _footprints(scene, boxes), limit=4)
+    k_max = _sharing(footprints)
     reports = bodies.reports
-    chosen, levels = [], []
-    for b, body in enumerate(bodies):
-        mesh, n_full = body.mesh, len(body.faces)
-        share = budget / k_max[b]
+    n = len(bodies)
+    pitches, shares, steps = [], [], []
+    for b in range(n):
         extent = float(np.linalg.norm(bodies.bounds[b, 1] - bodies.bounds[b, 0]))
-        pitch = measuring_pitch(extent, _ray_spacing(scene, bodies.bounds[b], supersample))
-        best, best_err, best_dl = mesh, 0.0, 0.0
-        if boxes[b] is not None and contrast[b] > 0:
-            for target in _levels(n_full):
-                reduced, dl = _decimation(mesh, target, pitch, reports[b])
-                est = float(SAFETY * contrast[b] * dl)
-                log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g "
-                          "(share %.4g)", body.name, len(reduced.faces), dl, est, share)
-                if not est <= share:
-                    break
-                best, best_err, best_dl = reduced, est, dl
-        elif boxes[b] is None:
-            log.debug("lod: body %r is outside the detector: kept as it is", body.name)
-        chosen.append(best)
-        levels.append(BodyLevel(name=body.name, faces_full=n_full, faces=len(best.faces),
-                                estimated_error=best_err, share=share, path_error_mm=best_dl,
-                                contrast=float(contrast[b]), pitch_mm=pitch))
-    total = _overlap_sum(scene, boxes, [lv.estimated_error for lv in levels])
+        pitches.append(measuring_pitch(extent, _ray_spacing(scene, bodies.bounds[b],
+                                                            supersample)))
+        shares.append(budget / k_max[b])
+        steps.append(iter(_levels(len(bodies[b].faces)))
+                     if boxes[b] is not None and contrast[b] > 0 else iter(()))
+        if boxes[b] is None:
+            log.debug("lod: body %r is outside the detector: kept as it is", bodies[b].name)
+
+    last = [None] * n                                # the last level made of each body
+    keeps = [{} for _ in range(n)]                   # each full mesh's measuring traces
+    digests = [None] * n                             # each full mesh hashed once
+
+    def step(b):
+        """The next level of body ``b``: ``(mesh, dL, estimate)``, or None."""
+        target = next(steps[b], None)
+        if target is None:
+            return None
+        if digests[b] is None:
+            digests[b] = _mesh_digest(bodies[b].mesh)
+        reduced, dl = _decimation(bodies[b].mesh, target, pitches[b], reports[b],
+                                  source=last[b], keep=keeps[b],
+                                  digest=digests[b])
+        last[b] = reduced
+        est = float(SAFETY * contrast[b] * dl)
+        log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g (share %.4g)",
+                  bodies[b].name, len(reduced.faces), dl, est, shares[b])
+        return reduced, dl, est
+
+    chosen = [body.mesh for body in bodies]
+    dls, errs, pending = [0.0] * n, [0.0] * n, [None] * n
+    # 1. every body within its equal share, budget / k
+    for b in range(n):
+        while (nxt := step(b)) is not None and nxt[2] <= shares[b]:
+            chosen[b], dls[b], errs[b] = nxt
+        pending[b] = nxt
+    # 2. what is left on each coarse pixel goes, step by step, to the next level saving the
+    # most faces per unit of estimated error that keeps every pixel's sum within the budget
+    acc = np.zeros(footprints.shape[1:])
+    for b in range(n):
+        acc[footprints[b]] += errs[b]
+    while spend_leftover:
+        best, rate = None, -1.0
+        for b in range(n):
+            if pending[b] is None:
+                continue
+            extra = pending[b][2] - errs[b]
+            if not (acc[footprints[b]].max(initial=0.0) + extra <= budget):
+                pending[b] = None                    # the sums only grow: never again
+                continue
+            r = (len(chosen[b].faces) - len(pending[b][0].faces)) / max(extra, 1e-300)
+            if r > rate:
+                best, rate = b, r
+        if best is None:
+            break
+        reduced, dl, est = pending[best]
+        acc[footprints[best]] += est - errs[best]
+        chosen[best], dls[best], errs[best] = reduced, dl, est
+        pending[best] = step(best)
+    levels = []
+    for b, body in enumerate(bodies):
+        others = (acc[footprints[b]].max(initial=0.0) - errs[b]) if footprints[b].any() else 0.0
+        levels.append(BodyLevel(name=body.name, faces_full=len(body.faces),
+                                faces=len(chosen[b].faces), estimated_error=errs[b],
+                                share=shares[b], path_error_mm=dls[b],
+                                contrast=float(contrast[b]), pitch_mm=pitches[b],
+                                allowance=float(max(budget - others, errs[b]))))
+    total = _overlap_sum(footprints, [lv.estimated_error for lv in levels])
     report = LevelOfDetail(budget, tuple(levels), total)
     log.info("%s", report.summary())
     for lv in levels:
@@ -529,11 +704,10 @@ def level_of_detail(scene, max_error, *, supersample: int = 1):
     return scene.replace(bodies=reduced_bodies), report
 
 
-def _overlap_sum(scene, boxes, errors) -> float:
-    """The largest sum of the bodies' estimated errors over any pixel (by their boxes)."""
-    w, h = scene.detector.shape
-    acc = np.zeros((h, w))
-    for box, e in zip(boxes, errors):
-        if box is not None and e > 0:
-            acc[box[2]:box[3], box[0]:box[1]] += e
-    return float(acc.max())
+def _overlap_sum(footprints, errors) -> float:
+    """The largest sum of the bodies' estimated errors over any coarse pixel."""
+    acc = np.zeros(footprints.shape[1:])
+    for f, e in zip(footprints, errors):
+        if e > 0:
+            acc[f] += e
+    return float(acc.max()) if acc.size else 0.0

@@ -6,10 +6,11 @@ An :class:`Orbit` turns the acquisition of a scene into the acquisitions of a sc
   ``theta_k = start + k * arc / n`` (a full scan is ``arc = 360``, a short scan
   ``180 + fan angle``);
 * ``"helical"``: the same, also moved by ``pitch * theta_k / 360`` mm along the axis;
-* ``"poses"``: an explicit source position, detector centre and detector ``u``/``v`` per
-  projection (like ASTRA's ``cone_vec``); untilted detectors only for now (``u``, ``v`` must
-  be the frame that :class:`~xray_viz.geometry.Acquisition` derives from the source and the
-  centre);
+* ``"poses"``: an explicit source position, detector centre (the middle of the pixel grid)
+  and detector ``u``/``v`` per projection (like ASTRA's ``cone_vec``); ``u``, ``v`` other than
+  the frame that :class:`~xray_viz.geometry.Acquisition` derives from the source and the
+  centre are a tilted detector (:class:`~xray_viz.scene.Detector` ``u``, ``v``). A parallel
+  beam's pose has its source on the ray through the detector centre.
 * ``"poses"`` drawn at random (:class:`RandomPoses`, ``[scan] poses = { random = N, seed = 7,
   ... }``): a training set of DRRs, each projection's pose a function of ``(seed, k)`` only,
   so the same on every worker in any batch order.
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import SceneError
-from xray_viz.geometry import Acquisition, detector_axes
+from xray_viz.geometry import Acquisition, detector_axes, tilted_normal
 
 __all__ = ["Orbit", "ORBITS", "SCAN_KEYS", "orbit_from_dict", "pose_acquisition", "check_pose",
            "read_poses", "RandomPoses", "RANDOM_KEYS"]
@@ -496,8 +497,9 @@ def check_pose(pose, *, where: str = "") -> tuple:
     Raises
     ------
     SceneError
-        If the pose is not a table of those four 3-vectors, or ``u``/``v`` are not the detector
-        frame derived from the source and the centre (tilted detectors are not supported yet).
+        If the pose is not a table of those four 3-vectors, ``u`` and ``v`` are not
+        perpendicular (to 1e-9 after normalising), or the detector plane they span is parallel
+        to the beam or faces away from the source.
     """
     keys = {"source", "detector_center", "u", "v"}
     if not isinstance(pose, dict) or set(pose) != keys:
@@ -507,22 +509,35 @@ def check_pose(pose, *, where: str = "") -> tuple:
     if not (np.linalg.norm(u) > 0 and np.linalg.norm(v) > 0):
         raise SceneError(f"{where}u and v must be non-zero vectors")
     u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+    if not abs(u @ v) <= POSE_TOLERANCE:
+        raise SceneError(f"{where}u {u.tolist()} and v {v.tolist()} must be perpendicular "
+                         f"(u . v = {u @ v:.3g})")
     try:
-        _, ho, ve = detector_axes(s, c, v)
+        tilted_normal(s, c, u, v)
     except SceneError as exc:
-        raise SceneError(f"{where}{exc}") from None
-    if np.abs(ho - u).max() > POSE_TOLERANCE or np.abs(ve - v).max() > POSE_TOLERANCE:
-        raise SceneError(f"{where}u/v are not the detector frame of source -> detector_center "
-                         f"(u = {ho.tolist()}, v = {ve.tolist()}): tilted detectors are not "
-                         "supported yet")
+        raise SceneError(f"{where}{str(exc).removeprefix('[detector] ')}") from None
     return s, c, u, v
 
 
+def _untilted(s, c, u, v) -> bool:
+    """``u``, ``v`` are the frame derived from ``s -> c`` with ``up = v`` (to POSE_TOLERANCE)."""
+    try:
+        _, ho, ve = detector_axes(s, c, v)
+    except SceneError:
+        return False
+    return np.abs(ho - u).max() <= POSE_TOLERANCE and np.abs(ve - v).max() <= POSE_TOLERANCE
+
+
 def pose_acquisition(base: Acquisition, pose, *, where: str = "") -> Acquisition:
-    """``base`` with the source and the detector placed as ``pose`` says (:func:`check_pose`)."""
-    s, c, _, v = check_pose(pose, where=where)
+    """``base`` with the source and the detector placed as ``pose`` says (:func:`check_pose`):
+    an untilted detector centred on ``detector_center`` when ``u``, ``v`` are the frame
+    derived from the source and the centre, else a tilted one (its ``u``, ``v``); no offset
+    (the pose's centre is the middle of the pixel grid)."""
+    s, c, u, v = check_pose(pose, where=where)
+    tilt = {"u": None, "v": None} if _untilted(s, c, u, v) else {"u": u, "v": v}
     return Acquisition(source=dataclasses.replace(base.source, position=s),
-                       detector=dataclasses.replace(base.detector, center=c, up=v))
+                       detector=dataclasses.replace(base.detector, center=c, up=v,
+                                                    offset=(0.0, 0.0), **tilt))
 
 
 def read_poses(path) -> tuple:

@@ -1,6 +1,8 @@
-"""Writing images: ``.npy`` (float64 as computed), ``.tiff`` (float32), ``.png`` (16-bit) and
-DICOM ``.dcm`` (a 16-bit DX image with the geometry of the scene; the physical values through a
-Real World Value Mapping).
+"""Writing and reading images: ``.npy`` (float64 as computed), ``.tiff`` (float32), ``.png``
+(16-bit), NIfTI ``.nii``/``.nii.gz`` and HDF5 ``.h5`` (float64), and DICOM ``.dcm`` (a 16-bit DX
+image; the physical values through a Real World Value Mapping). Every format but ``.npy`` keeps
+the pixel pitch in its own fields and the scene's geometry and scene file in its metadata
+(:func:`save_image`); :func:`load_image` reads them back (:class:`ImageMetadata`).
 
 Files are written to a temporary name beside the target, read back, and renamed into place
 (:func:`atomic_write`), so a failed or interrupted write never leaves a half-written file and
@@ -9,28 +11,36 @@ never loses the previous one.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import stat
 import tempfile
 import threading
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from xray_viz.errors import OutputError, WriteInterrupted, one_line
 
-__all__ = ["save_image", "load_image", "to_uint16", "dicom_dataset", "dicom_values",
-           "atomic_write", "check_target", "FORMATS", "UNITS"]
+__all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
+           "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
+           "format_of", "FORMATS", "UNITS"]
 
 #: Output suffixes and what they hold.
 FORMATS = {
     ".npy": "the float64 array exactly as the API returns it",
-    ".tiff": "float32 TIFF",
-    ".tif": "float32 TIFF",
-    ".png": "16-bit grey PNG, attenuation bright, windowed to the data",
+    ".tiff": "float32 TIFF, pixel pitch and scene geometry in its tags",
+    ".tif": "float32 TIFF, pixel pitch and scene geometry in its tags",
+    ".png": "16-bit grey PNG, attenuation bright, windowed to the data; pitch (pHYs), window "
+            "and geometry in its chunks",
     ".dcm": "DICOM DX image, 16-bit, values by Real World Value Mapping, geometry of the scene",
+    ".nii": "NIfTI-1, float64, the detector's pixel positions (mm) as its affine, geometry",
+    ".nii.gz": "gzipped NIfTI-1, as .nii",
+    ".h5": "HDF5 (NeXus-style), float64, pixel size and geometry",
+    ".hdf5": "HDF5, as .h5",
 }
 
 
@@ -332,7 +342,7 @@ def atomic_write(path, write, *, verify=None) -> None:
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
-                                       suffix=target.suffix.lower())
+                                       suffix=format_of(target))
             os.close(fd)
             guard.arm()
             write(tmp)
@@ -423,13 +433,71 @@ def _check_dicom(tmp, ds) -> None:
         raise OutputError("its pixel data differ from the image")
 
 
+def format_of(path) -> str:
+    """The output format of ``path``: its lower-case suffix, ``".nii.gz"`` for a gzipped NIfTI.
+
+    Examples
+    --------
+    >>> format_of("a.TIFF"), format_of("scan.NII.GZ"), format_of("a.gz")
+    ('.tiff', '.nii.gz', '.gz')
+    """
+    path = Path(path)
+    return ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix.lower()
+
+
+def check_format(path) -> str:
+    """The output format of ``path`` (:func:`format_of`) if it is one of :data:`FORMATS`.
+
+    Raises
+    ------
+    OutputError
+        An unknown suffix: the message lists the known ones.
+    """
+    suffix = format_of(path)
+    if suffix not in FORMATS:
+        known = ", ".join(FORMATS)
+        raise OutputError(f"{path}: unknown output format {suffix or '(none)'!r}; use one of "
+                          f"{known}")
+    return suffix
+
+
 def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path:
     """Save an (H, W) image; the format follows the suffix (see :data:`FORMATS`), in any case
     (``.NPY``, ``.Tiff``).
 
+    Every format but ``.npy`` records what it holds and, given the ``scene``, where it was
+    taken: the pixel pitch in the format's own resolution fields and the scene's geometry
+    (source, detector centre, up, shape, pitch, energy or spectrum, SID, SOD), the quantity,
+    the xray_viz version and the scene file itself (:meth:`~xray_viz.scene.Scene.to_toml`;
+    left out when the scene cannot be written as a file: bodies built in Python or meshed from
+    a label map) as JSON (:func:`image_metadata`), which :func:`load_image` returns as an
+    :class:`ImageMetadata`:
+
+    * ``.tiff``/``.tif`` (tifffile): float32, the JSON in ``ImageDescription``. TIFF has no
+      millimetre unit: ``XResolution``/``YResolution`` hold pixels per centimetre,
+      ``10 / pitch`` (``ResolutionUnit = CENTIMETER``), stored as rationals; the exact pitch
+      is in the JSON.
+    * ``.png`` (Pillow): 16 bits windowed to the finite values (:func:`to_uint16`); ``pHYs``
+      holds the pitch as whole pixels per metre (``1000 / pitch``, rounded), an ``iTXt`` chunk
+      ``xray_viz`` the JSON with the window (the values mapped to 0 and 65535, the bright
+      end), from which :meth:`ImageMetadata.to_physical` maps the stored values back to the
+      quantity within half a quantisation step.
+    * ``.nii``/``.nii.gz`` (nibabel, the ``volumes`` extra): float64 as computed, stored
+      ``(W, H)`` (voxel ``i`` the column, ``j`` the row, as ITK and viewers expect), the affine
+      placing each pixel centre at its position on the detector in scene coordinates (mm,
+      float32 as NIfTI-1 stores it);
+      the JSON in a ``comment`` header extension.
+    * ``.h5``/``.hdf5`` (h5py, the ``ct`` extra): float64 as computed at
+      ``/entry/instrument/detector/data`` in a NeXus-style layout (``x_pixel_size``,
+      ``y_pixel_size`` in mm, ``/entry/data`` the NXdata link), the JSON in
+      ``/entry/xray_viz_metadata``.
+    * ``.dcm``: DICOM DX with its own geometry fields (:func:`dicom_dataset`); needs ``scene``.
+
     The file is written by :func:`atomic_write` and read back before it replaces a previous
-    file: ``np.load`` for ``.npy`` (shape, dtype, values), PIL for ``.tiff``/``.png`` (size,
-    mode, pixels), ``pydicom.dcmread`` for ``.dcm`` (rows, columns, pixel data).
+    file: ``np.load`` for ``.npy`` (shape, dtype, values), tifffile for ``.tiff`` (values bit
+    for bit, metadata), Pillow for ``.png`` (size, mode, pixels, metadata), nibabel and h5py
+    for NIfTI and HDF5 (values, metadata), ``pydicom.dcmread`` for ``.dcm`` (rows, columns,
+    pixel data).
 
     Parameters
     ----------
@@ -438,17 +506,21 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     bright : {"high", "low"}
         Which end of the values is shown white (``.png``, ``.dcm``): ``"low"`` for intensities.
     scene : Scene, optional
-        Required for ``.dcm``: gives pixel spacing, distances, kVp or energy
-        (see :func:`dicom_dataset`).
+        The geometry to record; required for ``.dcm`` (pixel spacing, distances, kVp or
+        energy, see :func:`dicom_dataset`).
     quantity : str, optional
-        What the image holds (``"intensity"``, ``"line-integral"``, ``"path-length"``), written
-        to the DICOM header.
+        What the image holds (``"intensity"``, ``"line-integral"``, ``"path-length"``).
+
+    Returns
+    -------
+    Path
+        ``path``.
 
     Raises
     ------
     OutputError
-        Unknown suffix, a read-only or otherwise unwritable target, a failed write or
-        read-back (the previous file is kept).
+        Unknown suffix, a format whose library is not installed, a read-only or otherwise
+        unwritable target, a failed write or read-back (the previous file is kept).
 
     Warns
     -----
@@ -457,17 +529,19 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
 
     Examples
     --------
-    >>> import numpy as np, tempfile, pathlib
-    >>> out = pathlib.Path(tempfile.mkdtemp()) / "a.npy"
-    >>> _ = save_image(out, np.eye(2))
-    >>> np.load(out).tolist()
+    >>> import numpy as np, tempfile, pathlib, xray_viz
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = save_image(folder / "a.npy", np.eye(2))
+    >>> np.load(folder / "a.npy").tolist()
     [[1.0, 0.0], [0.0, 1.0]]
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> _ = save_image(folder / "a.tiff", np.eye(2), scene=scene, quantity="path-length")
+    >>> image, meta = load_image(folder / "a.tiff", with_metadata=True)
+    >>> image.dtype.name, meta.quantity, meta.pitch, meta.geometry["sid_mm"]
+    ('float32', 'path-length', (0.5, 0.5), 1500.0)
     """
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in FORMATS:
-        known = ", ".join(FORMATS)
-        raise OutputError(f"{path}: unknown output format {suffix or '(none)'!r}; use one of {known}")
+    suffix = check_format(path)
     image = np.asarray(image)
     if suffix == ".npy":
         atomic_write(path, lambda tmp: _write_npy(tmp, image),
@@ -476,30 +550,319 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     if image.ndim != 2:
         raise OutputError(f"{path}: {suffix} output needs an (H, W) image, got shape "
                           f"{image.shape}")
-    size = (image.shape[1], image.shape[0])
-    if suffix in (".tif", ".tiff"):
-        from PIL import Image
-
-        data = image.astype(np.float32)
-        atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="TIFF"),
-                     verify=lambda tmp: _check_image_file(tmp, size=size, mode="F", values=data))
-    elif suffix == ".png":
-        from PIL import Image
-
-        data, bad = _window(image, bright=bright)
-        if bad:
-            warnings.warn(_nonfinite_message(bad, data.size, f"{path}: "), RuntimeWarning,
-                          stacklevel=2)
-        atomic_write(path, lambda tmp: Image.fromarray(data).save(tmp, format="PNG"),
-                     verify=lambda tmp: _check_image_file(tmp, size=size, mode="I;16",
-                                                          values=data))
-    elif suffix == ".dcm":
+    if suffix == ".dcm":
         if scene is None:
             raise OutputError(f"{path}: DICOM output needs the scene for its geometry: "
                               "save_image(path, image, scene=scene)")
         ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
         atomic_write(path, lambda tmp: _dcmwrite(tmp, ds), verify=lambda tmp: _check_dicom(tmp, ds))
+        return path
+    meta = image_metadata(scene, quantity=quantity)
+    if suffix in (".tif", ".tiff"):
+        _need(path, "tifffile", "pip install tifffile")
+        data = image.astype(np.float32)
+        atomic_write(path, lambda tmp: _write_tiff(tmp, data, meta),
+                     verify=lambda tmp: _check_tiff(tmp, data, meta))
+    elif suffix == ".png":
+        data, bad = _window(image, bright=bright)
+        if bad:
+            warnings.warn(_nonfinite_message(bad, data.size, f"{path}: "), RuntimeWarning,
+                          stacklevel=2)
+        meta["window"] = _window_of(image, bright=bright)
+        atomic_write(path, lambda tmp: _write_png(tmp, data, meta),
+                     verify=lambda tmp: _check_png(tmp, data, meta))
+    elif suffix in (".nii", ".nii.gz"):
+        _need(path, "nibabel", "pip install 'xray_viz[volumes]'")
+        data = image.astype(np.float64)
+        affine = _detector_affine(scene, image.shape)
+        atomic_write(path, lambda tmp: _write_nifti(tmp, data, affine, meta),
+                     verify=lambda tmp: _check_nifti(tmp, data, affine, meta))
+    else:                                    # .h5, .hdf5
+        _need(path, "h5py", "pip install 'xray_viz[ct]'")
+        data = image.astype(np.float64)
+        atomic_write(path, lambda tmp: _write_hdf5(tmp, data, meta),
+                     verify=lambda tmp: _check_hdf5(tmp, data, meta))
     return path
+
+
+def _need(path, module: str, how: str) -> None:
+    """Refuse, in one line, a format whose library is not installed."""
+    import importlib.util
+
+    if importlib.util.find_spec(module) is None:
+        raise OutputError(f"{path}: {format_of(path)} output needs {module}: {how}")
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("xray_viz")
+    except PackageNotFoundError:  # pragma: no cover - run from a source tree
+        return "unknown"
+
+
+def image_metadata(scene=None, *, quantity=None) -> dict:
+    """What :func:`save_image` records beside the pixels, as a JSON-ready dict.
+
+    Keys: ``"xray_viz"`` (the version), ``"quantity"``, ``"units"`` (UCUM, see :data:`UNITS`),
+    ``"pitch_mm"`` (``[along the rows, along the columns]``, i.e. column spacing then row
+    spacing, as ``[detector] pitch``), ``"geometry"`` (``source``: position, kind, energy in
+    keV or the spectrum table, mAs; ``detector``: centre, up, shape, pitch, response, focal
+    spot; ``sid_mm``, ``sod_mm``, ``magnification``, see :mod:`xray_viz.physics.imaging`) and
+    ``"scene_toml"`` (:meth:`~xray_viz.scene.Scene.to_toml`); the last three are ``None``
+    without a scene, ``"scene_toml"`` also when the scene cannot be written as a file.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> meta = image_metadata(xray_viz.load_scene("sphere"), quantity="intensity")
+    >>> meta["pitch_mm"], meta["geometry"]["source"]["position"], meta["units"]
+    ([0.5, 0.5], [0.0, 0.0, 1000.0], '1')
+    """
+    from collections.abc import Mapping
+
+    meta = {"xray_viz": _version(), "quantity": quantity,
+            "units": UNITS.get(quantity, ("1", "no units"))[0], "pitch_mm": None,
+            "geometry": None, "scene_toml": None}
+    if scene is None:
+        return meta
+    from xray_viz._toml import plain
+    from xray_viz.errors import SceneError
+    from xray_viz.physics import imaging
+
+    src, det = scene.source, scene.detector
+    source = {"position": plain(np.asarray(src.position, np.float64)), "kind": src.kind}
+    if src.spectrum is None:
+        source["energy_keV"] = src.energy
+    elif isinstance(src.spectrum, Mapping):
+        source["spectrum"] = json.loads(json.dumps(plain(dict(src.spectrum)), default=str))
+    else:
+        source["spectrum"] = str(getattr(src.spectrum, "description", src.spectrum))
+    if getattr(src, "mas", None) is not None:
+        source["mas"] = src.mas
+    pitch = [float(p) for p in det.pitch]
+    detector = {"center": plain(np.asarray(det.center, np.float64)),
+                "up": plain(np.asarray(det.up, np.float64)), "shape": [int(n) for n in det.shape],
+                "pitch_mm": pitch, "response": det.response, "focal_spot_mm": det.focal_spot}
+    meta["pitch_mm"] = pitch
+    meta["geometry"] = {"source": source, "detector": detector,
+                        "sid_mm": float(imaging.source_detector_distance(scene)),
+                        "sod_mm": float(imaging.source_object_distance(scene)),
+                        "magnification": float(imaging.magnification(scene))}
+    try:
+        meta["scene_toml"] = scene.to_toml()
+    except SceneError:
+        pass                      # bodies built in Python, a Spectrum object: no scene file
+    return meta
+
+
+def _json(meta: dict) -> str:
+    """The metadata as 7-bit ASCII JSON (what TIFF's ImageDescription allows)."""
+    return json.dumps(meta, ensure_ascii=True, allow_nan=False, sort_keys=True)
+
+
+def _window_of(image, *, bright: str) -> dict:
+    """The PNG window: the finite values mapped to stored 0 and 65535 (:func:`_window`)."""
+    a = np.asarray(image, dtype=np.float64)
+    finite = a[np.isfinite(a)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    return {"low": lo, "high": hi, "bright": bright,
+            "step": (hi - lo) / 65535.0}
+
+
+def _write_tiff(tmp, data, meta) -> None:
+    import tifffile
+
+    pitch = meta["pitch_mm"]
+    options = {}
+    if pitch is not None:      # pixels per centimetre: TIFF has no millimetre unit
+        options.update(resolution=(10.0 / pitch[0], 10.0 / pitch[1]),
+                       resolutionunit="CENTIMETER")
+    with open(tmp, "wb") as fh:     # closed here also when a write fails (a full disk)
+        tifffile.imwrite(fh, data, photometric="minisblack", description=_json(meta),
+                         metadata=None, software=f"xray_viz {meta['xray_viz']}", **options)
+
+
+def _read_tiff(path) -> tuple[np.ndarray, dict | None]:
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0]
+        data = page.asarray()
+        text = page.description
+        meta = _parse_json(text)
+        if meta is None:                      # a TIFF from elsewhere: its resolution tags
+            meta = {}
+            unit = page.tags.get("ResolutionUnit")
+            x, y = page.tags.get("XResolution"), page.tags.get("YResolution")
+            per_mm = {2: 25.4, 3: 10.0}.get(int(unit.value) if unit else 2)
+            if x is not None and y is not None and per_mm:
+                rx, ry = (a / b for a, b in (x.value, y.value))
+                if rx > 0 and ry > 0 and (x.value, y.value) != ((1, 1), (1, 1)):
+                    meta["pitch_mm"] = [per_mm / rx, per_mm / ry]
+    return data, meta
+
+
+def _parse_json(text):
+    """The xray_viz metadata in a description, or None."""
+    if not text:
+        return None
+    try:
+        meta = json.loads(text)
+    except ValueError:
+        return None
+    return meta if isinstance(meta, dict) and "xray_viz" in meta else None
+
+
+def _check_tiff(tmp, data, meta) -> None:
+    got, back = _read_tiff(tmp)
+    if got.shape != data.shape or got.dtype != data.dtype:
+        raise OutputError(f"it holds a {got.shape} {got.dtype} image, not {data.shape} "
+                          f"{data.dtype}")
+    if not np.array_equal(got, data, equal_nan=True):
+        raise OutputError("its pixels differ from the image")
+    if back != json.loads(_json(meta)):
+        raise OutputError("its metadata differ from those written")
+
+
+def _write_png(tmp, data, meta) -> None:
+    from PIL import Image
+    from PIL.PngImagePlugin import PngInfo
+
+    info = PngInfo()
+    info.add_itxt("xray_viz", _json(meta), zip=True)
+    info.add_text("Software", f"xray_viz {meta['xray_viz']}")
+    options = {}
+    if meta["pitch_mm"] is not None:   # pHYs: Pillow writes round(dpi / 0.0254) per metre
+        options["dpi"] = tuple(1000.0 / p * 0.0254 for p in meta["pitch_mm"])
+    Image.fromarray(data).save(tmp, format="PNG", pnginfo=info, **options)
+
+
+def _check_png(tmp, data, meta) -> None:
+    from PIL import Image
+
+    _check_image_file(tmp, size=(data.shape[1], data.shape[0]), mode="I;16", values=data)
+    with Image.open(tmp) as im:
+        im.load()
+        back = _parse_json(getattr(im, "text", {}).get("xray_viz"))
+    if back != json.loads(_json(meta)):
+        raise OutputError("its xray_viz text chunk differs from the one written")
+
+
+def _detector_affine(scene, shape) -> np.ndarray:
+    """The NIfTI affine of an (H, W) image stored as (W, H): voxel ``(i, j, 0)`` (column
+    ``i``, row ``j``, row 0 at the top) to the pixel centre on the detector, mm.
+
+    Columns: ``pitch_x * ho``, ``-pitch_y * ve`` (rows run down), the beam axis; a rotation
+    (determinant +1). Without a scene: unit pitch, the detector in the plane z = 0 seen along
+    -z, centred on the origin.
+    """
+    h, w = shape
+    if scene is None:
+        ho, ve, forward = np.eye(3)[0], np.eye(3)[1], -np.eye(3)[2]
+        center, (px, py) = np.zeros(3), (1.0, 1.0)
+    else:
+        frame = scene.acquisition.frame
+        ho, ve, forward, center = frame.ho, frame.ve, frame.forward, frame.center
+        px, py = (float(p) for p in scene.detector.pitch)
+    affine = np.eye(4)
+    affine[:3, 0] = px * ho
+    affine[:3, 1] = -py * ve
+    affine[:3, 2] = forward
+    affine[:3, 3] = center - (w - 1) / 2 * px * ho + (h - 1) / 2 * py * ve
+    return affine
+
+
+def _write_nifti(tmp, data, affine, meta) -> None:
+    import nibabel as nib
+
+    img = nib.Nifti1Image(np.ascontiguousarray(data.T), affine)
+    img.header.set_xyzt_units("mm")
+    img.header["descrip"] = f"xray_viz {meta['quantity'] or 'image'}"[:79].encode()
+    img.header.extensions.append(nib.nifti1.Nifti1Extension("comment", _json(meta).encode()))
+    nib.save(img, tmp)
+
+
+def _read_nifti(path) -> tuple[np.ndarray, np.ndarray, dict | None]:
+    import nibabel as nib
+
+    img = nib.load(path)
+    data = np.asarray(img.dataobj)
+    if data.ndim == 3 and data.shape[2] == 1:
+        data = data[:, :, 0]
+    meta = None
+    for ext in img.header.extensions:
+        if ext.get_code() == 6:
+            meta = _parse_json(ext.get_content().decode("ascii", "replace"))
+            if meta is not None:
+                break
+    if meta is None:
+        spacing = img.header.get_zooms()[:2]
+        meta = {"pitch_mm": [float(s) for s in spacing]}
+    return np.ascontiguousarray(data.T), img.affine, meta
+
+
+def _check_nifti(tmp, data, affine, meta) -> None:
+    got, got_affine, back = _read_nifti(tmp)
+    if got.shape != data.shape or not np.array_equal(got, data, equal_nan=True):
+        raise OutputError("its voxels differ from the image")
+    if not np.allclose(got_affine, affine, rtol=1e-6, atol=1e-6):
+        raise OutputError("its affine differs from the detector's")
+    if back != json.loads(_json(meta)):
+        raise OutputError("its metadata extension differs from the one written")
+
+
+def _write_hdf5(tmp, data, meta) -> None:
+    import h5py
+
+    with h5py.File(tmp, "w") as f:
+        entry = f.create_group("entry")
+        entry.attrs["NX_class"] = "NXentry"
+        inst = entry.create_group("instrument")
+        inst.attrs["NX_class"] = "NXinstrument"
+        det = inst.create_group("detector")
+        det.attrs["NX_class"] = "NXdetector"
+        dset = det.create_dataset("data", data=data)
+        dset.attrs["units"] = meta["units"]
+        dset.attrs["long_name"] = meta["quantity"] or "image"
+        if meta["pitch_mm"] is not None:
+            for name, value in zip(("x_pixel_size", "y_pixel_size"), meta["pitch_mm"]):
+                det[name] = value
+                det[name].attrs["units"] = "mm"
+        nxdata = entry.create_group("data")
+        nxdata.attrs["NX_class"] = "NXdata"
+        nxdata.attrs["signal"] = "data"
+        nxdata["data"] = dset
+        entry["xray_viz_metadata"] = _json(meta)
+
+
+def _read_hdf5(path) -> tuple[np.ndarray, dict | None]:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        if "entry/instrument/detector/data" in f:
+            data = f["entry/instrument/detector/data"][()]
+        else:                             # an HDF5 file from elsewhere: its one 2-D dataset
+            found = []
+            f.visititems(lambda name, obj: found.append(obj[()]) if isinstance(
+                obj, h5py.Dataset) and obj.ndim == 2 else None)
+            if len(found) != 1:
+                raise OutputError(f"{path}: no /entry/instrument/detector/data and "
+                                  f"{len(found)} 2-D datasets: not an xray_viz image")
+            data = found[0]
+        text = f["entry/xray_viz_metadata"][()] if "entry/xray_viz_metadata" in f else None
+    if isinstance(text, bytes):
+        text = text.decode("ascii", "replace")
+    return data, _parse_json(text)
+
+
+def _check_hdf5(tmp, data, meta) -> None:
+    got, back = _read_hdf5(tmp)
+    if got.shape != data.shape or not np.array_equal(got, data, equal_nan=True):
+        raise OutputError("its values differ from the image")
+    if back != json.loads(_json(meta)):
+        raise OutputError("its metadata differ from those written")
 
 
 def _dcmwrite(path, ds) -> None:
@@ -744,21 +1107,185 @@ def dicom_values(ds) -> np.ndarray:
     return stored * float(ds.get("RescaleSlope", 1.0)) + float(ds.get("RescaleIntercept", 0.0))
 
 
-def load_image(path) -> np.ndarray:
-    """Read back an image written by :func:`save_image`.
+@dataclass(frozen=True)
+class ImageMetadata:
+    """What an image file says about its pixels (:func:`load_image` with
+    ``with_metadata=True``); ``None`` where the file does not say.
 
-    ``.npy`` and ``.tiff`` give the saved values, ``.png`` the 16-bit stored values, ``.dcm`` the
-    float64 values of its Real World Value Mapping (:func:`dicom_values`).
+    Attributes
+    ----------
+    format : str
+        The file's format (:func:`format_of`).
+    quantity : str or None
+        ``"intensity"``, ``"line-integral"``, ``"path-length"``.
+    units : str or None
+        UCUM units of the values (``"1"``, ``"mm"``).
+    pitch : (float, float) or None
+        mm between pixel centres along the rows and along the columns (``[detector] pitch``
+        order: column spacing, then row spacing).
+    geometry : dict or None
+        The scene's geometry (:func:`image_metadata`); for DICOM the distances, magnification
+        and kVp of its header.
+    scene_toml : str or None
+        The scene file the image was rendered from (:meth:`scene` loads it).
+    window : dict or None
+        A PNG's window: ``low``/``high`` (the values stored as 0 and 65535 with
+        ``bright="high"``, swapped with ``"low"``), ``bright``, ``step`` (the quantisation step).
+    version : str or None
+        The xray_viz version that wrote the file.
+    """
+
+    format: str
+    quantity: str | None = None
+    units: str | None = None
+    pitch: tuple[float, float] | None = None
+    geometry: dict | None = None
+    scene_toml: str | None = None
+    window: dict | None = None
+    version: str | None = None
+
+    def scene(self):
+        """The scene of the embedded scene file (:func:`~xray_viz.scene.scene_from_dict`).
+
+        Mesh paths in it are absolute: it loads where those files are.
+
+        Raises
+        ------
+        OutputError
+            The file holds no scene.
+        """
+        if self.scene_toml is None:
+            raise OutputError(f"this {self.format} file holds no scene: save it with "
+                              "save_image(..., scene=scene)")
+        import tomllib
+
+        from xray_viz.scene import scene_from_dict
+
+        return scene_from_dict(tomllib.loads(self.scene_toml))
+
+    def to_physical(self, image) -> np.ndarray:
+        """The quantity a loaded image stands for: a PNG's 16-bit values mapped back through
+        its window (within half a quantisation step, ``window["step"] / 2``, of the values
+        saved; a saved ``+inf`` comes back as the window's top, ``-inf`` and NaN as its
+        bottom); other formats' values unchanged (as float64).
+
+        Examples
+        --------
+        >>> meta = ImageMetadata(".png", window={"low": 1.0, "high": 3.0, "bright": "high"})
+        >>> meta.to_physical(np.array([0, 65535], np.uint16)).tolist()
+        [1.0, 3.0]
+        """
+        a = np.asarray(image, dtype=np.float64)
+        if self.window is None:
+            return a
+        lo, hi = float(self.window["low"]), float(self.window["high"])
+        scaled = a / 65535.0
+        if self.window.get("bright") == "low":
+            scaled = 1.0 - scaled
+        return lo + scaled * (hi - lo)
+
+
+def _metadata(fmt: str, meta: dict | None) -> ImageMetadata:
+    meta = meta or {}
+    pitch = meta.get("pitch_mm")
+    return ImageMetadata(format=fmt, quantity=meta.get("quantity"), units=meta.get("units"),
+                         pitch=None if pitch is None else (float(pitch[0]), float(pitch[1])),
+                         geometry=meta.get("geometry"), scene_toml=meta.get("scene_toml"),
+                         window=meta.get("window"), version=meta.get("xray_viz"))
+
+
+def _dicom_metadata(ds) -> ImageMetadata:
+    rwv = ds.get("RealWorldValueMappingSequence")
+    quantity = str(rwv[0].LUTLabel) if rwv and "LUTLabel" in rwv[0] else None
+    if quantity == "value":
+        quantity = None
+    units = None
+    if rwv and rwv[0].get("MeasurementUnitsCodeSequence"):
+        units = str(rwv[0].MeasurementUnitsCodeSequence[0].CodeValue)
+    spacing = ds.get("ImagerPixelSpacing")
+    pitch = None if spacing is None else (float(spacing[1]), float(spacing[0]))
+    geometry = {}
+    for key, name in (("sid_mm", "DistanceSourceToDetector"),
+                      ("sod_mm", "DistanceSourceToPatient"),
+                      ("magnification", "EstimatedRadiographicMagnificationFactor"),
+                      ("kvp", "KVP")):
+        if name in ds:
+            geometry[key] = float(ds.get(name))
+    return ImageMetadata(format=".dcm", quantity=quantity, units=units, pitch=pitch,
+                         geometry=geometry or None)
+
+
+def load_image(path, *, with_metadata=False):
+    """Read an image written by :func:`save_image` (or a file of the same format from
+    elsewhere), skimage-style: ``load_image(path)`` is the array, ``load_image(path,
+    with_metadata=True)`` the pair ``(array, ImageMetadata)``.
+
+    The array is what the file holds: ``.npy`` the saved array, ``.tiff`` its float32 values,
+    NIfTI and HDF5 their float64 values (NIfTI's ``(W, H)`` voxels transposed back to
+    ``(H, W)``), ``.dcm`` the float64 values of its Real World Value Mapping
+    (:func:`dicom_values`), ``.png`` its 16-bit stored values (the picture):
+    :meth:`ImageMetadata.to_physical` maps them back to the quantity through the window
+    the file records.
+
+    Parameters
+    ----------
+    path : path-like
+    with_metadata : bool
+        Also return what the file records (:class:`ImageMetadata`): quantity, pitch, geometry,
+        the scene file. A ``.npy`` file records nothing (only ``format`` is set).
+
+    Returns
+    -------
+    image : ndarray
+    metadata : ImageMetadata
+        Only with ``with_metadata=True``.
+
+    Raises
+    ------
+    OutputError
+        An unknown format, or one whose library is not installed.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, pathlib, xray_viz
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "li.png"
+    >>> image = np.array([[0.0, 0.5], [1.0, 2.0]])
+    >>> _ = save_image(out, image, scene=xray_viz.load_scene("sphere"), quantity="line-integral")
+    >>> stored, meta = load_image(out, with_metadata=True)
+    >>> stored.dtype.name, meta.quantity, meta.window["step"] == 2.0 / 65535
+    ('uint16', 'line-integral', True)
+    >>> bool(np.abs(meta.to_physical(stored) - image).max() <= meta.window["step"] / 2)
+    True
     """
     path = Path(path)
-    suffix = path.suffix.lower()
+    suffix = check_format(path)
     if suffix == ".npy":
-        return np.load(path)
-    if suffix == ".dcm":
+        image, meta = np.load(path), ImageMetadata(".npy")
+    elif suffix == ".dcm":
         import pydicom
 
-        return dicom_values(pydicom.dcmread(path))
-    from PIL import Image
+        ds = pydicom.dcmread(path)
+        image, meta = dicom_values(ds), _dicom_metadata(ds)
+    elif suffix in (".tif", ".tiff"):
+        _need(path, "tifffile", "pip install tifffile")
+        image, raw = _read_tiff(path)
+        meta = _metadata(suffix, raw)
+    elif suffix == ".png":
+        from PIL import Image
 
-    with Image.open(path) as im:
-        return np.asarray(im)
+        with Image.open(path) as im:
+            image = np.asarray(im)
+            raw = _parse_json(getattr(im, "text", {}).get("xray_viz"))
+            dpi = im.info.get("dpi")
+        if raw is None and dpi and all(d > 0 for d in dpi):
+            raw = {"pitch_mm": [25.4 / d for d in dpi]}
+        meta = _metadata(suffix, raw)
+    elif suffix in (".nii", ".nii.gz"):
+        _need(path, "nibabel", "pip install 'xray_viz[volumes]'")
+        image, _, raw = _read_nifti(path)
+        meta = _metadata(suffix, raw)
+    else:
+        _need(path, "h5py", "pip install 'xray_viz[ct]'")
+        image, raw = _read_hdf5(path)
+        meta = _metadata(suffix, raw)
+    return (image, meta) if with_metadata else image

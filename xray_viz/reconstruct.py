@@ -1,5 +1,10 @@
 """Reconstruction of a projection stack (issue 14): FDK (circular cone beam) and FBP (parallel
-beam) through RTK (``itk-rtk``, the ``ct`` extra), on the CPU.
+beam) through RTK (``itk-rtk``, the ``ct`` extra), on the CPU; RTK's iterative SART and
+conjugate gradient (few-view scans; also helical orbits, which RTK's circular geometry holds as
+per-view source and detector offsets along the axis); mbirjax's MBIR (``method="mbirjax"``,
+the ``ct-mbir`` extra: JAX on the CPU, circular and helical cone beam, see
+:func:`mbirjax_geometry`). ASTRA (no 3D CPU path: a 3D call without CUDA kills the process)
+and TIGRE (CUDA only) are refused in one line without being imported.
 
 The stack and its geometry are those of :func:`xray_viz.scan` (the layout of CT-LAYOUT.md):
 ``projections`` ``(n, H, W)`` line integrals (``-ln(I/I0)``, dimensionless), row 0 at the top of
@@ -25,6 +30,14 @@ the isocentre at RTK's origin; a projection image's index ``(i, j)`` lies at
   origin ``R (origin - center)``, so the array comes back as ``(z, y, x)`` of the world;
 * units: RTK returns 1/mm (line integrals over mm); xray_viz's mu is in 1/cm (x 10).
 
+RTK's own files, for RTK's command-line tools: :func:`write_rtk_geometry` (RTK's
+``ThreeDCircularProjectionGeometry`` XML, RTK's writer) and :func:`write_rtk_projections` (the
+stack as one ``.mha`` in RTK's image convention);
+``xray-viz reconstruct scan.zarr --rtk-geometry geometry.xml --rtk-projections proj.mha``
+writes both (``-o`` is then optional), and ``rtkfdk -g geometry.xml -p . -r proj.mha -o
+volume.mha`` reconstructs the scan in RTK's frame (``--like`` an image on our grid gives our
+volume, ``tests/test_reconstruct_rtk_files.py``).
+
 ``tests/test_reconstruct.py`` proves the mapping against RTK's own analytic projections of an
 off-centre ellipsoid (``RayEllipsoidIntersectionImageFilter``) and the render of the same
 ellipsoid's mesh.
@@ -40,7 +53,9 @@ import numpy as np
 
 from xray_viz.errors import OutputError, XrayVizError
 
-__all__ = ["Volume", "reconstruct", "reconstruct_file", "rtk_geometry", "rtk_frame",
+__all__ = ["Volume", "reconstruct", "ITERATIVE", "reconstruct_file", "rtk_geometry", "rtk_frame",
+           "rtk_matrices", "write_rtk_geometry", "read_rtk_geometry", "write_rtk_projections",
+           "read_line_integrals",
            "write_volume", "add_reconstruct_parser", "reconstruct_command", "METHODS"]
 
 #: Reconstruction methods: name -> (beam it needs, what it is).
@@ -49,14 +64,24 @@ METHODS = {
     "fbp": ("parallel", "filtered back-projection (RTK's FDK with a parallel geometry)"),
 }
 
+#: Iterative methods (RTK, CPU, any beam and orbit RTK's geometry holds): name ->
+#: (default iterations, what it is).
+ITERATIVE = {
+    "sart": (10, "SART (RTK's SARTConeBeamReconstructionFilter): one projection per update, "
+                 "relaxation 0.3, mu >= 0 enforced"),
+    "cg": (20, "conjugate gradient on the unweighted least-squares problem (RTK's "
+               "ConjugateGradientConeBeamReconstructionFilter)"),
+}
+METHODS.update({k: ("any", v[1]) for k, v in ITERATIVE.items()})
+METHODS["mbirjax"] = ("cone", "MBIR (mbirjax, JAX on the CPU; the ct-mbir extra): circular or "
+                              "helical cone beam, untilted flat detector")
+
 #: Other back-ends users ask for, and why they are refused here (one line each).
 REFUSED_BACKENDS = {
     "astra": "ASTRA's PyPI/conda builds have no 3D CPU path (a 3D call without CUDA kills the "
              "process); use method='fdk' (RTK, CPU), or ASTRA itself on a CUDA machine",
     "tigre": "TIGRE needs CUDA (pip install git+https://github.com/CERN/TIGRE on a machine with "
              "an NVIDIA GPU and the CUDA toolkit); use method='fdk' (RTK, CPU)",
-    "mbirjax": "the helical back-end (mbirjax) is not implemented yet (issue 14); circular "
-               "orbits reconstruct with method='fdk'",
 }
 
 
@@ -210,6 +235,9 @@ def rtk_geometry(geometry):
         if parallel:     # a point source on the detector's normal, far enough: RTK's angles
             n = np.cross(u, v)
             n /= np.linalg.norm(n)
+            if abs(abs(float(n @ _unit(d - s, "ray"))) - 1.0) > 1e-9:
+                raise ReconstructionError(f"geometry poses[{k}]: a parallel beam onto a tilted "
+                                          "detector (rays oblique to it) has no RTK geometry")
             s = d + n * max(1e3, 10 * np.linalg.norm(s - d))
         ok = cone.AddProjection([float(x) for x in s], [float(x) for x in d],
                                 [float(x) for x in u], [float(x) for x in v])
@@ -227,6 +255,155 @@ def rtk_geometry(geometry):
                           cone.GetOutOfPlaneAngles()[k] * deg, cone.GetInPlaneAngles()[k] * deg,
                           cone.GetSourceOffsetsX()[k], cone.GetSourceOffsetsY()[k])
     return out
+
+
+def _projection_image(p, geometry):
+    """The stack as RTK's projection image: rows flipped once, origin and spacing of the
+    detector in RTK's projection coordinates (mm, centred)."""
+    itk, _ = _rtk()
+    (w, h), (pu, pv) = _detector(geometry)
+    image = itk.image_from_array(np.ascontiguousarray(p[:, ::-1, :]))   # the one row flip
+    image.SetSpacing([pu, pv, 1.0])
+    image.SetOrigin([-(w - 1) / 2 * pu, -(h - 1) / 2 * pv, 0.0])
+    return image
+
+
+def rtk_matrices(rgeo) -> np.ndarray:
+    """``(n, 3, 4)`` float64: the projection matrices of an RTK geometry (RTK's ``GetMatrix``;
+    from RTK's fixed coordinates to the projection image's physical coordinates, mm).
+
+    Examples
+    --------
+    >>> from xray_viz.reconstruct import _rtk
+    >>> g = _rtk()[1].ThreeDCircularProjectionGeometry.New()
+    >>> g.AddProjection(1000.0, 1300.0, 0.0)
+    >>> rtk_matrices(g)[0].tolist()
+    [[-1300.0, 0.0, 0.0, 0.0], [0.0, -1300.0, 0.0, 0.0], [0.0, 0.0, 1.0, -1000.0]]
+    """
+    n = len(rgeo.GetGantryAngles())
+    out = np.empty((n, 3, 4))
+    for k in range(n):
+        m = rgeo.GetMatrix(k)
+        out[k] = [[m(i, j) for j in range(4)] for i in range(3)]
+    return out
+
+
+def write_rtk_geometry(geometry, path) -> Path:
+    """Write a scan's geometry as RTK's ``ThreeDCircularProjectionGeometry`` XML file (RTK's
+    own ``ThreeDCircularProjectionGeometryXMLFileWriter``), for ``rtkfdk --geometry`` and the
+    other RTK command-line tools.
+
+    The geometry is :func:`rtk_geometry`'s, in the frame :func:`rtk_frame` (RTK's y along the
+    rotation axis, its origin at the scan's ``center``); RTK's tools also need the projections
+    in RTK's image convention: :func:`write_rtk_projections`. The file is written beside the
+    target, read back with RTK's reader (same projection matrices to 1e-9 relative: the XML holds
+    15 significant digits), then renamed.
+
+    Parameters
+    ----------
+    geometry : dict
+        The scan's geometry (CT-LAYOUT.md).
+    path : str or Path
+        The ``.xml`` file.
+
+    Returns
+    -------
+    Path
+    """
+    from xray_viz.output import atomic_write, check_target
+
+    if not str(path).lower().endswith(".xml"):
+        raise OutputError(f"{path}: RTK's geometry file is XML; end the name with .xml")
+    check_target(path)
+    _, rtk = _rtk()
+    rgeo = rtk_geometry(geometry)
+    want = rtk_matrices(rgeo)
+
+    def write(tmp):
+        w = rtk.ThreeDCircularProjectionGeometryXMLFileWriter.New()
+        w.SetObject(rgeo)
+        w.SetFilename(str(tmp))
+        w.WriteFile()
+
+    def verify(tmp):
+        back = rtk_matrices(read_rtk_geometry(tmp))
+        scale = np.abs(want).max(axis=(1, 2), keepdims=True)
+        if back.shape != want.shape or not np.all(np.abs(back - want) <= 1e-9 * scale):
+            raise OutputError(f"{path}: the RTK geometry read back differs")
+
+    atomic_write(path, write, verify=verify)
+    return Path(path)
+
+
+def read_rtk_geometry(path):
+    """Read an RTK ``ThreeDCircularProjectionGeometry`` XML file (RTK's own reader).
+
+    Returns
+    -------
+    rtk.ThreeDCircularProjectionGeometry
+
+    Raises
+    ------
+    ReconstructionError
+        A missing file, or one that holds no projection (RTK's reader reads any other XML as
+        an empty geometry).
+    """
+    _, rtk = _rtk()
+    if not Path(path).is_file():
+        raise ReconstructionError(f"{path}: no such RTK geometry file")
+    reader = rtk.ThreeDCircularProjectionGeometryXMLFileReader.New()
+    reader.SetFilename(str(path))
+    try:
+        reader.GenerateOutputInformation()
+    except RuntimeError as exc:
+        said = [ln for ln in str(exc).splitlines() if ln.strip()]
+        raise ReconstructionError(f"{path}: RTK cannot read this geometry file "
+                                  f"({said[-1] if said else type(exc).__name__})") from None
+    rgeo = reader.GetOutputObject()
+    if not len(rgeo.GetGantryAngles()):
+        raise ReconstructionError(f"{path}: not an RTK geometry file (no <Projection> in a "
+                                  "<RTKThreeDCircularGeometry>)")
+    return rgeo
+
+
+def write_rtk_projections(projections, geometry, path) -> Path:
+    """Write a stack as RTK's command-line tools read projections: one 3D image (``.mha``,
+    ``.mhd``, ``.nrrd``) of ``W x H x n`` float32 line integrals, rows flipped once (RTK's row
+    index runs along ``v``, bottom to top), spacing ``(pu, pv, 1)`` and origin
+    ``(-(W-1)/2 pu, -(H-1)/2 pv, 0)`` mm: with :func:`write_rtk_geometry`'s file,
+    ``rtkfdk -g geometry.xml -p FOLDER -r NAME.mha -o volume.mha`` reconstructs the scan
+    (``tests/test_reconstruct_rtk_files.py`` runs it).
+
+    Returns
+    -------
+    Path
+    """
+    from xray_viz.output import atomic_write, check_target
+
+    name = str(path).lower()
+    if not name.endswith((".mha", ".mhd", ".nrrd")):
+        raise OutputError(f"{path}: RTK's projections are written as an ITK image; end the "
+                          "name with .mha, .mhd or .nrrd")
+    check_target(path)
+    itk, _ = _rtk()
+    p = np.asarray(projections, dtype=np.float32)
+    (w, h), _ = _detector(geometry)
+    n = len(_poses(geometry))
+    if p.shape != (n, h, w):
+        raise ReconstructionError(f"projections have shape {p.shape}; the geometry says "
+                                  f"(n, H, W) = {(n, h, w)}")
+    image = _projection_image(p, geometry)
+
+    def write(tmp):
+        itk.imwrite(image, str(tmp), compression=True)
+
+    def verify(tmp):
+        back = itk.imread(str(tmp))
+        if tuple(back.GetLargestPossibleRegion().GetSize()) != (w, h, n):
+            raise OutputError(f"{path}: the projections read back differ")
+
+    atomic_write(path, write, verify=verify)
+    return Path(path)
 
 
 def _default_grid(geometry, voxel, shape):
@@ -259,8 +436,10 @@ def _default_grid(geometry, voxel, shape):
 
 
 def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = "fdk",
-                hann: float = 0.0) -> Volume:
-    """Reconstruct a projection stack with RTK: FDK (circular cone beam) or FBP (parallel).
+                hann: float = 0.0, iterations: int | None = None,
+                relaxation: float | None = None) -> Volume:
+    """Reconstruct a projection stack with RTK: FDK (circular cone beam), FBP (parallel), or
+    an iterative method (SART, conjugate gradient) for few-view and helical scans.
 
     Parameters
     ----------
@@ -273,11 +452,19 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
         Voxel size in mm; default the detector pitch at the isocentre.
     shape : (3,) int, optional
         ``(nx, ny, nz)`` voxels; default the detector's field of view at the isocentre.
-    method : {"fdk", "fbp"}
-        ``"fdk"`` for a cone beam, ``"fbp"`` for a parallel beam. ``"astra"``, ``"tigre"``
-        and ``"mbirjax"`` are refused with the reason.
+    method : {"fdk", "fbp", "sart", "cg"}
+        ``"fdk"`` for a cone beam, ``"fbp"`` for a parallel beam; the iterative ones
+        (:data:`ITERATIVE`; RTK's Joseph projectors, either beam) fit few-view scans better
+        than FDK (BENCHMARKS.md, "CT reconstruction"), at ``iterations`` times a forward and
+        a back projection. ``"astra"`` and ``"tigre"`` are refused with the reason.
     hann : float
-        RTK's Hann cut frequency in ]0, 1] (0: the plain ramp filter).
+        RTK's Hann cut frequency in ]0, 1] (0: the plain ramp filter); FDK/FBP only.
+    iterations : int, optional
+        Iterative methods: SART passes over all projections, CG steps (default:
+        :data:`ITERATIVE`'s). Unregularised CG fits noise and few-view gaps as it goes on
+        (semi-convergence): keep it short.
+    relaxation : float, optional
+        SART's relaxation ``lambda`` (default 0.3).
 
     Returns
     -------
@@ -305,14 +492,18 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     beam = geometry.get("beam", "cone")
     if beam not in ("cone", "parallel"):
         raise ReconstructionError(f"geometry beam {beam!r}: expected 'cone' or 'parallel'")
-    if METHODS[method][0] != beam:
+    if METHODS[method][0] not in (beam, "any"):
         other = "fdk" if beam == "cone" else "fbp"
         raise ReconstructionError(f"method {method!r} is for a {METHODS[method][0]} beam; this "
                                   f"scan is {beam} beam: use method={other!r}")
     orbit = geometry.get("orbit", "circular")
-    if orbit == "helical" or float(geometry.get("pitch_mm_per_turn", 0.0) or 0.0) != 0.0:
-        raise ReconstructionError(REFUSED_BACKENDS["mbirjax"].replace(
-            "the helical", "a helical orbit needs the helical"))
+    helical = orbit == "helical" or float(geometry.get("pitch_mm_per_turn", 0.0) or 0.0) != 0.0
+    if helical and method not in ITERATIVE and method != "mbirjax":
+        raise ReconstructionError(f"method {method!r} (filtered back-projection) is for a "
+                                  "circular orbit; a helical orbit reconstructs with an "
+                                  "iterative method: method='sart', 'cg' or 'mbirjax'")
+    if iterations is not None and not (float(iterations) == int(iterations) >= 1):
+        raise ReconstructionError(f"iterations must be a whole number >= 1, got {iterations!r}")
     p = np.asarray(projections, dtype=np.float32)
     (w, h), (pu, pv) = _detector(geometry)
     n = len(_poses(geometry))
@@ -322,14 +513,17 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     if not np.all(np.isfinite(p)):
         raise ReconstructionError("projections hold non-finite values (NaN or inf); "
                                   "reconstruct line integrals of a finished scan")
+    if method == "mbirjax":                  # no RTK needed
+        voxel, shape, origin = _default_grid(geometry, voxel, shape)
+        mu = _mbirjax(p, geometry, voxel, shape, origin, 15 if iterations is None else iterations)
+        return Volume(mu=(mu * 10.0).astype(np.float32), origin=origin, spacing=voxel,
+                      direction=np.eye(3), method=method)
     itk, rtk = _rtk()
     R, center = rtk_frame(geometry)
     voxel, shape, origin = _default_grid(geometry, voxel, shape)
     rgeo = rtk_geometry(geometry)
 
-    image = itk.image_from_array(np.ascontiguousarray(p[:, ::-1, :]))   # the one row flip
-    image.SetSpacing([pu, pv, 1.0])
-    image.SetOrigin([-(w - 1) / 2 * pu, -(h - 1) / 2 * pv, 0.0])
+    image = _projection_image(p, geometry)
     ImageType = itk.Image[itk.F, 3]
 
     vol = rtk.ConstantImageSource[ImageType].New()
@@ -339,6 +533,12 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     direction = itk.Matrix[itk.D, 3, 3](itk.GetVnlMatrixFromArray(np.ascontiguousarray(R)))
     vol.SetDirection(direction)
     vol.SetConstant(0.0)
+
+    if method in ITERATIVE:
+        out = _iterative(method, vol.GetOutput(), image, rgeo, iterations=iterations,
+                         relaxation=relaxation)
+        mu = itk.array_from_image(out).astype(np.float32) * np.float32(10.0)    # 1/cm
+        return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
 
     weighted = image
     if beam == "cone":
@@ -356,16 +556,164 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     fdk.SetGeometry(rgeo)
     fdk.GetRampFilter().SetTruncationCorrection(0.0)
     fdk.GetRampFilter().SetHannCutFrequency(float(hann))
-    try:
-        fdk.Update()
-    except RuntimeError as exc:          # RTK refuses a geometry it cannot handle
-        said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
-        text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
-        raise ReconstructionError(
-            f"RTK cannot reconstruct this scan ({text}): the orbit's axis must cross the beam "
-            "(a source turning about the beam axis sees the same view every time)") from None
+    _update(fdk)
     mu = itk.array_from_image(fdk.GetOutput()).astype(np.float32) * np.float32(10.0)  # 1/cm
     return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
+
+
+def mbirjax_geometry(geometry) -> dict:
+    """The scan's geometry as mbirjax's ``ConeBeamModel`` wants it (cone beam, flat detector,
+    circular or helical orbit about ``axis``; ALU = mm).
+
+    mbirjax's object frame: its z along the rotation ``axis`` through ``center``; its y
+    (``e_y``) is :func:`rtk_frame`'s z, its x ``e_y x axis``. At view angle ``theta`` the
+    source is at ``SID (sin theta e_x + cos theta e_y) + shift axis`` (mbirjax turns the object
+    by ``theta``, source fixed on +y; ``helical_z_shifts`` move it along z) and the detector's
+    channels run along ``cos theta e_x - sin theta e_y``, its rows along +z. Each pose is
+    decomposed so; the detector must be untilted (its ``u``/``v`` those directions up to sign:
+    a reversed one is a flipped image axis) and SID/SDD the same for every view.
+
+    Returns
+    -------
+    dict
+        ``angles`` (rad), ``helical_z_shifts`` (mm), ``source_iso_dist``,
+        ``source_detector_dist``, ``det_channel_offset``, ``det_row_offset`` (mm),
+        ``flip_rows``, ``flip_channels`` (bool), ``frame`` ((3, 3): rows e_x, e_y, axis).
+    """
+    R, center = rtk_frame(geometry)
+    a, ey = R[1], R[2]
+    ex = np.cross(ey, a)
+    (w, h), (pu, pv) = _detector(geometry)
+    out = {k: [] for k in ("angles", "helical_z_shifts", "sid", "sdd", "oc", "or", "su", "sv")}
+    for k, p in enumerate(_poses(geometry)):
+        s = p["source"] - center
+        theta = math.atan2(s @ ex, s @ ey)
+        radial = math.sin(theta) * ex + math.cos(theta) * ey
+        chan = math.cos(theta) * ex - math.sin(theta) * ey
+        su, sv = float(p["u"] @ chan), float(p["v"] @ a)
+        if abs(abs(su) - 1) > 1e-6 or abs(abs(sv) - 1) > 1e-6 or abs(s @ chan) > 1e-6 * (
+                1 + np.linalg.norm(s)):
+            raise ReconstructionError(
+                f"geometry poses[{k}]: mbirjax needs the source on a circle about the axis and "
+                "an untilted detector (u across the axis, v along it); use method='sart' or "
+                "'cg' (RTK) for this orbit")
+        d = p["detector_center"] - center
+        sid = float(s @ radial)
+        sdd = float((s - d) @ radial)
+        # where the central ray (source -> axis) meets the detector, in detector mm from its
+        # centre along mbirjax's (channel, row) directions
+        out["oc"].append(-float((d - (s - sdd * radial)) @ chan))
+        out["or"].append(-float((d - (s - sdd * radial)) @ a))
+        out["angles"].append(theta)
+        out["helical_z_shifts"].append(float(s @ a))
+        for key, val in (("sid", sid), ("sdd", sdd), ("su", su), ("sv", sv)):
+            out[key].append(val)
+    for key in ("sid", "sdd", "oc", "or", "su", "sv"):
+        v = np.asarray(out[key])
+        if np.ptp(v) > 1e-6 * max(1.0, np.abs(v).max()):
+            raise ReconstructionError(f"geometry: mbirjax needs one {key} for every view "
+                                      f"(got {v.min():g} .. {v.max():g}); use method='sart' "
+                                      "or 'cg' (RTK) for this orbit")
+    return {"angles": np.unwrap(out["angles"]), "helical_z_shifts": np.asarray(
+                out["helical_z_shifts"]),
+            "source_iso_dist": out["sid"][0], "source_detector_dist": out["sdd"][0],
+            "det_channel_offset": out["oc"][0], "det_row_offset": out["or"][0],
+            "flip_channels": out["su"][0] < 0, "flip_rows": out["sv"][0] > 0,
+            "frame": np.array([ex, ey, a])}
+
+
+def _mbirjax(p, geometry, voxel, shape, origin, iterations):
+    """mbirjax's MBIR reconstruction (:func:`mbirjax_geometry`), resampled (trilinear) onto
+    the world grid ``origin + index * voxel``: ``mu[z, y, x]`` in 1/mm."""
+    try:
+        import warnings
+
+        import matplotlib
+
+        backend = matplotlib.get_backend()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import mbirjax as mj               # its viewer switches matplotlib to TkAgg
+        if matplotlib.get_backend() != backend:
+            matplotlib.use(backend)
+    except ImportError as exc:
+        raise ReconstructionError(f"method 'mbirjax' needs mbirjax, which is not installed "
+                                  f"({exc}); pip install 'xray_viz[ct-mbir]'") from None
+    from scipy.ndimage import map_coordinates
+
+    g = mbirjax_geometry(geometry)
+    (w, h), (pu, pv) = _detector(geometry)
+    sino = p[:, ::-1, :] if g["flip_rows"] else p
+    sino = sino[:, :, ::-1] if g["flip_channels"] else sino
+    delta = float(np.min(voxel))
+    F, center = g["frame"], np.asarray(geometry.get("center", (0, 0, 0)), np.float64)
+    # the world grid's corners in mbirjax's frame: its box, centred on the axis
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    pts = origin + (corners * (shape - 1)) * voxel - center
+    half = np.abs(pts @ F.T).max(axis=0)
+    n = (np.ceil(2 * half / delta).astype(int) + 3) | 1     # odd: a voxel on the axis
+    model = mj.ConeBeamModel(sino.shape, g["angles"],
+                             source_detector_dist=g["source_detector_dist"],
+                             source_iso_dist=g["source_iso_dist"],
+                             helical_z_shifts=g["helical_z_shifts"])
+    model.set_params(delta_det_channel=pu, delta_det_row=pv,
+                     det_channel_offset=g["det_channel_offset"],
+                     det_row_offset=g["det_row_offset"], delta_voxel=delta,
+                     recon_shape=(int(n[1]), int(n[0]), int(n[2])), verbose=0,
+                     recon_slice_offset=0.0)   # mbirjax centres a helix's recon on its travel
+    import io
+    from contextlib import redirect_stdout
+
+    np.random.seed(0)                          # mbirjax draws its partitions from NumPy's RNG
+    with redirect_stdout(io.StringIO()):
+        recon, _ = model.recon(np.ascontiguousarray(sino, dtype=np.float32),
+                               max_iterations=int(iterations), logfile_path=None,
+                               print_logs=False)
+    recon = np.asarray(recon, np.float64)       # (rows: e_y, cols: e_x, slices: axis)
+    # world voxel centres -> mbirjax (row, col, slice) indices
+    zz, yy, xx = np.meshgrid(*(origin[i] + voxel[i] * np.arange(shape[i]) for i in (2, 1, 0)),
+                             indexing="ij")
+    q = np.stack([xx, yy, zz], -1) - center
+    fx, fy, fz = (q @ F[i] for i in range(3))
+    idx = [fy / delta + (n[1] - 1) / 2, fx / delta + (n[0] - 1) / 2, fz / delta + (n[2] - 1) / 2]
+    return map_coordinates(recon, idx, order=1, mode="constant", cval=0.0)
+
+
+def _update(f, hint=": the orbit's axis must cross the beam (a source turning about the beam "
+                    "axis sees the same view every time)"):
+    """``f.Update()``; RTK's refusal of a geometry it cannot handle is one line."""
+    try:
+        f.Update()
+    except RuntimeError as exc:
+        said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
+        text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
+        raise ReconstructionError(f"RTK cannot reconstruct this scan ({text}){hint}") from None
+
+
+def _iterative(method, volume, image, rgeo, *, iterations, relaxation):
+    """RTK's iterative reconstruction (Joseph forward and back projectors, CPU) of ``image``
+    (RTK's projections) onto the grid of ``volume`` (a zero image): the output image, 1/mm."""
+    itk, rtk = _rtk()
+    ImageType = itk.Image[itk.F, 3]
+    n_iter = int(iterations if iterations is not None else ITERATIVE[method][0])
+    if method == "sart":
+        f = rtk.SARTConeBeamReconstructionFilter[ImageType, ImageType].New()
+        f.SetLambda(float(relaxation if relaxation is not None else 0.3))
+        f.SetEnforcePositivity(True)
+        f.SetNumberOfProjectionsPerSubset(1)            # SART: one projection per update
+    elif method == "cg":
+        f = rtk.ConjugateGradientConeBeamReconstructionFilter[ImageType].New()
+        ones = rtk.ConstantImageSource[ImageType].New()  # unweighted least squares
+        ones.SetInformationFromImage(image)
+        ones.SetConstant(1.0)
+        ones.Update()
+        f.SetInput(2, ones.GetOutput())
+    f.SetNumberOfIterations(n_iter)
+    f.SetInput(0, volume)
+    f.SetInput(1, image)
+    f.SetGeometry(rgeo)
+    _update(f)
+    return f.GetOutput()
 
 
 # --------------------------------------------------------------------------------------------
@@ -389,7 +737,7 @@ def _suffix(path) -> str:
 
 
 def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
-                     hann: float = 0.0) -> Volume:
+                     **options) -> Volume:
     """Reconstruct the Zarr store of a scan (CT-LAYOUT.md; :func:`xray_viz.scan`).
 
     Reads ``projections`` and the group attribute ``xray_viz`` (``quantity``, ``geometry``);
@@ -401,12 +749,21 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
     ----------
     path : str or Path
         The ``.zarr`` folder.
-    voxel, shape, method, hann
-        As for :func:`reconstruct`.
+    voxel, shape, method, **options
+        As for :func:`reconstruct` (``hann``, ``iterations``, ``relaxation``).
 
     Returns
     -------
     Volume
+    """
+    p, geometry = read_line_integrals(path)
+    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, **options)
+
+
+def read_line_integrals(path) -> tuple[np.ndarray, dict]:
+    """``(projections, geometry)`` of a scan's Zarr store: float32 line integrals (an
+    ``intensity`` stack is turned into them with its ``flat``/``dark`` fields, else the
+    physics' ``I0``) and the geometry dict (CT-LAYOUT.md).
     """
     from xray_viz.scan import read_zarr
 
@@ -427,7 +784,7 @@ def reconstruct_file(path, *, voxel=None, shape=None, method: str = "fdk",
     elif quantity not in ("line-integral", "line_integral"):
         raise ReconstructionError(f"{path}: quantity {quantity!r} cannot be reconstructed; "
                                   "expected 'line-integral' or 'intensity'")
-    return reconstruct(p, geometry, voxel=voxel, shape=shape, method=method, hann=hann)
+    return p, geometry
 
 
 def write_volume(volume: Volume, path) -> Path:
@@ -491,32 +848,63 @@ def write_volume(volume: Volume, path) -> Path:
 def add_reconstruct_parser(subparsers) -> None:
     """Register ``xray-viz reconstruct`` on the CLI's sub-parsers."""
     p = subparsers.add_parser(
-        "reconstruct", help="reconstruct a scan (Zarr store) into a volume (FDK/FBP with RTK)",
+        "reconstruct", help="reconstruct a scan (Zarr store) into a volume (RTK: FDK/FBP, SART, "
+                            "CG)",
         description="Reconstruct the projection stack of `xray-viz scan` (a Zarr store) with "
                     "RTK on the CPU: FDK for a circular cone-beam orbit, FBP for a parallel "
-                    "beam. The volume (mu in 1/cm, float32, on a grid along the scene's x, y, z "
-                    "axes) is written by OUT's suffix: "
+                    "beam, SART or conjugate gradient (--method sart|cg --iterations N) for "
+                    "few-view or helical scans; or mbirjax (--method mbirjax, the ct-mbir "
+                    "extra). --rtk-geometry/--rtk-projections write RTK's own files for its "
+                    "command-line tools (rtkfdk -g XML -p DIR -r NAME.mha). The volume (mu "
+                    "in 1/cm, float32, on a grid along the scene's x, y, z axes) is written by OUT's suffix: "
                     + "; ".join(f"{k} = {v}" for k, v in VOLUME_FORMATS.items()) + ".")
     p.add_argument("store", metavar="SCAN", help="the scan's .zarr store")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="the volume: .nii.gz, .nii, .mha or .nrrd")
+    p.add_argument("-o", "--output", default=None, metavar="OUT",
+                   help="the volume: .nii.gz, .nii, .mha or .nrrd (optional with --rtk-geometry "
+                        "or --rtk-projections: then only those files are written)")
     p.add_argument("--voxel", type=float, default=None, metavar="MM",
                    help="voxel size in mm (default: the detector pitch at the rotation axis)")
     p.add_argument("--shape", type=int, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="voxels along x, y, z (default: the detector's field of view)")
     p.add_argument("--method", default=None, choices=sorted(METHODS),
-                   help="fdk (cone beam) or fbp (parallel beam); default: by the scan's beam")
+                   help="fdk (cone beam) or fbp (parallel beam), or iterative: sart, cg "
+                        "(RTK), mbirjax (MBIR, cone beam; few-view or helical scans); default: "
+                        "fdk/fbp by the scan's beam")
     p.add_argument("--hann", type=float, default=0.0, metavar="F",
                    help="Hann window cut frequency in ]0, 1] against noise (default 0: none)")
+    p.add_argument("--iterations", type=int, default=None, metavar="N",
+                   help="iterative methods: passes / steps (default "
+                        + ", ".join(f"{k} {v[0]}" for k, v in ITERATIVE.items())
+                        + ", mbirjax 15)")
+    p.add_argument("--rtk-geometry", default=None, metavar="XML",
+                   help="also write the scan's geometry as RTK's "
+                        "ThreeDCircularProjectionGeometry XML file (rtkfdk --geometry XML)")
+    p.add_argument("--rtk-projections", default=None, metavar="MHA",
+                   help="also write the projections as RTK's tools read them (.mha/.mhd/.nrrd: "
+                        "rows flipped, centred origin): rtkfdk -g XML -p DIR -r NAME.mha")
     p.set_defaults(func=reconstruct_command)
 
 
 def reconstruct_command(args) -> int:
     """``xray-viz reconstruct``: read, reconstruct, write (nothing is written on bad input)."""
-    _suffix(args.output)                      # bad output names fail before the work
     from xray_viz.output import check_target
 
-    check_target(args.output)
+    if not (args.output or args.rtk_geometry or args.rtk_projections):
+        raise ReconstructionError("nothing to write: give -o VOLUME (.nii.gz, .nii, .mha, "
+                                  ".nrrd), --rtk-geometry FILE.xml or --rtk-projections FILE.mha")
+    if args.output:
+        _suffix(args.output)                  # bad output names fail before the work
+        check_target(args.output)
+    if args.rtk_geometry and not args.rtk_geometry.lower().endswith(".xml"):
+        raise OutputError(f"{args.rtk_geometry}: RTK's geometry file is XML; end the name "
+                          "with .xml")
+    if args.rtk_projections and not args.rtk_projections.lower().endswith(
+            (".mha", ".mhd", ".nrrd")):
+        raise OutputError(f"{args.rtk_projections}: RTK's projections are an ITK image; end "
+                          "the name with .mha, .mhd or .nrrd")
+    for extra in (args.rtk_geometry, args.rtk_projections):
+        if extra:
+            check_target(extra)
     method = args.method
     if method is None:
         method = "fdk"
@@ -527,9 +915,22 @@ def reconstruct_command(args) -> int:
             method = "fbp" if g.get("beam") == "parallel" else "fdk"
         except Exception:                     # reconstruct_file reports what is wrong
             pass
-    volume = reconstruct_file(args.store, voxel=args.voxel,
-                              shape=tuple(args.shape) if args.shape else None,
-                              method=method, hann=args.hann)
+    projections, geometry = read_line_integrals(args.store)
+    volume = None
+    if args.output:                    # the work first: nothing is written if it fails
+        volume = reconstruct(projections, geometry, voxel=args.voxel,
+                             shape=tuple(args.shape) if args.shape else None,
+                             method=method, hann=args.hann, iterations=args.iterations)
+    else:
+        rtk_geometry(geometry)         # refuses a geometry RTK cannot hold before writing
+    if args.rtk_geometry:
+        print(f"{write_rtk_geometry(geometry, args.rtk_geometry)}: RTK geometry, "
+              f"{len(geometry['poses'])} projections")
+    if args.rtk_projections:
+        print(f"{write_rtk_projections(projections, geometry, args.rtk_projections)}: RTK "
+              "projections (line integrals)")
+    if volume is None:
+        return 0
     out = write_volume(volume, args.output)
     nz, ny, nx = volume.mu.shape
     print(f"{out}: {nx} x {ny} x {nz} voxels of {', '.join(f'{s:g}' for s in volume.spacing)} "

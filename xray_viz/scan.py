@@ -80,9 +80,10 @@ def projection_seed(seed: int | None, k: int) -> int | None:
 
 
 def _pose(acq: Acquisition) -> dict:
-    f = acq.frame
-    return {"source": f.source.tolist(), "detector_center": f.center.tolist(),
-            "u": f.ho.tolist(), "v": f.ve.tolist()}
+    f = acq.frame          # the pose's centre is the pixel grid's middle (offset included);
+    source = f.source if not f.parallel or f.plain else f.source + (f.middle - f.center)
+    return {"source": source.tolist(), "detector_center": f.middle.tolist(),   # a parallel
+            "u": f.ho.tolist(), "v": f.ve.tolist()}         # beam's source: on its middle ray
 
 
 def _frames(source, center, up):
@@ -127,7 +128,8 @@ def _projection_matrices(source, center, forward, ho, ve, sid, *, shape, pitch,
 def pose_table(scene, orbit: Orbit):
     """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
     detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
-    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`), other orbits pose by pose.
+    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`) for an untilted detector without
+    offset, other orbits and detectors pose by pose.
 
     Examples
     --------
@@ -139,10 +141,11 @@ def pose_table(scene, orbit: Orbit):
     ((5, 4, 3), (5, 3, 4))
     """
     base = scene.acquisition
-    if orbit.random is None:
+    if orbit.random is None or not getattr(base.frame, "plain", True):
+        # pose by pose (a tilted or offset detector: the general frame and matrix)
         acqs = list(orbit.acquisitions(base))
-        poses = np.array([[a.frame.source, a.frame.center, a.frame.ho, a.frame.ve]
-                          for a in acqs], np.float64).reshape(-1, 4, 3)
+        poses = np.array([[_pose(a)[r] for r in POSE_ROWS] for a in acqs],
+                         np.float64).reshape(-1, 4, 3)
         mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
         return poses, mats
     src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
@@ -210,7 +213,7 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "sid_mm": first.sid,
         "sod_mm": sod,
         "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
-                     "offset_mm": [0.0, 0.0]},
+                     "offset_mm": list(getattr(det, "offset", (0.0, 0.0)))},
         "poses": poses,
         "projection_matrices": mats,
     }

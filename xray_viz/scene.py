@@ -347,14 +347,16 @@ class Detector:
         Energy-integrating (signal ~ sum fluence * E * transmission), photon counting, or air
         kerma (``fluence * E * (mu_en/rho)_air``, an ideal dosemeter).
     i0 : float
-        Unattenuated photons per pixel (at the detector centre). With noise off the image is just
+        Unattenuated photons per pixel (at the detector centre; with ``offset`` or ``u``/``v``,
+        of a pixel at ``center`` facing the source). With noise off the image is just
         ``i0 * I / I0``; with noise on it sets the photon statistics.
     noise : bool
         Poisson noise.
     seed : int or None
         Seed of the noise (None: fresh randomness each render).
     falloff : bool
-        Inverse-square and obliquity fall-off (``cos^3``) of a point source.
+        Inverse-square and obliquity fall-off (``cos^3``) of a point source (on a tilted
+        detector, the obliquity to its normal: :func:`~xray_viz.physics.imaging.falloff_factor`).
     supersample : int
         ``n x n`` rays per pixel, averaged in intensity.
     focal_spot : float
@@ -369,6 +371,26 @@ class Detector:
         Additive Gaussian noise, photon-equivalents rms (needs ``noise``).
     gain : float
         Detected units per photon-equivalent.
+    offset : (float, float)
+        ``[du, dv]`` mm (TOML ``offset``): the middle of the pixel grid sits at
+        ``center + du * u + dv * v``, displaced within the detector plane; the beam axis (the
+        principal ray) stays ``source -> center``. Default ``[0, 0]``.
+    u, v : (3,) float or None
+        A tilted detector's own axes (TOML ``u = [..]``, ``v = [..]``, both or neither): ``u``
+        along the image rows (left to right, seen from the source), ``v`` up the columns. They
+        are normalised and ``v`` is made exactly perpendicular to ``u`` (they must be
+        perpendicular to 1e-9 already); ``up`` is then ``v`` (a scene file gives ``up`` or
+        ``u``/``v``, not both). The detector plane passes through ``center`` with normal
+        ``v x u`` (pointing away from the source, as ``unit(VE) x unit(HO)`` does); the
+        source must face it, not along it (checked by
+        :class:`~xray_viz.geometry.Acquisition`). None (the default): the thesis' untilted
+        detector, ``u = unit(HO)``, ``v = unit(VE)``, across the beam.
+
+    The thesis' ``HO``, ``VE`` and ``FL`` (:func:`xray_viz.geometry.viewport`) name the
+    untilted, unshifted detector; a tilted or offset detector's rays go from the source to its
+    own pixel points (:attr:`xray_viz.geometry.DetectorFrame.middle`, ``u``, ``v``). A scene
+    without ``offset``, ``u`` and ``v`` is exactly the untilted scene (the same images, bit
+    for bit).
 
     Numbers must be numbers and flags bools: ``pitch=True``, ``i0="1e4"`` or ``noise="no"``
     are refused, not converted. See :mod:`xray_viz.physics` for what these model and what they
@@ -395,10 +417,14 @@ class Detector:
     mtf: dict | None = None
     electronic_noise: float = 0.0
     gain: float = 1.0
+    offset: tuple[float, float] = (0.0, 0.0)
+    u: np.ndarray | None = None
+    v: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "center", _vec3(self.center, name="[detector] center"))
         object.__setattr__(self, "up", _vec3(self.up, name="[detector] up", position=False))
+        self._check_tilt()
         shape = _shape(self.shape)
         pitch = _numbers(self.pitch, "[detector] pitch (mm)", 2)
         if not np.all(pitch > 0):
@@ -430,6 +456,50 @@ class Detector:
         object.__setattr__(self, "noise", noise)
         object.__setattr__(self, "falloff", _flag(self.falloff, "[detector] falloff"))
         self._check_detector_physics()
+
+    def _check_tilt(self):
+        """Validate and canonicalise ``offset``, ``u`` and ``v`` (see the class docstring)."""
+        offset = _numbers(self.offset, "[detector] offset (mm)", 2)
+        if float(np.max(np.abs(offset))) > COORDINATE_LIMIT:
+            raise SceneError(f"[detector] offset {offset.tolist()} mm is beyond "
+                             f"{COORDINATE_LIMIT:g} mm (1000 km); check the units (mm)")
+        object.__setattr__(self, "offset", tuple(float(x) + 0.0 for x in offset))
+        if (self.u is None) != (self.v is None):
+            given, missing = ("u", "v") if self.v is None else ("v", "u")
+            raise SceneError(f"[detector] gives '{given}' without '{missing}': a tilted "
+                             "detector needs both of its axes, u (along the rows) and v (up "
+                             "the columns), or neither")
+        if self.u is None:
+            return
+        axes = []
+        for key in ("u", "v"):
+            a = _vec3(getattr(self, key), name=f"[detector] {key}", position=False)
+            if not np.any(a):
+                raise SceneError(f"[detector] {key} must be a non-zero vector, got {a.tolist()}")
+            axes.append(a / np.linalg.norm(a))
+        u, v = axes
+        dot = float(u @ v)
+        if not abs(dot) <= 1e-9:
+            raise SceneError(f"[detector] u {np.asarray(self.u).tolist()} and v "
+                             f"{np.asarray(self.v).tolist()} must be perpendicular (u . v = "
+                             f"{dot:.3g} after normalising): give the detector's own row and "
+                             "column directions")
+        v = v - dot * u
+        v = v / np.linalg.norm(v)
+        for key, a in (("u", u), ("v", v), ("up", v)):
+            a = a + 0.0
+            a.setflags(write=False)
+            object.__setattr__(self, key, a)
+
+    @property
+    def tilted(self) -> bool:
+        """The detector has its own axes ``u``, ``v`` (not necessarily at an angle)."""
+        return self.u is not None
+
+    @property
+    def shifted(self) -> bool:
+        """The detector has a non-zero ``offset``."""
+        return self.offset != (0.0, 0.0)
 
     def _check_detector_physics(self):
         """Validate and canonicalise ``scintillator``, ``mtf``, ``electronic_noise``, ``gain``."""
@@ -851,8 +921,14 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     if src.mas is not None:
         source["mas"] = src.mas
     source["heel"] = src.heel
-    detector = {"center": det.center.tolist(), "up": det.up.tolist(),
-                "shape": list(det.shape), "pitch": list(det.pitch), "response": det.response}
+    detector = {"center": det.center.tolist()}
+    if det.tilted:
+        detector.update(u=det.u.tolist(), v=det.v.tolist())
+    else:
+        detector["up"] = det.up.tolist()
+    if det.shifted:
+        detector["offset"] = list(det.offset)
+    detector.update(shape=list(det.shape), pitch=list(det.pitch), response=det.response)
     if src.mas is None:
         detector["I0"] = det.i0
     detector.update(noise=det.noise, falloff=det.falloff, supersample=det.supersample,
@@ -919,7 +995,7 @@ def _compose_placement(placement, matrix):
 SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas", "heel")
 DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
                  "falloff", "supersample", "focal_spot", "scintillator", "mtf",
-                 "electronic_noise", "gain")
+                 "electronic_noise", "gain", "offset", "u", "v")
 BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
              "units", "repair")
 
@@ -1315,6 +1391,11 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     det.expect(DETECTOR_KEYS)
     center = det.vector("center", 3, required=True)
     up = det.vector("up", 3, default=np.array([0.0, 1.0, 0.0]))
+    if det.has("up") and (det.has("u") or det.has("v")):
+        det.fail("gives 'up' and the tilted detector's axes 'u'/'v': use one (with u and v, "
+                 "up is v)")
+    tilt = {"offset": det.vector("offset", 2, default=(0.0, 0.0)),
+            "u": det.vector("u", 3), "v": det.vector("v", 3)}
     shape = det.vector("shape", 2, required=True, integer=True)
     if det.has("pitch") and det.has("size"):
         det.fail("gives both 'pitch' and 'size'; use one")
@@ -1374,7 +1455,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         source = Source(position=position, kind=kind, energy=energy, spectrum=spectrum, mas=mas,
                         heel=heel)
         detector = Detector(center=center, up=up, shape=tuple(shape.tolist()),
-                            pitch=tuple(pitch), **options)
+                            pitch=tuple(pitch), **options, **tilt)
     except SceneError as exc:
         raise SceneError(f"{file}: {exc}" if file else str(exc)) from None
 

@@ -493,7 +493,7 @@ def walkthrough_command(args) -> int:
         If ``number`` is not a walkthrough, or neither ``--list`` nor a number was given.
     XrayVizError
         On screen (no ``--off-screen``, ``PYVISTA_OFF_SCREEN`` not set) without a display to
-        open the windows on (:func:`xray_viz.viz.command.require_display`).
+        open the windows on (:func:`xray_viz.viz.display.require_display`).
     """
     if args.list or args.number is None:
         if not args.list:
@@ -504,7 +504,7 @@ def walkthrough_command(args) -> int:
         return 0
     walkthrough_path(args.number)                  # an unknown number first: its own error
     if not args.off_screen and not is_off_screen():
-        from xray_viz.viz.command import require_display
+        from xray_viz.viz.display import require_display
 
         require_display("--off-screen to write the figures as PNGs")
     from xray_viz.scene_options import _compile_notice

@@ -13,8 +13,18 @@ __all__ = ["load_mesh", "MESH_SUFFIXES", "as_trimesh", "scene_nodes", "expand_no
 
 #: File suffixes read by :func:`load_mesh` through trimesh.
 TRIMESH_SUFFIXES = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf")
-#: File suffixes read through pyvista (VTK XML PolyData and legacy VTK).
-VTK_SUFFIXES = (".vtp", ".vtk")
+#: File suffixes read through VTK's readers: XML PolyData, UnstructuredGrid and StructuredGrid,
+#: and legacy VTK (any dataset). A dataset that is not a surface (tetrahedra, hexahedra, a
+#: structured grid) becomes its boundary surface, triangulated.
+VTK_SUFFIXES = (".vtp", ".vtu", ".vts", ".vtk")
+
+#: The VTK reader class of each suffix: (module, class).
+_VTK_READERS = {
+    ".vtp": ("vtkmodules.vtkIOXML", "vtkXMLPolyDataReader"),
+    ".vtu": ("vtkmodules.vtkIOXML", "vtkXMLUnstructuredGridReader"),
+    ".vts": ("vtkmodules.vtkIOXML", "vtkXMLStructuredGridReader"),
+    ".vtk": ("vtkmodules.vtkIOLegacy", "vtkDataSetReader"),
+}
 #: Scene formats whose nodes become one body each (unless ``merge = true``).
 NODE_SUFFIXES = (".glb", ".gltf")
 #: Every file suffix read by :func:`load_mesh`.
@@ -32,10 +42,10 @@ def _quiet_vtk_read(pv, path: Path):
     """
     from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
 
-    if path.suffix.lower() == ".vtp":
-        from vtkmodules.vtkIOXML import vtkXMLPolyDataReader as Reader
-    else:
-        from vtkmodules.vtkIOLegacy import vtkDataSetReader as Reader
+    import importlib
+
+    module, name = _VTK_READERS[path.suffix.lower()]
+    Reader = getattr(importlib.import_module(module), name)
     buffer = vtkStringOutputWindow()
     previous = vtkOutputWindow.GetInstance()
     vtkOutputWindow.SetInstance(buffer)
@@ -130,7 +140,8 @@ def _vtk_errors(text) -> list[str]:
 
 
 def _read_vtk(path: Path):
-    """(vertices, faces) of a .vtp/.vtk file, triangulated; pyvista imported only here."""
+    """(vertices, faces) of a VTK file (:data:`VTK_SUFFIXES`), triangulated; a volume mesh
+    (tetrahedra, hexahedra) becomes its boundary surface; pyvista imported only here."""
     try:
         import pyvista as pv
     except ImportError:  # pragma: no cover - pyvista is a dependency
@@ -160,8 +171,9 @@ def load_mesh(path: str | Path, *, process: bool = True):
     ----------
     path : str or Path
         An STL (ASCII or binary), OBJ, PLY, OFF or GLB/GLTF file (read with trimesh), or a
-        VTK ``.vtp`` / ``.vtk`` file (read with pyvista, imported only for these;
-        polygons are triangulated, and a volume mesh is reduced to its outer surface).
+        VTK ``.vtp``, ``.vtu``, ``.vts`` or legacy ``.vtk`` file (read with VTK's readers
+        through pyvista, imported only for these; polygons are triangulated, and a volume
+        mesh, such as a tetrahedral ``.vtu``, is reduced to its boundary surface).
         ``model.glb#NODE`` is the mesh of one node of a glTF/GLB scene (its transform
         applied); ``model.glb`` alone is every node's mesh merged.
     process : bool, optional

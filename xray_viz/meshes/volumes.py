@@ -102,7 +102,9 @@ __all__ = [
 #: File suffixes read as volumes (a folder is read as a DICOM series).
 NIFTI_SUFFIXES = (".nii", ".nii.gz")
 ITK_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd")
-VOLUME_SUFFIXES = NIFTI_SUFFIXES + ITK_SUFFIXES
+#: A single DICOM file is a DICOM-SEG label map (:mod:`xray_viz.meshes.dicom_seg`).
+DICOM_SEG_SUFFIXES = (".dcm",)
+VOLUME_SUFFIXES = NIFTI_SUFFIXES + ITK_SUFFIXES + DICOM_SEG_SUFFIXES
 
 #: ITK's and DICOM's world coordinates (LPS+) to the scene's (RAS+): x and y negated.
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -311,7 +313,9 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     ----------
     path : str or Path
         ``.nii`` / ``.nii.gz`` (nibabel), ``.nrrd`` / ``.nhdr`` / ``.mha`` / ``.mhd``
-        (SimpleITK), or a folder holding one DICOM series (pydicom).
+        (SimpleITK), a DICOM-SEG ``.dcm`` file (highdicom, a label map only:
+        :func:`~xray_viz.meshes.dicom_seg.read_dicom_seg`), or a folder holding one DICOM
+        series (pydicom).
     hu : bool, optional
         Read a CT in Hounsfield units (float64; DICOM's rescale applied). Otherwise the
         values must be whole numbers (a label map) and come back as int64.
@@ -347,6 +351,13 @@ def read_volume(path, *, hu: bool = False) -> Volume:
         data, affine = _read_nifti(path, hu=hu)
     elif name.endswith(ITK_SUFFIXES):
         data, affine = _read_itk(path, hu=hu)
+    elif name.endswith(DICOM_SEG_SUFFIXES):
+        if hu:
+            raise MeshError(f"{path}: a single .dcm file is read as a DICOM-SEG label map (a "
+                            "[[labels]] table); give a CT series as the folder of its slices")
+        from xray_viz.meshes.dicom_seg import read_dicom_seg
+
+        data, affine, _ = read_dicom_seg(path)
     else:
         raise MeshError(f"{path}: not a volume file; use one of {', '.join(VOLUME_SUFFIXES)} or "
                         "a folder holding a DICOM series")

@@ -110,6 +110,12 @@ def pixel_directions(scene, pixels=None):
     # u = col / (W - 1), v = (H - 1 - row) / (H - 1): offsets from the centre along HO and VE
     du = (col / (w - 1) - 0.5) * width if w > 1 else np.zeros(len(idx))
     dv = ((h - 1 - row) / (h - 1) - 0.5) * height if h > 1 else np.zeros(len(idx))
+    if not scene.acquisition.frame.plain:   # tilted or offset: the rays' own directions,
+        from xray_viz.geometry import detector_axes       # in the tube's (beam axis) frame
+
+        forward, ho, ve = detector_axes(vp.r0, vp.r0 - vp.FL, det.up)
+        d = scene.acquisition.rays().directions[idx]
+        du, dv = fl * (d @ ho) / (d @ forward), fl * (d @ ve) / (d @ forward)
     side = heel_side(scene.source.heel)
     along, across = {"top": (-dv, du), "bottom": (dv, du), "left": (du, dv),
                      "right": (-du, dv)}[side]

@@ -538,7 +538,13 @@ def falloff_factor(scene) -> np.ndarray:
 
     The photons per pixel fall as ``1 / r^2`` (distance source -> pixel) times ``cos(theta)``
     (the pixel seen obliquely), so with ``r = SID / cos(theta)`` the factor is ``cos^3(theta)``.
-    1 everywhere for a parallel beam.
+    1 everywhere for a parallel beam. On a tilted or offset detector the factor is
+    ``(SID / r)^2 cos(theta)`` with ``theta`` the angle between the pixel's ray and the
+    detector's normal, ``cos(theta) = D / r`` (``D`` the distance from the source to the
+    detector plane, :attr:`~xray_viz.geometry.DetectorFrame.distance`): ``I0`` stays the
+    photons of a pixel at ``center`` (on the beam axis, SID from the source) facing the source,
+    so the factor is ``cos`` of the tilt there and exceeds 1 on pixels nearer the source than
+    SID. (Untilted, ``D = SID`` and this is ``cos^3(theta)``.)
 
     Examples
     --------
@@ -552,6 +558,10 @@ def falloff_factor(scene) -> np.ndarray:
     w, h = scene.detector.shape
     if scene.source.kind == "parallel":
         return np.ones((h, w))
+    frame = scene.acquisition.frame
+    if not frame.plain:               # tilted or offset: the pixels' own distances and angles
+        r = scene.acquisition.rays().t_max.reshape(h, w)
+        return (frame.sid / r) ** 2 * (frame.distance / r)
     vp = viewport(scene.source.position, scene.detector)
     u, v = pixel_coordinates(vp.shape)
     r = np.linalg.norm(vp.point(u, v) - vp.r0, axis=-1)

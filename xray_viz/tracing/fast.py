@@ -439,9 +439,13 @@ class _Plan:
         self.mode = "empty"
         if nb == 0:
             return
+        # The frame of the projection (geometry.DetectorFrame, FineGrid): depths along
+        # depth_axis (the detector at depth FL), the projection's linear parts eu, ev, the
+        # principal point (bx, by); f is a parallel beam's ray direction.
         fr, g = acq.frame, acq.frame.grid(n)
-        r0, center, f, eu, ev, FL = fr.source, fr.center, fr.forward, fr.ho, fr.ve, fr.sid
-        sx, sy, bx, by, Ex, Ey, P00 = g.sx, g.sy, g.bx, g.by, g.ex, g.ey, g.p00
+        r0, f, FL, depth_axis = fr.source, fr.forward, fr.depth, fr.depth_axis
+        eu, ev = fr.project_u, fr.project_v
+        sx, sy, bx, by, Ex, Ey, P0 = g.sx, g.sy, g.bx, g.by, g.ex, g.ey, g.q00
         planes = acq.planes
         keep = self.keep = visible_bodies(scene)
         if not keep:
@@ -453,12 +457,11 @@ class _Plan:
         perspective = not fr.parallel
         XY, w, huge, status, box, K = _workspace(bodies, len(V), len(F))
         if perspective:
-            R.project_vertices(V, r0, f, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w, huge,
-                               nW, nH, K)
-            P0 = (center + P00) - r0
+            R.project_vertices(V, r0, depth_axis, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w,
+                               huge, nW, nH, K)
         else:
-            R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW, nH, K)
-            P0 = P00
+            R.project_vertices(V, r0, depth_axis, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW,
+                               nH, K)
         self.FL, self.perspective, self.P0, self.Ex, self.Ey = FL, perspective, P0, Ex, Ey
         self.F, self.XY, self.B = F, XY, B
         n_chunks = numba.get_num_threads()

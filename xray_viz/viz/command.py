@@ -10,11 +10,13 @@ The lead's :mod:`xray_viz.cli` wires it in with :func:`add_show_parser`.
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 from pathlib import Path
 
 from xray_viz.errors import OutputError, XrayVizError
+from xray_viz.viz.display import require_display
 
 __all__ = ["add_show_parser", "show_command", "require_display", "SCREENSHOT_FORMATS",
            "MAX_RESOLUTION"]
@@ -33,28 +35,6 @@ MAX_SIZE = 8192
 #: Largest preview resolution ``--resolution`` accepts, pixels along the detector's longer side
 #: (the viewer re-renders at it on every slider move; 2048 x 2048 already takes seconds).
 MAX_RESOLUTION = 2048
-
-
-def require_display(remedy: str) -> None:
-    """Raise unless there is a display to open a window on (always true off Linux).
-
-    Without ``DISPLAY`` (or ``WAYLAND_DISPLAY``) VTK only logs "bad X server connection"
-    and shows nothing; this says so in one line instead.
-
-    Parameters
-    ----------
-    remedy : str
-        What to use instead, e.g. ``"--off-screen to write the figures as PNGs"``.
-
-    Raises
-    ------
-    XrayVizError
-        ``no display to open a window on (DISPLAY is not set); use <remedy>``.
-    """
-    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") \
-            and not os.environ.get("WAYLAND_DISPLAY"):
-        raise XrayVizError(f"no display to open a window on (DISPLAY is not set); use "
-                           f"{remedy}")
 
 
 def _use_egl_if_headless() -> None:
@@ -103,6 +83,15 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--view", choices=("side", "bodies"), default="side",
                    help="starting camera: the whole set-up from the side (default), or a "
                         "close-up of the bodies with the detector behind them (keys v and b)")
+    p.add_argument("--web", action="store_true",
+                   help="serve the viewer as a web page (a trame server; needs the jupyter "
+                        "extra) instead of opening a window: for a browser on this machine, or "
+                        "with --host on others; Ctrl-C stops it")
+    p.add_argument("--host", default=None, metavar="HOST",
+                   help="with --web: the interface to listen on (default: 127.0.0.1, this "
+                        "machine only; 0.0.0.0 for every interface)")
+    p.add_argument("--port", type=int, default=None, metavar="N",
+                   help="with --web: the port (default: 0, any free port; the URL is printed)")
     from xray_viz.scene_options import add_scene_overrides
 
     add_scene_overrides(p)
@@ -128,6 +117,12 @@ def show_command(args) -> int:
     from xray_viz.scene_options import _compile_notice, load_scene_with_overrides
 
     out = Path(args.screenshot) if args.screenshot else None
+    if args.web and out is not None:
+        raise XrayVizError("--web and --screenshot do not go together: --web serves the viewer "
+                           "to a browser, --screenshot saves a picture of it")
+    if args.port is not None and not 0 <= args.port <= 65535:
+        raise XrayVizError(f"--port {args.port}: a port is a number from 0 (any free one) to "
+                           "65535")
     if out is not None and out.suffix.lower() not in SCREENSHOT_FORMATS:
         raise OutputError(f"{out}: unknown screenshot format {out.suffix or '(none)'!r}; use "
                           f"one of {', '.join(SCREENSHOT_FORMATS)}")
@@ -152,8 +147,13 @@ def show_command(args) -> int:
         select_pixels(scene.detector.shape, args.rays)
     except ValueError as exc:
         raise XrayVizError(f"--rays: {exc}") from None
+    if args.web:
+        return _serve_web(args, scene, (w, h))
+    if args.host is not None or args.port is not None:
+        raise XrayVizError("--host and --port go with --web (serve the viewer as a web page)")
     if out is None:
-        require_display("--screenshot OUT.png to render the view off-screen")
+        require_display("--screenshot OUT.png to render the view off-screen, or --web to "
+                        "serve it to a browser")
     if out is not None:
         _use_egl_if_headless()
     from xray_viz.viz.viewer import Viewer
@@ -172,3 +172,23 @@ def show_command(args) -> int:
     print(f"wrote {out} ({w}x{h} window: 3D scene left, {sw}x{sh} radiograph right, render "
           f"{viewer.radiograph.timing['total'] * 1000:.0f} ms)")
     return 0
+
+
+def _serve_web(args, scene, window_size) -> int:
+    """``--web``: the viewer on a trame server (:func:`xray_viz.viz.web.serve`)."""
+    from xray_viz import progress
+    from xray_viz.scene_options import _compile_notice
+    from xray_viz.viz import web
+
+    web.require_trame()
+    host = args.host if args.host is not None else web.DEFAULT_HOST
+    port = args.port if args.port is not None else 0
+    with _compile_notice("fast"), progress.task("opening the viewer", unit="rows"):
+        viewer = web.WebViewer(scene, rays=args.rays, resolution=args.resolution,
+                               texture=args.texture, window_size=window_size,
+                               height=window_size[1])
+    if args.view == "bodies":
+        viewer.viewer.view_bodies()
+
+    return web.serve(viewer, host=host, port=port,
+                     announce=functools.partial(print, flush=True))

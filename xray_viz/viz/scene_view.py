@@ -247,8 +247,37 @@ class SceneView:
     bodies_view_box: tuple | None = None
     camera_view: str = "side"
     _camera_set: bool = False
+    #: Texts of fixed pixel size, by name: (actor, font size at the reference window).
+    _fixed_texts: dict = field(default_factory=dict)
+
+    #: The smallest window the font sizes are chosen for; smaller windows get smaller text
+    #: (:attr:`font_scale`), so that the key help, the legend and the titles do not overlap.
+    REFERENCE_WINDOW = (1200, 600)
+    MIN_FONT_SCALE = 0.6
 
     # ---------------------------------------------------------------- helpers
+    @property
+    def font_scale(self) -> float:
+        """Factor of the texts' font sizes for the current window: 1 at
+        :attr:`REFERENCE_WINDOW` (1200 x 600) and larger, down to :attr:`MIN_FONT_SCALE` in
+        proportion to the window's width or height, whichever is relatively smaller."""
+        w, h = self.plotter.window_size
+        ref_w, ref_h = self.REFERENCE_WINDOW
+        return float(np.clip(min(w / ref_w, h / ref_h), self.MIN_FONT_SCALE, 1.0))
+
+    def fixed_text(self, actor, name: str, base_size: int):
+        """Register a text actor of fixed pixel size, drawn at ``base_size`` points in the
+        reference window and scaled by :attr:`font_scale` (now and by :meth:`fit_text`)."""
+        self._fixed_texts[name] = (actor, int(base_size))
+        actor.GetTextProperty().SetFontSize(max(1, int(base_size * self.font_scale)))
+        return actor
+
+    def fit_text(self) -> None:
+        """Rescale every registered text to the window's current size (after a resize)."""
+        scale = self.font_scale
+        for actor, base in self._fixed_texts.values():
+            actor.GetTextProperty().SetFontSize(max(1, int(base * scale)))
+
     @property
     def viewport(self):
         """The thesis' viewport vectors of the current scene."""
@@ -606,6 +635,7 @@ class SceneView:
         its ``justify`` / ``vertical`` side (fixed pixel size, so it never scales)."""
         actor = self.plotter.add_text(text, position=position, viewport=True,
                                       font_size=font_size, name=name, color=color)
+        self.fixed_text(actor, name, actor.GetTextProperty().GetFontSize())
         prop = actor.GetTextProperty()
         getattr(prop, f"SetJustificationTo{justify.capitalize()}")()
         getattr(prop, f"SetVerticalJustificationTo{vertical.capitalize()}")()
@@ -622,7 +652,7 @@ class SceneView:
         coord.SetCoordinateSystemToWorld()
         coord.SetValue(*np.asarray(point, float).ravel()[:3])
         prop = actor.GetTextProperty()
-        prop.SetFontSize(font_size)
+        prop.SetFontSize(font_size)          # (the radiograph's corner labels: never smaller)
         prop.SetColor(0.1, 0.1, 0.1)
         getattr(prop, f"SetJustificationTo{justify.capitalize()}")()
         getattr(prop, f"SetVerticalJustificationTo{vertical.capitalize()}")()

@@ -72,6 +72,9 @@ def window_level_ranges(image) -> tuple[tuple[float, float], tuple[float, float]
     return (span / 100, 2 * span), (lo, hi), f"%.{digits}f"
 
 
+#: The check boxes at the bottom left of the 3D pane, from the bottom up.
+CHECK_BOXES = ("rays", "grid", "hits", "vectors")
+
 #: Fraction of the radiograph pane's height kept below the image for the sliders.
 SLIDER_BAND = 0.3
 
@@ -143,6 +146,8 @@ class Viewer:
             self.fixed_spectrum = source_spectrum(scene.source)
         self.resolution = int(resolution or max(scene.detector.shape))
         self.profile = None
+        self.picked_pixel = None
+        self._listeners = []
         self._shots = itertools.count()
         self.scene = self._build_scene()
         from xray_viz.render import render
@@ -165,6 +170,8 @@ class Viewer:
         self.plotter.add_chart(self.chart)
         if widgets:
             self._add_widgets()
+        self.plotter.render_window.AddObserver("WindowResizeEvent",
+                                               lambda *_: self.fit_to_window())
 
     # ------------------------------------------------------------------ scene from controls
     def _build_scene(self):
@@ -210,6 +217,16 @@ class Viewer:
             w, h = self.scene.detector.shape
             self.pick_pixel(min(int(picked.i[0]), w - 1), min(int(picked.j[0]), h - 1))
         self._update_status()
+        self._notify()
+
+    def add_listener(self, listener) -> None:
+        """Call ``listener(viewer)`` after every change: a re-render, a picked pixel, a
+        window/level, a toggled group (the web page follows the viewer this way)."""
+        self._listeners.append(listener)
+
+    def _notify(self) -> None:
+        for listener in self._listeners:
+            listener(self)
 
     # ------------------------------------------------------------------ callbacks
     def set_source_distance(self, distance: float) -> None:
@@ -281,6 +298,7 @@ class Viewer:
         re-render the image."""
         self.view.set_window_level(window, level)
         self._sync_sliders()
+        self._notify()
 
     def pick_pixel(self, i: int, j: int):
         """Show pixel (i, j)'s ray in 3D and mu along it in the chart.
@@ -346,6 +364,7 @@ class Viewer:
         top = float(max(profile.mu.max(), 1e-3)) * 1.15
         self.chart.y_range = [0.0, top]
         self.chart.visible = True
+        self._notify()
         return profile
 
     def on_pick(self, point) -> None:
@@ -362,6 +381,7 @@ class Viewer:
         if visible is None:
             visible = not self.view.is_visible(group)
         self.view.set_visible(group, visible)
+        self._notify()
 
     def view_side(self) -> None:
         """Camera: the whole set-up from the side (key ``v``)."""
@@ -391,6 +411,21 @@ class Viewer:
         self.plotter.close()
 
     # ------------------------------------------------------------------ widgets
+    def _place_checkboxes(self) -> None:
+        """The check boxes and their labels at the bottom left of the 3D pane, sized and
+        spaced by the window's font scale (26 px boxes 34 px apart at 1200 x 600 and larger)."""
+        s = self.view.font_scale
+        for k, (box, label) in enumerate(getattr(self, "checkboxes", {}).values()):
+            x, y, size = 10 * s, (40 + 34 * k) * s, 26 * s
+            box.GetRepresentation().PlaceWidget([x, x + size, y, y + size, 0.0, 0.0])
+            label.SetPosition(42 * s, (44 + 34 * k) * s)
+
+    def fit_to_window(self) -> None:
+        """Re-scale the fixed-size texts and the check boxes to the window's size (called on
+        every resize of the render window: a desktop window or the web page's view)."""
+        self.view.fit_text()
+        self._place_checkboxes()
+
     def _beam_text(self) -> str:
         if self.kvp is not None:
             return f"{self.kvp:g} kVp"
@@ -480,15 +515,18 @@ class Viewer:
             # in the renderer under the mouse: the slider would jump into the 3D pane.
             widget.KeyPressActivationOff()
         pl.subplot(0, 0)
-        for k, group in enumerate(("rays", "grid", "hits", "vectors")):
-            y = 40 + 34 * k
+        self.checkboxes = {}
+        for k, group in enumerate(CHECK_BOXES):
             box = pl.add_checkbox_button_widget(lambda on, g=group: self.toggle(g, on),
                                                 value=self.view.is_visible(group),
-                                                position=(10, y), size=26, border_size=2,
-                                                color_on="#1f77b4")
+                                                position=(10, 40 + 34 * k), size=26,
+                                                border_size=2, color_on="#1f77b4")
             box.KeyPressActivationOff()
-            pl.add_text(group, position=(42, y + 4), font_size=9, color="black",
-                        name=f"check-{group}")
+            label = pl.add_text(group, position=(42, 44 + 34 * k), font_size=9,
+                                color="black", name=f"check-{group}")
+            self.view.fixed_text(label, f"check-{group}", label.GetTextProperty().GetFontSize())
+            self.checkboxes[group] = (box, label)
+        self._place_checkboxes()
         for key, (action, _) in KEYS.items():
             pl.clear_events_for_key(key)              # pyvista binds "b" and "v" itself
             if action == "screenshot":
