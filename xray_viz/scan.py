@@ -19,7 +19,9 @@ JSON-serialisable ``geometry`` dict (:func:`scan_geometry`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import gc
 import hashlib
 import json
 import os
@@ -38,11 +40,21 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geome
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
-           "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre"]
+           "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
+           "pose_table", "done_flags", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
+           "INLINE_POSES_MAX", "POSE_ROWS"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
+#: The layout version of a store that keeps its whole geometry in its JSON attributes.
 LAYOUT_VERSION = 1
+#: The layout version of a store whose per-projection poses and projection matrices are
+#: Zarr arrays (``per_projection_arrays`` in the geometry attributes), not JSON.
+ARRAYS_LAYOUT_VERSION = 2
+#: Above this many projections a store keeps its poses and projection matrices as arrays.
+INLINE_POSES_MAX = 1000
+#: What the rows of a store's ``poses`` array are.
+POSE_ROWS = ("source", "detector_center", "u", "v")
 PLUGIN_NAME = "xray_viz-scenes"
 
 
@@ -74,9 +86,104 @@ def _pose(acq: Acquisition) -> dict:
             "u": f.ho.tolist(), "v": f.ve.tolist()}         # beam's source: on its middle ray
 
 
+def _frames(source, center, up):
+    """``(forward, ho, ve, sid)`` of many poses at once, ``(n, 3)`` arrays and ``(n,)``:
+    :func:`xray_viz.geometry.detector_axes` over rows."""
+    from xray_viz.geometry import UP_TOLERANCE
+
+    fl = source - center
+    sid = np.sqrt(np.einsum("ij,ij->i", fl, fl))
+    if not np.all(sid > 0):
+        raise SceneError("the source sits at the detector centre: FL = r0 - center is zero")
+    forward = -fl / sid[:, None]
+    ho = np.cross(forward, up)
+    norm = np.sqrt(np.einsum("ij,ij->i", ho, ho))
+    if not np.all(norm >= UP_TOLERANCE * np.sqrt(np.einsum("ij,ij->i", up, up))):
+        raise SceneError("[detector] up is parallel to the beam (source -> detector centre) "
+                         "for some poses; choose an up vector across the beam")
+    ho = ho / norm[:, None]
+    return forward, ho, np.cross(ho, forward), sid
+
+
+def _projection_matrices(source, center, forward, ho, ve, sid, *, shape, pitch,
+                         parallel) -> np.ndarray:
+    """``(n, 3, 4)``: :meth:`Acquisition.projection_matrix` of many poses at once."""
+    (w, h), (pu, pv) = shape, pitch
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    n = len(source)
+    out = np.zeros((n, 3, 4))
+    if parallel:
+        out[:, 0, :3], out[:, 1, :3] = ho / pu, ve / pv
+        out[:, 0, 3] = cx - np.einsum("ij,ij->i", ho, center) / pu
+        out[:, 1, 3] = cy - np.einsum("ij,ij->i", ve, center) / pv
+        out[:, 2, 3] = 1.0
+        return out
+    out[:, 0, :3] = (sid / pu)[:, None] * ho + cx * forward
+    out[:, 1, :3] = (sid / pv)[:, None] * ve + cy * forward
+    out[:, 2, :3] = forward
+    out[:, :, 3] = -np.einsum("nij,nj->ni", out[:, :, :3], source)
+    return out
+
+
+def pose_table(scene, orbit: Orbit):
+    """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
+    detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
+    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`) for an untilted detector without
+    offset, other orbits and detectors pose by pose.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> from xray_viz.orbit import orbit_from_dict
+    >>> o = orbit_from_dict({"axis": [0, 1, 0], "poses": {"random": 5, "seed": 7}})
+    >>> poses, mats = pose_table(xray_viz.load_scene("sphere"), o)
+    >>> poses.shape, mats.shape
+    ((5, 4, 3), (5, 3, 4))
+    """
+    base = scene.acquisition
+    if orbit.random is None or not getattr(base.frame, "plain", True):
+        # pose by pose (a tilted or offset detector: the general frame and matrix)
+        acqs = list(orbit.acquisitions(base))
+        poses = np.array([[_pose(a)[r] for r in POSE_ROWS] for a in acqs],
+                         np.float64).reshape(-1, 4, 3)
+        mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
+        return poses, mats
+    src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
+    forward, ho, ve, sid = _frames(src, det, up)
+    mats = _projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
+                                pitch=scene.detector.pitch, parallel=base.parallel)
+    return np.stack([src, det, ho, ve], axis=1), mats
+
+
+@contextlib.contextmanager
+def _gc_paused():
+    """The cyclic garbage collector paused: building or walking the per-projection lists
+    makes millions of small objects (no cycles), and each collection would walk them all
+    again (5 s of 6 for 100,000 poses)."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def _per_projection_lists(poses, mats) -> tuple:
+    """The geometry's ``poses`` (list of dicts) and ``projection_matrices`` (nested lists) of
+    the arrays of :func:`pose_table`."""
+    with _gc_paused():
+        poses = [{"source": s, "detector_center": c, "u": u, "v": v}
+                 for s, c, u, v in np.asarray(poses, np.float64).tolist()]
+        return poses, np.asarray(mats, np.float64).tolist()
+
+
 def scan_geometry(scene, orbit: Orbit) -> dict:
     """The geometry dict of a scan (the shared layout: angles, axis, SID, SOD, detector,
     per-projection poses and projection matrices), JSON-serialisable.
+
+    Random poses are built over all projections at once (:func:`pose_table`): 100,000 of them
+    in about a second.
 
     Examples
     --------
@@ -86,16 +193,16 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
     (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
     """
     base = scene.acquisition
-    acqs = list(orbit.acquisitions(base))
     det = scene.detector
     angles = orbit.angles()
-    first = acqs[0].frame
+    first = orbit.acquisition(base, 0).frame
     if orbit.kind == "poses":
         axis = center = sod = None
     else:
         axis, center = orbit.axis.tolist(), orbit.center.tolist()
         rel = first.source - orbit.center
         sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
+    poses, mats = _per_projection_lists(*pose_table(scene, orbit))
     out = {
         "orbit": orbit.kind,
         "beam": "parallel" if base.parallel else "cone",
@@ -107,8 +214,8 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "sod_mm": sod,
         "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
                      "offset_mm": list(getattr(det, "offset", (0.0, 0.0)))},
-        "poses": [_pose(a) for a in acqs],
-        "projection_matrices": [a.projection_matrix().tolist() for a in acqs],
+        "poses": poses,
+        "projection_matrices": mats,
     }
     if orbit.random is not None:           # how the poses were drawn (axis, centre, ranges)
         out["random"] = {**orbit.random.to_dict(), "axis": orbit.axis.tolist(),
@@ -506,7 +613,7 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
     """Fill the missing projections of a Zarr store; ``(filled, total)``. Memory: one
     projection per worker (the stack is never held)."""
     group = open_store(store, scene=scene, quantity=quantity, geometry=geometry)
-    todo = [int(k) for k in np.flatnonzero(~group["done"][:])]
+    todo = [int(k) for k in np.flatnonzero(~done_flags(group))]
     if client is not None:
         _scan_dask(client, scene, orbit, store, todo, quantity=quantity, engine=engine,
                    batch=batch, progress=progress)
@@ -543,17 +650,59 @@ def _canonical(doc) -> str:
     return json.dumps(doc, sort_keys=True)
 
 
-def _attrs(scene, quantity, geometry) -> dict:
+def _attrs(scene, quantity, geometry, arrays: bool = False) -> dict:
     try:
         text = scene.to_toml()
     except SceneError:
         text = None                 # bodies built in Python: no scene file to keep
-    return {"version": LAYOUT_VERSION, "quantity": quantity,
-            "units": "1" if quantity == "line-integral" else "photons",
-            "geometry": geometry, "physics": _physics(scene), "scene": text}
+    return {"version": ARRAYS_LAYOUT_VERSION if arrays else LAYOUT_VERSION,
+            "quantity": quantity, "units": "1" if quantity == "line-integral" else "photons",
+            "geometry": _geometry_attr(geometry) if arrays else geometry,
+            "physics": _physics(scene), "scene": text}
 
 
-def open_store(path, *, scene, geometry, quantity="line-integral"):
+def _geometry_attr(geometry) -> dict:
+    """The geometry as a store with pose arrays keeps it in JSON: ``poses`` and
+    ``projection_matrices`` replaced (in place, key order kept) by ``per_projection_arrays``,
+    the names of the arrays that hold them."""
+    out = {}
+    for key, value in geometry.items():
+        if key == "poses":
+            out["per_projection_arrays"] = {"poses": "poses", "pose_rows": list(POSE_ROWS),
+                                            "projection_matrices": "projection_matrices"}
+        elif key != "projection_matrices":
+            out[key] = value
+    return out
+
+
+def _pose_arrays_of(geometry) -> tuple:
+    """``(n, 4, 3)`` poses (rows :data:`POSE_ROWS`) and ``(n, 3, 4)`` projection matrices of a
+    geometry dict."""
+    with _gc_paused():
+        poses = np.array([[p[r] for r in POSE_ROWS] for p in geometry["poses"]],
+                         np.float64).reshape(-1, 4, 3)
+        mats = np.asarray(geometry["projection_matrices"], np.float64).reshape(-1, 3, 4)
+    return poses, mats
+
+
+def _geometry_from_store(group, geometry) -> dict:
+    """The geometry dict of a store's attributes, the per-projection arrays read back into
+    lists (the dict :func:`scan_geometry` made, whichever way the store keeps it)."""
+    where = geometry.get("per_projection_arrays")
+    if where is None:
+        return geometry
+    poses, mats = _per_projection_lists(group[where["poses"]][:],
+                                        group[where["projection_matrices"]][:])
+    out = {}
+    for key, value in geometry.items():
+        if key == "per_projection_arrays":
+            out["poses"], out["projection_matrices"] = poses, mats
+        else:
+            out[key] = value
+    return out
+
+
+def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=None):
     """The Zarr v3 group of a scan at ``path``: created (whole, or not at all) if missing,
     otherwise opened for resuming after checking that it holds the same scan.
 
@@ -561,7 +710,13 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
     ``done`` ``(n,)`` bool (one chunk per projection, so concurrent writers never share a
     chunk), for intensities arrays ``flat`` and ``dark`` ``(H, W)`` float32
     (:func:`flat_dark`), attributes ``{"xray_viz": {"version", "quantity", "units",
-    "geometry", "physics", "scene"}}``.
+    "geometry", "physics", "scene"}}``. With ``pose_arrays`` (default: more than
+    :data:`INLINE_POSES_MAX` projections) the per-projection poses and projection matrices
+    are arrays ``poses`` ``(n, 4, 3)`` float64 (rows :data:`POSE_ROWS`) and
+    ``projection_matrices`` ``(n, 3, 4)`` float64, the geometry attribute names them
+    (``per_projection_arrays``) and the version is :data:`ARRAYS_LAYOUT_VERSION`: the JSON
+    stays small whatever ``n`` (:func:`read_zarr` gives the same geometry dict either way).
+    A store being resumed keeps its own way.
 
     Raises
     ------
@@ -570,7 +725,9 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
     """
     zarr = _zarr()
     path = Path(path)
-    attrs = _attrs(scene, quantity, geometry)
+    n = geometry["projections"]
+    if pose_arrays is None:
+        pose_arrays = n > INLINE_POSES_MAX
     if path.exists():
         try:
             group = zarr.open_group(str(path), mode="r+")
@@ -578,15 +735,24 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
         except Exception as exc:               # zarr raises many kinds for a non-store
             raise OutputError(f"{path} exists and is not a Zarr scan store ({exc}); remove it "
                               "or choose another -o") from None
-        new = json.loads(_canonical(attrs))
+        arrays = isinstance(old, dict) and isinstance(old.get("geometry"), dict) and \
+            "per_projection_arrays" in old["geometry"]
+        new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
         same = isinstance(old, dict) and all(
             _canonical(old.get(k)) == _canonical(new[k])
             for k in ("version", "quantity", "geometry", "physics", "scene"))
+        if same and arrays:
+            poses, mats = _pose_arrays_of(geometry)
+            try:
+                same = np.array_equal(group["poses"][:], poses) and \
+                    np.array_equal(group["projection_matrices"][:], mats)
+            except (KeyError, ValueError):
+                same = False
         if not same:
             raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
                               "scene differ); remove it or choose another -o to keep both")
         return group
-    n = geometry["projections"]
+    attrs = _attrs(scene, quantity, geometry, pose_arrays)
     w, h = geometry["detector"]["shape"]
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -600,12 +766,50 @@ def open_store(path, *, scene, geometry, quantity="line-integral"):
             if field is not None:
                 group.create_array(name, shape=(h, w), chunks=(h, w), dtype="float32",
                                    fill_value=np.nan)[:] = field
+        if pose_arrays:
+            for name, table in zip(("poses", "projection_matrices"),
+                                   _pose_arrays_of(geometry)):
+                group.create_array(name, shape=table.shape, dtype="float64", fill_value=np.nan,
+                                   chunks=(min(n, 1 << 16),) + table.shape[1:])[:] = table
         group.attrs["xray_viz"] = attrs
         os.replace(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return zarr.open_group(str(path), mode="r+")
+
+
+def done_flags(group) -> np.ndarray:
+    """``(n,)`` bool: the ``done`` flags of a scan store's group.
+
+    A flag is set by writing ``True`` into its own one-element chunk, and Zarr stores no chunk
+    that equals the fill value (``False``; ``array.write_empty_chunks`` off, Zarr's default):
+    so in a local store the flags are the names of the chunk files present, one directory
+    listing, instead of one read per projection (100,000 reads take minutes). Other stores,
+    other chunk key encodings or settings: the array read whole.
+    """
+    import zarr
+
+    done = group["done"]
+    n = done.shape[0]
+    try:
+        enc = done.metadata.chunk_key_encoding
+        root = Path(group.store.root) / group.path / "done" / "c"
+        fast = (not zarr.config.get("array.write_empty_chunks")
+                and getattr(enc, "name", None) == "default"
+                and getattr(enc, "separator", None) == "/" and done.chunks == (1,)
+                and isinstance(group.store, zarr.storage.LocalStore))
+    except (AttributeError, TypeError):
+        fast = False
+    if not fast:
+        return np.asarray(done[:], bool)
+    out = np.zeros(n, bool)
+    if root.is_dir():
+        with os.scandir(root) as entries:
+            ks = [int(e.name) for e in entries if e.name.isdigit()]
+        ks = np.asarray(ks, np.int64)
+        out[ks[ks < n]] = True
+    return out
 
 
 def _write_projection(group, k, image) -> None:
@@ -618,7 +822,7 @@ def write_zarr(result: Scan, path) -> None:
     """Write a :class:`Scan` held in memory as a complete Zarr store (see :func:`open_store`)."""
     group = open_store(path, scene=result.scene, quantity=result.quantity,
                        geometry=result.geometry)
-    for k in np.flatnonzero(~group["done"][:]):
+    for k in np.flatnonzero(~done_flags(group)):
         _write_projection(group, int(k), result.projections[k])
 
 
@@ -653,10 +857,20 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
     if not isinstance(meta, dict) or "geometry" not in meta:
         raise OutputError(f"{path}: no 'xray_viz' attributes with a geometry; is it a store "
                           "written by `xray-viz scan`?")
+    version = meta.get("version", LAYOUT_VERSION)
+    if not isinstance(version, int) or version > ARRAYS_LAYOUT_VERSION:
+        raise OutputError(f"{path}: layout version {version!r} is newer than this xray_viz "
+                          f"reads (<= {ARRAYS_LAYOUT_VERSION}); upgrade xray_viz")
+    where = meta["geometry"].get("per_projection_arrays") \
+        if isinstance(meta["geometry"], dict) else None
+    if where is not None and not {where.get("poses"), where.get("projection_matrices")} <= names:
+        raise OutputError(f"{path}: the geometry's per-projection arrays "
+                          f"{where.get('poses')!r}, {where.get('projection_matrices')!r} are "
+                          "missing from the store")
     if "projections" not in names:
         raise OutputError(f"{path}: has no 'projections' array")
     if "done" in names:
-        done = np.asarray(group["done"][:], bool)
+        done = done_flags(group)
         if require_complete and not done.all():
             missing = np.flatnonzero(~done)
             raise OutputError(f"{path}: {len(missing)} of {len(done)} projections are missing "
@@ -665,7 +879,8 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
     def field(name):
         return np.asarray(group[name][:], np.float64) if name in names else None
     stack = group["projections"] if lazy else group["projections"][:]
-    return Scan(stack, meta["geometry"], meta.get("quantity", "line-integral"),
+    return Scan(stack, _geometry_from_store(group, meta["geometry"]),
+                meta.get("quantity", "line-integral"),
                 meta.get("physics") or {}, scene, flat=field("flat"), dark=field("dark"))
 
 
@@ -818,6 +1033,7 @@ def _scene_plugin(engine: str = "fast"):
 
     class ScenePlugin(WorkerPlugin):
         name = PLUGIN_NAME
+        idempotent = True       # a second scan on the cluster keeps the workers' loaded scenes
 
         def setup(self, worker):
             self.scenes = {}
