@@ -81,8 +81,6 @@ import dataclasses
 import hashlib
 import logging
 import math
-import os
-import tempfile
 from functools import lru_cache
 from pathlib import Path
 
@@ -249,22 +247,10 @@ def _store(key: str, vertices, faces, path_error: float) -> None:
     folder = cache_dir()
     if folder is None:
         return
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key[:16]}-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, format=FORMAT, vertices=vertices, faces=faces,
-                         path_error=path_error)
-            os.replace(tmp, folder / f"{key}.npz")
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
-    except OSError:
-        return
+    from xray_viz.meshes._report_cache import write_atomically
+
+    write_atomically(folder, f"{key}.npz", lambda fh: np.savez(
+        fh, format=FORMAT, vertices=vertices, faces=faces, path_error=path_error))
 
 
 # ------------------------------------------------------------------------------------------

@@ -79,19 +79,17 @@ def load(key: str, report_type):
         return None
 
 
-def store(key: str, report) -> None:
-    """Keep ``report`` for ``key`` (silently nothing where the folder cannot be written)."""
-    folder = cache_dir()
-    if folder is None:
-        return
+def write_atomically(folder: Path, name: str, write) -> None:
+    """Write the cache file ``folder / name`` through ``write(binary file)``: to a temporary
+    name, then renamed, so a reader never sees half a file; an unwritable folder is silently
+    nothing (a cache). Also :mod:`xray_viz.lod`'s decimations."""
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        text = json.dumps({"format": FORMAT, "report": dataclasses.asdict(report)})
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{key[:16]}-", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{name[:16]}-", suffix=".tmp")
         try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-            os.replace(tmp, folder / f"{key}.json")
+            with os.fdopen(fd, "wb") as fh:
+                write(fh)
+            os.replace(tmp, folder / name)
         except BaseException:
             try:
                 os.unlink(tmp)
@@ -100,3 +98,12 @@ def store(key: str, report) -> None:
             raise
     except OSError:
         return
+
+
+def store(key: str, report) -> None:
+    """Keep ``report`` for ``key`` (silently nothing where the folder cannot be written)."""
+    folder = cache_dir()
+    if folder is None:
+        return
+    text = json.dumps({"format": FORMAT, "report": dataclasses.asdict(report)})
+    write_atomically(folder, f"{key}.json", lambda fh: fh.write(text.encode("utf-8")))
