@@ -298,3 +298,18 @@ def test_a_scene_without_a_scan_table_orbits_its_bodies(tmp_path, capsys):
                      "--voxel", "8"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "axis must cross the beam" in err, err
+
+
+def test_fan_beam_is_one_detector_row_of_the_cone_beam():
+    """A fan beam is a detector of one row: its scan is, bit for bit, the middle row of the
+    cone-beam scan of the same orbit on a detector of an odd number of rows."""
+    base = xray_viz.load_scene("sphere")
+    cone = base.replace(detector=dataclasses.replace(base.detector, shape=(64, 5),
+                                                     pitch=(2.0, 2.0)))
+    fan = base.replace(detector=dataclasses.replace(base.detector, shape=(64, 1),
+                                                    pitch=(2.0, 2.0)))
+    a = S.scan(cone, S.default_orbit(cone, projections=8))
+    b = S.scan(fan, S.default_orbit(fan, projections=8))
+    assert b.projections.shape == (8, 1, 64)
+    assert a.projections[:, 2].max() > 1.0                 # the sphere is in the fan
+    np.testing.assert_array_equal(a.projections[:, 2], b.projections[:, 0])
