@@ -38,7 +38,7 @@ def _zarr_json(store):
     return (store / "zarr.json").stat().st_size
 
 
-def test_vectorised_draws_are_numpys_per_projection_draws_bit_for_bit():
+def test_draws_many_are_the_per_projection_draws_bit_for_bit():
     rng = np.random.default_rng(3)
     ks = np.r_[0, 1, 2, rng.integers(0, 2**32, 200), 2**32 - 1]
     for seed in (0, 7, 2**32 + 1, 2**70 + 11, 2**140 + 9):       # 1 to 5 seed words
@@ -46,7 +46,7 @@ def test_vectorised_draws_are_numpys_per_projection_draws_bit_for_bit():
         got = r.draws_many(ks)
         ref = np.array([r.draws(k) for k in ks])                 # NumPy's SeedSequence + PCG64
         assert got.dtype == np.float64 and np.array_equal(got, ref)
-    big = [2**32, 2**40 + 5]                                      # two-word keys: the fallback
+    big = [2**32, 2**40 + 5]                                      # keys beyond 32 bits
     r = RandomPoses(count=2**41, seed=7)
     assert np.array_equal(r.draws_many(big), np.array([r.draws(k) for k in big]))
     assert r.draws_many([]).shape == (0, 8)
