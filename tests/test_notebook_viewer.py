@@ -23,7 +23,8 @@ from urllib.parse import urlsplit
 import nbformat
 import pytest
 
-from test_web_viewer import browser_page, check_driven, drive_viewer, needs_browser, save_shot
+from test_web_viewer import (browser_page, check_driven, drive_viewer, needs_browser, save_shot,
+                             stop_process)
 
 TOKEN = "xray-viz-test-token"
 
@@ -83,12 +84,7 @@ def jupyter_lab(root, env, timeout=180):
                 time.sleep(0.5)
         yield base
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_process(proc, signal.SIGTERM, timeout=60)
         log.close()
 
 

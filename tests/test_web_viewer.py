@@ -202,12 +202,17 @@ def web_server(*args, timeout=240):
         yield proc, url
     finally:
         if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+            stop_process(proc, signal.SIGINT, timeout=30)
+
+
+def stop_process(proc, sig, *, timeout) -> None:
+    """Send ``sig``; kill the process if it has not ended after ``timeout`` seconds."""
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 @needs_browser

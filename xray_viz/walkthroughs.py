@@ -519,22 +519,8 @@ def walkthrough_command(args) -> int:
 
 
 def arrow(start, end, *, tip=None, shaft=None):
-    """A :func:`pyvista.Arrow` from ``start`` to ``end`` whose tip keeps a fixed size
-    (:func:`xray_viz.viz.shapes.solid_arrow`).
-
-    Parameters
-    ----------
-    start, end : (3,) float
-        Tail and head of the arrow.
-    tip : float, optional
-        Length of the tip in scene units (default: 12% of the arrow's length, at most 1/3).
-    shaft : float, optional
-        Radius of the shaft in scene units (default ``tip / 8``).
-
-    Returns
-    -------
-    pyvista.PolyData
-    """
+    """:func:`xray_viz.viz.shapes.solid_arrow` (a fixed-size tip), imported only when a
+    walkthrough draws one."""
     from xray_viz.viz.shapes import solid_arrow
 
     return solid_arrow(start, end, tip=tip, shaft=shaft)
