@@ -106,6 +106,11 @@ class Bodies(Sequence):
     reports : sequence of MeshReport or None, optional
         The meshes' reports when the caller has just checked them (the scene file loader),
         so they are not checked twice; a None entry is checked here.
+    precedence : sequence of int, optional
+        The precedence of overlapping bodies (:attr:`precedence`) when the caller knows it:
+        bodies moved by an orientation-preserving map, or meshes decimated within a
+        tolerance, keep the precedence of the bodies they came from instead of having it
+        worked out again from surfaces that may now touch or cross.
 
     Raises
     ------
@@ -120,7 +125,8 @@ class Bodies(Sequence):
     and compares equal to the tuple of its bodies.
     """
 
-    def __init__(self, bodies=(), *, where: str = "", check: bool = True, reports=None):
+    def __init__(self, bodies=(), *, where: str = "", check: bool = True, reports=None,
+                 precedence=None):
         bodies = tuple(bodies)
         names = [b.name for b in bodies]
         dup = sorted({n for n in names if names.count(n) > 1})
@@ -140,6 +146,11 @@ class Bodies(Sequence):
         self._bodies = bodies
         self._where = where
         self._d = _Derived([b.mesh for b in bodies], reports)
+        if precedence is not None:
+            precedence = np.asarray(precedence)
+            if precedence.shape != (len(bodies),):
+                raise SceneError("Bodies: one precedence per body")
+            self._d.values["precedence"] = precedence
 
     @classmethod
     def like(cls, bodies, other: "Bodies", *, where: str = "") -> "Bodies":
@@ -468,10 +479,8 @@ class Bodies(Sequence):
             moved.append(dataclasses.replace(body, mesh=mesh,
                                              **(changes(body, m) if changes else {})))
         reports = tuple(dataclasses.replace(r, volume=r.volume * det) for r in self.reports)
-        out = Bodies(moved, where=self._where, check=False, reports=reports)
-        if len(self) > 1:
-            out._d.values["precedence"] = self.precedence
-        return out
+        return Bodies(moved, where=self._where, check=False, reports=reports,
+                      precedence=self.precedence if len(self) > 1 else None)
 
 
 def _winding(tris, point) -> int:

@@ -680,12 +680,10 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
 
         new = [body if m is body.mesh else dataclasses.replace(body, mesh=m)
                for m, body in zip(chosen, bodies)]
-        out = Bodies(new, check=False)
         # Where bodies overlap, the same body gives the material as at full resolution
         # (the decimated surfaces of touching bodies may cross where the originals did not).
-        if len(bodies) > 1:
-            out._d.values["precedence"] = bodies.precedence
-        return out
+        return Bodies(new, check=False,
+                      precedence=bodies.precedence if len(bodies) > 1 else None)
 
     reduced_bodies = bodies.cached(key, build, limit=4)
     return scene.replace(bodies=reduced_bodies), report
