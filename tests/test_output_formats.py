@@ -276,3 +276,18 @@ def test_npy_and_dicom_metadata(tmp_path, scene, image):
     from xray_viz.physics import imaging
 
     assert meta.geometry["sid_mm"] == pytest.approx(imaging.source_detector_distance(scene))
+
+
+@pytest.mark.parametrize("name", ["junk.npy", "junk.tiff", "junk.png", "junk.dcm", "junk.nii",
+                                  "junk.h5"])
+def test_load_image_of_a_file_that_is_not_one_is_one_line(tmp_path, name):
+    from xray_viz.errors import OutputError
+
+    bad = tmp_path / name
+    bad.write_bytes(b"not an image at all\n" * 4)
+    with pytest.raises(OutputError) as info:
+        xray_viz.load_image(bad)
+    text = str(info.value)
+    assert str(bad) in text and "cannot read" in text and "\n" not in text
+    with pytest.raises(OutputError, match="no such file"):
+        xray_viz.load_image(tmp_path / ("missing" + bad.suffix))

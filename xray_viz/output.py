@@ -1243,7 +1243,8 @@ def load_image(path, *, with_metadata=False):
     Raises
     ------
     OutputError
-        An unknown format, or one whose library is not installed.
+        An unknown format, one whose library is not installed, a missing file or one that
+        is not an image of its format (one line naming the file).
 
     Examples
     --------
@@ -1259,6 +1260,21 @@ def load_image(path, *, with_metadata=False):
     """
     path = Path(path)
     suffix = check_format(path)
+    try:
+        image, meta = _read_image(path, suffix)
+    except OutputError:
+        raise
+    except FileNotFoundError:
+        raise OutputError(f"{path}: no such file") from None
+    except Exception as exc:      # each format's library has its own errors for a bad file
+        text = str(exc).strip().splitlines()
+        raise OutputError(f"{path}: cannot read it as a {suffix} image ({type(exc).__name__}"
+                          f"{': ' + text[0] if text else ''})") from None
+    return (image, meta) if with_metadata else image
+
+
+def _read_image(path: Path, suffix: str):
+    """``(image, ImageMetadata)`` of one file (:func:`load_image`)."""
     if suffix == ".npy":
         image, meta = np.load(path), ImageMetadata(".npy")
     elif suffix == ".dcm":
@@ -1288,4 +1304,4 @@ def load_image(path, *, with_metadata=False):
         _need(path, "h5py", "pip install 'xray_viz[ct]'")
         image, raw = _read_hdf5(path)
         meta = _metadata(suffix, raw)
-    return (image, meta) if with_metadata else image
+    return image, meta
