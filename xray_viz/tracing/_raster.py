@@ -327,14 +327,16 @@ def _depth(coef, wrange, t, X, Y):
     return W
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange, FL, hk, hw,
-                nh):
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange, FL, code, hk,
+                hw, hb, nh):
     """Append the hits of compact triangle ``m`` in rows ``y0..y1`` of the band starting at
-    row ``r0`` to ``hk`` (sample index in the band) and ``hw`` (depth) from ``nh`` on; returns
-    the new count. A sample is hit when the triangle covers it (exact edge functions and the
-    tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the depth there is not
-    beyond the detector (FL). Samples in row, then column order."""
+    row ``r0`` to ``hk`` (sample index in the band), ``hw`` (depth) and ``hb`` (``code``)
+    from ``nh`` on; returns the new count. A sample is hit when the triangle covers it (exact
+    edge functions and the tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the
+    depth there is not beyond the detector (FL). Samples in row, then column order. A SMALL
+    triangle's one sample (in these rows) whose three edge functions are non-zero is covered
+    exactly when all three have the triangle's orientation sign: no tie rule needed."""
     t = tri[m]
     i0 = F[t, 0]
     i1 = F[t, 1]
@@ -355,10 +357,34 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
     e1y = cy - by
     e2x = ax - cx
     e2y = ay - cy
+    small = kind[m] == SMALL
+    c0 = coef[m, 0]
+    c1 = coef[m, 1]
+    c2 = coef[m, 2]
+    c3 = coef[m, 3]
+    c4 = coef[m, 4]
+    c5 = coef[m, 5]
+    wmin = wrange[m, 0]
+    wmax = wrange[m, 1]
+    if small and X0 == X1 and y0 == y1:
+        px = X0 * ONE
+        py = y0 * ONE
+        E0 = o * (e0x * (py - ay) - e0y * (px - ax))
+        E1 = o * (e1x * (py - by) - e1y * (px - bx))
+        E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+        if E0 != 0 and E1 != 0 and E2 != 0:
+            if E0 > 0 and E1 > 0 and E2 > 0:
+                Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
+                if Wd <= FL:
+                    hk[nh] = (y0 - r0) * nW + X0
+                    hw[nh] = Wd
+                    hb[nh] = code
+                    nh += 1
+            return nh
     bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
     bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
     bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-    if kind[m] == SMALL:
+    if small:
         px0 = X0 * ONE
         stepx0 = -o * e0y * ONE
         stepx1 = -o * e1y * ONE
@@ -370,10 +396,11 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
             E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
             for X in range(X0, X1 + 1):
                 if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                    Wd = _depth(coef, wrange, m, X, Y)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                     if Wd <= FL:
                         hk[nh] = (Y - r0) * nW + X
                         hw[nh] = Wd
+                        hb[nh] = code
                         nh += 1
                 E0 += stepx0
                 E1 += stepx1
@@ -387,10 +414,11 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
                 s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
                 s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
                 if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                    Wd = _depth(coef, wrange, m, X, Y)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                     if Wd <= FL:
                         hk[nh] = (Y - r0) * nW + X
                         hw[nh] = Wd
+                        hb[nh] = code
                         nh += 1
     return nh
 
@@ -452,8 +480,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                 hw = hw2
                 hb = hb2
             n0 = nh
+            code = np.int64(tri_body[tri[m]]) * 2 + (1 if orient[m] > 0 else 0)
             nh = _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
-                             FL, hk, hw, nh)
+                             FL, code, hk, hw, hb, nh)
             if single:
                 sgn = -1.0 if orient[m] > 0 else 1.0
                 dn = 1 if orient[m] > 0 else -1
@@ -463,10 +492,6 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                     S[Y - row0, X] += sgn * hw[i]
                     N[Y - row0, X] += dn
                 nh = np.int64(0)
-            else:
-                code = np.int64(tri_body[tri[m]]) * 2 + (1 if orient[m] > 0 else 0)
-                for i in range(n0, nh):
-                    hb[i] = code
         if single or nh == 0:
             continue
         # Group the hits by sample, keeping their order (counting sort).
