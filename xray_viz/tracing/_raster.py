@@ -327,29 +327,19 @@ def _depth(coef, wrange, t, X, Y):
     return W
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange, FL, code, hk,
-                hw, hb, nh):
-    """Append the hits of compact triangle ``m`` in rows ``y0..y1`` of the band starting at
-    row ``r0`` to ``hk`` (sample index in the band), ``hw`` (depth) and ``hb`` (``code``)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cover_hits(ax, ay, bx, by, cx, cy, o, small, X0, X1, y0, y1, r0, nW, c0, c1, c2, c3, c4, c5,
+                wmin, wmax, FL, code, hk, hw, hb, nh):
+    """Append the hits of a triangle (projected vertices ``(ax, ay)``, ``(bx, by)``, ``(cx,
+    cy)``, orientation ``o``, SMALL or not, depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``
+    clamped to ``wmin .. wmax``) in rows ``y0..y1``, columns ``X0..X1`` of the band starting
+    at row ``r0`` to ``hk`` (sample index in the band), ``hw`` (depth) and ``hb`` (``code``)
     from ``nh`` on; returns the new count. A sample is hit when the triangle covers it (exact
     edge functions and the tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the
     depth there is not beyond the detector (FL). Samples in row, then column order. A SMALL
     triangle's one sample (in these rows) whose three edge functions are non-zero is covered
-    exactly when all three have the triangle's orientation sign: no tie rule needed."""
-    t = tri[m]
-    i0 = F[t, 0]
-    i1 = F[t, 1]
-    i2 = F[t, 2]
-    ax = XY[i0, 0]
-    ay = XY[i0, 1]
-    bx = XY[i1, 0]
-    by = XY[i1, 1]
-    cx = XY[i2, 0]
-    cy = XY[i2, 1]
-    o = np.int64(orient[m])
-    X0 = cbox[m, 0]
-    X1 = cbox[m, 1]
+    exactly when all three have the triangle's orientation sign: no tie rule needed. Scalars
+    but the three outputs: a call passing arrays costs more than a small triangle's work."""
     # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
     e0x = bx - ax
     e0y = by - ay
@@ -357,15 +347,6 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
     e1y = cy - by
     e2x = ax - cx
     e2y = ay - cy
-    small = kind[m] == SMALL
-    c0 = coef[m, 0]
-    c1 = coef[m, 1]
-    c2 = coef[m, 2]
-    c3 = coef[m, 3]
-    c4 = coef[m, 4]
-    c5 = coef[m, 5]
-    wmin = wrange[m, 0]
-    wmax = wrange[m, 1]
     if small and X0 == X1 and y0 == y1:
         px = X0 * ONE
         py = y0 * ONE
@@ -480,9 +461,15 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                 hw = hw2
                 hb = hb2
             n0 = nh
-            code = np.int64(tri_body[tri[m]]) * 2 + (1 if orient[m] > 0 else 0)
-            nh = _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
-                             FL, code, hk, hw, hb, nh)
+            t = tri[m]
+            code = np.int64(tri_body[t]) * 2 + (1 if orient[m] > 0 else 0)
+            i0 = F[t, 0]
+            i1 = F[t, 1]
+            i2 = F[t, 2]
+            nh = _cover_hits(XY[i0, 0], XY[i0, 1], XY[i1, 0], XY[i1, 1], XY[i2, 0], XY[i2, 1],
+                             np.int64(orient[m]), kind[m] == SMALL, X0, X1, y0, y1, r0, nW,
+                             coef[m, 0], coef[m, 1], coef[m, 2], coef[m, 3], coef[m, 4],
+                             coef[m, 5], wrange[m, 0], wrange[m, 1], FL, code, hk, hw, hb, nh)
             if single:
                 sgn = -1.0 if orient[m] > 0 else 1.0
                 dn = 1 if orient[m] > 0 else -1
