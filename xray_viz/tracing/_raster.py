@@ -312,22 +312,6 @@ def _bin_triangles(box, band_height, n_bands):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _depth(coef, wrange, t, X, Y):
-    num = coef[t, 0] + coef[t, 1] * X + coef[t, 2] * Y
-    den = coef[t, 3] + coef[t, 4] * X + coef[t, 5] * Y
-    W = num / den
-    lo = wrange[t, 0]
-    hi = wrange[t, 1]
-    if W != W:
-        return 0.5 * (lo + hi)
-    if W < lo:
-        return lo
-    if W > hi:
-        return hi
-    return W
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _cover_hits(ax, ay, bx, by, cx, cy, o, small, X0, X1, y0, y1, r0, nW, c0, c1, c2, c3, c4, c5,
                 wmin, wmax, FL, code, hk, hw, hb, nh):
     """Append the hits of a triangle (projected vertices ``(ax, ay)``, ``(bx, by)``, ``(cx,
