@@ -296,3 +296,44 @@ def test_footprints_kept_per_acquisition(monkeypatch):
         scene.source, position=np.asarray(scene.source.position) + [5.0, 0.0, 0.0]))
     _check_budget(moved, 0.2)
     assert calls == [1]
+
+
+def test_partly_measured_refusals_choose_as_complete_measurements(monkeypatch):
+    """A level is refused once part of its measurement exceeds what it may have (a maximum
+    over fewer lines is a lower bound of the complete one). The choice is the one made
+    measuring every level completely, bit for bit, with the leftover spent and without, and
+    fewer views are traced with equal shares (with the leftover spent, these bodies' refused
+    levels are all measured to the end: not more); a refused level's partial value is at
+    most its complete one."""
+    scene = _frog_organs(("heart", "spleen", "lung"))
+    calls = []
+    real = lod._measure
+
+    def counted(*args, **kwargs):
+        before = bin(args[2].done).count("1")
+        out = real(*args, **kwargs)
+        calls.append(bin(out.done).count("1") - before)
+        return out
+
+    def complete(*args, **kwargs):
+        return counted(*args, **{**kwargs, "refuse": None})
+
+    for spend in (True, False):
+        choices, traced = [], []
+        for measure in (counted, complete):
+            lod.forget()
+            calls.clear()
+            monkeypatch.setattr(lod, "_measure", measure)
+            choices.append(lod.level_of_detail(scene, 0.2, spend_leftover=spend)[1])
+            traced.append(sum(calls))
+        assert choices[0] == choices[1]
+        assert traced[0] < traced[1] if not spend else traced[0] <= traced[1]
+    monkeypatch.setattr(lod, "_measure", real)
+    # a partial measurement is a lower bound of the complete one
+    a = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    from xray_viz.meshes.decimate import collapse
+
+    b = collapse(a, 80)
+    part = lod._measure(a, b, lod._Measurement(), pitch=0.5, refuse=lambda w: w > 0)
+    assert 0 < part.worst and not part.complete
+    assert part.worst <= lod.path_length_error(a, b, pitch=0.5)
