@@ -337,3 +337,25 @@ def test_partly_measured_refusals_choose_as_complete_measurements(monkeypatch):
     part = lod._measure(a, b, lod._Measurement(), pitch=0.5, refuse=lambda w: w > 0)
     assert 0 < part.worst and not part.complete
     assert part.worst <= lod.path_length_error(a, b, pitch=0.5)
+
+
+def test_reduced_bodies_carry_the_checks_of_their_meshes(monkeypatch):
+    """The chosen levels were checked while they were measured: the reduced bodies keep
+    those reports (the render does not check again), and they are what a new check finds."""
+    from xray_viz.meshes import repair
+
+    check_mesh = repair.check_mesh
+    lod.forget()
+    scene = _frog_organs()
+    reduced = lod.level_of_detail(scene, 0.2)[0]
+    assert any(a.mesh is not b.mesh for a, b in zip(reduced.bodies, scene.bodies))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("checked again")
+
+    monkeypatch.setattr(repair, "check_mesh", refuse)
+    kept = reduced.bodies.reports
+    xray_viz.render(reduced)
+    monkeypatch.undo()
+    for body, report in zip(reduced.bodies, kept):
+        assert report == check_mesh(body.mesh)

@@ -711,6 +711,7 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
 
     chosen = [body.mesh for body in bodies]
     dls, errs, pending = [0.0] * n, [0.0] * n, [None] * n
+    measured = [None] * n                            # the chosen levels' measurements
     # 1. every body within its equal share, budget / k (a level is refused as soon as part of
     # its measurement exceeds the share: the complete one could only be larger)
     for b in range(n):
@@ -719,6 +720,7 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
 
         while (nxt := step(b, over_share)) is not None and estimate(b, nxt[1].worst) <= shares[b]:
             chosen[b], dls[b], errs[b] = nxt[0], nxt[1].worst, estimate(b, nxt[1].worst)
+            measured[b] = nxt[1]
         pending[b] = nxt
     # 2. what is left on each coarse pixel goes, step by step, to the next level saving the
     # most faces per unit of estimated error that keeps every pixel's sum within the budget
@@ -751,7 +753,7 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
         reduced, m, _ = pending[best]
         est = estimate(best, m.worst)
         acc[footprints[best]] += est - errs[best]
-        chosen[best], dls[best], errs[best] = reduced, m.worst, est
+        chosen[best], dls[best], errs[best], measured[best] = reduced, m.worst, est, m
         pending[best] = step(best, over_budget(best))
     levels = []
     for b, body in enumerate(bodies):
@@ -777,9 +779,14 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
 
         new = [body if m is body.mesh else dataclasses.replace(body, mesh=m)
                for m, body in zip(chosen, bodies)]
+        # The checks made already (the full meshes', and each chosen level's while it was
+        # measured) go with them: the render does not check the meshes again.
+        known = [reports[b] if measured[b] is None else
+                 None if measured[b].part is None else measured[b].part.reports[0]
+                 for b in range(n)]
         # Where bodies overlap, the same body gives the material as at full resolution
         # (the decimated surfaces of touching bodies may cross where the originals did not).
-        return Bodies(new, check=False,
+        return Bodies(new, check=False, reports=None if None in known else known,
                       precedence=bodies.precedence if len(bodies) > 1 else None)
 
     reduced_bodies = bodies.cached(key, build, limit=4)
