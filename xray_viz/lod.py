@@ -36,6 +36,10 @@ there. The estimate is ``SAFETY x contrast_b x dL_b``; :data:`SAFETY` covers ray
 that meet a silhouette closer than the measuring lines did. It is validated, not proven: the
 tests render every bundled phantom at full and reduced detail and check the measured error
 against the budget.
+A level is refused as soon as the views measured so far refuse it (a maximum over fewer
+lines is a lower bound of the maximum over all of them); the rest of its views are measured
+only if the choice later needs its complete value (the leftover pass below), so the choice is
+the one the complete measurements would make.
 
 Bodies whose footprints overlap share the budget. The footprints are traced: the
 full-resolution bodies are rendered by the fast engine at the scene's own acquisition on a coarse
@@ -58,12 +62,13 @@ decimated as far as its footprint allows (down to :data:`MIN_FACES`).
 
 Caching
 -------
-Decimated meshes and their measured ``dL`` are kept on disk by the SHA-256 of the mesh arrays,
-the face count, the measuring pitch and the source of :mod:`xray_viz.meshes.decimate` and of this
-module, in ``lod/`` next to the mesh reports (``xray_viz.meshes._report_cache``: the same
+Decimated meshes are kept on disk by the SHA-256 of the mesh arrays, the face count and the
+source of :mod:`xray_viz.meshes.decimate` and of this module, their measured ``dL`` (complete or
+as far as it went) by the same and the measuring pitch (another acquisition of the same bodies
+measures again, it does not decimate again), in ``lod/`` next to the mesh reports (``xray_viz.meshes._report_cache``: the same
 ``XRAY_VIZ_CACHE_DIR``, ``off`` turns it off), so a second run pays nothing; in memory, the
 reduced :class:`~xray_viz.bodies.Bodies` are kept on the scene's bodies, so a CT orbit or a viewer
-pays the set-up once.
+pays the set-up once, with the mesh checks made while the levels were measured.
 
 Examples
 --------
@@ -81,6 +86,7 @@ import dataclasses
 import hashlib
 import logging
 import math
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -291,14 +297,16 @@ class _Measurement:
     """The largest path-length difference of one decimation from its mesh, over the views of
     :func:`_parallel_views` measured so far: ``worst`` (mm) over the views whose bits are set
     in ``done``; complete when all :data:`DIRECTIONS` are. Over some views it is a lower bound
-    of the complete value (a maximum over fewer lines), which is all a refusal needs."""
+    of the complete value (a maximum over fewer lines), which is all a refusal needs. Shared
+    by the choices of one process (:data:`_MEMORY`): ``lock`` serialises its measuring."""
 
-    __slots__ = ("worst", "done", "at", "part")
+    __slots__ = ("worst", "done", "at", "part", "lock")
 
     ALL = (1 << DIRECTIONS) - 1
 
     def __init__(self, worst: float = 0.0, done: int = 0):
         self.worst, self.done, self.at, self.part = float(worst), int(done), 0, None
+        self.lock = threading.Lock()
 
     @property
     def complete(self) -> bool:
@@ -446,7 +454,8 @@ def _decimation(mesh, target: int, pitch: float, report, source=None, keep=None,
                       if data is not None and {"worst", "done"} <= data.keys()
                       else _Measurement())
     if not reduced.is_watertight and not m.complete:
-        m.worst, m.done = math.inf, _Measurement.ALL
+        with m.lock:
+            m.worst, m.done = math.inf, _Measurement.ALL
         _store(mkey, worst=m.worst, done=m.done)
     _more(mesh, reduced, m, mkey, pitch=pitch, report=report, keep=keep, refuse=refuse,
           first=first)
@@ -458,9 +467,11 @@ def _more(mesh, reduced, m, mkey, *, pitch, report, keep, refuse, first) -> None
     store it."""
     if m.complete or (refuse is not None and refuse(m.worst)):
         return
-    _measure(mesh, reduced, m, pitch=pitch, report=report, keep=keep, refuse=refuse,
-             first=first)
-    _store(mkey, worst=m.worst, done=m.done)
+    with m.lock:
+        _measure(mesh, reduced, m, pitch=pitch, report=report, keep=keep, refuse=refuse,
+                 first=first)
+        worst, done = m.worst, m.done
+    _store(mkey, worst=worst, done=done)
 
 
 # ------------------------------------------------------------------------------------------
