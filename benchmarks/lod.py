@@ -22,10 +22,17 @@ For each bundled phantom (and the sphere phantom's ball as a finer icosphere, ``
 
 All figures of one phantom are measured in the same run, interleaved; read the ratios.
 
+``--first-choice``: only the first choice (what a user feels: a new process, nothing cached,
+``XRAY_VIZ_CACHE_DIR=off``; the scene rendered once before, so kernels and the per-mesh set-up
+are not counted), each a new process, CPU seconds (``time.process_time``) and wall, medians;
+with ``--before TREE`` the same in a second source tree (e.g. a worktree of main), alternated
+A B A B in the same run, with the ratio and whether both chose the same faces and estimates.
+
 Usage::
 
     python benchmarks/lod.py [--repeat 7] [--cold-repeat 3] [--size 512]
                              [--budgets 0.05 0.2] [--phantoms frog sphere ...]
+    python benchmarks/lod.py --first-choice [--before /tmp/before] [--repeat 3] ...
 """
 
 from __future__ import annotations
@@ -87,6 +94,99 @@ def _machine() -> str:
             f"load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 
+_CHILD = """
+import json, os, sys, time
+os.environ["XRAY_VIZ_CACHE_DIR"] = "off"
+sys.path.insert(0, sys.argv[1])
+sys.path.insert(0, sys.argv[7])                   # this script's folder (its _named_scene)
+import xray_viz
+from xray_viz import lod
+from lod import _named_scene  # noqa
+scene = _named_scene(sys.argv[2], int(sys.argv[3]), int(sys.argv[6]))
+xray_viz.render(scene)
+c0, t0 = time.process_time(), time.perf_counter()
+_, report = lod.level_of_detail(scene, float(sys.argv[4]), spend_leftover=sys.argv[5] == "1")
+cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+print(json.dumps({"cpu": cpu, "wall": wall, "faces": report.faces, "full": report.faces_full,
+                  "levels": [[b.faces, b.estimated_error] for b in report.bodies],
+                  "estimated": report.estimated_error}))
+"""
+
+
+def _named_scene(name, size, large):
+    """A bundled phantom at ``size`` pixels, or ``"large"``: the sphere phantom's ball as an
+    icosphere of ``large`` subdivisions."""
+    import xray_viz
+
+    if name != "large":
+        return _scaled(xray_viz.load_scene(name), size)
+    import trimesh
+
+    from xray_viz.bodies import Bodies
+
+    base = xray_viz.load_scene("sphere")
+    ball = trimesh.creation.icosphere(subdivisions=large, radius=40.0)
+    return _scaled(base.replace(bodies=Bodies([dataclasses.replace(base.bodies[0], mesh=ball)])),
+                   size)
+
+
+def _first_choice(args, names) -> int:
+    """The ``--first-choice`` table (see the module docstring)."""
+    import json
+    import statistics as st
+
+    trees = [("after", Path(__file__).resolve().parent.parent)]
+    if args.before:
+        trees.append(("before", Path(args.before).resolve()))
+    print(f"machine: {_machine()}")
+    print(f"command: {' '.join([Path(sys.executable).name, *sys.argv])}")
+    print()
+    head = "| phantom | detector | budget | shares | faces full | faces |"
+    for label, _ in trees:
+        head += f" {label} CPU s | {label} wall s |"
+    if len(trees) > 1:
+        head += " CPU after / before | wall after / before | same choice |"
+    print(head)
+    print("|" + "---|" * (head.count("|") - 1))
+
+    def run(tree, name, spend, budget):
+        env = dict(os.environ, PYTHONPATH=str(tree))
+        out = subprocess.run([sys.executable, "-c", _CHILD, str(tree), name, str(args.size),
+                              str(budget), "1" if spend else "0", str(args.large),
+                              str(Path(__file__).resolve().parent)], env=env,
+                             capture_output=True, text=True, check=True)
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    for name in names:
+        multi = len(_named_scene(name, 8, args.large).bodies) > 1
+        for budget, spend in ((b, m) for b in args.budgets for m in ([False, True] if multi
+                                                                      else [False])):
+            runs = {label: [] for label, _ in trees}
+            for tree in trees:                                  # warm the kernels' caches
+                run(tree[1], name, spend, budget)
+            for _ in range(args.repeat):                        # A B A B
+                for label, tree in trees:
+                    runs[label].append(run(tree, name, spend, budget))
+            a = runs["after"][0]
+            scene = _named_scene(name, args.size, args.large)
+            w, h = scene.detector.shape
+            title = f"sphere, {a['full']:,} faces" if name == "large" else name
+            row = (f"| {title} | {w} x {h} | {budget:g} | "
+                   f"{'leftover spent' if spend else 'equal'} | {a['full']:,} | {a['faces']:,} |")
+            med = {}
+            for label, _ in trees:
+                med[label] = [st.median(r[k] for r in runs[label]) for k in ("cpu", "wall")]
+                row += f" {med[label][0]:.2f} | {med[label][1]:.2f} |"
+            if len(trees) > 1:
+                same = all(r["levels"] == a["levels"] for rs in runs.values() for r in rs)
+                row += (f" {med['after'][0] / med['before'][0]:.2f} | "
+                        f"{med['after'][1] / med['before'][1]:.2f} | {'yes' if same else 'NO'} |")
+            print(row, flush=True)
+    print()
+    print(f"load average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--repeat", type=int, default=7)
@@ -98,7 +198,16 @@ def main(argv=None) -> int:
     p.add_argument("--large", type=int, default=7, metavar="SUBDIVISIONS",
                    help="also the sphere phantom's ball as an icosphere of this subdivision "
                         "(7: 327,680 faces; 0: not)")
+    p.add_argument("--first-choice", action="store_true",
+                   help="only the first choice, each in a new process (see above)")
+    p.add_argument("--before", default=None, metavar="TREE",
+                   help="with --first-choice: also this source tree, alternated")
     args = p.parse_args(argv)
+    if args.first_choice:
+        from xray_viz import phantoms
+
+        names = list(args.phantoms or phantoms.names()) + (["large"] if args.large else [])
+        return _first_choice(args, names)
 
     root = Path(tempfile.mkdtemp(prefix="xray-viz-lod-bench-"))
     os.environ["XRAY_VIZ_CACHE_DIR"] = str(root)       # before anything reads it

@@ -296,3 +296,66 @@ def test_footprints_kept_per_acquisition(monkeypatch):
         scene.source, position=np.asarray(scene.source.position) + [5.0, 0.0, 0.0]))
     _check_budget(moved, 0.2)
     assert calls == [1]
+
+
+def test_partly_measured_refusals_choose_as_complete_measurements(monkeypatch):
+    """A level is refused once part of its measurement exceeds what it may have (a maximum
+    over fewer lines is a lower bound of the complete one). The choice is the one made
+    measuring every level completely, bit for bit, with the leftover spent and without, and
+    fewer views are traced with equal shares (with the leftover spent, these bodies' refused
+    levels are all measured to the end: not more); a refused level's partial value is at
+    most its complete one."""
+    scene = _frog_organs(("heart", "spleen", "lung"))
+    calls = []
+    real = lod._measure
+
+    def counted(*args, **kwargs):
+        before = bin(args[2].done).count("1")
+        out = real(*args, **kwargs)
+        calls.append(bin(out.done).count("1") - before)
+        return out
+
+    def complete(*args, **kwargs):
+        return counted(*args, **{**kwargs, "refuse": None})
+
+    for spend in (True, False):
+        choices, traced = [], []
+        for measure in (counted, complete):
+            lod.forget()
+            calls.clear()
+            monkeypatch.setattr(lod, "_measure", measure)
+            choices.append(lod.level_of_detail(scene, 0.2, spend_leftover=spend)[1])
+            traced.append(sum(calls))
+        assert choices[0] == choices[1]
+        assert traced[0] < traced[1] if not spend else traced[0] <= traced[1]
+    monkeypatch.setattr(lod, "_measure", real)
+    # a partial measurement is a lower bound of the complete one
+    a = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    from xray_viz.meshes.decimate import collapse
+
+    b = collapse(a, 80)
+    part = lod._measure(a, b, lod._Measurement(), pitch=0.5, refuse=lambda w: w > 0)
+    assert 0 < part.worst and not part.complete
+    assert part.worst <= lod.path_length_error(a, b, pitch=0.5)
+
+
+def test_reduced_bodies_carry_the_checks_of_their_meshes(monkeypatch):
+    """The chosen levels were checked while they were measured: the reduced bodies keep
+    those reports (the render does not check again), and they are what a new check finds."""
+    from xray_viz.meshes import repair
+
+    check_mesh = repair.check_mesh
+    lod.forget()
+    scene = _frog_organs()
+    reduced = lod.level_of_detail(scene, 0.2)[0]
+    assert any(a.mesh is not b.mesh for a, b in zip(reduced.bodies, scene.bodies))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("checked again")
+
+    monkeypatch.setattr(repair, "check_mesh", refuse)
+    kept = reduced.bodies.reports
+    xray_viz.render(reduced)
+    monkeypatch.undo()
+    for body, report in zip(reduced.bodies, kept):
+        assert report == check_mesh(body.mesh)

@@ -36,6 +36,10 @@ there. The estimate is ``SAFETY x contrast_b x dL_b``; :data:`SAFETY` covers ray
 that meet a silhouette closer than the measuring lines did. It is validated, not proven: the
 tests render every bundled phantom at full and reduced detail and check the measured error
 against the budget.
+A level is refused as soon as the views measured so far refuse it (a maximum over fewer
+lines is a lower bound of the maximum over all of them); the rest of its views are measured
+only if the choice later needs its complete value (the leftover pass below), so the choice is
+the one the complete measurements would make.
 
 Bodies whose footprints overlap share the budget. The footprints are traced: the
 full-resolution bodies are rendered by the fast engine at the scene's own acquisition on a coarse
@@ -58,12 +62,13 @@ decimated as far as its footprint allows (down to :data:`MIN_FACES`).
 
 Caching
 -------
-Decimated meshes and their measured ``dL`` are kept on disk by the SHA-256 of the mesh arrays,
-the face count, the measuring pitch and the source of :mod:`xray_viz.meshes.decimate` and of this
-module, in ``lod/`` next to the mesh reports (``xray_viz.meshes._report_cache``: the same
+Decimated meshes are kept on disk by the SHA-256 of the mesh arrays, the face count and the
+source of :mod:`xray_viz.meshes.decimate` and of this module, their measured ``dL`` (complete or
+as far as it went) by the same and the measuring pitch (another acquisition of the same bodies
+measures again, it does not decimate again), in ``lod/`` next to the mesh reports (``xray_viz.meshes._report_cache``: the same
 ``XRAY_VIZ_CACHE_DIR``, ``off`` turns it off), so a second run pays nothing; in memory, the
 reduced :class:`~xray_viz.bodies.Bodies` are kept on the scene's bodies, so a CT orbit or a viewer
-pays the set-up once.
+pays the set-up once, with the mesh checks made while the levels were measured.
 
 Examples
 --------
@@ -81,6 +86,7 @@ import dataclasses
 import hashlib
 import logging
 import math
+import threading
 from functools import lru_cache
 from pathlib import Path
 
@@ -113,7 +119,7 @@ COARSE = 128
 THIN = 4
 
 #: Bumped when the stored format changes.
-FORMAT = 1
+FORMAT = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -221,15 +227,17 @@ def _mesh_digest(mesh) -> "hashlib._Hash":
     return h
 
 
-def _key(mesh, target_faces: int, pitch: float, digest=None) -> str:
-    """The stored name of one level (``digest``: :func:`_mesh_digest` of ``mesh``, when known:
-    the mesh is then not hashed again for every level)."""
+def _key(mesh, target_faces: int, pitch: float | None, digest=None) -> str:
+    """The stored name of one level's collapse (``pitch`` None) or of its measurement at
+    ``pitch`` (``digest``: :func:`_mesh_digest` of ``mesh``, when known: the mesh is then not
+    hashed again for every level)."""
     h = (_mesh_digest(mesh) if digest is None else digest).copy()
-    h.update(f" {int(target_faces)} {float(pitch).hex()}".encode())
+    h.update(f" {int(target_faces)} {'mesh' if pitch is None else float(pitch).hex()}".encode())
     return h.hexdigest()
 
 
 def _load(key: str):
+    """A stored npz as a dict of arrays, or None (missing, corrupt or another format)."""
     folder = cache_dir()
     if folder is None:
         return None
@@ -237,20 +245,18 @@ def _load(key: str):
         with np.load(folder / f"{key}.npz") as data:
             if int(data["format"]) != FORMAT:
                 return None
-            return (np.array(data["vertices"], np.float64), np.array(data["faces"], np.int64),
-                    float(data["path_error"]))
+            return {k: np.array(data[k]) for k in data.files}
     except (OSError, ValueError, KeyError, EOFError):
         return None
 
 
-def _store(key: str, vertices, faces, path_error: float) -> None:
+def _store(key: str, **arrays) -> None:
     folder = cache_dir()
     if folder is None:
         return
     from xray_viz.meshes._report_cache import write_atomically
 
-    write_atomically(folder, f"{key}.npz", lambda fh: np.savez(
-        fh, format=FORMAT, vertices=vertices, faces=faces, path_error=path_error))
+    write_atomically(folder, f"{key}.npz", lambda fh: np.savez(fh, format=FORMAT, **arrays))
 
 
 # ------------------------------------------------------------------------------------------
@@ -287,6 +293,65 @@ def _parallel_views(mesh, pitch: float):
     return views
 
 
+class _Measurement:
+    """The largest path-length difference of one decimation from its mesh, over the views of
+    :func:`_parallel_views` measured so far: ``worst`` (mm) over the views whose bits are set
+    in ``done``; complete when all :data:`DIRECTIONS` are. Over some views it is a lower bound
+    of the complete value (a maximum over fewer lines), which is all a refusal needs. Shared
+    by the choices of one process (:data:`_MEMORY`): ``lock`` serialises its measuring."""
+
+    __slots__ = ("worst", "done", "at", "part", "lock")
+
+    ALL = (1 << DIRECTIONS) - 1
+
+    def __init__(self, worst: float = 0.0, done: int = 0):
+        self.worst, self.done, self.at, self.part = float(worst), int(done), 0, None
+        self.lock = threading.Lock()
+
+    @property
+    def complete(self) -> bool:
+        """Every view measured."""
+        return self.done == self.ALL
+
+
+def _measure(mesh, reduced, m: _Measurement, *, pitch: float, report=None, keep=None,
+             refuse=None, first: int = 0) -> _Measurement:
+    """Measure the views of ``m`` not yet measured, in place, starting at view ``first``;
+    stop as soon as ``refuse(worst)`` (a test that stays true as ``worst`` grows) is true.
+    ``keep``: as in :func:`path_length_error`, and also the views and which of ``mesh``'s
+    traces were made (each made when first needed)."""
+    from xray_viz.bodies import Bodies
+    from xray_viz.scene import Body
+    from xray_viz.tracing.engines import ENGINES
+
+    fast = ENGINES["fast"]
+    key = float(pitch)                               # (one dict per mesh: see below)
+    ref = None if keep is None else keep.get(key)
+    if ref is None or ref[0] is not mesh:
+        ref = (mesh, _parallel_views(mesh, pitch), [None] * DIRECTIONS)
+        if keep is not None:
+            keep[key] = ref
+    _, views, traces = ref
+    full = None
+    if m.part is None:
+        m.part = Bodies([Body(name="reduced", mesh=reduced, mu=1.0)], check=False)
+    for i in (np.arange(DIRECTIONS) + first) % DIRECTIONS:
+        if m.done >> i & 1:
+            continue
+        if refuse is not None and refuse(m.worst):
+            break
+        if traces[i] is None:
+            if full is None:
+                full = Bodies([Body(name="full", mesh=mesh, mu=1.0)], check=False,
+                              reports=None if report is None else (report,))
+            traces[i] = np.array(fast.path_lengths(full, views[i], supersample=1))
+        d = float(np.abs(traces[i] - fast.path_lengths(m.part, views[i], supersample=1)).max())
+        if d > m.worst:
+            m.worst, m.at = d, int(i)
+        m.done |= 1 << int(i)
+    return m
+
+
 def path_length_error(mesh, reduced, *, pitch: float, report=None, keep=None) -> float:
     """The largest difference of the path lengths of two meshes along a line (mm), measured.
 
@@ -318,26 +383,8 @@ def path_length_error(mesh, reduced, *, pitch: float, report=None, keep=None) ->
     >>> 0.2 < path_length_error(a, b, pitch=0.25) < 4 * (20 * 0.1) ** 0.5  # 2 dr .. rim
     True
     """
-    from xray_viz.bodies import Bodies
-    from xray_viz.scene import Body
-    from xray_viz.tracing.engines import ENGINES
-
-    fast = ENGINES["fast"]
-    views = _parallel_views(mesh, pitch)
-    key = float(pitch)                               # (one dict per mesh: see below)
-    ref = None if keep is None else keep.get(key)
-    if ref is None or ref[0] is not mesh:
-        full = Bodies([Body(name="full", mesh=mesh, mu=1.0)], check=False,
-                      reports=None if report is None else (report,))
-        ref = (mesh, [np.array(fast.path_lengths(full, acq, supersample=1)) for acq in views])
-        if keep is not None:
-            keep[key] = ref
-    part = Bodies([Body(name="reduced", mesh=reduced, mu=1.0)], check=False)
-    worst = 0.0
-    for acq, a in zip(views, ref[1]):
-        b = fast.path_lengths(part, acq, supersample=1)
-        worst = max(worst, float(np.abs(a - b).max()))
-    return worst
+    return _measure(mesh, reduced, _Measurement(), pitch=pitch, report=report,
+                    keep=keep).worst
 
 
 def measuring_pitch(extent: float, spacing: float) -> float:
@@ -354,10 +401,11 @@ def measuring_pitch(extent: float, spacing: float) -> float:
     return 2.0 ** math.floor(math.log2(p))
 
 
-#: Decimations of this process (key -> (vertices, faces, dL)), the most recent ones, so that
-#: renders in one session share them even with the disk cache off.
+#: Decimations and measurements of this process (key -> ``(vertices, faces)`` or
+#: :class:`_Measurement`), the most recent ones, so that renders in one session share them
+#: even with the disk cache off.
 _MEMORY: dict = {}
-_MEMORY_SIZE = 64
+_MEMORY_SIZE = 128
 
 
 def forget() -> None:
@@ -365,33 +413,65 @@ def forget() -> None:
     _MEMORY.clear()
 
 
+def _remember(key, value):
+    while len(_MEMORY) >= _MEMORY_SIZE:
+        _MEMORY.pop(next(iter(_MEMORY)))
+    _MEMORY[key] = value
+    return value
+
+
 def _decimation(mesh, target: int, pitch: float, report, source=None, keep=None,
-                digest=None):
-    """``(reduced mesh, measured dL)`` for one level, from memory or the disk cache when it is
+                digest=None, refuse=None, first: int = 0):
+    """``(reduced mesh, measurement)`` of one level, from memory or the disk cache when
     there. ``source``: the previous (finer) level of the halving sequence of :func:`_levels`,
     collapsed further instead of ``mesh`` (the collapse's cost goes with the faces it starts
     from; the levels are a fixed sequence, so the result still depends only on ``mesh`` and
-    ``target``); the error is measured against ``mesh``."""
+    ``target``). The collapse is kept by ``(mesh, target)``, its :class:`_Measurement`
+    against ``mesh`` by ``(mesh, target, pitch)`` (another acquisition of the same mesh
+    measures again, it does not collapse again); the measurement stops where ``refuse``
+    says (see :func:`_measure`) and is taken up again by a later call that needs more."""
     import trimesh
 
-    key = _key(mesh, target, pitch, digest)
+    key = _key(mesh, target, None, digest)
     hit = _MEMORY.get(key)
     if hit is None:
-        hit = _load(key)
-        if hit is None:
+        data = _load(key)
+        if data is not None and {"vertices", "faces"} <= data.keys():
+            hit = (np.asarray(data["vertices"], np.float64), np.asarray(data["faces"], np.int64))
+        else:
             from xray_viz.meshes.decimate import collapse
 
             reduced = collapse(mesh if source is None else source, target)
-            err = path_length_error(mesh, reduced, pitch=pitch, report=report, keep=keep) \
-                if reduced.is_watertight else math.inf
-            hit = (np.asarray(reduced.vertices, np.float64), np.asarray(reduced.faces, np.int64),
-                   err)
-            _store(key, *hit)
-        while len(_MEMORY) >= _MEMORY_SIZE:
-            _MEMORY.pop(next(iter(_MEMORY)))
-        _MEMORY[key] = hit
-    v, f, err = hit
-    return trimesh.Trimesh(v.copy(), f.copy(), process=False), err
+            hit = (np.asarray(reduced.vertices, np.float64), np.asarray(reduced.faces, np.int64))
+            _store(key, vertices=hit[0], faces=hit[1])
+        _remember(key, hit)
+    reduced = trimesh.Trimesh(hit[0].copy(), hit[1].copy(), process=False)
+    mkey = _key(mesh, target, pitch, digest)
+    m = _MEMORY.get(mkey)
+    if m is None:
+        data = _load(mkey)
+        m = _remember(mkey, _Measurement(float(data["worst"]), int(data["done"]))
+                      if data is not None and {"worst", "done"} <= data.keys()
+                      else _Measurement())
+    if not reduced.is_watertight and not m.complete:
+        with m.lock:
+            m.worst, m.done = math.inf, _Measurement.ALL
+        _store(mkey, worst=m.worst, done=m.done)
+    _more(mesh, reduced, m, mkey, pitch=pitch, report=report, keep=keep, refuse=refuse,
+          first=first)
+    return reduced, m
+
+
+def _more(mesh, reduced, m, mkey, *, pitch, report, keep, refuse, first) -> None:
+    """Measure more of ``m`` unless it is complete or ``refuse`` already refuses it, and
+    store it."""
+    if m.complete or (refuse is not None and refuse(m.worst)):
+        return
+    with m.lock:
+        _measure(mesh, reduced, m, pitch=pitch, report=report, keep=keep, refuse=refuse,
+                 first=first)
+        worst, done = m.worst, m.done
+    _store(mkey, worst=worst, done=done)
 
 
 # ------------------------------------------------------------------------------------------
@@ -609,53 +689,83 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
     last = [None] * n                                # the last level made of each body
     keeps = [{} for _ in range(n)]                   # each full mesh's measuring traces
     digests = [None] * n                             # each full mesh hashed once
+    firsts = [0] * n                                 # where each body's last level was worst
 
-    def step(b):
-        """The next level of body ``b``: ``(mesh, dL, estimate)``, or None."""
+    def estimate(b, worst):
+        return float(SAFETY * contrast[b] * worst)
+
+    def step(b, refuse):
+        """The next level of body ``b``: ``(mesh, measurement, target)``, or None; measured
+        until ``refuse(estimate)`` holds or completely (a refused level's estimate may be a
+        lower bound: :func:`_measure`)."""
         target = next(steps[b], None)
         if target is None:
             return None
         if digests[b] is None:
             digests[b] = _mesh_digest(bodies[b].mesh)
-        reduced, dl = _decimation(bodies[b].mesh, target, pitches[b], reports[b],
-                                  source=last[b], keep=keeps[b],
-                                  digest=digests[b])
-        last[b] = reduced
-        est = float(SAFETY * contrast[b] * dl)
-        log.debug("lod: body %r at %d faces: path error %.4g mm, estimated %.4g (share %.4g)",
-                  bodies[b].name, len(reduced.faces), dl, est, shares[b])
-        return reduced, dl, est
+        reduced, m = _decimation(bodies[b].mesh, target, pitches[b], reports[b],
+                                 source=last[b], keep=keeps[b], digest=digests[b],
+                                 refuse=lambda w: refuse(estimate(b, w)),
+                                 first=firsts[b])
+        last[b], firsts[b] = reduced, m.at
+        log.debug("lod: body %r at %d faces: path error %.4g mm%s, estimated %.4g (share %.4g)",
+                  bodies[b].name, len(reduced.faces), m.worst,
+                  "" if m.complete else " or more", estimate(b, m.worst), shares[b])
+        return reduced, m, target
+
+    def finish(b, refuse):
+        """Measure more of body ``b``'s pending level, until ``refuse`` holds or completely."""
+        reduced, m, target = pending[b]
+        _more(bodies[b].mesh, reduced, m, _key(bodies[b].mesh, target, pitches[b], digests[b]),
+              pitch=pitches[b], report=reports[b], keep=keeps[b],
+              refuse=lambda w: refuse(estimate(b, w)), first=firsts[b])
 
     chosen = [body.mesh for body in bodies]
     dls, errs, pending = [0.0] * n, [0.0] * n, [None] * n
-    # 1. every body within its equal share, budget / k
+    measured = [None] * n                            # the chosen levels' measurements
+    # 1. every body within its equal share, budget / k (a level is refused as soon as part of
+    # its measurement exceeds the share: the complete one could only be larger)
     for b in range(n):
-        while (nxt := step(b)) is not None and nxt[2] <= shares[b]:
-            chosen[b], dls[b], errs[b] = nxt
+        def over_share(e, s=shares[b]):
+            return not e <= s
+
+        while (nxt := step(b, over_share)) is not None and estimate(b, nxt[1].worst) <= shares[b]:
+            chosen[b], dls[b], errs[b] = nxt[0], nxt[1].worst, estimate(b, nxt[1].worst)
+            measured[b] = nxt[1]
         pending[b] = nxt
     # 2. what is left on each coarse pixel goes, step by step, to the next level saving the
     # most faces per unit of estimated error that keeps every pixel's sum within the budget
     acc = np.zeros(footprints.shape[1:])
     for b in range(n):
         acc[footprints[b]] += errs[b]
+
+    def over_budget(b):
+        """The test a level of body ``b`` fails now and, the sums only growing, for good."""
+        top, own = acc[footprints[b]].max(initial=0.0), errs[b]
+        return lambda e: not (top + (e - own) <= budget)
+
     while spend_leftover:
         best, rate = None, -1.0
         for b in range(n):
             if pending[b] is None:
                 continue
-            extra = pending[b][2] - errs[b]
-            if not (acc[footprints[b]].max(initial=0.0) + extra <= budget):
+            refuse = over_budget(b)
+            if not pending[b][1].complete and not refuse(estimate(b, pending[b][1].worst)):
+                finish(b, refuse)                    # part measured: the rest is needed now
+            if refuse(estimate(b, pending[b][1].worst)):
                 pending[b] = None                    # the sums only grow: never again
                 continue
+            extra = estimate(b, pending[b][1].worst) - errs[b]
             r = (len(chosen[b].faces) - len(pending[b][0].faces)) / max(extra, 1e-300)
             if r > rate:
                 best, rate = b, r
         if best is None:
             break
-        reduced, dl, est = pending[best]
+        reduced, m, _ = pending[best]
+        est = estimate(best, m.worst)
         acc[footprints[best]] += est - errs[best]
-        chosen[best], dls[best], errs[best] = reduced, dl, est
-        pending[best] = step(best)
+        chosen[best], dls[best], errs[best], measured[best] = reduced, m.worst, est, m
+        pending[best] = step(best, over_budget(best))
     levels = []
     for b, body in enumerate(bodies):
         others = (acc[footprints[b]].max(initial=0.0) - errs[b]) if footprints[b].any() else 0.0
@@ -680,9 +790,14 @@ def level_of_detail(scene, max_error, *, supersample: int = 1,
 
         new = [body if m is body.mesh else dataclasses.replace(body, mesh=m)
                for m, body in zip(chosen, bodies)]
+        # The checks made already (the full meshes', and each chosen level's while it was
+        # measured) go with them: the render does not check the meshes again.
+        known = [reports[b] if measured[b] is None else
+                 None if measured[b].part is None else measured[b].part.reports[0]
+                 for b in range(n)]
         # Where bodies overlap, the same body gives the material as at full resolution
         # (the decimated surfaces of touching bodies may cross where the originals did not).
-        return Bodies(new, check=False,
+        return Bodies(new, check=False, reports=None if None in known else known,
                       precedence=bodies.precedence if len(bodies) > 1 else None)
 
     reduced_bodies = bodies.cached(key, build, limit=4)

@@ -312,42 +312,18 @@ def _bin_triangles(box, band_height, n_bands):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _depth(coef, wrange, t, X, Y):
-    num = coef[t, 0] + coef[t, 1] * X + coef[t, 2] * Y
-    den = coef[t, 3] + coef[t, 4] * X + coef[t, 5] * Y
-    W = num / den
-    lo = wrange[t, 0]
-    hi = wrange[t, 1]
-    if W != W:
-        return 0.5 * (lo + hi)
-    if W < lo:
-        return lo
-    if W > hi:
-        return hi
-    return W
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange, FL, hk, hw,
-                nh):
-    """Append the hits of compact triangle ``m`` in rows ``y0..y1`` of the band starting at
-    row ``r0`` to ``hk`` (sample index in the band) and ``hw`` (depth) from ``nh`` on; returns
-    the new count. A sample is hit when the triangle covers it (exact edge functions and the
-    tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the depth there is not
-    beyond the detector (FL). Samples in row, then column order."""
-    t = tri[m]
-    i0 = F[t, 0]
-    i1 = F[t, 1]
-    i2 = F[t, 2]
-    ax = XY[i0, 0]
-    ay = XY[i0, 1]
-    bx = XY[i1, 0]
-    by = XY[i1, 1]
-    cx = XY[i2, 0]
-    cy = XY[i2, 1]
-    o = np.int64(orient[m])
-    X0 = cbox[m, 0]
-    X1 = cbox[m, 1]
+def _cover_hits(ax, ay, bx, by, cx, cy, o, small, X0, X1, y0, y1, r0, nW, c0, c1, c2, c3, c4, c5,
+                wmin, wmax, FL, code, hk, hw, hb, nh):
+    """Append the hits of a triangle (projected vertices ``(ax, ay)``, ``(bx, by)``, ``(cx,
+    cy)``, orientation ``o``, SMALL or not, depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``
+    clamped to ``wmin .. wmax``) in rows ``y0..y1``, columns ``X0..X1`` of the band starting
+    at row ``r0`` to ``hk`` (sample index in the band), ``hw`` (depth) and ``hb`` (``code``)
+    from ``nh`` on; returns the new count. A sample is hit when the triangle covers it (exact
+    edge functions and the tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the
+    depth there is not beyond the detector (FL). Samples in row, then column order. A SMALL
+    triangle's one sample (in these rows) whose three edge functions are non-zero is covered
+    exactly when all three have the triangle's orientation sign: no tie rule needed. Scalars
+    but the three outputs: a call passing arrays costs more than a small triangle's work."""
     # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
     e0x = bx - ax
     e0y = by - ay
@@ -355,10 +331,25 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
     e1y = cy - by
     e2x = ax - cx
     e2y = ay - cy
+    if small and X0 == X1 and y0 == y1:
+        px = X0 * ONE
+        py = y0 * ONE
+        E0 = o * (e0x * (py - ay) - e0y * (px - ax))
+        E1 = o * (e1x * (py - by) - e1y * (px - bx))
+        E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+        if E0 != 0 and E1 != 0 and E2 != 0:
+            if E0 > 0 and E1 > 0 and E2 > 0:
+                Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
+                if Wd <= FL:
+                    hk[nh] = (y0 - r0) * nW + X0
+                    hw[nh] = Wd
+                    hb[nh] = code
+                    nh += 1
+            return nh
     bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
     bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
     bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-    if kind[m] == SMALL:
+    if small:
         px0 = X0 * ONE
         stepx0 = -o * e0y * ONE
         stepx1 = -o * e1y * ONE
@@ -370,10 +361,11 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
             E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
             for X in range(X0, X1 + 1):
                 if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                    Wd = _depth(coef, wrange, m, X, Y)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                     if Wd <= FL:
                         hk[nh] = (Y - r0) * nW + X
                         hw[nh] = Wd
+                        hb[nh] = code
                         nh += 1
                 E0 += stepx0
                 E1 += stepx1
@@ -387,10 +379,11 @@ def _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
                 s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
                 s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
                 if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                    Wd = _depth(coef, wrange, m, X, Y)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                     if Wd <= FL:
                         hk[nh] = (Y - r0) * nW + X
                         hw[nh] = Wd
+                        hb[nh] = code
                         nh += 1
     return nh
 
@@ -452,8 +445,15 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                 hw = hw2
                 hb = hb2
             n0 = nh
-            nh = _cover_hits(m, y0, y1, r0, nW, tri, F, XY, kind, cbox, orient, coef, wrange,
-                             FL, hk, hw, nh)
+            t = tri[m]
+            code = np.int64(tri_body[t]) * 2 + (1 if orient[m] > 0 else 0)
+            i0 = F[t, 0]
+            i1 = F[t, 1]
+            i2 = F[t, 2]
+            nh = _cover_hits(XY[i0, 0], XY[i0, 1], XY[i1, 0], XY[i1, 1], XY[i2, 0], XY[i2, 1],
+                             np.int64(orient[m]), kind[m] == SMALL, X0, X1, y0, y1, r0, nW,
+                             coef[m, 0], coef[m, 1], coef[m, 2], coef[m, 3], coef[m, 4],
+                             coef[m, 5], wrange[m, 0], wrange[m, 1], FL, code, hk, hw, hb, nh)
             if single:
                 sgn = -1.0 if orient[m] > 0 else 1.0
                 dn = 1 if orient[m] > 0 else -1
@@ -463,10 +463,6 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                     S[Y - row0, X] += sgn * hw[i]
                     N[Y - row0, X] += dn
                 nh = np.int64(0)
-            else:
-                code = np.int64(tri_body[tri[m]]) * 2 + (1 if orient[m] > 0 else 0)
-                for i in range(n0, nh):
-                    hb[i] = code
         if single or nh == 0:
             continue
         # Group the hits by sample, keeping their order (counting sort).
