@@ -181,3 +181,64 @@ def test_prepare_compiles_in_other_processes_and_this_one_loads(tmp_path):
     assert first["compiled"] == []               # neither kernel nor helper compiled here
     assert all(h == 1 for h in first["hits"].values()), first
     assert second["started"] == [] and second["compiled"] == []
+
+
+RENDER_MODULES = """
+import json, sys
+from xray_viz import cli
+code = cli.main(["-q", "render", "sphere", "-o", sys.argv[1], "--shape", "32", "32"])
+print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
+"""
+
+
+def test_the_render_command_imports_no_viewer(tmp_path):
+    """``xray-viz render`` builds the whole parser (``show`` among its commands) and renders,
+    without importing PyVista or VTK (the viewer's, ~0.5 s of every render's start)."""
+    out = subprocess.run([sys.executable, "-c", RENDER_MODULES, str(tmp_path / "x.npy")],
+                         check=True, capture_output=True, text=True, timeout=600)
+    result = json.loads(out.stdout.splitlines()[-1])
+    assert result["code"] == 0 and (tmp_path / "x.npy").is_file()
+    assert "xray_viz.viz.command" in result["modules"]      # the test can fail
+    assert "xray_viz.tracing._raster" in result["modules"]
+    viewer = [m for m in result["modules"]
+              if m.split(".")[0] in ("pyvista", "vtk", "vtkmodules")
+              or m == "xray_viz.viz.scene_view"]
+    assert viewer == []
+
+
+def test_the_viewer_is_still_found_where_it_was():
+    from xray_viz import viz
+    from xray_viz.viz import scene_view
+
+    assert viz.plot_scene is scene_view.plot_scene and viz.SceneView is scene_view.SceneView
+    with pytest.raises(AttributeError):
+        viz.no_such_thing  # noqa: B018
+
+
+WORKER_THEN = """
+import sys
+exec(compile({worker!r}, "worker", "exec"))
+print(" ".join(sorted(m for m in sys.modules if m.startswith("xray_viz"))), flush=True)
+"""
+IS_CACHED = """
+from xray_viz.tracing import _raster as R
+print(R._is_cached("_first_use_rank"), R._is_cached("_bin_triangles"))
+"""
+
+
+def test_a_worker_imports_only_the_engine_and_caches_for_the_parent(tmp_path):
+    """A background worker runs neither ``xray_viz/__init__`` nor ``tracing/__init__`` (which
+    import the whole library): numba and the kernels' module only; what it compiles there is
+    found in the cache by a process that imported xray_viz as usual."""
+    root = os.path.dirname(os.path.dirname(R.__file__))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", WORKER_THEN.format(worker=R._WORKER), root,
+                          "_first_use_rank"], env=env, check=True, capture_output=True,
+                         text=True, timeout=600)
+    said, modules = out.stdout.split("\n")[:2]
+    assert said == "_first_use_rank"
+    assert modules.split() == ["xray_viz", "xray_viz.tracing", "xray_viz.tracing._numba_cache",
+                               "xray_viz.tracing._raster"]
+    out = subprocess.run([sys.executable, "-c", IS_CACHED], env=env, check=True,
+                         capture_output=True, text=True, timeout=600)
+    assert out.stdout.split() == ["True", "False"]

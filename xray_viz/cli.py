@@ -87,13 +87,14 @@ def _render_command(args) -> int:
         from xray_viz.tracing._raster import prepare
 
         prepare(first=likely_paths(args.scene))
-    scene = load_scene_with_overrides(args)
-    h = scene.detector.shape[1]
-    log.debug("rendering with engine %s, supersample %s", args.engine,
-              args.supersample or scene.detector.supersample)
-    with _compile_notice(args.engine), progress.task("rendering", total=h, unit="rows"):
-        image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample,
-                                max_error=args.max_error)
+    with _compile_notice(args.engine):   # said now, while the scene loads, if compiling
+        scene = load_scene_with_overrides(args)
+        h = scene.detector.shape[1]
+        log.debug("rendering with engine %s, supersample %s", args.engine,
+                  args.supersample or scene.detector.supersample)
+        with progress.task("rendering", total=h, unit="rows"):
+            image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample,
+                                    max_error=args.max_error)
     log.debug("timing (s): %s", {k: round(v, 4) for k, v in image.timing.items()})
     data = image.quantity(args.quantity)
     engine, total_ms = image.engine, image.timing["total"] * 1000

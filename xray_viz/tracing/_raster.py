@@ -952,19 +952,40 @@ def _names(paths=None) -> list:
     return names
 
 
-#: Relative compile cost of each kernel (measured), to share them out among the workers;
-#: kernels of one tuple share helpers and go to the same worker.
-_COSTS = {("_first_use_rank",): 0.7, ("_project_vertices",): 1.3, ("_cull_triangles",): 1.6,
-          ("_setup_planes",): 1.4, ("_bin_triangles",): 0.6, ("_raster_bands",): 3.5,
-          ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.3, ("_finish",): 0.5}
+#: Compile CPU seconds of each kernel beyond what a process pays for its first compile
+#: (``benchmarks/compile_profile.py``, one process per kernel and one for the six kernels of
+#: the several-bodies path, less ~0.45 s of numba's start), to share them out among the
+#: workers; kernels of one tuple share helpers and go to the same worker.
+_COSTS = {("_first_use_rank",): 0.2, ("_project_vertices",): 0.3, ("_cull_triangles",): 0.6,
+          ("_setup_planes",): 0.35, ("_bin_triangles",): 0.2, ("_raster_bands",): 2.5,
+          ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.2, ("_finish",): 0.3}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
 #: A worker compiles its kernels in turn, and names each on its output once it is cached (a
-#: closed output - this process gone - does not stop it).
-_WORKER = ("import sys, warnings\nwarnings.simplefilter('ignore')\n"
+#: closed output - this process gone - does not stop it). It imports numba and this module
+#: only: ``xray_viz`` and ``xray_viz.tracing`` are bare packages there (their ``__init__``,
+#: which imports the whole library, is not run; the kernels' module and file are the same, so
+#: they are cached under the same keys). ``argv``: the package's folder, the urgent kernels
+#: (those the parent needs), ``--``, the others, compiled at a lower priority (``nice``) so
+#: that they take no processor from the parent and the urgent kernels.
+_WORKER = ("import os, sys, types, warnings\nwarnings.simplefilter('ignore')\n"
+           "root = sys.argv[1]\n"
+           "for name, sub in (('xray_viz', ''), ('xray_viz.tracing', 'tracing')):\n"
+           "    m = types.ModuleType(name)\n    m.__path__ = [os.path.join(root, sub)]\n"
+           "    sys.modules[name] = m\n"
            "from xray_viz.tracing import _raster as R\n"
-           "for n in sys.argv[1:]:\n    R._kernel(n)\n"
+           "for n in sys.argv[2:]:\n"
+           "    if n == '--':\n        os.nice(10) if hasattr(os, 'nice') else None\n"
+           "        continue\n"
+           "    R._kernel(n)\n"
            "    try:\n        print(n, flush=True)\n    except OSError:\n        pass\n")
+#: LLVM optimisation level of the workers' compiles (``NUMBA_OPT``, numba's default 3), unless
+#: the environment sets one: level 1 compiles the kernels in ~15 % less time, and the kernels
+#: trace as fast and give the same bits (measured on the bundled phantoms:
+#: ``benchmarks/image_hashes.py``, ``benchmarks/notes/coldstart.md``). Level 0 cannot be
+#: cached (numba: "uses dynamic globals"). The cache does not record the level: a kernel
+#: compiled by the process itself (no cache to share) is compiled at the process's level.
+_WORKER_OPT = 1
 #: Kernel names each worker has said are cached.
 _done: dict = {}
 
@@ -1013,12 +1034,19 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
                 groups[k] += todo
                 load[k] += cost
     _urgent.update(n for n in missing if n in urgent)
+    need = [n for n in _names(first) if n in _urgent] if first is not None else missing
     _numba_cache.background_compile(globals()[missing[0]])
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = dict(os.environ)
+    env.setdefault("NUMBA_OPT", str(_WORKER_OPT))      # the user's choice wins
     for group in groups:
         if group:
-            proc = subprocess.Popen([sys.executable, "-c", _WORKER, *group],
+            urgent_first = [n for n in need if n in group]      # in the order of first use
+            rest = [n for n in group if n not in urgent_first]
+            proc = subprocess.Popen([sys.executable, "-c", _WORKER, root, *urgent_first,
+                                     *(["--", *rest] if rest else [])],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                    stderr=subprocess.DEVNULL, text=True)
+                                    stderr=subprocess.DEVNULL, text=True, env=env)
             for n in group:
                 _workers[n] = proc
     if not _atexit_set:

@@ -10,7 +10,6 @@ Viz only *reads* scenes, rays, hits and radiographs; nothing in tracing or physi
 from xray_viz.viz.rays import (AttenuationProfile, RaySelection, attenuation_profile,
                                effective_energy, inside_segments, pixel_ray_index,
                                select_pixels, trace_selection)
-from xray_viz.viz.scene_view import SceneView, plot_scene
 
 __all__ = ["plot_scene", "SceneView", "Viewer", "RaySelection", "AttenuationProfile",
            "select_pixels", "pixel_ray_index", "trace_selection", "inside_segments",
@@ -18,8 +17,14 @@ __all__ = ["plot_scene", "SceneView", "Viewer", "RaySelection", "AttenuationProf
 
 
 def __getattr__(name):
+    # PyVista (and VTK) only when a view is asked for: ``xray-viz render`` imports
+    # :mod:`xray_viz.viz.command` for its parser, and pays nothing for them.
     if name == "Viewer":
         from xray_viz.viz.viewer import Viewer
 
         return Viewer
+    if name in ("SceneView", "plot_scene"):
+        from xray_viz.viz import scene_view
+
+        return getattr(scene_view, name)
     raise AttributeError(name)
