@@ -33,7 +33,8 @@ import numpy as np
 
 RADIUS = 40.0
 TUBE = {"kvp": 80.0, "filters": {"Al": 2.5}}
-CASES = ("sphere-82k", "sphere-1.3M", "frog", "frog-tube", "sphere-82k-tube", "sphere-82k-falloff")
+CASES = ("sphere-82k", "sphere-1.3M", "frog", "frog-tube", "sphere-82k-tube", "sphere-82k-falloff",
+         "sphere-82k-heel")
 
 
 def _sphere(subdivisions):
@@ -59,8 +60,9 @@ def scene_of(case):
     else:
         scene = xray_viz.load_scene(parts[0])
         extra = parts[1:]
-    if "tube" in extra:
-        scene = scene.replace(source=dataclasses.replace(scene.source, spectrum=TUBE))
+    if "tube" in extra or "heel" in extra:
+        scene = scene.replace(source=dataclasses.replace(scene.source, spectrum=TUBE,
+                                                         heel="heel" in extra))
     if "falloff" in extra:
         scene = scene.replace(detector=dataclasses.replace(scene.detector, falloff=True,
                                                            i0=1e4))

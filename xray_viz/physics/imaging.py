@@ -226,6 +226,8 @@ def _log_sums(path_length, scene, *, rows=None, variance=False, out=None) -> lis
         base = np.einsum("ij,jk->ik", part, factors, out=base_buf[:len(idx)])
         if heel is not None:
             corners, coef = interpolation.corners(first_pixel + idx // per_pixel)
+            # each ray's own spectrum ratio: its four grid spectra combined (rays, K)
+            mix = np.einsum("nc,nck->nk", coef, ratio[corners])
         for m, dest in enumerate(outs):
             work = np.add(base, log_w[m], out=work_buf[:len(idx)])
             if heel is None:
@@ -234,8 +236,7 @@ def _log_sums(path_length, scene, *, rows=None, variance=False, out=None) -> lis
             top = work.max(axis=1)
             work -= top[:, None]
             np.exp(work, out=work)
-            sums = np.einsum("ik,nk->in", work, ratio)                # (rays, N)
-            total = (np.take_along_axis(sums, corners, axis=1) * coef).sum(axis=1)
+            total = np.einsum("ik,ik->i", work, mix)
             level = (levels[m][corners] * coef).sum(axis=1) / moments[m].sum()
             dest[idx] = top + np.log(total / level)
     return outs
