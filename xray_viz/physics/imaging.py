@@ -212,6 +212,8 @@ def _log_sums(path_length, scene, *, rows=None, variance=False, out=None) -> lis
         # its sum is the same combination of the grid spectra's sums (one small product)
         interpolation, ratio = heel
         levels = [ratio @ u for u in moments]                         # (N,) per grid spectrum
+        # every inside ray's grid corners at once (elementwise: the same as chunk by chunk)
+        all_corners, all_coef = interpolation.corners(first_pixel + inside // per_pixel)
     K = len(mu)
     chunk = max(16, CHUNK_BYTES // (8 * K))
     base_buf, work_buf = np.empty((chunk, K)), np.empty((chunk, K))
@@ -225,7 +227,8 @@ def _log_sums(path_length, scene, *, rows=None, variance=False, out=None) -> lis
             part, factors = part[:, crossed], minus_mu_t[crossed]
         base = np.einsum("ij,jk->ik", part, factors, out=base_buf[:len(idx)])
         if heel is not None:
-            corners, coef = interpolation.corners(first_pixel + idx // per_pixel)
+            corners = all_corners[start:start + chunk]
+            coef = all_coef[start:start + chunk]
             # each ray's own spectrum ratio: its four grid spectra combined (rays, K)
             mix = np.einsum("nc,nck->nk", coef, ratio[corners])
         for m, dest in enumerate(outs):
