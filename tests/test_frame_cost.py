@@ -155,3 +155,31 @@ def test_render_of_two_bodies_matches_beer_lambert_of_its_path_lengths():
         np.testing.assert_allclose(image.intensity, np.exp(-(P @ mu)), rtol=1e-13)
         np.testing.assert_allclose(image.total_path_length, P.sum(axis=2), rtol=1e-14)
         assert image.intensity.dtype == image.line_integral.dtype == np.float64
+
+
+def _faulty_windows(value, n_bodies):
+    def windows(scene, engine, n, keep_hits=False):
+        w, h = scene.detector.shape
+        L = np.full((w * h * n * n, n_bodies), 3.0)
+        L[7, n_bodies - 1] = value
+        yield 0, h, L, None
+    return windows
+
+
+@pytest.mark.parametrize("value", [np.inf, np.nan, -1.0])
+def test_a_bad_path_length_of_any_body_is_refused(monkeypatch, value):
+    """The finiteness check reads the rays' sums: an infinite path length in the second body
+    is refused as one in the first is."""
+    from xray_viz.errors import EngineError
+
+    monkeypatch.setattr(render_module, "_windows", _faulty_windows(value, 2))
+    with pytest.raises(EngineError, match="internal error.*'b'.*row 0"):
+        xray_viz.render(_scene(shape=(16, 12)))
+
+
+def test_rounding_negatives_read_as_zero_in_the_total_too(monkeypatch):
+    monkeypatch.setattr(render_module, "_windows", _faulty_windows(-1e-12, 2))
+    image = xray_viz.render(_scene(shape=(16, 12)), path_lengths=True)
+    assert image.path_length.min() == 0.0
+    np.testing.assert_array_equal(image.total_path_length, image.path_length.sum(axis=2))
+    assert image.total_path_length.ravel()[7] == 3.0

@@ -251,14 +251,19 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
     for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
         t1 = time.perf_counter()
         t_trace += t1 - t0
-        L = _checked(L, scene, engine, r0)
+        sums = None
+        if total is not None and nn == 1:
+            # each ray's total, which also tells whether its path lengths are finite
+            sums = _row_sums(L, out=total[r0:r1].reshape(-1))
+        if not _valid(L, sums):
+            L = _checked(L, scene, engine, r0)      # raises, or reads rounding negatives as 0
+            if sums is not None:
+                _row_sums(L, out=sums)
         hits = band_hits if band_hits is not None else hits
         if blocks is not None:
             # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the
             # log domain.
             blocks.add(r0, r1, L)
-        if total is not None and nn == 1:
-            _row_sums(L, out=total[r0:r1].reshape(-1))
         if (total is not None and nn > 1) or per_body is not None:
             # (pixels, bodies): the mean over each pixel's rays (one ray: the same numbers).
             mean = L if nn == 1 else L.reshape((r1 - r0) * w, nn, nb).mean(axis=1)
@@ -292,15 +297,23 @@ def _row_sums(L, *, out) -> np.ndarray:
 NEGATIVE_TOLERANCE = 1e-9
 
 
+def _valid(L, sums=None) -> bool:
+    """Whether every path length is finite and non-negative: ``L.min() >= 0`` (NaN if any is
+    NaN) and the largest finite, read from the rays' sums when given (a sum of non-negative
+    numbers is infinite only if one of them is: one pass over ``L`` instead of two)."""
+    if not L.size:
+        return True
+    if not float(L.min()) >= 0.0:
+        return False
+    return bool(np.isfinite(float((L if sums is None else sums).max())))
+
+
 def _checked(L, scene, engine, r0):
     """The band's path lengths, after checking the invariants every engine must keep: finite
     and non-negative (a negative one would give I > I0). Rounding-level negatives are read as
     0; anything else raises :class:`~xray_viz.errors.EngineError` instead of writing a wrong
     image."""
-    if not L.size:
-        return L
-    low = float(L.min())                   # NaN if any is NaN
-    if low >= 0.0 and np.isfinite(float(L.max())):
+    if _valid(L):
         return L
     from xray_viz.errors import EngineError
 
