@@ -394,7 +394,7 @@ def _pixel_log_transmission(path_length, scene, *, supersample, rows, variance, 
     C-contiguous arrays, when given: one ray per pixel then needs no other image-sized array."""
     nn = supersample * supersample
     w = scene.detector.shape[0]
-    direct = nn == 1 and out_t is not None
+    direct = nn == 1 and out_t is not None and out_t.flags.c_contiguous
     sums = _log_sums(path_length, scene, rows=rows, variance=variance,
                      out=out_t.reshape(-1) if direct else None)
     if direct:
