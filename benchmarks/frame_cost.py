@@ -34,7 +34,7 @@ import numpy as np
 RADIUS = 40.0
 TUBE = {"kvp": 80.0, "filters": {"Al": 2.5}}
 CASES = ("sphere-82k", "sphere-1.3M", "frog", "frog-tube", "sphere-82k-tube", "sphere-82k-falloff",
-         "sphere-82k-heel")
+         "sphere-82k-heel", "sphere-82k-ss2")
 
 
 def _sphere(subdivisions):
@@ -63,6 +63,8 @@ def scene_of(case):
     if "tube" in extra or "heel" in extra:
         scene = scene.replace(source=dataclasses.replace(scene.source, spectrum=TUBE,
                                                          heel="heel" in extra))
+    if "ss2" in extra:
+        scene = scene.replace(detector=dataclasses.replace(scene.detector, supersample=2))
     if "falloff" in extra:
         scene = scene.replace(detector=dataclasses.replace(scene.detector, falloff=True,
                                                            i0=1e4))

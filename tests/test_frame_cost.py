@@ -183,3 +183,22 @@ def test_rounding_negatives_read_as_zero_in_the_total_too(monkeypatch):
     assert image.path_length.min() == 0.0
     np.testing.assert_array_equal(image.total_path_length, image.path_length.sum(axis=2))
     assert image.total_path_length.ravel()[7] == 3.0
+
+
+@pytest.mark.parametrize("n", [4, 9, 16])
+def test_pixel_log_mean_is_the_log_of_the_mean_transmission(n):
+    """ln of the mean of each pixel's n transmissions: the plain formula where exp does not
+    underflow, the same shifted by 2000 where it does (log-sum-exp), -inf for a pixel whose
+    rays are all at -inf."""
+    rng = np.random.default_rng(5)
+    a = -rng.uniform(0, 8, 300 * n)
+    a[::5] = 0.0
+    want = np.log(np.exp(a).reshape(-1, n).mean(axis=1))
+    np.testing.assert_allclose(imaging.pixel_log_mean(a, n), want, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(imaging.pixel_log_mean(a - 2000.0, n), want - 2000.0,
+                               rtol=1e-14)
+    a[:n] = -np.inf
+    a[n] = -np.inf                                       # one ray of the next pixel
+    got = imaging.pixel_log_mean(a, n)
+    assert got[0] == -np.inf and np.isfinite(got[1:]).all()
+    np.testing.assert_allclose(got[1], np.log(np.exp(a[n:2 * n]).mean()), rtol=1e-14)

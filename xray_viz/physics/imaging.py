@@ -528,11 +528,22 @@ def pixel_log_mean(log_values, n_per_pixel: int) -> np.ndarray:
     a = np.asarray(log_values, dtype=np.float64)
     if n_per_pixel == 1:
         return a
-    a = a.reshape(-1, n_per_pixel)
-    top = a.max(axis=1)
-    with np.errstate(invalid="ignore"):
-        rest = np.exp(a - top[:, None]).sum(axis=1)
-    return np.where(np.isfinite(top), top + np.log(rest / n_per_pixel), top)
+    # one sub-ray per row, every pixel along the rows: NumPy's reductions along a short axis
+    # (a pixel's 4-16 rays) are 3-5 times slower than these vectorised passes
+    work = np.ascontiguousarray(a.reshape(-1, n_per_pixel).T)
+    top = np.maximum.reduce(work, axis=0)
+    with np.errstate(invalid="ignore"):                 # -inf - -inf: a pixel at -inf
+        np.subtract(work, top, out=work)
+    np.exp(work, out=work)
+    rest = np.add.reduce(work, axis=0)
+    del work
+    rest /= n_per_pixel
+    np.log(rest, out=rest)
+    rest += top
+    odd = ~np.isfinite(top)
+    if odd.any():
+        rest[odd] = top[odd]
+    return rest
 
 
 # --------------------------------------------------------------------------------------------
