@@ -12,6 +12,11 @@ Per case: medians of the whole frame (wall and CPU seconds, ``time.process_time`
 Scene construction, and of render's own ``timing`` split, ``trace`` (the engine) and
 ``image`` (Beer-Lambert, the pixel means, the detector model, the checks).
 
+``--open3d`` times, interleaved frame by frame (A B A B, so both see the same load), the
+one-body frames against Open3D's ``list_intersections`` plus the same path-length step on the
+same rays (the peers suite's ``peer_open3d``, BVH built before), and prints the ratio of the
+medians: issue 18's per-frame target (<= 0.10x at 82k and 1.3M faces).
+
 ``--compare`` runs this script in the tree given and in this one in turn, A B A B ... (new
 processes, ``PYTHONPATH`` set to each tree), so that both see the same machine load, and
 prints the medians over the pairs and the ratio after / before of each column.
@@ -96,6 +101,37 @@ def frames(case, n):
     return {k: 1e3 * statistics.median(v) for k, v in rows.items()}
 
 
+def versus_open3d(case, n):
+    """Medians (ms) of ``n`` render() frames and ``n`` Open3D queries, interleaved."""
+    import xray_viz
+    from xray_viz.geometry import detector_rays
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from suites import peer_open3d
+
+    build, query = peer_open3d()
+    base = scene_of(case)
+    mesh = base.bodies[0].mesh
+    rays = detector_rays(base)
+    state = build(mesh)
+    query(state, rays)                          # the BVH is built in the first query
+    xray_viz.render(base)
+    p0 = np.asarray(base.source.position, dtype=np.float64)
+    ours, theirs = [], []
+    for k in range(n):
+        t0 = time.perf_counter()
+        scene = base.replace(source=dataclasses.replace(
+            base.source, position=p0 + [1e-3 * (k + 1), 0.0, 0.0]))
+        image = xray_viz.render(scene)
+        ours.append(time.perf_counter() - t0)
+        del image
+        t0 = time.perf_counter()
+        query(state, rays)
+        theirs.append(time.perf_counter() - t0)
+    a, b = 1e3 * statistics.median(ours), 1e3 * statistics.median(theirs)
+    return {"render": a, "open3d": b, "ratio": a / b}
+
+
 def run(cases, n):
     return {case: frames(case, n) for case in cases}
 
@@ -137,7 +173,18 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true", help="print the medians as JSON")
     ap.add_argument("--compare", type=Path, help="a before-tree: run A B A B ...")
     ap.add_argument("--pairs", type=int, default=3)
+    ap.add_argument("--open3d", action="store_true",
+                    help="render() per frame against Open3D's query, interleaved")
     args = ap.parse_args(argv)
+    if args.open3d:
+        print(f"load average {os.getloadavg()[0]:.1f}")
+        print("| case | render() ms | Open3D list_intersections + path length ms | ratio |")
+        print("|---|---|---|---|")
+        for case in ("sphere-82k", "sphere-1.3M"):
+            r = versus_open3d(case, args.n)
+            print(f"| {case} | {r['render']:.2f} | {r['open3d']:.2f} | {r['ratio']:.3f}x |")
+        print(f"load average {os.getloadavg()[0]:.1f}")
+        return 0
     if args.compare is not None:
         here = Path(__file__).resolve().parents[1]
         a, b = [], []
