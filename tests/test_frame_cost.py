@@ -157,23 +157,25 @@ def test_render_of_two_bodies_matches_beer_lambert_of_its_path_lengths():
         assert image.intensity.dtype == image.line_integral.dtype == np.float64
 
 
-def _faulty_windows(value, n_bodies):
+def _faulty_windows(value, n_bodies, first=3.0):
     def windows(scene, engine, n, keep_hits=False):
         w, h = scene.detector.shape
         L = np.full((w * h * n * n, n_bodies), 3.0)
+        L[7, 0] = first
         L[7, n_bodies - 1] = value
         yield 0, h, L, None
     return windows
 
 
-@pytest.mark.parametrize("value", [np.inf, np.nan, -1.0])
-def test_a_bad_path_length_of_any_body_is_refused(monkeypatch, value):
+@pytest.mark.parametrize("value, first", [(np.inf, 3.0), (np.nan, 3.0), (-1.0, 3.0),
+                                          (np.inf, -np.inf)])
+def test_a_bad_path_length_of_any_body_is_refused(monkeypatch, value, first):
     """The finiteness check reads the rays' sums: an infinite path length in the second body
-    is refused as one in the first is."""
+    is refused as one in the first is (also when the sum is inf - inf)."""
     from xray_viz.errors import EngineError
 
-    monkeypatch.setattr(render_module, "_windows", _faulty_windows(value, 2))
-    with pytest.raises(EngineError, match="internal error.*'b'.*row 0"):
+    monkeypatch.setattr(render_module, "_windows", _faulty_windows(value, 2, first))
+    with pytest.raises(EngineError, match="internal error.*row 0"):
         xray_viz.render(_scene(shape=(16, 12)))
 
 

@@ -287,7 +287,8 @@ def _row_sums(L, *, out) -> np.ndarray:
     if L.shape[1] == 1:
         np.copyto(out, L[:, 0])
         return out
-    return np.add.reduce(L, axis=1, out=out)
+    with np.errstate(invalid="ignore", over="ignore"):    # bad values: _checked's message
+        return np.add.reduce(L, axis=1, out=out)
 
 
 #: Path lengths down to this fraction of the source-detector distance below zero are rounding
