@@ -940,14 +940,16 @@ def _detect_log(log_transmitted, scene, *, i0=None, rng=None, log_variance=None,
         return gain * np.exp(log_signal), log_flat - log_signal
     if rng is None:
         rng = np.random.default_rng(getattr(det, "seed", None))
-    log_v = log_t if log_variance is None else np.asarray(log_variance, dtype=np.float64)
-    log_var = _log_blur(np.log(incident * B) + log_v, scene)
     if _counts_photons(scene):
-        log_c = np.zeros_like(log_signal)              # photon counts: variance = mean
+        # photon counts: variance = mean, c = 1 (the same numbers as c * Poisson(M / c))
+        c = 1.0
+        signal = _poisson(rng, np.exp(log_signal))
     else:
+        log_v = log_t if log_variance is None else np.asarray(log_variance, dtype=np.float64)
+        log_var = _log_blur(np.log(incident * B) + log_v, scene)
         log_c = log_var - log_signal                   # variance / mean, per pixel
-    c = np.exp(log_c)
-    signal = c * _poisson(rng, np.exp(log_signal - log_c))
+        c = np.exp(log_c)
+        signal = c * _poisson(rng, np.exp(log_signal - log_c))
     if mtf is not None:
         signal = _convolve(signal, mtf)
     sigma_e = float(getattr(det, "electronic_noise", 0.0) or 0.0)
