@@ -10,6 +10,12 @@ streams. The floor of a one-body frame at 512 x 512 is reading the vertices (24 
 faces (12 bytes each, int32) once and writing the path lengths (8 bytes a ray); it is set
 beside the measured per-frame trace (a new Scene, the source moved, medians) of icospheres of
 82k and 1.3M faces (the peers suite's meshes), both engine threads.
+
+The floor of a whole frame (``xray_viz.render``: trace and image) adds what the image step
+must move at least: read the path lengths again (8 bytes a ray) and write the three images
+a :class:`~xray_viz.render.Radiograph` returns (intensity, line integral, total path length:
+24 bytes a pixel); it is set beside the measured render() per frame (``scene.replace(source=
+...)``, medians; wall and CPU).
 """
 
 from __future__ import annotations
@@ -51,7 +57,8 @@ def main(argv=None) -> int:
     det = dataclasses.replace(base.detector, shape=(512, 512),
                               pitch=tuple(p / 2 for p in base.detector.pitch))
     print(f"{'faces':>9s} {'MB read':>8s} {'floor ms':>9s} {'trace ms':>9s} "
-          f"{'CPU ms':>7s} {'x floor':>8s}")
+          f"{'CPU ms':>7s} {'x floor':>8s} | {'MB frame':>8s} {'floor ms':>9s} "
+          f"{'render ms':>9s} {'CPU ms':>7s} {'x floor':>8s}")
     for sub in (6, 8):
         m = trimesh.creation.icosphere(subdivisions=sub, radius=40.0)
         scene = base.replace(detector=det,
@@ -69,8 +76,22 @@ def main(argv=None) -> int:
             ts.append(time.perf_counter() - t)
             cs.append(time.process_time() - c)
         t, c = statistics.median(ts), statistics.median(cs)
+        fbytes = nbytes + 512 * 512 * (8 + 24)
+        ffloor = fbytes / bw
+        rs, rc = [], []
+        for i in range(args.n):
+            src = dataclasses.replace(scene.source, position=np.asarray(scene.source.position)
+                                      + np.array([0.0, 1e-3 * (i + 1), 0.0]))
+            s = scene.replace(source=src)
+            t0, c0 = time.perf_counter(), time.process_time()
+            image = xray_viz.render(s)
+            rs.append(time.perf_counter() - t0)
+            rc.append(time.process_time() - c0)
+            del image
+        r, q = statistics.median(rs), statistics.median(rc)
         print(f"{len(m.faces):9d} {nbytes / 1e6:8.1f} {floor * 1e3:9.2f} {t * 1e3:9.2f} "
-              f"{c * 1e3:7.2f} {t / floor:7.1f}x")
+              f"{c * 1e3:7.2f} {t / floor:7.1f}x | {fbytes / 1e6:8.1f} {ffloor * 1e3:9.2f} "
+              f"{r * 1e3:9.2f} {q * 1e3:7.2f} {r / ffloor:7.1f}x")
     return 0
 
 

@@ -755,26 +755,33 @@ def fast_build_time(scene, warm_s, repeat=3):
 
 
 def fast_render_frames(mesh, shape, repeat):
-    """What a user pays per frame for ``xray_viz.render``: a new Scene (source moved by a
-    micrometre per frame, so the path-length cache misses and the geometry is re-traced; the
-    per-mesh set-up and mesh checks stay cached) then ``render`` (trace + Beer-Lambert image).
-    Returns medians (seconds) of the whole frame and of the Scene construction alone."""
+    """What a user pays per frame for ``xray_viz.render``: a new Scene with the source moved
+    (by a micrometre per frame, so the path-length cache misses and the geometry is re-traced)
+    then ``render`` (trace + Beer-Lambert image).
+
+    The new Scene is ``scene.replace(source=...)``, the documented way to move the source: it
+    keeps the scene's :class:`~xray_viz.bodies.Bodies`, which hold the mesh checks and the
+    per-mesh set-up (no module-level caches since issue 13), so a frame pays neither. A Scene
+    built from new ``Body`` objects each frame makes new Bodies and pays the per-mesh set-up
+    (and a mesh check from the disk cache) every frame: that is a first render, timed by the
+    build column and by ``benchmarks/first_render.py``.
+
+    Returns medians (seconds) of the whole frame and of the Scene construction alone.
+    """
     import dataclasses
 
     import xray_viz
-    from xray_viz.scene import Body, Scene
 
     base = sphere_scene(mesh, shape)
     frames, builds = [], []
     for k in range(repeat + 1):
         t0 = time.perf_counter()
         src = dataclasses.replace(base.source, position=[1e-3 * (k + 1), 0.0, 1000.0])
-        scene = Scene(source=src, detector=base.detector,
-                      bodies=(Body(name="ball", mesh=mesh, mu=0.2),))
+        scene = base.replace(source=src)
         t1 = time.perf_counter()
         xray_viz.render(scene)
         t2 = time.perf_counter()
-        if k:                              # the first frame also pays the mesh check
+        if k:                              # the first frame also pays the per-mesh set-up
             frames.append(t2 - t0)
             builds.append(t1 - t0)
     return float(np.median(frames)), float(np.median(builds))
@@ -952,9 +959,9 @@ def _peers_table(results, cube):
                          f"{x_o3d:.3f} | {x_o3d_b:.3f} | {r['max_error_mm']:.3g} |")
     lines += ["", "fast: `trace_once`, a full re-trace (projection, raster, path lengths) with "
               "the per-mesh set-up cached; build = `clear_caches(scene)` then a first trace, minus a "
-              "warm trace. fast render(): per frame a new `Scene` (source moved 1 um, so "
-              "nothing but the per-mesh set-up is reused) and `xray_viz.render` (trace + image); "
-              "the Scene part in brackets. pyvista rebuilds inside every call (build -)."]
+              "warm trace. fast render(): per frame a new `Scene` (`scene.replace(source=...)`, "
+              "source moved 1 um, so nothing but the bodies' mesh checks and per-mesh set-up "
+              "is reused) and `xray_viz.render` (trace + image); the Scene part in brackets. pyvista rebuilds inside every call (build -)."]
     if missing:
         lines += ["", f"Some peers are unavailable: {INSTALL_HINT}."]
     lines += ["", "Cube edge suite (255 x 255 rays, cube [-20, 20]^3): rays miscounted", "",

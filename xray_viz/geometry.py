@@ -639,6 +639,35 @@ class Acquisition:
         """A parallel beam (rather than a point source)."""
         return self.frame.parallel
 
+    @cached_property
+    def pixel_distances(self) -> np.ndarray:
+        """(H, W) float, read-only: each pixel ray's length from the source to the detector
+        (mm, image order: the ``t_max`` of :func:`detector_rays` without supersampling, to
+        rounding), computed once per acquisition.
+
+        A pixel's offset from the grid's middle is ``a ho + b ve`` with ``ho`` perpendicular
+        to ``ve``, so ``r^2 = |m|^2 + (a^2 + 2 a m.ho) + (b^2 + 2 b m.ve)`` (``m`` from the
+        source to the middle): a sum of a column and a row term, two passes over the image
+        instead of every pixel's 3-vector. A parallel beam's rays are all ``sid`` long.
+        """
+        f = self.frame
+        w, h = f.shape
+        if f.parallel:
+            out = np.full((h, w), f.sid)
+        else:
+            width, height = self.detector.size
+            ui = np.arange(w) / (w - 1) if w > 1 else np.array([0.5])
+            vj = np.arange(h) / (h - 1) if h > 1 else np.array([0.5])
+            a = (ui - 0.5) * width
+            b = (vj[::-1] - 0.5) * height
+            m = f.middle - f.source
+            rows = float(m @ m) + b * (b + 2.0 * float(m @ f.ve))
+            cols = a * (a + 2.0 * float(m @ f.ho))
+            out = np.add(rows[:, None], cols[None, :])
+            np.sqrt(out, out=out)
+        out.setflags(write=False)
+        return out
+
     def replace(self, **changes) -> "Acquisition":
         """A copy with ``source=`` and/or ``detector=`` replaced."""
         return Acquisition(source=changes.pop("source", self.source),

@@ -176,11 +176,15 @@ def _rays_per_pixel(scene, rows, n_rays) -> tuple[int, int]:
     return start * w, n_rays // n_pixels
 
 
-def _log_sums(path_length, scene, *, rows=None, variance=False) -> list[np.ndarray]:
+def _log_sums(path_length, scene, *, rows=None, variance=False, out=None) -> list[np.ndarray]:
     """``ln(sum_k w_k T_k / sum_k w_k)`` per ray for the signal weights (and the variance's).
 
     One product ``L @ -mu`` per chunk of rays serves both sums; with the heel effect the
-    weights of each chunk's rays are interpolated from SpekPy's grid.
+    weights of each chunk's rays are interpolated from SpekPy's grid. The products are
+    :func:`numpy.einsum`'s own loops, not BLAS: each ray's sum is then the same whatever the
+    number of rays of a call (a band, a chunk), and a skinny product (a few bodies) does not
+    wait for BLAS threads, which on a loaded machine made them 10-15 times slower. ``out``
+    (``(n_rays,)`` float) receives the signal's sum, the first array returned.
     """
     L = np.asarray(path_length, dtype=np.float64)
     spectrum, keep, u1, u2 = _beam(scene)
@@ -189,41 +193,75 @@ def _log_sums(path_length, scene, *, rows=None, variance=False) -> list[np.ndarr
     heel = _heel(scene, keep)
     if rows is not None or heel is not None:
         first_pixel, per_pixel = _rays_per_pixel(scene, rows, len(L))
+    if out is None:
+        out = np.empty(len(L))
     if len(mu) == 1 and heel is None:
-        line = -(L @ mu[0])
+        line = _line_integrals(L, mu[0], out=out)
         return [line] + ([line.copy()] if variance else [])
     # a bin's weight can underflow to 0 (u2 ~ phi^2 of a bin the filters all but remove): its
     # log is -inf, and exp(-inf) = 0 is exactly its share of the sums below
     with np.errstate(divide="ignore"):
         log_w = [np.log(u) - np.log(u.sum()) for u in moments]
     minus_mu_t = np.ascontiguousarray(-mu.T)                           # (B, K)
-    outs = [np.zeros(len(L)) for _ in moments]
+    out.fill(0.0)
+    outs = [out] + [np.zeros(len(L)) for _ in moments[1:]]
     # a ray through no body transmits everything (its weights sum to 1): ln T = 0
-    inside = np.flatnonzero(np.any(L != 0, axis=1)) if L.shape[1] else np.zeros(0, np.int64)
+    inside = _inside(L)
     if heel is not None:
         # a pixel's weights are u_k times a bilinear combination of the grid's spectra, so
         # its sum is the same combination of the grid spectra's sums (one small product)
         interpolation, ratio = heel
         levels = [ratio @ u for u in moments]                         # (N,) per grid spectrum
-    chunk = max(16, CHUNK_BYTES // (8 * len(mu)))
+        # every inside ray's grid corners at once (elementwise: the same as chunk by chunk)
+        all_corners, all_coef = interpolation.corners(first_pixel + inside // per_pixel)
+    K = len(mu)
+    chunk = max(16, CHUNK_BYTES // (8 * K))
+    base_buf, work_buf = np.empty((chunk, K)), np.empty((chunk, K))
     for start in range(0, len(inside), chunk):
         idx = inside[start:start + chunk]
-        base = L[idx] @ minus_mu_t                                   # (rays, K)
+        part = L[idx]
+        # bodies none of these rays crosses add exact zeros to every sum: left out
+        crossed = np.flatnonzero(part.any(axis=0))
+        factors = minus_mu_t
+        if len(crossed) < part.shape[1]:
+            part, factors = part[:, crossed], minus_mu_t[crossed]
+        base = np.einsum("ij,jk->ik", part, factors, out=base_buf[:len(idx)])
         if heel is not None:
-            corners, coef = interpolation.corners(first_pixel + idx // per_pixel)
-        for m, out in enumerate(outs):
+            corners = all_corners[start:start + chunk]
+            coef = all_coef[start:start + chunk]
+            # each ray's own spectrum ratio: its four grid spectra combined (rays, K)
+            mix = np.einsum("nc,nck->nk", coef, ratio[corners])
+        for m, dest in enumerate(outs):
+            work = np.add(base, log_w[m], out=work_buf[:len(idx)])
             if heel is None:
-                out[idx] = _logsumexp_rows(base + log_w[m])
+                dest[idx] = _logsumexp_rows(work)
                 continue
-            work = base + log_w[m]
             top = work.max(axis=1)
             work -= top[:, None]
             np.exp(work, out=work)
-            sums = work @ ratio.T                                      # (rays, N)
-            total = (np.take_along_axis(sums, corners, axis=1) * coef).sum(axis=1)
+            total = np.einsum("ik,ik->i", work, mix)
             level = (levels[m][corners] * coef).sum(axis=1) / moments[m].sum()
-            out[idx] = top + np.log(total / level)
+            dest[idx] = top + np.log(total / level)
     return outs
+
+
+def _line_integrals(L, mu, *, out) -> np.ndarray:
+    """``-sum_b mu_b L[:, b]`` per ray into ``out`` (one product for one body)."""
+    if L.shape[1] == 1:
+        return np.multiply(L[:, 0], -mu[0], out=out)
+    if L.shape[1] == 0:
+        out.fill(0.0)
+        return out
+    return np.einsum("ij,j->i", L, -mu, out=out)
+
+
+def _inside(L) -> np.ndarray:
+    """Indices of the rays with a non-zero path length in some body."""
+    if not L.shape[1] or not len(L):
+        return np.zeros(0, np.int64)
+    if L.min() >= 0:                # a sum of non-negative numbers is 0 only if all are
+        return np.flatnonzero(np.einsum("ij->i", L))
+    return np.flatnonzero(np.any(L != 0, axis=1))
 
 
 def _logsumexp_rows(work: np.ndarray) -> np.ndarray:
@@ -344,14 +382,33 @@ def pixel_log_transmission(path_length, scene, *, supersample: int = 1, rows=Non
     >>> log_t.shape, bool(log_t.max() == 0), log_v is None
     ((256, 256), True, True)
     """
-    n = int(supersample)
-    w = scene.detector.shape[0]
     if variance is None:
         variance = _needs_variance(scene)
-    sums = _log_sums(path_length, scene, rows=rows, variance=variance)
-    log_t = pixel_log_mean(sums[0], n * n).reshape(-1, w)
-    log_v = pixel_log_mean(sums[1], n * n).reshape(-1, w) if variance else None
-    return log_t, log_v
+    return _pixel_log_transmission(path_length, scene, supersample=int(supersample), rows=rows,
+                                   variance=variance)
+
+
+def _pixel_log_transmission(path_length, scene, *, supersample, rows, variance, out_t=None,
+                            out_v=None):
+    """:func:`pixel_log_transmission`, written into ``out_t`` (and ``out_v``), ``(n_rows, W)``
+    C-contiguous arrays, when given: one ray per pixel then needs no other image-sized array."""
+    nn = supersample * supersample
+    w = scene.detector.shape[0]
+    direct = nn == 1 and out_t is not None and out_t.flags.c_contiguous
+    sums = _log_sums(path_length, scene, rows=rows, variance=variance,
+                     out=out_t.reshape(-1) if direct else None)
+    if direct:
+        if variance:
+            np.copyto(out_v, sums[1].reshape(-1, w))
+        return out_t, out_v
+    log_t = pixel_log_mean(sums[0], nn).reshape(-1, w)
+    log_v = pixel_log_mean(sums[1], nn).reshape(-1, w) if variance else None
+    if out_t is None:
+        return log_t, log_v
+    np.copyto(out_t, log_t)
+    if variance:
+        np.copyto(out_v, log_v)
+    return out_t, out_v
 
 
 def ray_weights(scene, rows=None, *, supersample: int = 1, variance: bool = False) -> np.ndarray:
@@ -471,11 +528,22 @@ def pixel_log_mean(log_values, n_per_pixel: int) -> np.ndarray:
     a = np.asarray(log_values, dtype=np.float64)
     if n_per_pixel == 1:
         return a
-    a = a.reshape(-1, n_per_pixel)
-    top = a.max(axis=1)
-    with np.errstate(invalid="ignore"):
-        rest = np.exp(a - top[:, None]).sum(axis=1)
-    return np.where(np.isfinite(top), top + np.log(rest / n_per_pixel), top)
+    # one sub-ray per row, every pixel along the rows: NumPy's reductions along a short axis
+    # (a pixel's 4-16 rays) are 3-5 times slower than these vectorised passes
+    work = np.ascontiguousarray(a.reshape(-1, n_per_pixel).T)
+    top = np.maximum.reduce(work, axis=0)
+    with np.errstate(invalid="ignore"):                 # -inf - -inf: a pixel at -inf
+        np.subtract(work, top, out=work)
+    np.exp(work, out=work)
+    rest = np.add.reduce(work, axis=0)
+    del work
+    rest /= n_per_pixel
+    np.log(rest, out=rest)
+    rest += top
+    odd = ~np.isfinite(top)
+    if odd.any():
+        rest[odd] = top[odd]
+    return rest
 
 
 # --------------------------------------------------------------------------------------------
@@ -553,19 +621,34 @@ def falloff_factor(scene) -> np.ndarray:
     >>> float(f.max()) <= 1.0
     True
     """
-    from xray_viz.geometry import pixel_coordinates, viewport
-
     w, h = scene.detector.shape
     if scene.source.kind == "parallel":
         return np.ones((h, w))
-    frame = scene.acquisition.frame
+    acq = scene.acquisition
+    frame = acq.frame
+    r = acq.pixel_distances           # kept by the acquisition
+    q = np.divide(frame.sid, r)
     if not frame.plain:               # tilted or offset: the pixels' own distances and angles
-        r = scene.acquisition.rays().t_max.reshape(h, w)
-        return (frame.sid / r) ** 2 * (frame.distance / r)
-    vp = viewport(scene.source.position, scene.detector)
-    u, v = pixel_coordinates(vp.shape)
-    r = np.linalg.norm(vp.point(u, v) - vp.r0, axis=-1)
-    return (np.linalg.norm(vp.FL) / r) ** 3
+        q *= q
+        q *= np.divide(frame.distance, r)
+        return q
+    cube = np.multiply(q, q)
+    cube *= q
+    return cube
+
+
+def _apply_falloff(image, scene) -> None:
+    """``image *= falloff_factor(scene)`` in place, without another image-sized array (a
+    fresh one costs more in page faults than the arithmetic): divided by the pixels'
+    distances (kept by the acquisition) and multiplied by the constants."""
+    if scene.source.kind == "parallel":
+        return
+    frame = scene.acquisition.frame
+    r = scene.acquisition.pixel_distances
+    image /= r
+    image /= r
+    image /= r
+    image *= frame.sid ** 2 * (frame.distance if not frame.plain else frame.sid)
 
 
 def gaussian_kernel(sigma: float) -> np.ndarray:
@@ -819,6 +902,13 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
     >>> li.tolist(), intensity.tolist()
     ([[2000.0, 2000.0], [2000.0, 2000.0]], [[0.0, 0.0], [0.0, 0.0]])
     """
+    return _detect_log(log_transmitted, scene, i0=i0, rng=rng, log_variance=log_variance)
+
+
+def _detect_log(log_transmitted, scene, *, i0=None, rng=None, log_variance=None,
+                overwrite=False):
+    """:func:`detect_log`; with ``overwrite`` (a float64 array the caller no longer needs) a
+    noise-free, unblurred line integral is written over ``log_transmitted``."""
     det = scene.detector
     log_t = np.asarray(log_transmitted, dtype=np.float64)
     i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
@@ -828,12 +918,17 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
     noise = bool(getattr(det, "noise", False))
     falloff = bool(getattr(det, "falloff", False))
     if not noise and mtf is None and _blur_sigmas(scene) is None:
-        # the common case, in place: 16 bytes per pixel besides log_t (big detectors)
+        # the common case, in place: 16 bytes per pixel besides log_t (big detectors); a
+        # factor of exactly 1 is skipped (the same numbers, one pass less)
         signal = np.exp(log_t)
-        signal *= gain * i0
+        if gain * i0 != 1.0:
+            signal *= gain * i0
         if falloff:
-            signal *= falloff_factor(scene)
-        signal *= A
+            _apply_falloff(signal, scene)
+        if not (np.ndim(A) == 0 and A == 1.0):
+            signal *= A
+        if overwrite and log_t is log_transmitted:
+            return signal, np.negative(log_t, out=log_t)
         return signal, -log_t
     incident = i0 * falloff_factor(scene) if falloff else np.full(log_t.shape, i0)
     flat = incident * A
@@ -845,14 +940,16 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
         return gain * np.exp(log_signal), log_flat - log_signal
     if rng is None:
         rng = np.random.default_rng(getattr(det, "seed", None))
-    log_v = log_t if log_variance is None else np.asarray(log_variance, dtype=np.float64)
-    log_var = _log_blur(np.log(incident * B) + log_v, scene)
     if _counts_photons(scene):
-        log_c = np.zeros_like(log_signal)              # photon counts: variance = mean
+        # photon counts: variance = mean, c = 1 (the same numbers as c * Poisson(M / c))
+        c = 1.0
+        signal = _poisson(rng, np.exp(log_signal))
     else:
+        log_v = log_t if log_variance is None else np.asarray(log_variance, dtype=np.float64)
+        log_var = _log_blur(np.log(incident * B) + log_v, scene)
         log_c = log_var - log_signal                   # variance / mean, per pixel
-    c = np.exp(log_c)
-    signal = c * _poisson(rng, np.exp(log_signal - log_c))
+        c = np.exp(log_c)
+        signal = c * _poisson(rng, np.exp(log_signal - log_c))
     if mtf is not None:
         signal = _convolve(signal, mtf)
     sigma_e = float(getattr(det, "electronic_noise", 0.0) or 0.0)
