@@ -63,16 +63,7 @@ def _axis_code(x, n):
     return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _spread3(x):
-    """The 10 low bits of ``x`` spread to every third bit (bit b to bit 3 b)."""
-    x = (x | (x << 16)) & 0x30000FF
-    x = (x | (x << 8)) & 0x300F00F
-    x = (x | (x << 4)) & 0x30C30C3
-    return (x | (x << 2)) & 0x9249249
-
-
-def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout):
+def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, cnt, hist):
     """New number of each vertex: its rank in order of first appearance in ``flat_faces``
     (vertices used by no face follow, in their previous order), into ``rank``.
 
@@ -82,106 +73,78 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout):
     position quantised to 1024 steps per axis of the bounding box (a stable LSD radix sort,
     ties keep the vertex order); vertices used by no face then follow in Morton order. Then
     ``Vout[rank[i]] = V[i]`` and ``Fout`` receives the faces, renumbered, in the order
-    visited (outputs of length 0 are not written).
+    visited (outputs of length 0 are not written). Scratch (``spatial`` only, int64):
+    ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt`` (V + 1), ``hist`` (3 x 1025, zeros).
     """
     nv = rank.shape[0]
     nf = flat_faces.shape[0]
-    T = nf // 3
-    for i in range(nv):
-        rank[i] = -1
-    k = 0
     if spatial:
         # Morton code of each vertex: bit b of axis a at bit 3 b + a (10 bits per axis).
-        lo = np.empty(3)
-        d = np.empty(3)
-        for a in range(3):
-            lo[a] = np.inf
-            d[a] = -np.inf
+        lo0, lo1, lo2 = V[0, 0], V[0, 1], V[0, 2]
+        hi0, hi1, hi2 = lo0, lo1, lo2
         for i in range(nv):
-            for a in range(3):
-                x = V[i, a]
-                if x < lo[a]:
-                    lo[a] = x
-                if x > d[a]:
-                    d[a] = x
-        for a in range(3):
-            d[a] = max(d[a] - lo[a], 1e-300)
-        code = np.empty(nv, np.int64)
-        hist = np.zeros((3, 1025), np.int64)
+            lo0, hi0 = min(lo0, V[i, 0]), max(hi0, V[i, 0])
+            lo1, hi1 = min(lo1, V[i, 1]), max(hi1, V[i, 1])
+            lo2, hi2 = min(lo2, V[i, 2]), max(hi2, V[i, 2])
+        d0, d1, d2 = max(hi0 - lo0, 1e-300), max(hi1 - lo1, 1e-300), max(hi2 - lo2, 1e-300)
         for i in range(nv):
             c = 0
             for a in range(3):
-                c |= _spread3(np.int64(np.uint64((V[i, a] - lo[a]) / d[a] * 1023)) & 1023) << a
+                x = (V[i, a] - (lo0 if a == 0 else lo1 if a == 1 else lo2)) / (
+                    d0 if a == 0 else d1 if a == 1 else d2) * 1023
+                x = np.int64(np.uint64(x)) & 1023           # bits b -> 3 b (magic masks)
+                x = (x | (x << 16)) & 0x30000FF
+                x = (x | (x << 8)) & 0x300F00F
+                x = (x | (x << 4)) & 0x30C30C3
+                c |= ((x | (x << 2)) & 0x9249249) << a
             code[i] = c
+            order[i] = i
             for p in range(3):
                 hist[p, ((c >> (10 * p)) & 1023) + 1] += 1
-        # Stable LSD radix sort of the codes, 10 bits a pass.
-        order = np.arange(nv)
-        tmp = np.empty(nv, np.int64)
+        # Stable LSD radix sort of the codes, 10 bits a pass (order <-> tmp).
         for p in range(3):
-            h = hist[p]
+            src = order if p != 1 else tmp
+            dst = tmp if p != 1 else order
             for j in range(1024):
-                h[j + 1] += h[j]
+                hist[p, j + 1] += hist[p, j]
             for j in range(nv):
-                i = order[j]
-                b = (code[i] >> (10 * p)) & 1023
-                tmp[h[b]] = i
-                h[b] += 1
-            order, tmp = tmp, order
-        mrank = code                       # reused: Morton rank of each vertex
-        for j in range(nv):
-            mrank[order[j]] = j
+                i = src[j]
+                b = ((code[i] >> (10 * p)) & 1023)
+                dst[hist[p, b]] = i
+                hist[p, b] += 1
+        for j in range(nv):               # tmp: the Morton order; code: each vertex's rank
+            code[tmp[j]] = j
+            order[j] = tmp[j]
         # Faces by the Morton rank of their first vertex in that order (stable counting sort).
-        key = np.empty(T, np.int64)
-        cnt = np.zeros(nv + 1, np.int64)
-        for t in range(T):
-            m = min(mrank[flat_faces[3 * t]], min(mrank[flat_faces[3 * t + 1]],
-                                                  mrank[flat_faces[3 * t + 2]]))
-            key[t] = m
+        for t in range(nf // 3):
+            m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
+                                                 code[flat_faces[3 * t + 2]]))
             cnt[m + 1] += 1
         for j in range(nv):
             cnt[j + 1] += cnt[j]
-        forder = tmp                       # reused when T <= nv
-        if T > nv:
-            forder = np.empty(T, np.int64)
-        for t in range(T):
-            m = key[t]
-            forder[cnt[m]] = t
+        for t in range(nf // 3):
+            m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
+                                                 code[flat_faces[3 * t + 2]]))
+            tmp[cnt[m]] = t
             cnt[m] += 1
-        for j in range(T):
-            t = forder[j]
-            for q in range(3):
-                v = flat_faces[3 * t + q]
-                if rank[v] < 0:
-                    rank[v] = k
-                    k += 1
-        for j in range(nv):
-            v = order[j]
-            if rank[v] < 0:
-                rank[v] = k
-                k += 1
-        if Fout.shape[0]:
-            for j in range(T):
-                t = forder[j]
-                for q in range(3):
-                    Fout[3 * j + q] = rank[flat_faces[3 * t + q]]
-    else:
-        for v in flat_faces:
-            if rank[v] < 0:
-                rank[v] = k
-                k += 1
-        for v in range(nv):
-            if rank[v] < 0:
-                rank[v] = k
-                k += 1
-        if Fout.shape[0]:
-            for j in range(nf):
-                Fout[j] = rank[flat_faces[j]]
-    if Vout.shape[0]:
-        for i in range(nv):
-            r = rank[i]
-            for a in range(3):
-                Vout[r, a] = V[i, a]
+    for i in range(nv):
+        rank[i] = -1
+    k = 0
+    for j in range(nf):
+        v = flat_faces[3 * tmp[j // 3] + j % 3 if spatial else j]
+        if rank[v] < 0:
+            rank[v] = k
+            k += 1
+    for j in range(nv):
+        v = order[j] if spatial else j
+        if rank[v] < 0:
+            rank[v] = k
+            k += 1
+    for j in range(Fout.shape[0]):
+        Fout[j] = rank[flat_faces[3 * tmp[j // 3] + j % 3 if spatial else j]]
+    for i in range(Vout.shape[0]):
+        for a in range(3):
+            Vout[rank[i], a] = V[i, a]
 
 
 # (named first_use_rank in numba's cache files; the entry below is first_use_rank)
@@ -994,7 +957,7 @@ def _types(spec: str) -> tuple:
 
 #: Argument types of the one specialisation of each kernel (see :func:`_types`).
 SIGNATURES = {
-    "_first_use_rank": "f8[2]r i8[1]r b1 i8[1] f8[2] i4[1]",
+    "_first_use_rank": "f8[2]r i8[1]r b1 i8[1] f8[2] i4[1] i8[1] i8[1] i8[1] i8[1] i8[2]",
     "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
@@ -1239,8 +1202,10 @@ _f8 = np.float64
 
 def first_use_rank(flat_faces, n_vertices):
     rank = np.empty(int(n_vertices), np.int64)
+    z = np.zeros(0, np.int64)
     _kernel("_first_use_rank")(np.zeros((0, 3)), _in(flat_faces, np.int64), False, rank,
-                               np.zeros((0, 3)), np.zeros(0, np.int32))
+                               np.zeros((0, 3)), np.zeros(0, np.int32), z, z, z, z,
+                               np.zeros((0, 0), np.int64))
     return rank
 
 
@@ -1249,9 +1214,13 @@ def spatial_order(V, F):
     :func:`_first_use_rank`): faces along the Morton order, vertices in order of first use."""
     V = _in(V, _f8)
     F = _in(F, np.int64).reshape(-1)
+    nv = len(V)
     Vout = np.empty_like(V)
     Fout = np.empty(len(F), np.int32)
-    _kernel("_first_use_rank")(V, F, True, np.empty(len(V), np.int64), Vout, Fout)
+    _kernel("_first_use_rank")(V, F, True, np.empty(nv, np.int64), Vout, Fout,
+                               np.empty(nv, np.int64), np.empty(nv, np.int64),
+                               np.empty(max(nv, len(F) // 3), np.int64),
+                               np.zeros(nv + 1, np.int64), np.zeros((3, 1025), np.int64))
     return Vout, Fout.reshape(-1, 3)
 
 
