@@ -636,32 +636,48 @@ def body_ranks(precedence):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _finish(lo, hi, S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
+def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0,
+            ray0):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
 
-    ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis; sample (X, Y) is
-    ``S[Y - s_row0, X]``. Only the fine rows ``y0 <= Y < y1`` are done (a window of whole pixel
-    rows), into ``L[ray - ray0]``.
+    One body (``single``): the depth span of sample (X, Y) is ``S[0, Y - s_row0, X]``, or with
+    per-thread accumulators (``N.shape[0] > 0``) ``sum_c S[c, ...] + sum_c N[c, ...] * FL``
+    (as :func:`_reduce_chunks`). Several bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows
+    ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``.
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
-    ``((H - 1 - j) W + i) n n + r n + c``. A point-source ray's length is its depth span times
-    ``|D| / FL`` (D from the source to the sample's detector point).
+    ``((H - 1 - j) W + i) n n + r n + c`` (:func:`_sample_ray`, here kept incrementally). A
+    point-source ray's length is its depth span times ``|D| / FL`` (D from the source to the
+    sample's detector point).
     """
-    nW = W * n
     nb = L.shape[1]
+    n_chunks = N.shape[0]
     for Y in range(lo, hi):
-        for X in range(nW):
-            if single:
-                v = S[Y - s_row0, X]
-                if v == 0.0:
-                    continue
-            ray = _sample_ray(X, Y, W, H, n) - ray0
-            scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
-            if single:
-                L[ray, 0] = v * scale
-            else:
-                for q in range(nb):
-                    L[ray, q] = Lf[Y - s_row0, X, q] * scale
+        j = Y // n
+        row = ((H - 1 - j) * W * n + (n - 1 - (Y - j * n))) * n - ray0
+        y = Y - s_row0
+        for i in range(W):
+            for c in range(n):
+                X = n * i + c
+                if single:
+                    if n_chunks:
+                        v = 0.0
+                        k = 0
+                        for q in range(n_chunks):
+                            v += S[q, y, X]
+                            k += N[q, y, X]
+                        v = v + k * FL
+                    else:
+                        v = S[0, y, X]
+                    if v == 0.0:
+                        continue
+                ray = row + i * n * n + c
+                scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
+                if single:
+                    L[ray, 0] = v * scale
+                else:
+                    for q in range(nb):
+                        L[ray, q] = Lf[y, X, q] * scale
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -968,7 +984,8 @@ SIGNATURES = {
     "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
                      "i1[1]r f8[2]r f8[2]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
                      "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
-    "_finish": "i8 i8 f8[2]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 i8",
+    "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 "
+               "i8",
     "_raster_direct": "i8 i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r f8[2]r b1 f8[1]r f8[1]r f8[1]r "
                       "f8[1]r f8[1]r f8 i8 i8 b1 f8[3] i4[3] i8[1] i4[1]r f8[2]r",
     "_reduce_chunks": "i8 i8 f8[3]r i4[3]r f8 f8[2]",
@@ -1283,8 +1300,21 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
 
 
 def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
+    _finish_rows(_in(S, _f8)[None], np.zeros((0, 1, 1), np.int32), Lf, single, FL, perspective,
+                 P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0)
+
+
+def finish_chunks(S, N, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, ray0):
+    """:func:`finish` of one body from the per-thread accumulators ``S``, ``N`` of
+    :func:`raster_direct` (summed as :func:`reduce_chunks` does, without storing the sum)."""
+    _finish_rows(_in(S, _f8), _in(N, np.int32), np.zeros((1, 1, 1)), True, FL, perspective,
+                 P00, Ex, Ey, n, W, H, L, y0, y1, 0, ray0)
+
+
+def _finish_rows(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0,
+                 ray0):
     _split("_finish", int(y0), int(y1),
-           (_in(S, _f8), _in(Lf, _f8), bool(single), float(FL), bool(perspective),
+           (S, N, _in(Lf, _f8), bool(single), float(FL), bool(perspective),
             _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n), int(W), int(H), L, int(y0),
             int(y1), int(s_row0), int(ray0)), _MIN_ROWS)
 
@@ -1327,6 +1357,7 @@ for _name, _kern in (("first_use_rank", None), ("spatial_order", "_first_use_ran
                      ("project_vertices", None),
                      ("cull_triangles", None), ("setup_planes", None), ("bin_triangles", None),
                      ("raster_single", "_raster_bands"), ("raster_multi", "_raster_bands"),
-                     ("finish", None), ("raster_direct", None), ("reduce_chunks", None)):
+                     ("finish", None), ("finish_chunks", "_finish"), ("raster_direct", None),
+                     ("reduce_chunks", None)):
     globals()[_name] = _Entry(_kern or "_" + _name, globals()[_name])
 del _name, _kern
