@@ -31,6 +31,45 @@ def test_spatial_order_keeps_the_mesh():
     assert np.all(np.diff(first) > 0)
 
 
+
+def _numpy_spatial_order(v, f):
+    """The spatial order spelt in NumPy: Morton codes, stable argsorts, first use."""
+    lo, hi = v.min(0), v.max(0)
+    q = ((v - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64)
+    code = np.zeros(len(v), np.uint64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
+    order = np.argsort(code, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    f = rank[f]
+    f = f[np.argsort(f.min(axis=1), kind="stable")]
+    first = np.unique(f.ravel(), return_index=True)
+    used = first[0][np.argsort(first[1])]                     # in order of first use
+    new = np.concatenate([used, np.setdiff1d(np.arange(len(v)), used)])
+    renumber = np.empty_like(new)
+    renumber[new] = np.arange(len(new))
+    return v[order][new], renumber[f]
+
+
+@pytest.mark.parametrize("case", ["sphere", "ties", "unused"])
+def test_compiled_spatial_order_is_the_numpy_one(case):
+    rng = np.random.default_rng(3)
+    if case == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=6, radius=40.0)
+        v, f = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+    elif case == "ties":              # many vertices share a Morton cell, faces share keys
+        v = np.round(rng.normal(size=(20000, 3)), 1)
+        f = rng.integers(0, 20000, size=(50000, 3))
+    else:                             # vertices used by no face
+        v = rng.normal(size=(6000, 3))
+        f = rng.integers(0, 5000, size=(3000, 3))
+    got, want = _spatial_order(v, f), _numpy_spatial_order(v, f)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[1].dtype == np.int32
+
 def _cull(codes):
     ka, kb, kc = (np.int64(k) for k in codes)
     d = (ka ^ kb) | (ka ^ kc)

@@ -63,20 +63,88 @@ def _axis_code(x, n):
     return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
 
 
-def first_use_rank(flat_faces, n_vertices):
+def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, cnt, hist):
     """New number of each vertex: its rank in order of first appearance in ``flat_faces``
-    (vertices used by no face follow, in their previous order)."""
-    rank = np.full(n_vertices, -1, np.int64)
+    (vertices used by no face follow, in their previous order), into ``rank``.
+
+    With ``spatial``, the faces (``flat_faces`` read as triangles) are first sorted along the
+    Morton (Z-curve) order of their vertices: each triangle by the first, in Morton order, of
+    its vertices (stable: ties keep the face order), the vertices by the Morton code of their
+    position quantised to 1024 steps per axis of the bounding box (a stable LSD radix sort,
+    ties keep the vertex order); vertices used by no face then follow in Morton order. Then
+    ``Vout[rank[i]] = V[i]`` and ``Fout`` receives the faces, renumbered, in the order
+    visited (outputs of length 0 are not written). Scratch (``spatial`` only, int64):
+    ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt`` (V + 1), ``hist`` (3 x 1025, zeros).
+    """
+    nv = rank.shape[0]
+    nf = flat_faces.shape[0]
+    if spatial:
+        # Morton code of each vertex: bit b of axis a at bit 3 b + a (10 bits per axis).
+        lo0, lo1, lo2 = V[0, 0], V[0, 1], V[0, 2]
+        hi0, hi1, hi2 = lo0, lo1, lo2
+        for i in range(nv):
+            lo0, hi0 = min(lo0, V[i, 0]), max(hi0, V[i, 0])
+            lo1, hi1 = min(lo1, V[i, 1]), max(hi1, V[i, 1])
+            lo2, hi2 = min(lo2, V[i, 2]), max(hi2, V[i, 2])
+        d0, d1, d2 = max(hi0 - lo0, 1e-300), max(hi1 - lo1, 1e-300), max(hi2 - lo2, 1e-300)
+        for i in range(nv):
+            c = 0
+            for a in range(3):
+                x = (V[i, a] - (lo0 if a == 0 else lo1 if a == 1 else lo2)) / (
+                    d0 if a == 0 else d1 if a == 1 else d2) * 1023
+                x = np.int64(np.uint64(x)) & 1023           # bits b -> 3 b (magic masks)
+                x = (x | (x << 16)) & 0x30000FF
+                x = (x | (x << 8)) & 0x300F00F
+                x = (x | (x << 4)) & 0x30C30C3
+                c |= ((x | (x << 2)) & 0x9249249) << a
+            code[i] = c
+            order[i] = i
+            for p in range(3):
+                hist[p, ((c >> (10 * p)) & 1023) + 1] += 1
+        # Stable LSD radix sort of the codes, 10 bits a pass (order <-> tmp).
+        for p in range(3):
+            src = order if p != 1 else tmp
+            dst = tmp if p != 1 else order
+            for j in range(1024):
+                hist[p, j + 1] += hist[p, j]
+            for j in range(nv):
+                i = src[j]
+                b = ((code[i] >> (10 * p)) & 1023)
+                dst[hist[p, b]] = i
+                hist[p, b] += 1
+        for j in range(nv):               # tmp: the Morton order; code: each vertex's rank
+            code[tmp[j]] = j
+            order[j] = tmp[j]
+        # Faces by the Morton rank of their first vertex in that order (stable counting sort).
+        for t in range(nf // 3):
+            m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
+                                                 code[flat_faces[3 * t + 2]]))
+            cnt[m + 1] += 1
+        for j in range(nv):
+            cnt[j + 1] += cnt[j]
+        for t in range(nf // 3):
+            m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
+                                                 code[flat_faces[3 * t + 2]]))
+            tmp[cnt[m]] = t
+            cnt[m] += 1
+    for i in range(nv):
+        rank[i] = -1
     k = 0
-    for v in flat_faces:
+    for j in range(nf):
+        v = flat_faces[3 * tmp[j // 3] + j % 3 if spatial else j]
         if rank[v] < 0:
             rank[v] = k
             k += 1
-    for v in range(n_vertices):
+    for j in range(nv):
+        v = order[j] if spatial else j
         if rank[v] < 0:
             rank[v] = k
             k += 1
-    return rank
+    for j in range(Fout.shape[0]):
+        Fout[j] = rank[flat_faces[3 * tmp[j // 3] + j % 3 if spatial else j]]
+    for i in range(Vout.shape[0]):
+        for a in range(3):
+            Vout[rank[i], a] = V[i, a]
 
 
 # (named first_use_rank in numba's cache files; the entry below is first_use_rank)
@@ -564,32 +632,48 @@ def body_ranks(precedence):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _finish(lo, hi, S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
+def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0,
+            ray0):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
 
-    ``S`` (one body) or ``Lf`` (several) hold depth spans along the beam axis; sample (X, Y) is
-    ``S[Y - s_row0, X]``. Only the fine rows ``y0 <= Y < y1`` are done (a window of whole pixel
-    rows), into ``L[ray - ray0]``.
+    One body (``single``): the depth span of sample (X, Y) is ``S[0, Y - s_row0, X]``, or with
+    per-thread accumulators (``N.shape[0] > 0``) ``sum_c S[c, ...] + sum_c N[c, ...] * FL``
+    (as :func:`_reduce_chunks`). Several bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows
+    ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``.
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
-    ``((H - 1 - j) W + i) n n + r n + c``. A point-source ray's length is its depth span times
-    ``|D| / FL`` (D from the source to the sample's detector point).
+    ``((H - 1 - j) W + i) n n + r n + c`` (:func:`_sample_ray`, here kept incrementally). A
+    point-source ray's length is its depth span times ``|D| / FL`` (D from the source to the
+    sample's detector point).
     """
-    nW = W * n
     nb = L.shape[1]
+    n_chunks = N.shape[0]
     for Y in range(lo, hi):
-        for X in range(nW):
-            if single:
-                v = S[Y - s_row0, X]
-                if v == 0.0:
-                    continue
-            ray = _sample_ray(X, Y, W, H, n) - ray0
-            scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
-            if single:
-                L[ray, 0] = v * scale
-            else:
-                for q in range(nb):
-                    L[ray, q] = Lf[Y - s_row0, X, q] * scale
+        j = Y // n
+        row = ((H - 1 - j) * W * n + (n - 1 - (Y - j * n))) * n - ray0
+        y = Y - s_row0
+        for i in range(W):
+            for c in range(n):
+                X = n * i + c
+                if single:
+                    if n_chunks:
+                        v = 0.0
+                        k = 0
+                        for q in range(n_chunks):
+                            v += S[q, y, X]
+                            k += N[q, y, X]
+                        v = v + k * FL
+                    else:
+                        v = S[0, y, X]
+                    if v == 0.0:
+                        continue
+                ray = row + i * n * n + c
+                scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
+                if single:
+                    L[ray, 0] = v * scale
+                else:
+                    for q in range(nb):
+                        L[ray, q] = Lf[y, X, q] * scale
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -885,7 +969,7 @@ def _types(spec: str) -> tuple:
 
 #: Argument types of the one specialisation of each kernel (see :func:`_types`).
 SIGNATURES = {
-    "_first_use_rank": "i8[1]r i8",
+    "_first_use_rank": "f8[2]r i8[1]r b1 i8[1] f8[2] i4[1] i8[1] i8[1] i8[1] i8[1] i8[2]",
     "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
@@ -896,7 +980,8 @@ SIGNATURES = {
     "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
                      "i1[1]r f8[2]r f8[2]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
                      "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
-    "_finish": "i8 i8 f8[2]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 i8",
+    "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 "
+               "i8",
     "_raster_direct": "i8 i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r f8[2]r b1 f8[1]r f8[1]r f8[1]r "
                       "f8[1]r f8[1]r f8 i8 i8 b1 f8[3] i4[3] i8[1] i4[1]r f8[2]r",
     "_reduce_chunks": "i8 i8 f8[3]r i4[3]r f8 f8[2]",
@@ -1157,7 +1242,27 @@ _f8 = np.float64
 
 
 def first_use_rank(flat_faces, n_vertices):
-    return _kernel("_first_use_rank")(_in(flat_faces, np.int64), int(n_vertices))
+    rank = np.empty(int(n_vertices), np.int64)
+    z = np.zeros(0, np.int64)
+    _kernel("_first_use_rank")(np.zeros((0, 3)), _in(flat_faces, np.int64), False, rank,
+                               np.zeros((0, 3)), np.zeros(0, np.int32), z, z, z, z,
+                               np.zeros((0, 0), np.int64))
+    return rank
+
+
+def spatial_order(V, F):
+    """``(V', F')``: the vertices and int32 faces of a mesh in spatial order (see
+    :func:`_first_use_rank`): faces along the Morton order, vertices in order of first use."""
+    V = _in(V, _f8)
+    F = _in(F, np.int64).reshape(-1)
+    nv = len(V)
+    Vout = np.empty_like(V)
+    Fout = np.empty(len(F), np.int32)
+    _kernel("_first_use_rank")(V, F, True, np.empty(nv, np.int64), Vout, Fout,
+                               np.empty(nv, np.int64), np.empty(nv, np.int64),
+                               np.empty(max(nv, len(F) // 3), np.int64),
+                               np.zeros(nv + 1, np.int64), np.zeros((3, 1025), np.int64))
+    return Vout, Fout.reshape(-1, 3)
 
 
 def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
@@ -1219,8 +1324,21 @@ def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, 
 
 
 def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
+    _finish_rows(_in(S, _f8)[None], np.zeros((0, 1, 1), np.int32), Lf, single, FL, perspective,
+                 P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0)
+
+
+def finish_chunks(S, N, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, ray0):
+    """:func:`finish` of one body from the per-thread accumulators ``S``, ``N`` of
+    :func:`raster_direct` (summed as :func:`reduce_chunks` does, without storing the sum)."""
+    _finish_rows(_in(S, _f8), _in(N, np.int32), np.zeros((1, 1, 1)), True, FL, perspective,
+                 P00, Ex, Ey, n, W, H, L, y0, y1, 0, ray0)
+
+
+def _finish_rows(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0,
+                 ray0):
     _split("_finish", int(y0), int(y1),
-           (_in(S, _f8), _in(Lf, _f8), bool(single), float(FL), bool(perspective),
+           (S, N, _in(Lf, _f8), bool(single), float(FL), bool(perspective),
             _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n), int(W), int(H), L, int(y0),
             int(y1), int(s_row0), int(ray0)), _MIN_ROWS)
 
@@ -1259,9 +1377,11 @@ class _Entry:
         return f"<xray_viz kernel entry {self.__name__} ({self._kernel_name})>"
 
 
-for _name, _kern in (("first_use_rank", None), ("project_vertices", None),
+for _name, _kern in (("first_use_rank", None), ("spatial_order", "_first_use_rank"),
+                     ("project_vertices", None),
                      ("cull_triangles", None), ("setup_planes", None), ("bin_triangles", None),
                      ("raster_single", "_raster_bands"), ("raster_multi", "_raster_bands"),
-                     ("finish", None), ("raster_direct", None), ("reduce_chunks", None)):
+                     ("finish", None), ("finish_chunks", "_finish"), ("raster_direct", None),
+                     ("reduce_chunks", None)):
     globals()[_name] = _Entry(_kern or "_" + _name, globals()[_name])
 del _name, _kern
