@@ -1042,7 +1042,7 @@ def _names(paths=None) -> list:
 #: the several-bodies path, less ~0.45 s of numba's start), to share them out among the
 #: workers; kernels of one tuple share helpers and go to the same worker.
 #: (``_first_use_rank`` re-estimated after it took in the spatial order: ~1.6x its former cost.)
-_COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 0.3, ("_cull_triangles",): 0.6,
+_COSTS = {("_first_use_rank",): 0.4, ("_project_vertices",): 0.3, ("_cull_triangles",): 0.6,
           ("_setup_planes",): 0.35, ("_bin_triangles",): 0.2, ("_raster_bands",): 2.5,
           ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.2, ("_finish",): 0.3}
 #: Kernel name -> the background process compiling it into numba's cache.
