@@ -39,7 +39,9 @@ the number of pieces.
   closed and outward, repaired (with the list of what changed) otherwise, refused with a
   :class:`~xray_viz.errors.MeshError` when repair does not make it closed.
 
-pymeshlab is imported only inside :func:`repair_mesh`, so a clean mesh costs nothing.
+The self-intersection test of :func:`check_mesh` is pymeshlab's, run by a compiled kernel
+(:mod:`xray_viz.meshes._check_kernels`, the same arithmetic, so the same faces) once that is
+compiled, by pymeshlab itself until then.
 
 Examples
 --------
@@ -311,15 +313,23 @@ def _volume(vertices, faces) -> float:
         return float(np.sum(cross_x * f1) / 6.0)
 
 
-def self_intersecting_faces(vertices, faces) -> np.ndarray:
-    """Which faces cross another face of the same triangle set (pymeshlab's exact-predicate
-    triangle-triangle test; faces sharing a vertex or an edge are not tested against each
-    other).
+def self_intersecting_faces(vertices, faces, *, pieces=None) -> np.ndarray:
+    """Which faces cross another face of the same triangle set: pymeshlab's
+    ``compute_selection_by_self_intersections_per_face`` (vcglib's triangle-triangle test;
+    faces sharing an edge are not tested against each other, faces sharing one vertex only
+    by the opposite edge).
+
+    The compiled kernel of :mod:`xray_viz.meshes._check_kernels` gives the same faces (the
+    same arithmetic); pymeshlab itself runs while that kernel is neither compiled in this
+    process nor in numba's cache (compiling it costs more than pymeshlab on any mesh below
+    a few million faces).
 
     Parameters
     ----------
     vertices : (n, 3) float
     faces : (m, 3) int
+    pieces : (m,) int, optional
+        A label per face: then only faces crossing a face of the same label count.
 
     Returns
     -------
@@ -334,15 +344,29 @@ def self_intersecting_faces(vertices, faces) -> np.ndarray:
     >>> int(self_intersecting_faces(a.vertices, a.faces).sum()), bool(
     ...     self_intersecting_faces(both.vertices, both.faces).any())
     (0, True)
+    >>> pieces = np.repeat([0, 1], 12)
+    >>> bool(self_intersecting_faces(both.vertices, both.faces, pieces=pieces).any())
+    False
     """
+    from xray_viz.meshes import _check_kernels
+
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) < 2:
         return np.zeros(len(faces), bool)
+    if _check_kernels.is_ready():
+        return _check_kernels.self_intersections(vertices, faces, pieces)
+    if pieces is None:
+        return _pymeshlab_self_intersections(vertices, faces)
+    pieces = np.asarray(pieces, dtype=np.int64).reshape(-1)
+    return _self_crossing_pymeshlab(np.asarray(vertices, dtype=np.float64), faces, pieces)
+
+
+def _pymeshlab_self_intersections(vertices, faces) -> np.ndarray:
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(vertices, dtype=np.float64),
-                               face_matrix=faces.astype(np.int32)))
+                               face_matrix=np.asarray(faces).astype(np.int32)))
     ms.compute_selection_by_self_intersections_per_face()
     return np.asarray(ms.current_mesh().face_selection_array(), dtype=bool)
 
@@ -350,12 +374,20 @@ def self_intersecting_faces(vertices, faces) -> np.ndarray:
 def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
     """Faces that cross a face of their own piece (crossings between pieces do not count:
     overlapping pieces are a union by the nonzero rule)."""
-    flagged = self_intersecting_faces(vertices, faces)
+    return int(self_intersecting_faces(vertices, faces,
+                                       pieces=labels if n_pieces > 1 else None).sum())
+
+
+def _self_crossing_pymeshlab(vertices, faces, labels) -> np.ndarray:
+    """:func:`self_intersecting_faces` with ``pieces`` by pymeshlab: the whole set first,
+    then the flagged pieces again in groups whose bounding boxes are pairwise disjoint (a
+    greedy colouring of the box-overlap graph): within a group only a piece's own faces can
+    meet, so one call per group finds the crossings within pieces."""
+    flagged = _pymeshlab_self_intersections(vertices, faces)
+    _, labels = np.unique(labels, return_inverse=True)
+    n_pieces = int(labels.max()) + 1 if len(labels) else 0
     if not flagged.any() or n_pieces < 2:
-        return int(flagged.sum())
-    # Test the flagged pieces again in groups whose bounding boxes are pairwise disjoint (a
-    # greedy colouring of the box-overlap graph): within a group only a piece's own faces can
-    # meet, so one call per group counts the crossings within pieces.
+        return flagged
     pieces = np.unique(labels[flagged])
     tri = vertices[faces]
     lo = np.full((n_pieces, 3), np.inf)
@@ -372,11 +404,11 @@ def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
     for p in sorted(neighbours, key=lambda q: -len(neighbours[q])):
         used = {colour[q] for q in neighbours[p] if q in colour}
         colour[p] = next(c for c in range(len(used) + 1) if c not in used)
-    count = 0
+    out = np.zeros(len(faces), bool)
     for c in set(colour.values()):
-        group = np.array([p for p, k in colour.items() if k == c])
-        count += int(self_intersecting_faces(vertices, faces[np.isin(labels, group)]).sum())
-    return count
+        group = np.isin(labels, np.array([p for p, k in colour.items() if k == c]))
+        out[group] = _pymeshlab_self_intersections(vertices, faces[group])
+    return out
 
 
 def _faces_near(mesh, lo, hi):
