@@ -22,9 +22,12 @@ expressions keep vcglib's order of operations (no fused multiply-add, no reassoc
 each comparison sees the same numbers. ``tests/test_self_intersection_kernel.py`` checks the
 sets against pymeshlab on the phantoms and on random overlapping meshes.
 
-The kernel has one specialisation (:data:`SIGNATURE`), compiled on first use (or loaded from
+:func:`edge_facts` gives the edge facts of ``repair._edge_facts`` (boundary edges, watertight,
+winding, edge-connected pieces) in one pass over the edges grouped by their lower vertex.
+
+Each kernel has one specialisation (:data:`SIGNATURES`), compiled on first use (or loaded from
 numba's cache, :mod:`xray_viz.tracing._numba_cache`); :func:`is_ready` says whether that costs
-nothing.
+nothing, :func:`compile_kernels` compiles them (a background process filling the cache).
 """
 
 from __future__ import annotations
@@ -407,35 +410,60 @@ def _flag_self_intersections(vertices, faces, labels, flags):
         if total <= 16 * m + 1024:
             break
         size *= 2.0
-    # (cell key, face) entries, bucketed by a hash of the key (counting sort)
-    keys = np.empty(total, np.int64)
-    owner = np.empty(total, np.int64)
-    e = 0
-    for f in range(m):
-        x0 = _cell(lo[f, 0], glo[0], inv, dims[0])
-        x1 = _cell(hi[f, 0], glo[0], inv, dims[0])
-        y0 = _cell(lo[f, 1], glo[1], inv, dims[1])
-        y1 = _cell(hi[f, 1], glo[1], inv, dims[1])
-        z0 = _cell(lo[f, 2], glo[2], inv, dims[2])
-        z1 = _cell(hi[f, 2], glo[2], inv, dims[2])
-        for x in range(x0, x1 + 1):
-            for y in range(y0, y1 + 1):
-                for z in range(z0, z1 + 1):
-                    keys[e] = (x * dims[1] + y) * dims[2] + z
-                    owner[e] = f
-                    e += 1
-    n_buckets = 2 * total + 1
+    # the faces in the order of the cell of their low corner (a counting sort), so that the
+    # faces of a cell are near in memory; then (cell key, face) entries, in buckets by cell.
+    # A cell's bucket: its key itself when the grid is small, else the key modulo an odd
+    # number (neighbouring cells in neighbouring buckets).
+    n_cells = dims[0] * dims[1] * dims[2]
+    n_buckets = n_cells if n_cells <= total else (total // 4) | 1
     start = np.zeros(n_buckets + 1, np.int64)
-    for i in range(total):
-        start[keys[i] % n_buckets + 1] += 1
+    for f in range(m):
+        key = ((_cell(lo[f, 0], glo[0], inv, dims[0]) * dims[1]
+                + _cell(lo[f, 1], glo[1], inv, dims[1])) * dims[2]
+               + _cell(lo[f, 2], glo[2], inv, dims[2]))
+        start[key % n_buckets + 1] += 1
+    for b in range(n_buckets):
+        start[b + 1] += start[b]
+    face_id = np.empty(m, np.int64)
+    for f in range(m):
+        key = ((_cell(lo[f, 0], glo[0], inv, dims[0]) * dims[1]
+                + _cell(lo[f, 1], glo[1], inv, dims[1])) * dims[2]
+               + _cell(lo[f, 2], glo[2], inv, dims[2]))
+        b = key % n_buckets
+        face_id[start[b]] = f
+        start[b] += 1
+    plo = np.empty((m, 3))
+    phi = np.empty((m, 3))
+    clo = np.empty((m, 3), np.int64)
+    chi = np.empty((m, 3), np.int64)
+    for j in range(m):
+        f = face_id[j]
+        for k in range(3):
+            plo[j, k] = lo[f, k]
+            phi[j, k] = hi[f, k]
+            clo[j, k] = _cell(lo[f, k], glo[k], inv, dims[k])
+            chi[j, k] = _cell(hi[f, k], glo[k], inv, dims[k])
+    start[:] = 0
+    for f in range(m):
+        for x in range(clo[f, 0], chi[f, 0] + 1):
+            for y in range(clo[f, 1], chi[f, 1] + 1):
+                for z in range(clo[f, 2], chi[f, 2] + 1):
+                    key = (x * dims[1] + y) * dims[2] + z
+                    start[key % n_buckets + 1] += 1
     for b in range(n_buckets):
         start[b + 1] += start[b]
     fill = start[:-1].copy()
-    slot = np.empty(total, np.int64)
-    for i in range(total):
-        b = keys[i] % n_buckets
-        slot[fill[b]] = i
-        fill[b] += 1
+    keys = np.empty(total, np.int64)
+    owner = np.empty(total, np.int64)
+    for f in range(m):
+        for x in range(clo[f, 0], chi[f, 0] + 1):
+            for y in range(clo[f, 1], chi[f, 1] + 1):
+                for z in range(clo[f, 2], chi[f, 2] + 1):
+                    key = (x * dims[1] + y) * dims[2] + z
+                    b = key % n_buckets
+                    keys[fill[b]] = key
+                    owner[fill[b]] = f
+                    fill[b] += 1
     widest = 0
     for b in range(n_buckets):
         widest = max(widest, start[b + 1] - start[b])
@@ -450,11 +478,11 @@ def _flag_self_intersections(vertices, faces, labels, flags):
         if k < 2:
             continue
         for p in range(k):
-            i = slot[start[b] + p]
+            i = start[b] + p
             f = owner[i]
             j = p                                   # insertion sort by (key, low x)
             while j > 0 and (bkey[j - 1] > keys[i] or (bkey[j - 1] == keys[i]
-                                                       and blo[j - 1, 0] > lo[f, 0])):
+                                                       and blo[j - 1, 0] > plo[f, 0])):
                 bkey[j] = bkey[j - 1]
                 bface[j] = bface[j - 1]
                 for a in range(3):
@@ -465,11 +493,9 @@ def _flag_self_intersections(vertices, faces, labels, flags):
             bkey[j] = keys[i]
             bface[j] = f
             for a in range(3):
-                blo[j, a] = lo[f, a]
-                bhi[j, a] = hi[f, a]
-            bcell[j, 0] = _cell(lo[f, 0], glo[0], inv, dims[0])
-            bcell[j, 1] = _cell(lo[f, 1], glo[1], inv, dims[1])
-            bcell[j, 2] = _cell(lo[f, 2], glo[2], inv, dims[2])
+                blo[j, a] = plo[f, a]
+                bhi[j, a] = phi[f, a]
+                bcell[j, a] = clo[f, a]
         for p in range(k - 1):
             key = bkey[p]
             x = key // (dims[1] * dims[2])
@@ -485,8 +511,8 @@ def _flag_self_intersections(vertices, faces, labels, flags):
                 if (max(bcell[p, 0], bcell[q, 0]) != x or max(bcell[p, 1], bcell[q, 1]) != y
                         or max(bcell[p, 2], bcell[q, 2]) != z):
                     continue
-                f0 = min(bface[p], bface[q])
-                f1 = max(bface[p], bface[q])
+                f0 = min(face_id[bface[p]], face_id[bface[q]])
+                f1 = max(face_id[bface[p]], face_id[bface[q]])
                 if flags[f0] and flags[f1]:
                     continue
                 if labels.shape[0] != 0 and labels[f0] != labels[f1]:
@@ -496,35 +522,154 @@ def _flag_self_intersections(vertices, faces, labels, flags):
                     flags[f1] = True
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _find(parent, a):
+    root = a
+    while parent[root] != root:
+        root = parent[root]
+    while parent[a] != root:
+        parent[a], a = root, parent[a]
+    return root
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_facts(faces, n_vertices, labels):
+    """``(boundary edges, watertight, winding consistent, pieces)`` of a face array, and the
+    piece of every face in ``labels`` (numbered by their lowest face), from the edges grouped
+    by their lower vertex (a counting sort): the answers of ``repair._edge_facts``."""
+    m = faces.shape[0]
+    start = np.zeros(n_vertices + 1, np.int64)
+    for f in range(m):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            start[min(a, b) + 1] += 1
+    for v in range(n_vertices):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    other = np.empty(3 * m, np.int64)           # the higher vertex of each edge use
+    use = np.empty(3 * m, np.int64)             # 3 face + k: the use (directed edge)
+    for f in range(m):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            lo = min(a, b)
+            other[fill[lo]] = max(a, b)
+            use[fill[lo]] = 3 * f + k
+            fill[lo] += 1
+    parent = np.arange(m)
+    boundary = 0
+    two_uses = 0
+    winding = True
+    for v in range(n_vertices):
+        for p in range(start[v], start[v + 1]):
+            hi = other[p]
+            count = 0
+            first = -1
+            seen = False
+            for q in range(start[v], start[v + 1]):
+                if other[q] == hi:
+                    if q < p:
+                        seen = True         # this edge was counted at its first use
+                        break
+                    count += 1
+                    if count == 2:
+                        first = q
+            if seen:
+                continue
+            if count == 1:
+                boundary += 1
+            elif count == 2:
+                two_uses += 1
+                ua, ub = use[p], use[first]
+                fa, ka = ua // 3, ua % 3
+                fb, kb = ub // 3, ub % 3
+                # the first use ends where the second starts (opposite directions)
+                if faces[fa, (ka + 1) % 3] != faces[fb, kb]:
+                    winding = False
+                ra, rb = _find(parent, fa), _find(parent, fb)
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+    n = 0
+    for f in range(m):
+        r = _find(parent, f)
+        if r == f:
+            labels[f] = n
+            n += 1
+        else:
+            labels[f] = labels[r]
+    return boundary, two_uses * 2 == 3 * m, winding, n
+
+
 _F2 = _nt.Array(_nt.float64, 2, "C", readonly=True)
 _I2 = _nt.Array(_nt.int64, 2, "C", readonly=True)
-_I1 = _nt.Array(_nt.int64, 1, "C", readonly=True)
+_I1r = _nt.Array(_nt.int64, 1, "C", readonly=True)
+_I1 = _nt.Array(_nt.int64, 1, "C")
 _B1 = _nt.Array(_nt.boolean, 1, "C")
-#: The one specialisation of the kernel: vertices, faces, labels, flags (output).
-SIGNATURE = (_F2, _I2, _I1, _B1)
+#: The one specialisation of each kernel.
+SIGNATURES = {
+    "_flag_self_intersections": (_F2, _I2, _I1r, _B1),   # vertices, faces, labels, flags (out)
+    "_edge_facts": (_I2, _nt.int64, _I1),                 # faces, vertex count, labels (out)
+}
 
 _lock = threading.Lock()
-_compiled: list = []
+_compiled: set = set()
 
 
-def _kernel():
-    if not _compiled:
+def _kernel(name: str):
+    """The dispatcher of kernel ``name``, its one specialisation compiled or loaded."""
+    disp = globals()[name]
+    if name not in _compiled:
         with _lock:
-            if not _compiled:
-                _flag_self_intersections.compile(SIGNATURE)
-                _flag_self_intersections.disable_compile()
-                _compiled.append(True)
-    return _flag_self_intersections
+            if name not in _compiled:
+                disp.compile(SIGNATURES[name])
+                disp.disable_compile()
+                _compiled.add(name)
+    return disp
+
+
+def compile_kernels() -> list:
+    """Compile (or load from numba's cache) every kernel of this module; returns their names
+    (for a background process filling the cache)."""
+    for name in SIGNATURES:
+        _kernel(name)
+    return list(SIGNATURES)
 
 
 def is_ready() -> bool:
-    """Whether the kernel is compiled in this process or in numba's cache (using it then costs
-    no compilation)."""
-    if _compiled:
-        return True
-    disp = _flag_self_intersections
-    is_cached = getattr(getattr(disp, "_cache", None), "is_cached", None)
-    return bool(is_cached and is_cached(SIGNATURE, disp.targetctx))
+    """Whether every kernel is compiled in this process or in numba's cache (using them then
+    costs no compilation)."""
+    for name, sig in SIGNATURES.items():
+        if name in _compiled:
+            continue
+        disp = globals()[name]
+        is_cached = getattr(getattr(disp, "_cache", None), "is_cached", None)
+        if not (is_cached and is_cached(sig, disp.targetctx)):
+            return False
+    return True
+
+
+def _checked_faces(faces, n_vertices) -> np.ndarray:
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= n_vertices):
+        raise IndexError(f"face indices outside 0 .. {n_vertices - 1}")
+    return f
+
+
+def edge_facts(faces, n_vertices):
+    """``(boundary, watertight, winding, labels, n_pieces)``: what
+    :func:`xray_viz.meshes.repair._edge_facts` computes, in one pass over the edges.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> box = trimesh.creation.box()
+    >>> boundary, watertight, winding, labels, n = edge_facts(box.faces, len(box.vertices))
+    >>> boundary, watertight, winding, n
+    (0, True, True, 1)
+    """
+    f = _checked_faces(faces, n_vertices)
+    labels = np.empty(len(f), np.int64)
+    boundary, watertight, winding, n = _kernel("_edge_facts")(f, int(n_vertices), labels)
+    return int(boundary), bool(watertight), bool(winding), labels, int(n)
 
 
 def self_intersections(vertices, faces, labels=None) -> np.ndarray:
@@ -553,10 +698,10 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
     (0, 12)
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
-    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    f = _checked_faces(faces, len(v))
     lab = (np.zeros(0, np.int64) if labels is None
            else np.ascontiguousarray(labels, dtype=np.int64).reshape(-1))
     flags = np.zeros(len(f), bool)
     if len(f) >= 2:
-        _kernel()(v, f, lab, flags)
+        _kernel("_flag_self_intersections")(v, f, lab, flags)
     return flags
