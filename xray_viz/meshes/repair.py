@@ -411,14 +411,20 @@ def _self_crossing_pymeshlab(vertices, faces, labels) -> np.ndarray:
     return out
 
 
-def _faces_near(mesh, lo, hi):
-    """(vertices, faces) of the faces of ``mesh`` whose bounding boxes meet the box [lo, hi]."""
+def _face_boxes(mesh):
+    """``(vertices, faces, low corners, high corners)`` of a mesh's faces."""
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
     tri = v[f]
+    return v, f, tri.min(axis=1), tri.max(axis=1)
+
+
+def _faces_near(boxes, lo, hi):
+    """(vertices, faces) of the faces (of :func:`_face_boxes` ``boxes``) whose bounding boxes
+    meet the box [lo, hi]."""
+    v, f, tlo, thi = boxes
     pad = 1e-9 * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo)))
-    meet = np.all((tri.min(axis=1) <= np.asarray(hi) + pad)
-                  & (tri.max(axis=1) >= np.asarray(lo) - pad), axis=1)
+    meet = np.all((tlo <= np.asarray(hi) + pad) & (thi >= np.asarray(lo) - pad), axis=1)
     return v, f[meet]
 
 
@@ -445,10 +451,16 @@ def surfaces_cross(mesh_a, mesh_b, *, bounds=None, self_intersecting=None) -> bo
     >>> surfaces_cross(small, big), surfaces_cross(poking, big)
     (False, True)
     """
+    return _surfaces_cross(mesh_a, mesh_b, bounds, self_intersecting,
+                           (_face_boxes(mesh_a), _face_boxes(mesh_b)))
+
+
+def _surfaces_cross(mesh_a, mesh_b, bounds, self_intersecting, boxes) -> bool:
+    """:func:`surfaces_cross` with the meshes' :func:`_face_boxes` ``boxes`` (a pair)."""
     (alo, ahi), (blo, bhi) = bounds if bounds is not None else (
         _bounds(mesh_a), _bounds(mesh_b))
-    va, fa = _faces_near(mesh_a, blo, bhi)
-    vb, fb = _faces_near(mesh_b, alo, ahi)
+    va, fa = _faces_near(boxes[0], blo, bhi)
+    vb, fb = _faces_near(boxes[1], alo, ahi)
     if not len(fa) or not len(fb):
         return False
     vertices = np.concatenate([va, vb])
@@ -528,12 +540,13 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
     from xray_viz.tracing.hits import inside_counts
 
     n = len(meshes)
-    boxes = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
+    bbox = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
     crossing = [bool(r.self_intersections) for r in reports] if reports is not None else None
     points = {}
+    boxes = {}                                    # face boxes of the meshes tested
     out = [[] for _ in range(n)]
-    lo = np.array([bx[0] for bx in boxes], dtype=np.float64).reshape(n, 3)
-    hi = np.array([bx[1] for bx in boxes], dtype=np.float64).reshape(n, 3)
+    lo = np.array([bx[0] for bx in bbox], dtype=np.float64).reshape(n, 3)
+    hi = np.array([bx[1] for bx in bbox], dtype=np.float64).reshape(n, 3)
     solid = np.array([len(m.faces) > 0 for m in meshes], dtype=bool)
     for b in range(n):
         if not solid[b]:
@@ -550,9 +563,15 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
         inside = inside_counts(tris, np.concatenate([points[a] for a in cand])) > 0
         splits = np.cumsum([len(points[a]) for a in cand])[:-1]
         for a, ok in zip(cand, np.split(inside, splits)):
-            if ok.all() and not surfaces_cross(
-                    meshes[a], meshes[b], bounds=(boxes[a], boxes[b]),
-                    self_intersecting=None if crossing is None else (crossing[a], crossing[b])):
+            if not ok.all():
+                continue
+            for k in (a, b):
+                if k not in boxes:
+                    boxes[k] = _face_boxes(meshes[k])
+            if not _surfaces_cross(
+                    meshes[a], meshes[b], (bbox[a], bbox[b]),
+                    None if crossing is None else (crossing[a], crossing[b]),
+                    (boxes[a], boxes[b])):
                 out[a].append(b)
     return out
 
