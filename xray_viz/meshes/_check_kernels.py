@@ -27,7 +27,8 @@ winding, edge-connected pieces) in one pass over the edges grouped by their lowe
 
 Each kernel has one specialisation (:data:`SIGNATURES`), compiled on first use (or loaded from
 numba's cache, :mod:`xray_viz.tracing._numba_cache`); :func:`is_ready` says whether that costs
-nothing, :func:`compile_kernels` compiles them (a background process filling the cache).
+nothing, :func:`compile_kernels` compiles them, :func:`prepare` in a background process filling the
+cache.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import numpy as np
 from numba import njit
 from numba.core import types as _nt
 
-from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernel is cached)
+from xray_viz.tracing import _numba_cache  # where the kernels are cached
 
 _EPSIL = 0.000001
 
@@ -644,6 +645,24 @@ def is_ready() -> bool:
         is_cached = getattr(getattr(disp, "_cache", None), "is_cached", None)
         if not (is_cached and is_cached(sig, disp.targetctx)):
             return False
+    return True
+
+
+def prepare() -> bool:
+    """Start compiling the kernels into numba's cache in a background process, unless they are
+    ready (:func:`is_ready`) or there is no cache to share them through; returns whether one
+    started. Until they are cached, :mod:`xray_viz.meshes.repair` answers with NumPy and
+    pymeshlab (the same answers), so nothing waits for this process."""
+    import subprocess
+    import sys
+
+    disp = _flag_self_intersections
+    if is_ready() or not isinstance(getattr(disp, "_cache", None), _numba_cache.KernelCache):
+        return False
+    subprocess.Popen([sys.executable, "-c", "import warnings; warnings.simplefilter('ignore'); "
+                      "from xray_viz.meshes import _check_kernels as K; K.compile_kernels()"],
+                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                     stderr=subprocess.DEVNULL)
     return True
 
 

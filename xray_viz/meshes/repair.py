@@ -274,7 +274,14 @@ def _edge_facts(faces, n_vertices):
     used by exactly two faces; the winding is consistent when each edge used by two faces is
     traversed in opposite directions by them; two faces sharing an edge used by exactly two
     faces are in the same piece.
+
+    The compiled :func:`xray_viz.meshes._check_kernels.edge_facts` answers the same, once it
+    is compiled (as :func:`self_intersecting_faces`).
     """
+    from xray_viz.meshes import _check_kernels
+
+    if _check_kernels.is_ready():
+        return _check_kernels.edge_facts(faces, n_vertices)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
