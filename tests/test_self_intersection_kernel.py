@@ -128,3 +128,12 @@ def test_check_mesh_is_the_same_with_the_kernel_and_with_pymeshlab(monkeypatch):
         reports.append([repair.check_mesh(m, cache=False) for m in (tube, two)])
     assert reports[0] == reports[1]
     assert reports[0][1].self_intersections == 2 * reports[0][0].self_intersections > 0
+
+
+def test_each_kernel_has_its_one_specialisation():
+    """Explicit signatures: compiled (or loaded) once, then nothing else compiles."""
+    assert K.compile_kernels() == list(K.SIGNATURES) and K.is_ready()
+    K.self_intersections(np.zeros((3, 3), np.float32), np.zeros((2, 3), np.int32))
+    K.edge_facts(np.zeros((1, 3), np.int32), 3)
+    for name, sig in K.SIGNATURES.items():
+        assert getattr(K, name).signatures == [sig], name
