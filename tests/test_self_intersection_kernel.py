@@ -137,3 +137,13 @@ def test_each_kernel_has_its_one_specialisation():
     K.edge_facts(np.zeros((1, 3), np.int32), 3)
     for name, sig in K.SIGNATURES.items():
         assert getattr(K, name).signatures == [sig], name
+
+
+def test_vertices_that_are_not_finite_are_left_to_pymeshlab():
+    tube = square_tube(CROSSING)
+    v = tube.vertices.copy()
+    v[0] = np.nan
+    with pytest.raises(ValueError):
+        K.self_intersections(v, tube.faces)
+    np.testing.assert_array_equal(repair.self_intersecting_faces(v, tube.faces),
+                                  repair._pymeshlab_self_intersections(v, tube.faces))

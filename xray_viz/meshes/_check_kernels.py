@@ -384,15 +384,7 @@ def _flag_self_intersections(vertices, faces, labels, flags):
     for k in range(3):
         span = max(span, ghi[k] - glo[k])
     if m < 2 or not (span > 0.0) or not np.isfinite(span):
-        if m >= 2:          # a point-like or non-finite mesh: every pair is a candidate
-            for f0 in range(m):
-                for f1 in range(f0 + 1, m):
-                    if ((labels.shape[0] == 0 or labels[f0] == labels[f1])
-                            and _collide(lo[f0], hi[f0], lo[f1], hi[f1])
-                            and _face_face(vertices, faces, f0, f1)):
-                        flags[f0] = True
-                        flags[f1] = True
-        return
+        return              # all in one point: no two boxes overlap strictly (or not finite)
     # cells about twice the mean face extent, fewer than 2**20 along an axis, and made
     # bigger while a face would be entered in too many (one huge face among small ones)
     size = max(2.0 * extent / (3.0 * m), span / 2.0 ** 20)
@@ -706,6 +698,11 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
     -------
     (m,) bool
 
+    Raises
+    ------
+    ValueError
+        A vertex is not finite (pymeshlab answers those: ``repair.self_intersecting_faces``).
+
     Examples
     --------
     >>> import trimesh
@@ -718,6 +715,8 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
     """
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = _checked_faces(faces, len(v))
+    if not np.isfinite(v).all():
+        raise ValueError("vertices that are not finite")
     lab = (np.zeros(0, np.int64) if labels is None
            else np.ascontiguousarray(labels, dtype=np.int64).reshape(-1))
     flags = np.zeros(len(f), bool)

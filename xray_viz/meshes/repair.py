@@ -280,7 +280,7 @@ def _edge_facts(faces, n_vertices):
     """
     from xray_viz.meshes import _check_kernels
 
-    if _check_kernels.is_ready():
+    if _check_kernels.is_ready() and (faces.min() >= 0 and faces.max() < n_vertices):
         return _check_kernels.edge_facts(faces, n_vertices)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -360,7 +360,8 @@ def self_intersecting_faces(vertices, faces, *, pieces=None) -> np.ndarray:
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) < 2:
         return np.zeros(len(faces), bool)
-    if _check_kernels.is_ready():
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if _check_kernels.is_ready() and np.isfinite(vertices).all():
         return _check_kernels.self_intersections(vertices, faces, pieces)
     if pieces is None:
         return _pymeshlab_self_intersections(vertices, faces)
