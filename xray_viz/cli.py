@@ -87,9 +87,6 @@ def _render_command(args) -> int:
         from xray_viz.tracing._raster import prepare
 
         prepare(first=likely_paths(args.scene))
-        from xray_viz.meshes import _check_kernels
-
-        _check_kernels.prepare(nice=10)   # the compiled mesh checks, for the next runs
     with _compile_notice(args.engine):   # said now, while the scene loads, if compiling
         scene = load_scene_with_overrides(args)
         h = scene.detector.shape[1]

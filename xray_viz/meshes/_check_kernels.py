@@ -640,26 +640,18 @@ def is_ready() -> bool:
     return True
 
 
-def prepare(*, nice: int = 0) -> bool:
+def prepare() -> bool:
     """Start compiling the kernels into numba's cache in a background process, unless they are
     ready (:func:`is_ready`) or there is no cache to share them through; returns whether one
     started. Until they are cached, :mod:`xray_viz.meshes.repair` answers with NumPy and
-    pymeshlab (the same answers), so nothing waits for this process.
-
-    Parameters
-    ----------
-    nice : int, optional
-        Added to the process's niceness (``os.nice``) so that it yields the processor to the
-        engine's compile workers and the render (the command line passes 10).
-    """
+    pymeshlab (the same answers), so nothing waits for this process."""
     import subprocess
     import sys
 
     disp = _flag_self_intersections
     if is_ready() or not isinstance(getattr(disp, "_cache", None), _numba_cache.KernelCache):
         return False
-    lower = f"import os; os.nice({int(nice)}) if hasattr(os, 'nice') else None; " if nice else ""
-    subprocess.Popen([sys.executable, "-c", lower + "import warnings; warnings.simplefilter('ignore'); "
+    subprocess.Popen([sys.executable, "-c", "import warnings; warnings.simplefilter('ignore'); "
                       "from xray_viz.meshes import _check_kernels as K; K.compile_kernels()"],
                      stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                      stderr=subprocess.DEVNULL)
