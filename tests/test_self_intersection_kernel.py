@@ -7,9 +7,19 @@ deliberately self-intersecting meshes of the tests, on perturbed and overlapping
 pairs near the decision: coplanar faces, shared vertices, touching boxes) and on triangle
 soups with repeated corners; and, per piece, the same as pymeshlab run on each group of pieces
 (:func:`xray_viz.meshes.repair._self_crossing_pymeshlab`).
+
+pymeshlab's answer is taken in a new process that runs nothing else: within one process it
+changes after a few calls of some of its filters (``meshing_re_orient_faces_coherently``,
+``meshing_close_holes``, both used by :mod:`xray_viz.meshes.repair`): from then on it tests each
+pair of faces in both orders, and vcglib's test is not symmetric (on the frog's bodies as one
+set, 3 more faces). The kernel's answer does not depend on what ran before
+(:func:`test_the_kernel_does_not_depend_on_what_pymeshlab_ran_before`).
 """
 
 from __future__ import annotations
+
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 import pytest
@@ -23,15 +33,31 @@ from xray_viz.meshes import _check_kernels as K
 from xray_viz.meshes import repair
 
 
-def _both(vertices, faces, pieces=None):
-    kernel = K.self_intersections(vertices, faces, pieces)
+_CLEAN = []     # the process that runs pymeshlab for the references, and nothing else
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _clean_pymeshlab():
+    with ProcessPoolExecutor(max_workers=1,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        _CLEAN.append(pool)
+        yield
+        _CLEAN.clear()
+
+
+def _reference(vertices, faces, pieces=None):
+    """pymeshlab's selection, in a process where pymeshlab ran nothing else."""
+    faces = np.asarray(faces, np.int64)
     if pieces is None:
-        reference = repair._pymeshlab_self_intersections(vertices, np.asarray(faces, np.int64))
+        job = _CLEAN[0].submit(repair._pymeshlab_self_intersections, np.asarray(vertices), faces)
     else:
-        reference = repair._self_crossing_pymeshlab(np.asarray(vertices, float),
-                                                     np.asarray(faces, np.int64),
-                                                     np.asarray(pieces, np.int64))
-    return kernel, reference
+        job = _CLEAN[0].submit(repair._self_crossing_pymeshlab, np.asarray(vertices, float),
+                               faces, np.asarray(pieces, np.int64))
+    return job.result()
+
+
+def _both(vertices, faces, pieces=None):
+    return K.self_intersections(vertices, faces, pieces), _reference(vertices, faces, pieces)
 
 
 def _assert_same(vertices, faces, pieces=None):
@@ -117,17 +143,53 @@ def test_degenerate_inputs():
     _assert_same(np.zeros((3, 3)), [[0, 1, 2], [0, 1, 2], [0, 0, 1]])    # all in one point
 
 
+def _after_pymeshlab_filters(vertices, faces, calls):
+    """pymeshlab's selection and the kernel's after ``calls`` coherent re-orientations of
+    another mesh in this process (run in a new process)."""
+    import pymeshlab
+
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    for _ in range(calls):
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(ball.vertices, ball.faces))
+        ms.meshing_re_orient_faces_coherently()
+    K.compile_kernels()
+    return (repair._pymeshlab_self_intersections(vertices, faces),
+            K.self_intersections(vertices, faces))
+
+
+def test_the_kernel_does_not_depend_on_what_pymeshlab_ran_before():
+    meshes = [b.mesh for b in xray_viz.load_scene("frog").bodies]
+    both = trimesh.util.concatenate(meshes)
+    v, f = np.asarray(both.vertices), np.asarray(both.faces, np.int64)
+    clean = _reference(v, f)
+    for calls in (0, 6):
+        with ProcessPoolExecutor(max_workers=1,
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            pymeshlab_then, kernel_then = pool.submit(_after_pymeshlab_filters, v, f,
+                                                      calls).result()
+        np.testing.assert_array_equal(kernel_then, clean)
+        if calls == 0:
+            np.testing.assert_array_equal(pymeshlab_then, clean)
+    # (pymeshlab_then after 6 calls holds 3 more faces with pymeshlab 2025.7: not asserted,
+    # as a later pymeshlab may fix it; benchmarks/notes/checks.md)
+
+
+def _reports_by_pymeshlab(meshes):
+    """check_mesh's reports with the kernels switched off (run in the clean process)."""
+    K.is_ready = lambda: False
+    return [repair.check_mesh(m, cache=False) for m in meshes]
+
+
 def test_check_mesh_is_the_same_with_the_kernel_and_with_pymeshlab(monkeypatch):
     tube = square_tube(CROSSING)
     b = tube.copy()
     b.apply_translation([0, 0, 30])
     two = trimesh.util.concatenate([tube, b])     # two self-crossing pieces, apart
-    reports = []
-    for ready in (True, False):
-        monkeypatch.setattr(K, "is_ready", lambda r=ready: r)
-        reports.append([repair.check_mesh(m, cache=False) for m in (tube, two)])
-    assert reports[0] == reports[1]
-    assert reports[0][1].self_intersections == 2 * reports[0][0].self_intersections > 0
+    monkeypatch.setattr(K, "is_ready", lambda: True)
+    by_kernel = [repair.check_mesh(m, cache=False) for m in (tube, two)]
+    assert by_kernel == _CLEAN[0].submit(_reports_by_pymeshlab, [tube, two]).result()
+    assert by_kernel[1].self_intersections == 2 * by_kernel[0].self_intersections > 0
 
 
 def test_each_kernel_has_its_one_specialisation():
@@ -147,3 +209,27 @@ def test_vertices_that_are_not_finite_are_left_to_pymeshlab():
         K.self_intersections(v, tube.faces)
     np.testing.assert_array_equal(repair.self_intersecting_faces(v, tube.faces),
                                   repair._pymeshlab_self_intersections(v, tube.faces))
+
+
+def test_prepare_compiles_the_kernels_once_for_the_next_process(tmp_path):
+    """``prepare`` (called by ``xray-viz render`` once its image is written) starts one
+    background compile per cache, and a later process finds the kernels cached."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+
+    def ask(code):
+        return subprocess.run([sys.executable, "-c", "from xray_viz.meshes import _check_kernels"
+                               " as K; " + code], env=env, capture_output=True, text=True,
+                              check=True).stdout.split()
+
+    assert ask("print(K.is_ready(), K.prepare(nice=0), K.prepare(nice=0))") == [
+        "False", "True", "False"]
+    deadline = time.monotonic() + 600
+    while list(tmp_path.rglob("*.compiling")) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert not list(tmp_path.rglob("*.compiling")), "the background compile did not finish"
+    assert ask("print(K.is_ready(), K.prepare(nice=0))") == ["True", "False"]

@@ -640,21 +640,47 @@ def is_ready() -> bool:
     return True
 
 
-def prepare() -> bool:
+def prepare(*, nice: int = 10) -> bool:
     """Start compiling the kernels into numba's cache in a background process, unless they are
-    ready (:func:`is_ready`) or there is no cache to share them through; returns whether one
-    started. Until they are cached, :mod:`xray_viz.meshes.repair` answers with NumPy and
-    pymeshlab (the same answers), so nothing waits for this process."""
+    ready (:func:`is_ready`), another process is already compiling them into the same cache,
+    or there is no cache to share them through; returns whether one started.
+
+    Until they are cached, :mod:`xray_viz.meshes.repair` answers with NumPy and pymeshlab,
+    so nothing waits for this process: ``xray-viz render`` calls this once its image is
+    written, for the next runs.
+
+    Parameters
+    ----------
+    nice : int, optional
+        Added to the background process's niceness (``os.nice``), so that it yields the
+        processor to whatever runs next.
+    """
+    import os
     import subprocess
     import sys
+    import time
 
     disp = _flag_self_intersections
-    if is_ready() or not isinstance(getattr(disp, "_cache", None), _numba_cache.KernelCache):
+    cache = getattr(disp, "_cache", None)
+    if is_ready() or not isinstance(cache, _numba_cache.KernelCache):
         return False
-    subprocess.Popen([sys.executable, "-c", "import warnings; warnings.simplefilter('ignore'); "
-                      "from xray_viz.meshes import _check_kernels as K; K.compile_kernels()"],
-                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                     stderr=subprocess.DEVNULL)
+    # one compiling process per cache: a marker beside the cache files, taken with O_EXCL,
+    # left to the worker to remove; one older than 10 minutes is from a process that died
+    marker = os.path.join(cache._cache_path, "meshes-check-kernels.compiling")
+    try:
+        os.makedirs(cache._cache_path, exist_ok=True)
+        if os.path.exists(marker) and time.time() - os.path.getmtime(marker) > 600:
+            os.unlink(marker)
+        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+    except OSError:
+        return False
+    code = (f"import os, warnings; os.nice({int(nice)}) if hasattr(os, 'nice') else None; "
+            "warnings.simplefilter('ignore')\n"
+            "try:\n    from xray_viz.meshes import _check_kernels as K; K.compile_kernels()\n"
+            f"finally:\n    os.unlink({marker!r})")
+    subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                     start_new_session=True)
     return True
 
 

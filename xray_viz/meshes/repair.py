@@ -40,8 +40,10 @@ the number of pieces.
   :class:`~xray_viz.errors.MeshError` when repair does not make it closed.
 
 The self-intersection test of :func:`check_mesh` is pymeshlab's, run by a compiled kernel
-(:mod:`xray_viz.meshes._check_kernels`, the same arithmetic, so the same faces) once that is
-compiled, by pymeshlab itself until then.
+(``meshes/_check_kernels.py``, vcglib's arithmetic in its order, so the faces that pymeshlab
+selects in a new process) once that is compiled, by pymeshlab itself until then. (pymeshlab's
+own answer can change within one process: after a few calls of its coherent re-orientation or
+hole closing it tests each pair of faces differently; the kernel's answer does not change.)
 
 Examples
 --------
@@ -275,8 +277,8 @@ def _edge_facts(faces, n_vertices):
     traversed in opposite directions by them; two faces sharing an edge used by exactly two
     faces are in the same piece.
 
-    The compiled :func:`xray_viz.meshes._check_kernels.edge_facts` answers the same, once it
-    is compiled (as :func:`self_intersecting_faces`).
+    The compiled ``edge_facts`` of ``meshes/_check_kernels.py`` answers the same, once it is
+    compiled (as :func:`self_intersecting_faces`).
     """
     from xray_viz.meshes import _check_kernels
 
@@ -326,8 +328,8 @@ def self_intersecting_faces(vertices, faces, *, pieces=None) -> np.ndarray:
     faces sharing an edge are not tested against each other, faces sharing one vertex only
     by the opposite edge).
 
-    The compiled kernel of :mod:`xray_viz.meshes._check_kernels` gives the same faces (the
-    same arithmetic); pymeshlab itself runs while that kernel is neither compiled in this
+    The compiled kernel of ``meshes/_check_kernels.py`` gives the faces pymeshlab selects in a
+    new process (the same arithmetic); pymeshlab itself runs while that kernel is neither compiled in this
     process nor in numba's cache (compiling it costs more than pymeshlab on any mesh below
     a few million faces).
 
