@@ -183,6 +183,18 @@ def test_prepare_compiles_in_other_processes_and_this_one_loads(tmp_path):
     assert second["started"] == [] and second["compiled"] == []
 
 
+def test_prepare_starts_nothing_when_only_other_scenes_kernels_are_missing(tmp_path):
+    """Kernels missing only outside ``first`` (a worker of an earlier command is compiling
+    them): no second worker, and no compile notice (``_numba_cache`` is not told)."""
+    code = ("import json; from xray_viz.tracing import _raster as R, _numba_cache as C; "
+            "print(json.dumps([R.prepare(['setup'], first=['multi']), C._background, "
+            "[R._is_cached(n) for n in R.PATHS['setup']]]))")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                         capture_output=True, text=True, timeout=600)
+    assert json.loads(out.stdout) == [[], [], [False, False]]
+
+
 RENDER_MODULES = """
 import json, sys
 from xray_viz import cli

@@ -47,3 +47,27 @@ def test_the_cases_cover_each_answer():
     assert facts["open"][0] > 0 and not facts["open"][1]
     assert facts["box"][1] and facts["box"][2] and not facts["winding"][2]
     assert facts["two"][4] == 2
+
+
+@pytest.mark.parametrize("name", list(_cases()) + ["soup", "noisy"])
+def test_compiled_edge_facts_equal_the_numpy_ones(name, monkeypatch):
+    """The compiled edge facts (:mod:`xray_viz.meshes._check_kernels`) are the NumPy ones
+    (checked against trimesh above), labels included, also on a soup with repeated corners
+    and non-manifold edges."""
+    from xray_viz.meshes import _check_kernels as K
+
+    rng = np.random.default_rng(7)
+    if name == "soup":
+        f, nv = rng.integers(0, 40, size=(300, 3)), 40
+    elif name == "noisy":
+        ball = trimesh.creation.icosphere(subdivisions=3)
+        f = ball.faces[rng.permutation(len(ball.faces))[:1200]]
+        nv = len(ball.vertices)
+    else:
+        m = _cases()[name]
+        f, nv = np.asarray(m.faces, np.int64), len(m.vertices)
+    compiled = K.edge_facts(f, nv)
+    monkeypatch.setattr(K, "is_ready", lambda: False)
+    numpy = R._edge_facts(np.asarray(f, np.int64), nv)
+    assert compiled[:3] == numpy[:3] and compiled[4] == numpy[4]
+    np.testing.assert_array_equal(compiled[3], numpy[3])

@@ -112,6 +112,10 @@ def _render_command(args) -> int:
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
     print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
           f"engine {engine}, {total_ms:.0f} ms{dose})")
+    if args.engine == "fast":         # the compiled mesh checks, for the next runs
+        from xray_viz.meshes import _check_kernels
+
+        _check_kernels.prepare(nice=10)
     return 0
 
 

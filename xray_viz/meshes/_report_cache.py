@@ -3,8 +3,9 @@
 :func:`xray_viz.meshes.repair.check_mesh` of a big mesh is the slowest part of loading a scene
 (the self-intersection test of a 1.3M-face sphere alone takes seconds). Its report depends only
 on the vertex and face arrays and on the checking code, so it is stored under the SHA-256 of
-``(the arrays' bytes, shapes, dtypes, and the source of xray_viz/meshes/repair.py)``: a changed
-mesh or a changed checker never reads an old report.
+``(the arrays' bytes, shapes, dtypes, and the source of xray_viz/meshes/repair.py and of its
+compiled kernels, _check_kernels.py)``: a changed mesh or a changed checker never reads an
+old report.
 
 Where: ``$XRAY_VIZ_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/xray_viz`` or
 ``~/.cache/xray_viz``, in ``mesh-reports/``. ``XRAY_VIZ_CACHE_DIR=off`` (or a place that cannot
@@ -45,7 +46,10 @@ def cache_dir() -> Path | None:
 @lru_cache(maxsize=1)
 def _checker_digest() -> bytes:
     """SHA-256 of the checking code: a change of it invalidates every stored report."""
-    return hashlib.sha256(Path(__file__).with_name("repair.py").read_bytes()).digest()
+    h = hashlib.sha256()
+    for name in ("repair.py", "_check_kernels.py"):
+        h.update(Path(__file__).with_name(name).read_bytes())
+    return h.digest()
 
 
 def mesh_key(vertices, faces) -> str:

@@ -39,7 +39,11 @@ the number of pieces.
   closed and outward, repaired (with the list of what changed) otherwise, refused with a
   :class:`~xray_viz.errors.MeshError` when repair does not make it closed.
 
-pymeshlab is imported only inside :func:`repair_mesh`, so a clean mesh costs nothing.
+The self-intersection test of :func:`check_mesh` is pymeshlab's, run by a compiled kernel
+(``meshes/_check_kernels.py``, vcglib's arithmetic in its order, so the faces that pymeshlab
+selects in a new process) once that is compiled, by pymeshlab itself until then. (pymeshlab's
+own answer can change within one process: after a few calls of its coherent re-orientation or
+hole closing it tests each pair of faces differently; the kernel's answer does not change.)
 
 Examples
 --------
@@ -272,7 +276,14 @@ def _edge_facts(faces, n_vertices):
     used by exactly two faces; the winding is consistent when each edge used by two faces is
     traversed in opposite directions by them; two faces sharing an edge used by exactly two
     faces are in the same piece.
+
+    The compiled ``edge_facts`` of ``meshes/_check_kernels.py`` answers the same, once it is
+    compiled (as :func:`self_intersecting_faces`).
     """
+    from xray_viz.meshes import _check_kernels
+
+    if _check_kernels.is_ready() and (faces.min() >= 0 and faces.max() < n_vertices):
+        return _check_kernels.edge_facts(faces, n_vertices)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -311,15 +322,23 @@ def _volume(vertices, faces) -> float:
         return float(np.sum(cross_x * f1) / 6.0)
 
 
-def self_intersecting_faces(vertices, faces) -> np.ndarray:
-    """Which faces cross another face of the same triangle set (pymeshlab's exact-predicate
-    triangle-triangle test; faces sharing a vertex or an edge are not tested against each
-    other).
+def self_intersecting_faces(vertices, faces, *, pieces=None) -> np.ndarray:
+    """Which faces cross another face of the same triangle set: pymeshlab's
+    ``compute_selection_by_self_intersections_per_face`` (vcglib's triangle-triangle test;
+    faces sharing an edge are not tested against each other, faces sharing one vertex only
+    by the opposite edge).
+
+    The compiled kernel of ``meshes/_check_kernels.py`` gives the faces pymeshlab selects in a
+    new process (the same arithmetic); pymeshlab itself runs while that kernel is neither compiled in this
+    process nor in numba's cache (compiling it costs more than pymeshlab on any mesh below
+    a few million faces).
 
     Parameters
     ----------
     vertices : (n, 3) float
     faces : (m, 3) int
+    pieces : (m,) int, optional
+        A label per face: then only faces crossing a face of the same label count.
 
     Returns
     -------
@@ -334,15 +353,30 @@ def self_intersecting_faces(vertices, faces) -> np.ndarray:
     >>> int(self_intersecting_faces(a.vertices, a.faces).sum()), bool(
     ...     self_intersecting_faces(both.vertices, both.faces).any())
     (0, True)
+    >>> pieces = np.repeat([0, 1], 12)
+    >>> bool(self_intersecting_faces(both.vertices, both.faces, pieces=pieces).any())
+    False
     """
+    from xray_viz.meshes import _check_kernels
+
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) < 2:
         return np.zeros(len(faces), bool)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if _check_kernels.is_ready() and np.isfinite(vertices).all():
+        return _check_kernels.self_intersections(vertices, faces, pieces)
+    if pieces is None:
+        return _pymeshlab_self_intersections(vertices, faces)
+    pieces = np.asarray(pieces, dtype=np.int64).reshape(-1)
+    return _self_crossing_pymeshlab(np.asarray(vertices, dtype=np.float64), faces, pieces)
+
+
+def _pymeshlab_self_intersections(vertices, faces) -> np.ndarray:
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(vertices, dtype=np.float64),
-                               face_matrix=faces.astype(np.int32)))
+                               face_matrix=np.asarray(faces).astype(np.int32)))
     ms.compute_selection_by_self_intersections_per_face()
     return np.asarray(ms.current_mesh().face_selection_array(), dtype=bool)
 
@@ -350,12 +384,20 @@ def self_intersecting_faces(vertices, faces) -> np.ndarray:
 def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
     """Faces that cross a face of their own piece (crossings between pieces do not count:
     overlapping pieces are a union by the nonzero rule)."""
-    flagged = self_intersecting_faces(vertices, faces)
+    return int(self_intersecting_faces(vertices, faces,
+                                       pieces=labels if n_pieces > 1 else None).sum())
+
+
+def _self_crossing_pymeshlab(vertices, faces, labels) -> np.ndarray:
+    """:func:`self_intersecting_faces` with ``pieces`` by pymeshlab: the whole set first,
+    then the flagged pieces again in groups whose bounding boxes are pairwise disjoint (a
+    greedy colouring of the box-overlap graph): within a group only a piece's own faces can
+    meet, so one call per group finds the crossings within pieces."""
+    flagged = _pymeshlab_self_intersections(vertices, faces)
+    _, labels = np.unique(labels, return_inverse=True)
+    n_pieces = int(labels.max()) + 1 if len(labels) else 0
     if not flagged.any() or n_pieces < 2:
-        return int(flagged.sum())
-    # Test the flagged pieces again in groups whose bounding boxes are pairwise disjoint (a
-    # greedy colouring of the box-overlap graph): within a group only a piece's own faces can
-    # meet, so one call per group counts the crossings within pieces.
+        return flagged
     pieces = np.unique(labels[flagged])
     tri = vertices[faces]
     lo = np.full((n_pieces, 3), np.inf)
@@ -372,21 +414,27 @@ def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
     for p in sorted(neighbours, key=lambda q: -len(neighbours[q])):
         used = {colour[q] for q in neighbours[p] if q in colour}
         colour[p] = next(c for c in range(len(used) + 1) if c not in used)
-    count = 0
+    out = np.zeros(len(faces), bool)
     for c in set(colour.values()):
-        group = np.array([p for p, k in colour.items() if k == c])
-        count += int(self_intersecting_faces(vertices, faces[np.isin(labels, group)]).sum())
-    return count
+        group = np.isin(labels, np.array([p for p, k in colour.items() if k == c]))
+        out[group] = _pymeshlab_self_intersections(vertices, faces[group])
+    return out
 
 
-def _faces_near(mesh, lo, hi):
-    """(vertices, faces) of the faces of ``mesh`` whose bounding boxes meet the box [lo, hi]."""
+def _face_boxes(mesh):
+    """``(vertices, faces, low corners, high corners)`` of a mesh's faces."""
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
     tri = v[f]
+    return v, f, tri.min(axis=1), tri.max(axis=1)
+
+
+def _faces_near(boxes, lo, hi):
+    """(vertices, faces) of the faces (of :func:`_face_boxes` ``boxes``) whose bounding boxes
+    meet the box [lo, hi]."""
+    v, f, tlo, thi = boxes
     pad = 1e-9 * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo)))
-    meet = np.all((tri.min(axis=1) <= np.asarray(hi) + pad)
-                  & (tri.max(axis=1) >= np.asarray(lo) - pad), axis=1)
+    meet = np.all((tlo <= np.asarray(hi) + pad) & (thi >= np.asarray(lo) - pad), axis=1)
     return v, f[meet]
 
 
@@ -413,10 +461,16 @@ def surfaces_cross(mesh_a, mesh_b, *, bounds=None, self_intersecting=None) -> bo
     >>> surfaces_cross(small, big), surfaces_cross(poking, big)
     (False, True)
     """
+    return _surfaces_cross(mesh_a, mesh_b, bounds, self_intersecting,
+                           (_face_boxes(mesh_a), _face_boxes(mesh_b)))
+
+
+def _surfaces_cross(mesh_a, mesh_b, bounds, self_intersecting, boxes) -> bool:
+    """:func:`surfaces_cross` with the meshes' :func:`_face_boxes` ``boxes`` (a pair)."""
     (alo, ahi), (blo, bhi) = bounds if bounds is not None else (
         _bounds(mesh_a), _bounds(mesh_b))
-    va, fa = _faces_near(mesh_a, blo, bhi)
-    vb, fb = _faces_near(mesh_b, alo, ahi)
+    va, fa = _faces_near(boxes[0], blo, bhi)
+    vb, fb = _faces_near(boxes[1], alo, ahi)
     if not len(fa) or not len(fb):
         return False
     vertices = np.concatenate([va, vb])
@@ -496,12 +550,13 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
     from xray_viz.tracing.hits import inside_counts
 
     n = len(meshes)
-    boxes = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
+    bbox = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
     crossing = [bool(r.self_intersections) for r in reports] if reports is not None else None
     points = {}
+    boxes = {}                                    # face boxes of the meshes tested
     out = [[] for _ in range(n)]
-    lo = np.array([bx[0] for bx in boxes], dtype=np.float64).reshape(n, 3)
-    hi = np.array([bx[1] for bx in boxes], dtype=np.float64).reshape(n, 3)
+    lo = np.array([bx[0] for bx in bbox], dtype=np.float64).reshape(n, 3)
+    hi = np.array([bx[1] for bx in bbox], dtype=np.float64).reshape(n, 3)
     solid = np.array([len(m.faces) > 0 for m in meshes], dtype=bool)
     for b in range(n):
         if not solid[b]:
@@ -518,9 +573,15 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
         inside = inside_counts(tris, np.concatenate([points[a] for a in cand])) > 0
         splits = np.cumsum([len(points[a]) for a in cand])[:-1]
         for a, ok in zip(cand, np.split(inside, splits)):
-            if ok.all() and not surfaces_cross(
-                    meshes[a], meshes[b], bounds=(boxes[a], boxes[b]),
-                    self_intersecting=None if crossing is None else (crossing[a], crossing[b])):
+            if not ok.all():
+                continue
+            for k in (a, b):
+                if k not in boxes:
+                    boxes[k] = _face_boxes(meshes[k])
+            if not _surfaces_cross(
+                    meshes[a], meshes[b], (bbox[a], bbox[b]),
+                    None if crossing is None else (crossing[a], crossing[b]),
+                    (boxes[a], boxes[b])):
                 out[a].append(b)
     return out
 

@@ -1095,8 +1095,10 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     others, so that they are ready soonest. At exit this process waits for a worker still
     compiling a kernel of ``first`` if it used a kernel, and stops the workers if it used
     none; a worker left with only other kernels goes on alone, filling the cache for later
-    processes (its kernels are not needed by this one). Nothing starts when every kernel is cached, or when there is no cache to
-    share them through (they are compiled in this process when needed, as without
+    processes (its kernels are not needed by this one). Nothing starts when every kernel is
+    cached, when only kernels outside ``first`` are missing (a worker of an earlier process is
+    most likely compiling them: starting another would compile them twice, and say so), or
+    when there is no cache to share them through (they are compiled in this process when needed, as without
     :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile` is told.
     """
     import subprocess
@@ -1108,10 +1110,14 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     if not missing or not isinstance(getattr(globals()[missing[0]], "_cache", None),
                                      _numba_cache.KernelCache):
         return []
+    urgent = set(_names(first)) if first is not None else set(missing)
+    if not urgent.intersection(missing):
+        # only other kinds of scene lack kernels: an earlier process's worker is most likely
+        # compiling them now; they are compiled here if this process needs them after all
+        return []
     n_workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(missing)))
     groups = [[] for _ in range(n_workers)]
     load = [0.0] * n_workers
-    urgent = set(_names(first)) if first is not None else set(missing)
     for pass_ in (True, False):          # the urgent kernels first, shared out by cost
         for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
             todo = [n for n in unit if n in missing and (n in urgent) == pass_]

@@ -1,0 +1,751 @@
+"""Compiled mesh checks (numba): pymeshlab's self-intersection test, same answers, faster.
+
+:func:`self_intersections` flags the faces that pymeshlab's
+``compute_selection_by_self_intersections_per_face`` selects (vcglib's
+``tri::Clean::SelfIntersections``), by the same arithmetic in the same order, so that the two
+give the same set of faces bit for bit:
+
+* candidate pairs are the faces whose bounding boxes *strictly* overlap on every axis
+  (``Box3::Collide``; vcglib finds them with a uniform grid, here a uniform grid hashed into
+  buckets, each pair tested once, in the cell holding the larger corner of the two boxes);
+* a pair is tested with the lower-numbered face first (vcglib's loop order) by
+  ``Clean::TestFaceFaceIntersection``: faces with the same three vertices intersect; faces
+  sharing an edge (two vertices) do not; faces sharing one vertex intersect when the edge
+  opposite that vertex, moved half way towards it, crosses the other face strictly inside
+  (``IntersectionSegmentTriangle``: a box test, a line-box test, then Moller-Trumbore with
+  ``EPSIL = 1e-6``); faces sharing nothing are tested by Moller's 1997 ``NoDivTriTriIsect``
+  (first plane normalised, no epsilon; coplanar faces by their edges and corners projected
+  on the plane of the largest normal component).
+
+Floating-point double precision, as pymeshlab's meshes (its ``Scalarm`` is ``double``); the
+expressions keep vcglib's order of operations (no fused multiply-add, no reassociation), so
+each comparison sees the same numbers. ``tests/test_self_intersection_kernel.py`` checks the
+sets against pymeshlab on the phantoms and on random overlapping meshes.
+
+:func:`edge_facts` gives the edge facts of ``repair._edge_facts`` (boundary edges, watertight,
+winding, edge-connected pieces) in one pass over the edges grouped by their lower vertex.
+
+Each kernel has one specialisation (:data:`SIGNATURES`), compiled on first use (or loaded from
+numba's cache, :mod:`xray_viz.tracing._numba_cache`); :func:`is_ready` says whether that costs
+nothing, :func:`compile_kernels` compiles them, :func:`prepare` in a background process filling the
+cache.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+from numba import njit
+from numba.core import types as _nt
+
+from xray_viz.tracing import _numba_cache  # where the kernels are cached
+
+_EPSIL = 0.000001
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normalized(a):
+    """``Point3::Normalize``."""
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if n > 0.0:
+        return (a[0] / n, a[1] / n, a[2] / n)
+    return a
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _point_in_tri(v, u0, u1, u2, i0, i1):
+    """vcglib's ``POINT_IN_TRI``: ``v`` strictly inside the projected triangle ``u``."""
+    a = u1[i1] - u0[i1]
+    b = -(u1[i0] - u0[i0])
+    c = -a * u0[i0] - b * u0[i1]
+    d0 = a * v[i0] + b * v[i1] + c
+    a = u2[i1] - u1[i1]
+    b = -(u2[i0] - u1[i0])
+    c = -a * u1[i0] - b * u1[i1]
+    d1 = a * v[i0] + b * v[i1] + c
+    a = u0[i1] - u2[i1]
+    b = -(u0[i0] - u2[i0])
+    c = -a * u2[i0] - b * u2[i1]
+    d2 = a * v[i0] + b * v[i1] + c
+    return d0 * d1 > 0.0 and d0 * d2 > 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_edge(ax, ay, v0, u0, u1, i0, i1):
+    """vcglib's ``EDGE_EDGE_TEST`` of edge ``v0 + (ax, ay)`` against edge ``u0 u1``."""
+    bx = u0[i0] - u1[i0]
+    by = u0[i1] - u1[i1]
+    cx = v0[i0] - u0[i0]
+    cy = v0[i1] - u0[i1]
+    f = ay * bx - ax * by
+    d = by * cx - bx * cy
+    if (f > 0 and d >= 0 and d <= f) or (f < 0 and d <= 0 and d >= f):
+        e = ax * cy - ay * cx
+        if f > 0:
+            if e >= 0 and e <= f:
+                return True
+        else:
+            if e <= 0 and e >= f:
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_against_tri(v0, v1, u0, u1, u2, i0, i1):
+    ax = v1[i0] - v0[i0]
+    ay = v1[i1] - v0[i1]
+    return (_edge_edge(ax, ay, v0, u0, u1, i0, i1) or _edge_edge(ax, ay, v0, u1, u2, i0, i1)
+            or _edge_edge(ax, ay, v0, u2, u0, i0, i1))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _coplanar(n, v0, v1, v2, u0, u1, u2):
+    """vcglib's ``coplanar_tri_tri``."""
+    a0, a1, a2 = abs(n[0]), abs(n[1]), abs(n[2])
+    if a0 > a1:
+        if a0 > a2:
+            i0, i1 = 1, 2
+        else:
+            i0, i1 = 0, 1
+    else:
+        if a2 > a1:
+            i0, i1 = 0, 1
+        else:
+            i0, i1 = 0, 2
+    if (_edge_against_tri(v0, v1, u0, u1, u2, i0, i1)
+            or _edge_against_tri(v1, v2, u0, u1, u2, i0, i1)
+            or _edge_against_tri(v2, v0, u0, u1, u2, i0, i1)):
+        return True
+    return _point_in_tri(v0, u0, u1, u2, i0, i1) or _point_in_tri(u0, v0, v1, v2, i0, i1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _interval(vv0, vv1, vv2, d0, d1, d2, d0d1, d0d2):
+    """vcglib's ``NEWCOMPUTE_INTERVALS``: ``(ok, A, B, C, X0, X1)``, ``ok`` False when the
+    triangles are coplanar."""
+    if d0d1 > 0.0:
+        return True, vv2, (vv0 - vv2) * d2, (vv1 - vv2) * d2, d2 - d0, d2 - d1
+    if d0d2 > 0.0:
+        return True, vv1, (vv0 - vv1) * d1, (vv2 - vv1) * d1, d1 - d0, d1 - d2
+    if d1 * d2 > 0.0 or d0 != 0.0:
+        return True, vv0, (vv1 - vv0) * d0, (vv2 - vv0) * d0, d0 - d1, d0 - d2
+    if d1 != 0.0:
+        return True, vv1, (vv0 - vv1) * d1, (vv2 - vv1) * d1, d1 - d0, d1 - d2
+    if d2 != 0.0:
+        return True, vv2, (vv0 - vv2) * d2, (vv1 - vv2) * d2, d2 - d0, d2 - d1
+    return False, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tri_tri(v0, v1, v2, u0, u1, u2):
+    """vcglib's ``NoDivTriTriIsect`` (Moller 1997, first normal normalised, no epsilon)."""
+    n1 = _normalized(_cross(_sub(v1, v0), _sub(v2, v0)))
+    d1 = -_dot(n1, v0)
+    du0 = _dot(n1, u0) + d1
+    du1 = _dot(n1, u1) + d1
+    du2 = _dot(n1, u2) + d1
+    du0du1 = du0 * du1
+    du0du2 = du0 * du2
+    if du0du1 > 0.0 and du0du2 > 0.0:
+        return False
+    n2 = _cross(_sub(u1, u0), _sub(u2, u0))
+    d2 = -_dot(n2, u0)
+    dv0 = _dot(n2, v0) + d2
+    dv1 = _dot(n2, v1) + d2
+    dv2 = _dot(n2, v2) + d2
+    dv0dv1 = dv0 * dv1
+    dv0dv2 = dv0 * dv2
+    if dv0dv1 > 0.0 and dv0dv2 > 0.0:
+        return False
+    d = _cross(n1, n2)
+    big = abs(d[0])
+    index = 0
+    if abs(d[1]) > big:
+        big = abs(d[1])
+        index = 1
+    if abs(d[2]) > big:
+        index = 2
+    ok, a, b, c, x0, x1 = _interval(v0[index], v1[index], v2[index], dv0, dv1, dv2, dv0dv1,
+                                    dv0dv2)
+    if not ok:
+        return _coplanar(n1, v0, v1, v2, u0, u1, u2)
+    ok, dd, e, f, y0, y1 = _interval(u0[index], u1[index], u2[index], du0, du1, du2, du0du1,
+                                     du0du2)
+    if not ok:
+        return _coplanar(n1, v0, v1, v2, u0, u1, u2)
+    xx = x0 * x1
+    yy = y0 * y1
+    xxyy = xx * yy
+    tmp = a * xxyy
+    s0 = tmp + b * x1 * yy
+    s1 = tmp + c * x0 * yy
+    tmp = dd * xxyy
+    t0 = tmp + e * xx * y1
+    t1 = tmp + f * xx * y0
+    if s0 > s1:
+        s0, s1 = s1, s0
+    if t0 > t1:
+        t0, t1 = t1, t0
+    return not (s1 < t0 or t1 < s0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _collide(alo, ahi, blo, bhi):
+    """``Box3::Collide``: strict overlap on every axis."""
+    return (blo[0] < ahi[0] and bhi[0] > alo[0] and blo[1] < ahi[1] and bhi[1] > alo[1]
+            and blo[2] < ahi[2] and bhi[2] > alo[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _min3(a, b):
+    return (min(a[0], b[0]), min(a[1], b[1]), min(a[2], b[2]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _max3(a, b):
+    return (max(a[0], b[0]), max(a[1], b[1]), max(a[2], b[2]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _line_box_axis(o, d, lo, hi):
+    """One axis of vcglib's ``IntersectionLineBox``: ``(middle, candidate plane, maxT)``."""
+    if o < lo:
+        return False, lo, (lo - o) / d if d != 0.0 else -1.0
+    if o > hi:
+        return False, hi, (hi - o) / d if d != 0.0 else -1.0
+    return True, 0.0, -1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _segment_box(blo, bhi, slo, shi, o, d):
+    """vcglib's ``IntersectionSegmentBox`` after its box test: ``IntersectionLineBox`` of the
+    line ``(o, d)`` and the box, then the point inside the segment's box."""
+    m0, c0, t0 = _line_box_axis(o[0], d[0], blo[0], bhi[0])
+    m1, c1, t1 = _line_box_axis(o[1], d[1], blo[1], bhi[1])
+    m2, c2, t2 = _line_box_axis(o[2], d[2], blo[2], bhi[2])
+    if m0 and m1 and m2:
+        p = o
+    else:
+        w, tw = 0, t0
+        if tw < t1:
+            w, tw = 1, t1
+        if tw < t2:
+            w, tw = 2, t2
+        if tw < 0.0:
+            return False
+        p0 = c0 if w == 0 else o[0] + tw * d[0]
+        if w != 0 and (p0 < blo[0] or p0 > bhi[0]):
+            return False
+        p1 = c1 if w == 1 else o[1] + tw * d[1]
+        if w != 1 and (p1 < blo[1] or p1 > bhi[1]):
+            return False
+        p2 = c2 if w == 2 else o[2] + tw * d[2]
+        if w != 2 and (p2 < blo[2] or p2 > bhi[2]):
+            return False
+        p = (p0, p1, p2)
+    return (slo[0] <= p[0] and p[0] <= shi[0] and slo[1] <= p[1] and p[1] <= shi[1]
+            and slo[2] <= p[2] and p[2] <= shi[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _segment_triangle(p0, p1, v0, v1, v2):
+    """vcglib's ``IntersectionSegmentTriangle``: ``(hit, a, b)``."""
+    slo = _min3(p0, p1)
+    shi = _max3(p0, p1)
+    tlo = _min3(_min3(v0, v1), v2)
+    thi = _max3(_max3(v0, v1), v2)
+    if not _collide(slo, shi, tlo, thi):
+        return False, 0.0, 0.0
+    d = _normalized(_sub(p1, p0))
+    if not _segment_box(tlo, thi, slo, shi, p0, d):
+        return False, 0.0, 0.0
+    q = _sub(p0, p1)
+    length = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+    # IntersectionLineTriangle (Moller-Trumbore) of the line (p0, d)
+    e1 = _sub(v1, v0)
+    e2 = _sub(v2, v0)
+    pv = _cross(d, e2)
+    det = _dot(e1, pv)
+    tv = _sub(p0, v0)
+    inv_det = 1.0 / det
+    qv = _cross(tv, e1)
+    if det > _EPSIL:
+        u = _dot(tv, pv)
+        if u < 0.0 or u > det:
+            return False, 0.0, 0.0
+        v = _dot(d, qv)
+        if v < 0.0 or u + v > det:
+            return False, 0.0, 0.0
+    elif det < -_EPSIL:
+        u = _dot(tv, pv)
+        if u > 0.0 or u < det:
+            return False, 0.0, 0.0
+        v = _dot(d, qv)
+        if v > 0.0 or u + v < det:
+            return False, 0.0, 0.0
+    else:
+        return False, 0.0, 0.0
+    t = _dot(e2, qv) * inv_det
+    return t >= 0 and t <= length, u * inv_det, v * inv_det
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _point(vertices, i):
+    return (vertices[i, 0], vertices[i, 1], vertices[i, 2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _half_way(p, sh):
+    return (p[0] * 0.5 + sh[0], p[1] * 0.5 + sh[1], p[2] * 0.5 + sh[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _face_face(vertices, faces, f0, f1):
+    """vcglib's ``Clean::TestFaceFaceIntersection(f0, f1)``."""
+    shared = 0
+    i0 = i1 = -1
+    for i in range(3):
+        for j in range(3):
+            if faces[f0, i] == faces[f1, j]:
+                shared += 1
+                if i0 < 0:
+                    i0, i1 = i, j
+    if shared == 3:
+        return True
+    if shared != 0 and shared != 1:
+        return False
+    a0 = _point(vertices, faces[f0, 0])
+    a1 = _point(vertices, faces[f0, 1])
+    a2 = _point(vertices, faces[f0, 2])
+    b0 = _point(vertices, faces[f1, 0])
+    b1 = _point(vertices, faces[f1, 1])
+    b2 = _point(vertices, faces[f1, 2])
+    if shared == 0:
+        return _tri_tri(a0, a1, a2, b0, b1, b2)
+    s = _point(vertices, faces[f0, i0])
+    sh = (s[0] * 0.5, s[1] * 0.5, s[2] * 0.5)
+    hit, a, b = _segment_triangle(
+        _half_way(_point(vertices, faces[f0, (i0 + 1) % 3]), sh),
+        _half_way(_point(vertices, faces[f0, (i0 + 2) % 3]), sh), b0, b1, b2)
+    if hit:
+        return not (a + b >= 1 or a <= _EPSIL or b <= _EPSIL)
+    hit, a, b = _segment_triangle(
+        _half_way(_point(vertices, faces[f1, (i1 + 1) % 3]), sh),
+        _half_way(_point(vertices, faces[f1, (i1 + 2) % 3]), sh), a0, a1, a2)
+    if hit:
+        return not (a + b >= 1 or a <= _EPSIL or b <= _EPSIL)
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cell(x, origin, inv, n):
+    k = int(math.floor((x - origin) * inv))
+    return min(max(k, 0), n - 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _flag_self_intersections(vertices, faces, labels, flags):
+    """Set ``flags[f]`` for every face ``f`` that pymeshlab selects as self-intersecting;
+    with ``labels`` (one per face, else empty), only pairs of faces of the same label count."""
+    m = faces.shape[0]
+    lo = np.empty((m, 3))
+    hi = np.empty((m, 3))
+    glo = np.full(3, np.inf)
+    ghi = np.full(3, -np.inf)
+    extent = 0.0
+    for f in range(m):
+        for k in range(3):
+            a = vertices[faces[f, 0], k]
+            b = vertices[faces[f, 1], k]
+            c = vertices[faces[f, 2], k]
+            lo[f, k] = min(min(a, b), c)
+            hi[f, k] = max(max(a, b), c)
+            glo[k] = min(glo[k], lo[f, k])
+            ghi[k] = max(ghi[k], hi[f, k])
+            extent += hi[f, k] - lo[f, k]
+    span = 0.0
+    for k in range(3):
+        span = max(span, ghi[k] - glo[k])
+    if m < 2 or not (span > 0.0) or not np.isfinite(span):
+        return              # all in one point: no two boxes overlap strictly (or not finite)
+    # cells about twice the mean face extent, fewer than 2**20 along an axis, and made
+    # bigger while a face would be entered in too many (one huge face among small ones)
+    size = max(2.0 * extent / (3.0 * m), span / 2.0 ** 20)
+    dims = np.empty(3, np.int64)
+    while True:
+        inv = 1.0 / size
+        total = 0
+        for k in range(3):
+            dims[k] = _cell(ghi[k], glo[k], inv, 2 ** 21) + 1
+        for f in range(m):
+            c = 1
+            for k in range(3):
+                c *= (_cell(hi[f, k], glo[k], inv, dims[k])
+                      - _cell(lo[f, k], glo[k], inv, dims[k]) + 1)
+            total += c
+        if total <= 16 * m + 1024:
+            break
+        size *= 2.0
+    # the faces in the order of the cell of their low corner (a counting sort), so that the
+    # faces of a cell are near in memory; then (cell key, face) entries, in buckets by cell.
+    # A cell's bucket: its key itself when the grid is small, else the key modulo an odd
+    # number (neighbouring cells in neighbouring buckets).
+    n_cells = dims[0] * dims[1] * dims[2]
+    n_buckets = n_cells if n_cells <= total else (total // 4) | 1
+    start = np.zeros(n_buckets + 1, np.int64)
+    for f in range(m):
+        key = ((_cell(lo[f, 0], glo[0], inv, dims[0]) * dims[1]
+                + _cell(lo[f, 1], glo[1], inv, dims[1])) * dims[2]
+               + _cell(lo[f, 2], glo[2], inv, dims[2]))
+        start[key % n_buckets + 1] += 1
+    for b in range(n_buckets):
+        start[b + 1] += start[b]
+    face_id = np.empty(m, np.int64)
+    for f in range(m):
+        key = ((_cell(lo[f, 0], glo[0], inv, dims[0]) * dims[1]
+                + _cell(lo[f, 1], glo[1], inv, dims[1])) * dims[2]
+               + _cell(lo[f, 2], glo[2], inv, dims[2]))
+        b = key % n_buckets
+        face_id[start[b]] = f
+        start[b] += 1
+    plo = np.empty((m, 3))
+    phi = np.empty((m, 3))
+    clo = np.empty((m, 3), np.int64)
+    chi = np.empty((m, 3), np.int64)
+    for j in range(m):
+        f = face_id[j]
+        for k in range(3):
+            plo[j, k] = lo[f, k]
+            phi[j, k] = hi[f, k]
+            clo[j, k] = _cell(lo[f, k], glo[k], inv, dims[k])
+            chi[j, k] = _cell(hi[f, k], glo[k], inv, dims[k])
+    start[:] = 0
+    for f in range(m):
+        for x in range(clo[f, 0], chi[f, 0] + 1):
+            for y in range(clo[f, 1], chi[f, 1] + 1):
+                for z in range(clo[f, 2], chi[f, 2] + 1):
+                    key = (x * dims[1] + y) * dims[2] + z
+                    start[key % n_buckets + 1] += 1
+    for b in range(n_buckets):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    keys = np.empty(total, np.int64)
+    owner = np.empty(total, np.int64)
+    for f in range(m):
+        for x in range(clo[f, 0], chi[f, 0] + 1):
+            for y in range(clo[f, 1], chi[f, 1] + 1):
+                for z in range(clo[f, 2], chi[f, 2] + 1):
+                    key = (x * dims[1] + y) * dims[2] + z
+                    b = key % n_buckets
+                    keys[fill[b]] = key
+                    owner[fill[b]] = f
+                    fill[b] += 1
+    widest = 0
+    for b in range(n_buckets):
+        widest = max(widest, start[b + 1] - start[b])
+    # each bucket's entries gathered, sorted by (cell, low x), and swept along x
+    bkey = np.empty(widest, np.int64)
+    bface = np.empty(widest, np.int64)
+    bcell = np.empty((widest, 3), np.int64)        # the cell of the face's low corner
+    blo = np.empty((widest, 3))
+    bhi = np.empty((widest, 3))
+    for b in range(n_buckets):
+        k = start[b + 1] - start[b]
+        if k < 2:
+            continue
+        for p in range(k):
+            i = start[b] + p
+            f = owner[i]
+            j = p                                   # insertion sort by (key, low x)
+            while j > 0 and (bkey[j - 1] > keys[i] or (bkey[j - 1] == keys[i]
+                                                       and blo[j - 1, 0] > plo[f, 0])):
+                bkey[j] = bkey[j - 1]
+                bface[j] = bface[j - 1]
+                for a in range(3):
+                    bcell[j, a] = bcell[j - 1, a]
+                    blo[j, a] = blo[j - 1, a]
+                    bhi[j, a] = bhi[j - 1, a]
+                j -= 1
+            bkey[j] = keys[i]
+            bface[j] = f
+            for a in range(3):
+                blo[j, a] = plo[f, a]
+                bhi[j, a] = phi[f, a]
+                bcell[j, a] = clo[f, a]
+        for p in range(k - 1):
+            key = bkey[p]
+            x = key // (dims[1] * dims[2])
+            y = (key // dims[2]) % dims[1]
+            z = key % dims[2]
+            for q in range(p + 1, k):
+                if bkey[q] != key or not (blo[q, 0] < bhi[p, 0]):
+                    break               # sorted: no later entry of this cell meets p's box
+                if not (bhi[q, 0] > blo[p, 0] and blo[q, 1] < bhi[p, 1] and bhi[q, 1] > blo[p, 1]
+                        and blo[q, 2] < bhi[p, 2] and bhi[q, 2] > blo[p, 2]):
+                    continue          # Box3::Collide, strict
+                # test the pair once: in the cell holding the larger of the two low corners
+                if (max(bcell[p, 0], bcell[q, 0]) != x or max(bcell[p, 1], bcell[q, 1]) != y
+                        or max(bcell[p, 2], bcell[q, 2]) != z):
+                    continue
+                f0 = min(face_id[bface[p]], face_id[bface[q]])
+                f1 = max(face_id[bface[p]], face_id[bface[q]])
+                if flags[f0] and flags[f1]:
+                    continue
+                if labels.shape[0] != 0 and labels[f0] != labels[f1]:
+                    continue
+                if _face_face(vertices, faces, f0, f1):
+                    flags[f0] = True
+                    flags[f1] = True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _find(parent, a):
+    root = a
+    while parent[root] != root:
+        root = parent[root]
+    while parent[a] != root:
+        parent[a], a = root, parent[a]
+    return root
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_facts(faces, n_vertices, labels):
+    """``(boundary edges, watertight, winding consistent, pieces)`` of a face array, and the
+    piece of every face in ``labels`` (numbered by their lowest face), from the edges grouped
+    by their lower vertex (a counting sort): the answers of ``repair._edge_facts``."""
+    m = faces.shape[0]
+    start = np.zeros(n_vertices + 1, np.int64)
+    for f in range(m):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            start[min(a, b) + 1] += 1
+    for v in range(n_vertices):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    other = np.empty(3 * m, np.int64)           # the higher vertex of each edge use
+    use = np.empty(3 * m, np.int64)             # 3 face + k: the use (directed edge)
+    for f in range(m):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            lo = min(a, b)
+            other[fill[lo]] = max(a, b)
+            use[fill[lo]] = 3 * f + k
+            fill[lo] += 1
+    parent = np.arange(m)
+    boundary = 0
+    two_uses = 0
+    winding = True
+    for v in range(n_vertices):
+        for p in range(start[v], start[v + 1]):
+            hi = other[p]
+            count = 0
+            first = -1
+            seen = False
+            for q in range(start[v], start[v + 1]):
+                if other[q] == hi:
+                    if q < p:
+                        seen = True         # this edge was counted at its first use
+                        break
+                    count += 1
+                    if count == 2:
+                        first = q
+            if seen:
+                continue
+            if count == 1:
+                boundary += 1
+            elif count == 2:
+                two_uses += 1
+                ua, ub = use[p], use[first]
+                fa, ka = ua // 3, ua % 3
+                fb, kb = ub // 3, ub % 3
+                # the first use ends where the second starts (opposite directions)
+                if faces[fa, (ka + 1) % 3] != faces[fb, kb]:
+                    winding = False
+                ra, rb = _find(parent, fa), _find(parent, fb)
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+    n = 0
+    for f in range(m):
+        r = _find(parent, f)
+        if r == f:
+            labels[f] = n
+            n += 1
+        else:
+            labels[f] = labels[r]
+    return boundary, two_uses * 2 == 3 * m, winding, n
+
+
+_F2 = _nt.Array(_nt.float64, 2, "C", readonly=True)
+_I2 = _nt.Array(_nt.int64, 2, "C", readonly=True)
+_I1r = _nt.Array(_nt.int64, 1, "C", readonly=True)
+_I1 = _nt.Array(_nt.int64, 1, "C")
+_B1 = _nt.Array(_nt.boolean, 1, "C")
+#: The one specialisation of each kernel.
+SIGNATURES = {
+    "_flag_self_intersections": (_F2, _I2, _I1r, _B1),   # vertices, faces, labels, flags (out)
+    "_edge_facts": (_I2, _nt.int64, _I1),                 # faces, vertex count, labels (out)
+}
+
+_lock = threading.Lock()
+_compiled: set = set()
+
+
+def _kernel(name: str):
+    """The dispatcher of kernel ``name``, its one specialisation compiled or loaded."""
+    disp = globals()[name]
+    if name not in _compiled:
+        with _lock:
+            if name not in _compiled:
+                disp.compile(SIGNATURES[name])
+                disp.disable_compile()
+                _compiled.add(name)
+    return disp
+
+
+def compile_kernels() -> list:
+    """Compile (or load from numba's cache) every kernel of this module; returns their names
+    (for a background process filling the cache)."""
+    for name in SIGNATURES:
+        _kernel(name)
+    return list(SIGNATURES)
+
+
+def is_ready() -> bool:
+    """Whether every kernel is compiled in this process or in numba's cache (using them then
+    costs no compilation)."""
+    for name, sig in SIGNATURES.items():
+        if name in _compiled:
+            continue
+        disp = globals()[name]
+        is_cached = getattr(getattr(disp, "_cache", None), "is_cached", None)
+        if not (is_cached and is_cached(sig, disp.targetctx)):
+            return False
+    return True
+
+
+def prepare(*, nice: int = 10) -> bool:
+    """Start compiling the kernels into numba's cache in a background process, unless they are
+    ready (:func:`is_ready`), another process is already compiling them into the same cache,
+    or there is no cache to share them through; returns whether one started.
+
+    Until they are cached, :mod:`xray_viz.meshes.repair` answers with NumPy and pymeshlab,
+    so nothing waits for this process: ``xray-viz render`` calls this once its image is
+    written, for the next runs.
+
+    Parameters
+    ----------
+    nice : int, optional
+        Added to the background process's niceness (``os.nice``), so that it yields the
+        processor to whatever runs next.
+    """
+    import os
+    import subprocess
+    import sys
+    import time
+
+    disp = _flag_self_intersections
+    cache = getattr(disp, "_cache", None)
+    if is_ready() or not isinstance(cache, _numba_cache.KernelCache):
+        return False
+    # one compiling process per cache: a marker beside the cache files, taken with O_EXCL,
+    # left to the worker to remove; one older than 10 minutes is from a process that died
+    marker = os.path.join(cache._cache_path, "meshes-check-kernels.compiling")
+    try:
+        os.makedirs(cache._cache_path, exist_ok=True)
+        if os.path.exists(marker) and time.time() - os.path.getmtime(marker) > 600:
+            os.unlink(marker)
+        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+    except OSError:
+        return False
+    code = (f"import os, warnings; os.nice({int(nice)}) if hasattr(os, 'nice') else None; "
+            "warnings.simplefilter('ignore')\n"
+            "try:\n    from xray_viz.meshes import _check_kernels as K; K.compile_kernels()\n"
+            f"finally:\n    os.unlink({marker!r})")
+    subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                     start_new_session=True)
+    return True
+
+
+def _checked_faces(faces, n_vertices) -> np.ndarray:
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= n_vertices):
+        raise IndexError(f"face indices outside 0 .. {n_vertices - 1}")
+    return f
+
+
+def edge_facts(faces, n_vertices):
+    """``(boundary, watertight, winding, labels, n_pieces)``: what
+    :func:`xray_viz.meshes.repair._edge_facts` computes, in one pass over the edges.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> box = trimesh.creation.box()
+    >>> boundary, watertight, winding, labels, n = edge_facts(box.faces, len(box.vertices))
+    >>> boundary, watertight, winding, n
+    (0, True, True, 1)
+    """
+    f = _checked_faces(faces, n_vertices)
+    labels = np.empty(len(f), np.int64)
+    boundary, watertight, winding, n = _kernel("_edge_facts")(f, int(n_vertices), labels)
+    return int(boundary), bool(watertight), bool(winding), labels, int(n)
+
+
+def self_intersections(vertices, faces, labels=None) -> np.ndarray:
+    """The faces pymeshlab selects as self-intersecting (see the module docstring).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (m, 3) int
+    labels : (m,) int, optional
+        A label per face (the edge-connected piece): only faces crossing a face of the same
+        label are flagged.
+
+    Returns
+    -------
+    (m,) bool
+
+    Raises
+    ------
+    ValueError
+        A vertex is not finite (pymeshlab answers those: ``repair.self_intersecting_faces``).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> a = trimesh.creation.box(extents=[2, 2, 2])
+    >>> b = a.copy(); _ = b.apply_translation([1, 0.5, 0.25])
+    >>> both = trimesh.util.concatenate([a, b])
+    >>> int(self_intersections(a.vertices, a.faces).sum()), int(self_intersections(
+    ...     both.vertices, both.faces).sum())
+    (0, 12)
+    """
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = _checked_faces(faces, len(v))
+    if not np.isfinite(v).all():
+        raise ValueError("vertices that are not finite")
+    lab = (np.zeros(0, np.int64) if labels is None
+           else np.ascontiguousarray(labels, dtype=np.int64).reshape(-1))
+    flags = np.zeros(len(f), bool)
+    if len(f) >= 2:
+        _kernel("_flag_self_intersections")(v, f, lab, flags)
+    return flags
