@@ -332,8 +332,14 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
     """Compact per-triangle data of the triangles ``tri`` that cover samples.
 
     Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
-    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
+    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range
+    (the coefficients of :func:`_plane`).
     """
+    r0x, r0y, r0z = r0[0], r0[1], r0[2]
+    p0, p1, p2 = P00[0], P00[1], P00[2]
+    ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
+    ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
+    f0, f1, f2 = f[0], f[1], f[2]
     for m in range(lo, hi):
         t = tri[m]
         st = status[t]
@@ -344,13 +350,36 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
         i0 = F[t, 0]
         i1 = F[t, 1]
         i2 = F[t, 2]
-        c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL)
-        coef[m, 0] = c0
-        coef[m, 1] = c1
-        coef[m, 2] = c2
-        coef[m, 3] = c3
-        coef[m, 4] = c4
-        coef[m, 5] = c5
+        # _plane's expressions, written out: numba does not inline _plane, and a call passing
+        # six arrays costs several times the arithmetic (same operations, same bits).
+        f1x = V[i1, 0] - V[i0, 0]
+        f1y = V[i1, 1] - V[i0, 1]
+        f1z = V[i1, 2] - V[i0, 2]
+        f2x = V[i2, 0] - V[i0, 0]
+        f2y = V[i2, 1] - V[i0, 1]
+        f2z = V[i2, 2] - V[i0, 2]
+        nx = f1y * f2z - f1z * f2y
+        ny = f1z * f2x - f1x * f2z
+        nz = f1x * f2y - f1y * f2x
+        qx = V[i0, 0] - r0x
+        qy = V[i0, 1] - r0y
+        qz = V[i0, 2] - r0z
+        nEx = nx * ex0 + ny * ex1 + nz * ex2
+        nEy = nx * ey0 + ny * ey1 + nz * ey2
+        if perspective:
+            coef[m, 0] = FL * (nx * qx + ny * qy + nz * qz)
+            coef[m, 1] = 0.0
+            coef[m, 2] = 0.0
+            coef[m, 3] = nx * p0 + ny * p1 + nz * p2
+            coef[m, 4] = nEx
+            coef[m, 5] = nEy
+        else:
+            coef[m, 0] = nx * (qx - p0) + ny * (qy - p1) + nz * (qz - p2)
+            coef[m, 1] = -nEx
+            coef[m, 2] = -nEy
+            coef[m, 3] = nx * f0 + ny * f1 + nz * f2
+            coef[m, 4] = 0.0
+            coef[m, 5] = 0.0
         w0 = w[i0]
         w1 = w[i1]
         w2 = w[i2]
