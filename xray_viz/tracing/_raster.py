@@ -409,83 +409,6 @@ def _bin_triangles(box, band_height, n_bands):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _cover_hits(ax, ay, bx, by, cx, cy, o, small, X0, X1, y0, y1, r0, nW, c0, c1, c2, c3, c4, c5,
-                wmin, wmax, FL, code, hk, hw, hb, nh):
-    """Append the hits of a triangle (projected vertices ``(ax, ay)``, ``(bx, by)``, ``(cx,
-    cy)``, orientation ``o``, SMALL or not, depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``
-    clamped to ``wmin .. wmax``) in rows ``y0..y1``, columns ``X0..X1`` of the band starting
-    at row ``r0`` to ``hk`` (sample index in the band), ``hw`` (depth) and ``hb`` (``code``)
-    from ``nh`` on; returns the new count. A sample is hit when the triangle covers it (exact
-    edge functions and the tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the
-    depth there is not beyond the detector (FL). Samples in row, then column order. A SMALL
-    triangle's one sample (in these rows) whose three edge functions are non-zero is covered
-    exactly when all three have the triangle's orientation sign: no tie rule needed. Scalars
-    but the three outputs: a call passing arrays costs more than a small triangle's work."""
-    # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
-    e0x = bx - ax
-    e0y = by - ay
-    e1x = cx - bx
-    e1y = cy - by
-    e2x = ax - cx
-    e2y = ay - cy
-    if small and X0 == X1 and y0 == y1:
-        px = X0 * ONE
-        py = y0 * ONE
-        E0 = o * (e0x * (py - ay) - e0y * (px - ax))
-        E1 = o * (e1x * (py - by) - e1y * (px - bx))
-        E2 = o * (e2x * (py - cy) - e2y * (px - cx))
-        if E0 != 0 and E1 != 0 and E2 != 0:
-            if E0 > 0 and E1 > 0 and E2 > 0:
-                Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
-                if Wd <= FL:
-                    hk[nh] = (y0 - r0) * nW + X0
-                    hw[nh] = Wd
-                    hb[nh] = code
-                    nh += 1
-            return nh
-    bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-    bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-    bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-    if small:
-        px0 = X0 * ONE
-        stepx0 = -o * e0y * ONE
-        stepx1 = -o * e1y * ONE
-        stepx2 = -o * e2y * ONE
-        for Y in range(y0, y1 + 1):
-            py = Y * ONE
-            E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
-            E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
-            E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
-            for X in range(X0, X1 + 1):
-                if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                    if Wd <= FL:
-                        hk[nh] = (Y - r0) * nW + X
-                        hw[nh] = Wd
-                        hb[nh] = code
-                        nh += 1
-                E0 += stepx0
-                E1 += stepx1
-                E2 += stepx2
-    else:
-        for Y in range(y0, y1 + 1):
-            py = Y * ONE
-            for X in range(X0, X1 + 1):
-                px = X * ONE
-                s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
-                s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
-                s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
-                if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                    if Wd <= FL:
-                        hk[nh] = (Y - r0) * nW + X
-                        hw[nh] = Wd
-                        hb[nh] = code
-                        nh += 1
-    return nh
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
                   cbox, orient, coef, wrange, tri_body, FL, single, S, N, row0, rank, by_rank,
                   perspective, P00, Ex, Ey, n, W, H, L, ray0):
@@ -547,10 +470,95 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
             i0 = F[t, 0]
             i1 = F[t, 1]
             i2 = F[t, 2]
-            nh = _cover_hits(XY[i0, 0], XY[i0, 1], XY[i1, 0], XY[i1, 1], XY[i2, 0], XY[i2, 1],
-                             np.int64(orient[m]), kind[m] == SMALL, X0, X1, y0, y1, r0, nW,
-                             coef[m, 0], coef[m, 1], coef[m, 2], coef[m, 3], coef[m, 4],
-                             coef[m, 5], wrange[m, 0], wrange[m, 1], FL, code, hk, hw, hb, nh)
+            # The triangle's hits in rows y0..y1, columns X0..X1, appended to hk (sample index
+            # in the band), hw (depth), hb (code), samples in row then column order. Written
+            # out here: numba does not inline a function of this size, and its call (the
+            # arrays and some 25 numbers pushed per triangle entry) costs as much as a small
+            # triangle's coverage.
+            ax = XY[i0, 0]
+            ay = XY[i0, 1]
+            bx = XY[i1, 0]
+            by = XY[i1, 1]
+            cx = XY[i2, 0]
+            cy = XY[i2, 1]
+            o = np.int64(orient[m])
+            small = kind[m] == SMALL
+            c0 = coef[m, 0]
+            c1 = coef[m, 1]
+            c2 = coef[m, 2]
+            c3 = coef[m, 3]
+            c4 = coef[m, 4]
+            c5 = coef[m, 5]
+            wmin = wrange[m, 0]
+            wmax = wrange[m, 1]
+            # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
+            # E > 0).
+            e0x = bx - ax
+            e0y = by - ay
+            e1x = cx - bx
+            e1y = cy - by
+            e2x = ax - cx
+            e2y = ay - cy
+            one = False
+            if small and X0 == X1 and y0 == y1:
+                # A SMALL triangle's one sample whose three edge functions are non-zero is
+                # covered exactly when all three have the orientation's sign (no tie rule).
+                px = X0 * ONE
+                py = y0 * ONE
+                E0 = o * (e0x * (py - ay) - e0y * (px - ax))
+                E1 = o * (e1x * (py - by) - e1y * (px - bx))
+                E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+                if E0 != 0 and E1 != 0 and E2 != 0:
+                    one = True
+                    if E0 > 0 and E1 > 0 and E2 > 0:
+                        Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
+                        if Wd <= FL:
+                            hk[nh] = (y0 - r0) * nW + X0
+                            hw[nh] = Wd
+                            hb[nh] = code
+                            nh += 1
+            if not one:
+                # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
+                # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
+                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                if small:
+                    px0 = X0 * ONE
+                    stepx0 = -o * e0y * ONE
+                    stepx1 = -o * e1y * ONE
+                    stepx2 = -o * e2y * ONE
+                    for Y in range(y0, y1 + 1):
+                        py = Y * ONE
+                        E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
+                        E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
+                        E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+                        for X in range(X0, X1 + 1):
+                            if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
+                                Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                                if Wd <= FL:
+                                    hk[nh] = (Y - r0) * nW + X
+                                    hw[nh] = Wd
+                                    hb[nh] = code
+                                    nh += 1
+                            E0 += stepx0
+                            E1 += stepx1
+                            E2 += stepx2
+                else:
+                    for Y in range(y0, y1 + 1):
+                        py = Y * ONE
+                        for X in range(X0, X1 + 1):
+                            px = X * ONE
+                            s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
+                            s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
+                            s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
+                            if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                                Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                                if Wd <= FL:
+                                    hk[nh] = (Y - r0) * nW + X
+                                    hw[nh] = Wd
+                                    hb[nh] = code
+                                    nh += 1
             if single:
                 sgn = -1.0 if orient[m] > 0 else 1.0
                 dn = 1 if orient[m] > 0 else -1
