@@ -388,24 +388,31 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _bin_triangles(box, band_height, n_bands):
-    """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
+def _bin_triangles(lo, hi, box, band_height, n_bands, n_chunks, counts, tris, fill):
+    """The triangles whose sample rows meet each band of ``band_height`` rows, for chunks
+    ``lo .. hi - 1`` of ``n_chunks`` contiguous chunks of the triangles (rows of ``box``).
+
+    Without ``fill``: ``counts[c, b]`` receives the number of chunk ``c``'s triangles that
+    meet band ``b``. With ``fill``: ``counts[c, b]`` is where chunk ``c``'s first entry of band
+    ``b`` goes in ``tris``, and the chunk writes its triangles there in triangle order (so each
+    band's list is in triangle order whatever the chunks; :func:`bin_triangles`).
+    """
     T = box.shape[0]
-    counts = np.zeros(n_bands + 1, np.int64)
-    for t in range(T):
-        if True:
-            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
-                counts[b + 1] += 1
-    for b in range(n_bands):
-        counts[b + 1] += counts[b]
-    fill = counts[:-1].copy()
-    tris = np.empty(counts[n_bands], np.int32)
-    for t in range(T):
-        if True:
-            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
-                tris[fill[b]] = t
-                fill[b] += 1
-    return counts, tris
+    per = (T + n_chunks - 1) // n_chunks
+    for c in range(lo, hi):
+        t0 = min(T, c * per)
+        t1 = min(T, t0 + per)
+        if not fill:
+            for b in range(n_bands):
+                counts[c, b] = 0
+            for t in range(t0, t1):
+                for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                    counts[c, b] += 1
+        else:
+            for t in range(t0, t1):
+                for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                    tris[counts[c, b]] = t
+                    counts[c, b] += 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1013,7 +1020,7 @@ SIGNATURES = {
                        "f8[2]r",
     "_setup_planes": "i8 i8 i8[1]r f8[2]r i4[2]r f8[1]r i1[1]r i8[2]r b1 f8[1]r f8[1]r f8[1]r "
                      "f8[1]r f8[1]r f8 i1[1] i1[1] i8[2] f8[2] f8[2]",
-    "_bin_triangles": "i8[2]r i8 i8",
+    "_bin_triangles": "i8 i8 i8[2]r i8 i8 i8 i8[2] i4[1] b1",
     "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
                      "i1[1]r f8[2]r f8[2]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
                      "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
@@ -1327,7 +1334,25 @@ def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
 
 
 def bin_triangles(box, band_height, n_bands):
-    return _kernel("_bin_triangles")(_in(box, np.int64), int(band_height), int(n_bands))
+    """``(band_start, band_tris)``: CSR lists (each band's in triangle order) of the triangles
+    whose sample rows ``box[:, 2] .. box[:, 3]`` meet each band of ``band_height`` rows; one
+    chunk of triangles per thread (a count, then a fill)."""
+    box = _in(box, np.int64)
+    band_height, n_bands = int(band_height), int(n_bands)
+    k = max(1, min(_threads(), len(box) // _MIN_ITEMS))
+    counts = np.empty((k, n_bands), np.int64)
+    tris = np.empty(0, np.int32)
+    args = (box, band_height, n_bands, k, counts)
+    _split("_bin_triangles", 0, k, args + (tris, False))
+    band_start = np.zeros(n_bands + 1, np.int64)
+    np.cumsum(counts.sum(axis=0), out=band_start[1:])
+    # Chunk c's entries of band b follow those of chunks 0 .. c - 1.
+    counts[1:] = np.cumsum(counts[:-1], axis=0)
+    counts[0] = 0
+    counts += band_start[:-1]
+    tris = np.empty(band_start[-1], np.int32)
+    _split("_bin_triangles", 0, k, args + (tris, True))
+    return band_start, tris
 
 
 def _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
