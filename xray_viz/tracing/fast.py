@@ -554,7 +554,7 @@ def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sid
     R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides)
     if status.min() <= R.ERR_STRADDLE:
         _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
-    tri = np.flatnonzero(status).astype(np.int64)
+    tri = np.flatnonzero(status).astype(np.int64, copy=False)
     M = len(tri)
     kind, orient, cbox, coef, wrange = (a[:M] for a in space)
     R.setup_planes(tri, V, F, w, status, box, perspective, r0, P0, Ex, Ey, f, FL,
