@@ -52,7 +52,7 @@ def test_every_kernel_has_exactly_its_one_explicit_signature():
         assert not disp._can_compile, name      # nothing else can be compiled
 
 
-HELPERS = ("_cover_hits", "_lowest_bit", "_plane", "_sample_ray", "_obliquity", "exact_cross_sign",
+HELPERS = ("_lowest_bit", "_plane", "_sample_ray", "_obliquity", "exact_cross_sign",
            "beyond_side", "_tie", "_clamped", "_axis_code", "_side_value")
 EVERY_PATH = """
 import json, sys

@@ -332,8 +332,14 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
     """Compact per-triangle data of the triangles ``tri`` that cover samples.
 
     Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
-    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range.
+    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range
+    (the coefficients of :func:`_plane`).
     """
+    r0x, r0y, r0z = r0[0], r0[1], r0[2]
+    p0, p1, p2 = P00[0], P00[1], P00[2]
+    ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
+    ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
+    f0, f1, f2 = f[0], f[1], f[2]
     for m in range(lo, hi):
         t = tri[m]
         st = status[t]
@@ -344,13 +350,36 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
         i0 = F[t, 0]
         i1 = F[t, 1]
         i2 = F[t, 2]
-        c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL)
-        coef[m, 0] = c0
-        coef[m, 1] = c1
-        coef[m, 2] = c2
-        coef[m, 3] = c3
-        coef[m, 4] = c4
-        coef[m, 5] = c5
+        # _plane's expressions, written out: numba does not inline _plane, and a call passing
+        # six arrays costs several times the arithmetic (same operations, same bits).
+        f1x = V[i1, 0] - V[i0, 0]
+        f1y = V[i1, 1] - V[i0, 1]
+        f1z = V[i1, 2] - V[i0, 2]
+        f2x = V[i2, 0] - V[i0, 0]
+        f2y = V[i2, 1] - V[i0, 1]
+        f2z = V[i2, 2] - V[i0, 2]
+        nx = f1y * f2z - f1z * f2y
+        ny = f1z * f2x - f1x * f2z
+        nz = f1x * f2y - f1y * f2x
+        qx = V[i0, 0] - r0x
+        qy = V[i0, 1] - r0y
+        qz = V[i0, 2] - r0z
+        nEx = nx * ex0 + ny * ex1 + nz * ex2
+        nEy = nx * ey0 + ny * ey1 + nz * ey2
+        if perspective:
+            coef[m, 0] = FL * (nx * qx + ny * qy + nz * qz)
+            coef[m, 1] = 0.0
+            coef[m, 2] = 0.0
+            coef[m, 3] = nx * p0 + ny * p1 + nz * p2
+            coef[m, 4] = nEx
+            coef[m, 5] = nEy
+        else:
+            coef[m, 0] = nx * (qx - p0) + ny * (qy - p1) + nz * (qz - p2)
+            coef[m, 1] = -nEx
+            coef[m, 2] = -nEy
+            coef[m, 3] = nx * f0 + ny * f1 + nz * f2
+            coef[m, 4] = 0.0
+            coef[m, 5] = 0.0
         w0 = w[i0]
         w1 = w[i1]
         w2 = w[i2]
@@ -359,101 +388,31 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _bin_triangles(box, band_height, n_bands):
-    """CSR lists of the triangles whose sample rows meet each band of ``band_height`` rows."""
+def _bin_triangles(lo, hi, box, band_height, n_bands, n_chunks, counts, tris, fill):
+    """The triangles whose sample rows meet each band of ``band_height`` rows, for chunks
+    ``lo .. hi - 1`` of ``n_chunks`` contiguous chunks of the triangles (rows of ``box``).
+
+    Without ``fill``: ``counts[c, b]`` receives the number of chunk ``c``'s triangles that
+    meet band ``b``. With ``fill``: ``counts[c, b]`` is where chunk ``c``'s first entry of band
+    ``b`` goes in ``tris``, and the chunk writes its triangles there in triangle order (so each
+    band's list is in triangle order whatever the chunks; :func:`bin_triangles`).
+    """
     T = box.shape[0]
-    counts = np.zeros(n_bands + 1, np.int64)
-    for t in range(T):
-        if True:
-            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
-                counts[b + 1] += 1
-    for b in range(n_bands):
-        counts[b + 1] += counts[b]
-    fill = counts[:-1].copy()
-    tris = np.empty(counts[n_bands], np.int32)
-    for t in range(T):
-        if True:
-            for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
-                tris[fill[b]] = t
-                fill[b] += 1
-    return counts, tris
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _cover_hits(ax, ay, bx, by, cx, cy, o, small, X0, X1, y0, y1, r0, nW, c0, c1, c2, c3, c4, c5,
-                wmin, wmax, FL, code, hk, hw, hb, nh):
-    """Append the hits of a triangle (projected vertices ``(ax, ay)``, ``(bx, by)``, ``(cx,
-    cy)``, orientation ``o``, SMALL or not, depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``
-    clamped to ``wmin .. wmax``) in rows ``y0..y1``, columns ``X0..X1`` of the band starting
-    at row ``r0`` to ``hk`` (sample index in the band), ``hw`` (depth) and ``hb`` (``code``)
-    from ``nh`` on; returns the new count. A sample is hit when the triangle covers it (exact
-    edge functions and the tie rule: int64 for SMALL triangles, limbs for GIANT ones) and the
-    depth there is not beyond the detector (FL). Samples in row, then column order. A SMALL
-    triangle's one sample (in these rows) whose three edge functions are non-zero is covered
-    exactly when all three have the triangle's orientation sign: no tie rule needed. Scalars
-    but the three outputs: a call passing arrays costs more than a small triangle's work."""
-    # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside: E > 0).
-    e0x = bx - ax
-    e0y = by - ay
-    e1x = cx - bx
-    e1y = cy - by
-    e2x = ax - cx
-    e2y = ay - cy
-    if small and X0 == X1 and y0 == y1:
-        px = X0 * ONE
-        py = y0 * ONE
-        E0 = o * (e0x * (py - ay) - e0y * (px - ax))
-        E1 = o * (e1x * (py - by) - e1y * (px - bx))
-        E2 = o * (e2x * (py - cy) - e2y * (px - cx))
-        if E0 != 0 and E1 != 0 and E2 != 0:
-            if E0 > 0 and E1 > 0 and E2 > 0:
-                Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
-                if Wd <= FL:
-                    hk[nh] = (y0 - r0) * nW + X0
-                    hw[nh] = Wd
-                    hb[nh] = code
-                    nh += 1
-            return nh
-    bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-    bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-    bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-    if small:
-        px0 = X0 * ONE
-        stepx0 = -o * e0y * ONE
-        stepx1 = -o * e1y * ONE
-        stepx2 = -o * e2y * ONE
-        for Y in range(y0, y1 + 1):
-            py = Y * ONE
-            E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
-            E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
-            E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
-            for X in range(X0, X1 + 1):
-                if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                    if Wd <= FL:
-                        hk[nh] = (Y - r0) * nW + X
-                        hw[nh] = Wd
-                        hb[nh] = code
-                        nh += 1
-                E0 += stepx0
-                E1 += stepx1
-                E2 += stepx2
-    else:
-        for Y in range(y0, y1 + 1):
-            py = Y * ONE
-            for X in range(X0, X1 + 1):
-                px = X * ONE
-                s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
-                s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
-                s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
-                if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                    if Wd <= FL:
-                        hk[nh] = (Y - r0) * nW + X
-                        hw[nh] = Wd
-                        hb[nh] = code
-                        nh += 1
-    return nh
+    per = (T + n_chunks - 1) // n_chunks
+    for c in range(lo, hi):
+        t0 = min(T, c * per)
+        t1 = min(T, t0 + per)
+        if not fill:
+            for b in range(n_bands):
+                counts[c, b] = 0
+            for t in range(t0, t1):
+                for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                    counts[c, b] += 1
+        else:
+            for t in range(t0, t1):
+                for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
+                    tris[counts[c, b]] = t
+                    counts[c, b] += 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -518,10 +477,95 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
             i0 = F[t, 0]
             i1 = F[t, 1]
             i2 = F[t, 2]
-            nh = _cover_hits(XY[i0, 0], XY[i0, 1], XY[i1, 0], XY[i1, 1], XY[i2, 0], XY[i2, 1],
-                             np.int64(orient[m]), kind[m] == SMALL, X0, X1, y0, y1, r0, nW,
-                             coef[m, 0], coef[m, 1], coef[m, 2], coef[m, 3], coef[m, 4],
-                             coef[m, 5], wrange[m, 0], wrange[m, 1], FL, code, hk, hw, hb, nh)
+            # The triangle's hits in rows y0..y1, columns X0..X1, appended to hk (sample index
+            # in the band), hw (depth), hb (code), samples in row then column order. Written
+            # out here: numba does not inline a function of this size, and its call (the
+            # arrays and some 25 numbers pushed per triangle entry) costs as much as a small
+            # triangle's coverage.
+            ax = XY[i0, 0]
+            ay = XY[i0, 1]
+            bx = XY[i1, 0]
+            by = XY[i1, 1]
+            cx = XY[i2, 0]
+            cy = XY[i2, 1]
+            o = np.int64(orient[m])
+            small = kind[m] == SMALL
+            c0 = coef[m, 0]
+            c1 = coef[m, 1]
+            c2 = coef[m, 2]
+            c3 = coef[m, 3]
+            c4 = coef[m, 4]
+            c5 = coef[m, 5]
+            wmin = wrange[m, 0]
+            wmax = wrange[m, 1]
+            # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
+            # E > 0).
+            e0x = bx - ax
+            e0y = by - ay
+            e1x = cx - bx
+            e1y = cy - by
+            e2x = ax - cx
+            e2y = ay - cy
+            one = False
+            if small and X0 == X1 and y0 == y1:
+                # A SMALL triangle's one sample whose three edge functions are non-zero is
+                # covered exactly when all three have the orientation's sign (no tie rule).
+                px = X0 * ONE
+                py = y0 * ONE
+                E0 = o * (e0x * (py - ay) - e0y * (px - ax))
+                E1 = o * (e1x * (py - by) - e1y * (px - bx))
+                E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+                if E0 != 0 and E1 != 0 and E2 != 0:
+                    one = True
+                    if E0 > 0 and E1 > 0 and E2 > 0:
+                        Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
+                        if Wd <= FL:
+                            hk[nh] = (y0 - r0) * nW + X0
+                            hw[nh] = Wd
+                            hb[nh] = code
+                            nh += 1
+            if not one:
+                # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
+                # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
+                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                if small:
+                    px0 = X0 * ONE
+                    stepx0 = -o * e0y * ONE
+                    stepx1 = -o * e1y * ONE
+                    stepx2 = -o * e2y * ONE
+                    for Y in range(y0, y1 + 1):
+                        py = Y * ONE
+                        E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
+                        E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
+                        E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+                        for X in range(X0, X1 + 1):
+                            if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
+                                Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                                if Wd <= FL:
+                                    hk[nh] = (Y - r0) * nW + X
+                                    hw[nh] = Wd
+                                    hb[nh] = code
+                                    nh += 1
+                            E0 += stepx0
+                            E1 += stepx1
+                            E2 += stepx2
+                else:
+                    for Y in range(y0, y1 + 1):
+                        py = Y * ONE
+                        for X in range(X0, X1 + 1):
+                            px = X * ONE
+                            s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
+                            s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
+                            s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
+                            if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                                Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                                if Wd <= FL:
+                                    hk[nh] = (Y - r0) * nW + X
+                                    hw[nh] = Wd
+                                    hb[nh] = code
+                                    nh += 1
             if single:
                 sgn = -1.0 if orient[m] > 0 else 1.0
                 dn = 1 if orient[m] > 0 else -1
@@ -976,7 +1020,7 @@ SIGNATURES = {
                        "f8[2]r",
     "_setup_planes": "i8 i8 i8[1]r f8[2]r i4[2]r f8[1]r i1[1]r i8[2]r b1 f8[1]r f8[1]r f8[1]r "
                      "f8[1]r f8[1]r f8 i1[1] i1[1] i8[2] f8[2] f8[2]",
-    "_bin_triangles": "i8[2]r i8 i8",
+    "_bin_triangles": "i8 i8 i8[2]r i8 i8 i8 i8[2] i4[1] b1",
     "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
                      "i1[1]r f8[2]r f8[2]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
                      "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
@@ -1296,7 +1340,25 @@ def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
 
 
 def bin_triangles(box, band_height, n_bands):
-    return _kernel("_bin_triangles")(_in(box, np.int64), int(band_height), int(n_bands))
+    """``(band_start, band_tris)``: CSR lists (each band's in triangle order) of the triangles
+    whose sample rows ``box[:, 2] .. box[:, 3]`` meet each band of ``band_height`` rows; one
+    chunk of triangles per thread (a count, then a fill)."""
+    box = _in(box, np.int64)
+    band_height, n_bands = int(band_height), int(n_bands)
+    k = max(1, min(_threads(), len(box) // _MIN_ITEMS))
+    counts = np.empty((k, n_bands), np.int64)
+    tris = np.empty(0, np.int32)
+    args = (box, band_height, n_bands, k, counts)
+    _split("_bin_triangles", 0, k, args + (tris, False))
+    band_start = np.zeros(n_bands + 1, np.int64)
+    np.cumsum(counts.sum(axis=0), out=band_start[1:])
+    # Chunk c's entries of band b follow those of chunks 0 .. c - 1.
+    counts[1:] = np.cumsum(counts[:-1], axis=0)
+    counts[0] = 0
+    counts += band_start[:-1]
+    tris = np.empty(band_start[-1], np.int32)
+    _split("_bin_triangles", 0, k, args + (tris, True))
+    return band_start, tris
 
 
 def _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
