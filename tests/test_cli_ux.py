@@ -267,6 +267,38 @@ def test_show_takes_the_overrides_and_keeps_its_window_size(scenes):
     assert np.allclose(scene.detector.size, (60.0, 40.0))
 
 
+@pytest.mark.parametrize("argv", [
+    ["render", "default", "-o", "x.png"],
+    ["-vv", "render", "-o", "x.png", "default", "--shape", "3", "4", "--pitch", "1", "2",
+     "--no-noise", "-q", "--engine", "numpy"],
+    ["-q", "render", "x.toml", "-o", "y.tiff", "--quantity", "line-integral", "--bogus"],
+])
+def test_the_render_sub_parser_alone_parses_as_the_whole_parser(argv):
+    """``xray-viz render`` builds its own sub-parser only (the other commands' modules are not
+    imported): the same arguments, the same leftovers."""
+    assert cli._only_command(argv) == "render"
+    whole, alone = cli.build_parser().parse_known_args(argv), \
+        cli.build_parser(only="render").parse_known_args(argv)
+    assert vars(whole[0]) == vars(alone[0]) and whole[1] == alone[1]
+
+
+@pytest.mark.parametrize("argv", [["-h", "render"], ["--version", "render"], ["show", "x"],
+                                  ["mesh", "render"], [], ["-vq", "render"]])
+def test_anything_else_gets_the_whole_parser(argv):
+    assert cli._only_command(argv) is None
+
+
+def test_render_errors_and_help_are_the_whole_parser_s(capsys):
+    for argv in (["render", "--help"], ["render"], ["render", "x", "-o", "y", "--shape", "1"],
+                 ["render", "x", "-o", "y", "--engine", "bogus"]):
+        said = []
+        for only in (None, "render"):
+            with pytest.raises(SystemExit) as exc:
+                cli.build_parser(only=only).parse_known_args(argv)
+            said.append((exc.value.code, capsys.readouterr()))
+        assert said[0] == said[1], argv
+
+
 # -- progress ------------------------------------------------------------------------------
 
 

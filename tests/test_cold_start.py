@@ -199,23 +199,31 @@ RENDER_MODULES = """
 import json, sys
 from xray_viz import cli
 code = cli.main(["-q", "render", "sphere", "-o", sys.argv[1], "--shape", "32", "32"])
-print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
+render = sorted(sys.modules)
+cli.build_parser()
+print(json.dumps({"code": code, "modules": render, "parser": sorted(sys.modules)}))
 """
+
+#: Modules of other commands than ``render``, which its own parser does not import.
+OTHER_COMMANDS = ("xray_viz.viz.command", "xray_viz.scan", "xray_viz.reconstruct",
+                  "xray_viz.convert", "xray_viz.walkthroughs", "xray_viz.meshes.command")
 
 
 def test_the_render_command_imports_no_viewer(tmp_path):
-    """``xray-viz render`` builds the whole parser (``show`` among its commands) and renders,
-    without importing PyVista or VTK (the viewer's, ~0.5 s of every render's start)."""
+    """``xray-viz render`` renders without importing PyVista or VTK (the viewer's, ~0.5 s of
+    every render's start), nor the other commands' modules (it builds its own sub-parser
+    only); the whole parser (``show`` among its commands) imports no viewer either."""
     out = subprocess.run([sys.executable, "-c", RENDER_MODULES, str(tmp_path / "x.npy")],
                          check=True, capture_output=True, text=True, timeout=600)
     result = json.loads(out.stdout.splitlines()[-1])
     assert result["code"] == 0 and (tmp_path / "x.npy").is_file()
-    assert "xray_viz.viz.command" in result["modules"]      # the test can fail
     assert "xray_viz.tracing._raster" in result["modules"]
-    viewer = [m for m in result["modules"]
-              if m.split(".")[0] in ("pyvista", "vtk", "vtkmodules")
-              or m == "xray_viz.viz.scene_view"]
-    assert viewer == []
+    assert [m for m in OTHER_COMMANDS if m in result["modules"]] == []
+    assert set(OTHER_COMMANDS) <= set(result["parser"])     # the test can fail
+    for modules in (result["modules"], result["parser"]):
+        viewer = [m for m in modules if m.split(".")[0] in ("pyvista", "vtk", "vtkmodules")
+                  or m == "xray_viz.viz.scene_view"]
+        assert viewer == []
 
 
 def test_the_viewer_is_still_found_where_it_was():

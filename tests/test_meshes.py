@@ -260,6 +260,62 @@ def test_load_mesh_ascii_stl(tmp_path, ball):
     assert load_mesh(path).volume == pytest.approx(ball.volume, rel=1e-6)
 
 
+def _trimesh_load(path, *, process=True):
+    """What load_mesh gave before it read binary STL itself: trimesh's loader and merge."""
+    loaded = trimesh.load(path, force="mesh", process=False)
+    return trimesh.Trimesh(vertices=np.asarray(loaded.vertices, dtype=np.float64),
+                           faces=np.asarray(loaded.faces, dtype=np.int64), process=process,
+                           validate=False)
+
+
+def _same_arrays(a, b):
+    return (a.vertices.dtype == b.vertices.dtype and a.faces.dtype == b.faces.dtype
+            and np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces))
+
+
+@pytest.mark.parametrize("process", [True, False])
+def test_binary_stl_is_read_as_trimesh_reads_and_merges_it(process):
+    """load_mesh reads binary STL itself and merges its vertices itself: the same arrays, bit
+    for bit, as trimesh's loader and ``process=True`` (every bundled phantom's file)."""
+    from pathlib import Path
+
+    files = sorted((Path(__file__).resolve().parents[1] / "phantoms").glob("*/*.stl"))
+    assert len(files) > 10
+    for path in files:
+        mine = load_mesh(path, process=process)
+        assert _same_arrays(mine, _trimesh_load(path, process=process)), path.name
+        assert mine.metadata.get("processed", False) == process
+
+
+def test_binary_stl_merge_matches_trimesh_on_soups(tmp_path):
+    """Duplicates, near-duplicates closer than trimesh.tol.merge, -0.0 beside 0.0, tiny and
+    large coordinates: the merged arrays are trimesh's."""
+    rng = np.random.default_rng(7)
+    for k in range(40):
+        n = 3 * int(rng.integers(1, 400))
+        base = rng.normal(size=(max(1, n // 4), 3)) * 10.0 ** rng.uniform(-9, 4)
+        corners = base[rng.integers(0, len(base), n)]
+        if k % 3 == 0:
+            corners = corners + rng.normal(size=corners.shape) * 3e-9
+        if k % 4 == 0:
+            corners[::2, 1] = -0.0
+            corners[1::2, 1] = 0.0
+        soup = trimesh.Trimesh(corners, np.arange(n).reshape(-1, 3), process=False)
+        path = tmp_path / f"soup{k}.stl"
+        soup.export(path)
+        assert _same_arrays(load_mesh(path), _trimesh_load(path)), k
+
+
+def test_ascii_and_empty_stl_still_go_through_trimesh(tmp_path, ball):
+    ascii_path = tmp_path / "ascii.stl"
+    ascii_path.write_text(trimesh.exchange.stl.export_stl_ascii(ball))
+    assert _same_arrays(load_mesh(ascii_path), _trimesh_load(ascii_path))
+    empty = tmp_path / "empty.stl"
+    empty.write_bytes(b"\0" * 84)
+    with pytest.raises(MeshError, match="empty"):
+        load_mesh(empty)
+
+
 def test_load_vtk_quads_are_triangulated(tmp_path):
     import pyvista as pv
 

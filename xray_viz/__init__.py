@@ -24,25 +24,72 @@ Images are saved and read back, with the geometry they were taken in, skimage-st
 ((256, 256), 'line-integral', 1500.0)
 """
 
+import sys as _sys
+import types as _types
+
 from xray_viz.errors import (MaterialError, MeshError, OutputError, SceneError,
                              SceneFileNotFoundError, SpectrumError, XrayVizError)
-from xray_viz.geometry import Rays, Viewport, detector_rays, viewport
-from xray_viz.output import load_image, save_image
-from xray_viz.reconstruct import reconstruct
-from xray_viz.render import Radiograph, render
-from xray_viz.scene import Body, Detector, Scene, Source, load_scene
-from xray_viz.scan import scan
-from xray_viz.tracing import Hits, trace_rays
 
 __version__ = "0.1.0"
 
+#: Where each public name of the API lives; imported on first use (``import xray_viz`` alone
+#: costs the errors module, so that ``xray-viz render`` starts compiling the fast engine sooner).
+_LAZY = {
+    "Rays": "geometry", "Viewport": "geometry", "detector_rays": "geometry",
+    "viewport": "geometry", "load_image": "output", "save_image": "output",
+    "reconstruct": "reconstruct", "Radiograph": "render", "render": "render", "Body": "scene",
+    "Detector": "scene", "Scene": "scene", "Source": "scene", "load_scene": "scene",
+    "scan": "scan", "Hits": "tracing", "trace_rays": "tracing",
+}
+
 
 def __getattr__(name):
-    if name == "show":    # the viewer (VTK, and trame in a notebook) only when asked for
+    where = _LAZY.get(name)
+    if where == "geometry":
+        from xray_viz.geometry import Rays, Viewport, detector_rays, viewport  # noqa: F401
+    elif where == "output":
+        from xray_viz.output import load_image, save_image  # noqa: F401
+    elif where == "reconstruct":
+        from xray_viz.reconstruct import reconstruct  # noqa: F401
+    elif where == "render":
+        from xray_viz.render import Radiograph, render  # noqa: F401
+    elif where == "scene":
+        from xray_viz.scene import Body, Detector, Scene, Source, load_scene  # noqa: F401
+    elif where == "scan":
+        from xray_viz.scan import scan  # noqa: F401
+    elif where == "tracing":
+        from xray_viz.tracing import Hits, trace_rays  # noqa: F401
+    elif name == "show":    # the viewer (VTK, and trame in a notebook) only when asked for
         from xray_viz.viz.notebook import show
 
         return show
-    raise AttributeError(f"module 'xray_viz' has no attribute {name!r}")
+    else:
+        raise AttributeError(f"module 'xray_viz' has no attribute {name!r}")
+    loaded = locals()
+    for key, module in _LAZY.items():
+        if module == where:
+            globals()[key] = loaded[key]
+    return loaded[name]
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+class _Package(_types.ModuleType):
+    """The package's module: ``xray_viz.render``, ``xray_viz.scan`` and ``xray_viz.reconstruct``
+    stay the functions of those names when their modules are first imported (the import system
+    sets a package's attribute to each submodule it loads; the functions were imported over
+    them when this package imported everything eagerly)."""
+
+    def __setattr__(self, name, value):
+        if (isinstance(value, _types.ModuleType) and value.__name__ == f"{__name__}.{name}"
+                and _LAZY.get(name) == name):
+            value = getattr(value, name, value)
+        super().__setattr__(name, value)
+
+
+_sys.modules[__name__].__class__ = _Package
 
 
 __all__ = [

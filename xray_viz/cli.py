@@ -226,8 +226,16 @@ def _add_verbosity(parser, *, top: bool) -> None:
                    help="no progress bars or notices on stderr (-qq: no warnings either)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``xray-viz`` argument parser with every subcommand."""
+def build_parser(*, only: str | None = None) -> argparse.ArgumentParser:
+    """The ``xray-viz`` argument parser with every subcommand.
+
+    Parameters
+    ----------
+    only : str, optional
+        Build the sub-parser of this command only (``"render"``): it parses that command's
+        arguments exactly as the whole parser does, without importing the other commands'
+        modules (see :func:`_only_command`).
+    """
     parser = _Parser(
         prog="xray-viz", description=DESCRIPTION, epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -268,7 +276,16 @@ def build_parser() -> argparse.ArgumentParser:
                         "(per body with -v). Default: the meshes as they are")
     add_scene_overrides(p)
     p.set_defaults(func=_render_command)
+    if only is None:
+        _add_other_commands(sub)
+    for name, command in sub.choices.items():
+        if name != "bench":                    # bench passes its options to the suites
+            _add_verbosity(command, top=False)
+    return parser
 
+
+def _add_other_commands(sub) -> None:
+    """Every sub-parser but ``render``'s."""
     from xray_viz.meshes.command import add_mesh_parser
     from xray_viz.viz.command import add_show_parser
 
@@ -302,10 +319,31 @@ def build_parser() -> argparse.ArgumentParser:
                                    "pyvista.Report() does). The same as `xray-viz --version "
                                    "--verbose`.")
     p.set_defaults(func=_report_command)
-    for name, command in sub.choices.items():
-        if name != "bench":                    # bench passes its options to the suites
-            _add_verbosity(command, top=False)
-    return parser
+
+
+#: The main parser's options that may come before the command (none takes a value).
+_LEADING = frozenset({"-v", "--verbose", "-q", "--quiet"})
+
+
+def _only_command(argv) -> str | None:
+    """``"render"`` when the arguments are those of ``xray-viz [-v|-q]... render ...``: then
+    the render sub-parser alone parses them as the whole parser would (the main parser's own
+    options take no value, so the command is the first other argument), and the other
+    commands' modules are not imported. None otherwise (``--help``, ``--version`` or anything
+    else before the command, or another command): the whole parser.
+
+    Examples
+    --------
+    >>> _only_command(["-v", "render", "default", "-o", "x.png"]), _only_command(["-h", "render"])
+    ('render', None)
+    """
+    for arg in argv:
+        if arg == "render":
+            return arg
+        if not (arg in _LEADING or (len(arg) > 1 and arg[0] == "-" and set(arg[1:]) in ({"v"},
+                                                                                        {"q"}))):
+            return None
+    return None
 
 
 def _level(verbose: int, quiet: int) -> int:
@@ -320,7 +358,8 @@ def main(argv=None) -> int:
     Ctrl-C; ``128 + signum`` when SIGTERM or SIGHUP interrupted the writing of an output file
     (:func:`xray_viz.output.atomic_write` removed its temporary file first; one line says so).
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(only=_only_command(argv))
     args, extra = parser.parse_known_args(argv)
     if extra and getattr(args, "command", None) == "bench":
         args.bench_args = extra              # the suites' own options (see `xray-viz bench --help`)

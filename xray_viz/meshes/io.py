@@ -214,7 +214,10 @@ def load_mesh(path: str | Path, *, process: bool = True):
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} "
                         f"(use one of {', '.join(MESH_SUFFIXES)})")
-    if path.suffix.lower() in VTK_SUFFIXES:
+    stl = _read_binary_stl(path) if path.suffix.lower() == ".stl" else None
+    if stl is not None:               # trimesh's arrays, read without its loader
+        vertices, faces = stl
+    elif path.suffix.lower() in VTK_SUFFIXES:
         vertices, faces = _read_vtk(path)
     else:
         try:
@@ -228,9 +231,71 @@ def load_mesh(path: str | Path, *, process: bool = True):
     if not np.all(np.isfinite(vertices)):
         bad = int(np.sum(~np.all(np.isfinite(vertices), axis=1)))
         raise MeshError(f"{path}: {bad} vertices are NaN or infinite")
+    if stl is not None and process:    # trimesh's vertex merge, the same arrays, faster
+        vertices, faces = _merge_soup(vertices, faces)
+        mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
+        mesh.metadata["processed"] = True
+        return mesh
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=bool(process),
                            validate=False)
     return mesh
+
+
+#: One triangle of a binary STL file: normal, three corners, two attribute bytes.
+_STL_RECORD = np.dtype([("normals", "<f4", (3,)), ("vertices", "<f4", (3, 3)),
+                        ("attributes", "<u2")])
+
+
+def _read_binary_stl(path: Path):
+    """``(vertices, faces)`` of a binary STL file as ``trimesh.load(path, process=False)``
+    gives them (every triangle's three corners in file order, as float64; faces
+    ``0 1 2, 3 4 5, ...``), or None when trimesh would not read it as binary (its size does
+    not match the face count of its 84-byte header: an ASCII file) or it holds no triangle;
+    then trimesh reads it."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    if len(data) < 84:
+        return None
+    n = int.from_bytes(data[80:84], "little")
+    if n == 0 or len(data) - 84 != n * _STL_RECORD.itemsize:
+        return None
+    corners = np.frombuffer(data, dtype=_STL_RECORD, offset=84)["vertices"]
+    return (corners.reshape(-1, 3).astype(np.float64),
+            np.arange(3 * n, dtype=np.int64).reshape(-1, 3))
+
+
+def _merge_soup(vertices, faces):
+    """Duplicate vertices merged as trimesh's ``merge_vertices`` (``process=True``) merges
+    them, bit for bit: vertices equal once rounded to ``trimesh.tol.merge`` are one, kept in
+    the order of their first use, at the position of that first use. For a mesh whose every
+    vertex is used by a face (an STL soup); one lexicographic sort instead of trimesh's sort of
+    rows as bytes (~4x faster).
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 0, 0], [0, 0, 0], [0, 0, 1.]])
+    >>> merged, faces = _merge_soup(v, np.arange(6).reshape(2, 3))
+    >>> merged.tolist(), faces.tolist()
+    ([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1, 2], [1, 0, 3]])
+    """
+    import trimesh
+
+    digits = trimesh.util.decimal_to_digits(trimesh.tol.merge)
+    rows = (vertices * (10 ** digits)).round().astype(np.int64)     # trimesh's rounding
+    order = np.lexsort(rows.T[::-1])           # stable: each group starts at its first use
+    ranked = rows[order]
+    start = np.empty(len(rows), bool)
+    start[:1] = True
+    np.any(ranked[1:] != ranked[:-1], axis=1, out=start[1:])
+    first = order[start]
+    by_use = np.argsort(first)
+    label = np.empty(len(first), np.int64)
+    label[by_use] = np.arange(len(first))
+    inverse = np.empty(len(rows), np.int64)
+    inverse[order] = label[np.cumsum(start) - 1]
+    return vertices[first[by_use]], inverse[faces.reshape(-1)].reshape(-1, 3)
 
 
 def as_trimesh(mesh):

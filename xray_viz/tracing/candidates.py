@@ -12,6 +12,7 @@ rounding), so culling never drops a pair that the exact test would accept.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 
 import numpy as np
@@ -183,9 +184,13 @@ def _binned(triangles, origins, directions, t_min, t_max, f, e1, e2, *, perspect
         disable = None if len(chunks) > 8 else True
     else:
         disable = not progress
-    from tqdm.auto import tqdm
+    if disable is None and hasattr(sys.stderr, "isatty") and not sys.stderr.isatty():
+        disable = True                # tqdm's own rule for None, without importing tqdm
+    if not disable:
+        from tqdm.auto import tqdm
 
-    for chunk in tqdm(chunks, desc="tracing", unit="block", leave=False, disable=disable):
+        chunks = tqdm(chunks, desc="tracing", unit="block", leave=False, disable=disable)
+    for chunk in chunks:
         nb = nbx[chunk] * nby[chunk]
         tri_rep = np.repeat(chunk, nb)
         first = np.repeat(np.cumsum(nb) - nb, nb)
