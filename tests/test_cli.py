@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -56,9 +57,9 @@ def test_cli_writes_what_the_api_returns(tmp_path, scene_path, quantity, attr):
     np.testing.assert_allclose(data, scaled, atol=0.51)
 
 
-def _run(*args):
+def _run(*args, env=None):
     return subprocess.run([sys.executable, "-m", "xray_viz.cli", *args], capture_output=True,
-                          text=True, timeout=120)
+                          text=True, timeout=120, env=env)
 
 
 @pytest.mark.parametrize("args,message", [
@@ -71,7 +72,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path, scene_path, args, messag
     bad.write_text(scene_path.read_text().replace("pitch = 2.0", "pitch = -2.0"))
     args = [str(scene_path) if a == "SCENE" else str(bad) if a == "BADSCENE" else
             str(tmp_path / a) if a.startswith("x.") else a for a in args]
-    result = _run(*args)
+    # an empty numba cache: the background compile starts, but its notice waits for a
+    # kernel to be needed, so a refused input is still one line
+    result = _run(*args, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cold")})
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     lines = result.stderr.strip().splitlines()

@@ -137,13 +137,17 @@ def test_a_kernel_split_over_threads_gives_the_serial_result_bit_for_bit(monkeyp
         np.testing.assert_array_equal(a, b)
 
 
-def test_a_background_compile_is_announced_on_entry():
+def test_a_background_compile_is_announced_when_first_needed():
+    """Not on entry (a command that refuses its input says only that), but when a kernel of
+    the background processes is first needed; once."""
     seen = []
     C.background_compile(R._first_use_rank)
     with C.on_first_compile(seen.append):
-        pass
+        assert seen == []
+        C.needs_background()
+        C.needs_background()
     with C.on_first_compile(seen.append):       # said once
-        pass
+        C.needs_background()
     assert seen == [C.cache_path(R._first_use_rank)]
 
 

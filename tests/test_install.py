@@ -154,10 +154,22 @@ def _why_nobody_cannot_run():
 @pytest.fixture(scope="module")
 def world():
     """A directory everyone can enter (mkdtemp makes 0700 ones), removed afterwards."""
+    import time
+
     d = Path(tempfile.mkdtemp(prefix="xray_viz-install-"))
     d.chmod(0o755)
     yield d
-    shutil.rmtree(d)
+    # a render leaves background compiles (other scenes' kernels, the mesh checks) filling
+    # the installs' caches for a while: removed once they are done writing
+    deadline = time.monotonic() + 300
+    while True:
+        try:
+            shutil.rmtree(d)
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(1)
 
 
 @pytest.fixture(scope="module")

@@ -87,7 +87,7 @@ def _render_command(args) -> int:
         from xray_viz.tracing._raster import prepare
 
         prepare(first=likely_paths(args.scene))
-    with _compile_notice(args.engine):   # said now, while the scene loads, if compiling
+    with _compile_notice(args.engine):   # said when a kernel is first needed, if compiling
         scene = load_scene_with_overrides(args)
         h = scene.detector.shape[1]
         log.debug("rendering with engine %s, supersample %s", args.engine,

@@ -320,14 +320,24 @@ _background: list = []
 
 
 def background_compile(kernel) -> None:
-    """Say that kernels are being compiled by other processes on behalf of this one (into the
-    cache of ``kernel``): the active :func:`on_first_compile` callbacks are called now, the
-    first one entered later is called on entry."""
+    """Record that kernels are being compiled by other processes on behalf of this one (into
+    the cache of ``kernel``): the active :func:`on_first_compile` callbacks are called when
+    this process first needs one of them (:func:`needs_background`), not before, so that a
+    command refusing its input says only that."""
     with _lock:
         _background[:] = [cache_path(kernel)]
-        listeners = list(_listeners)
+
+
+def needs_background() -> None:
+    """Called when this process first needs a kernel that one of its background processes
+    compiles (waiting for it, or loading what it cached): the active :func:`on_first_compile`
+    callbacks are called (once)."""
+    with _lock:
+        if not _background:
+            return
+        where, listeners = _background[0], list(_listeners)
     for listener in listeners:
-        listener.fire(_background[0])
+        listener.fire(where)
 
 
 _listeners: list = []
@@ -362,22 +372,19 @@ def on_first_compile(callback):
     A kernel loaded from the cache is not compiled, so nothing is called on a warm cache.
     ``cache_path`` is where numba will cache the kernel (see :func:`cache_path`), None if the
     kernels are not cached. Kernels compiled for this process by background processes
-    (:func:`xray_viz.tracing._raster.prepare`) count: when that started before the context
-    was entered and no notice has said so yet, ``callback`` is called on entry.
+    (:func:`xray_viz.tracing._raster.prepare`) count: ``callback`` is called when this process
+    first needs one of their kernels (:func:`needs_background`), inside the context.
 
     Parameters
     ----------
     callback : callable
-        Called at most once, before the compilation starts (or on entry, see above), in the
-        compiling (or entering) thread.
+        Called at most once, before the compilation starts (or the wait for a background
+        process), in the thread that needs the kernel.
     """
     listener = _FirstCompile(callback)
     with _lock:
-        pending = list(_background)
         _listeners.append(listener)
     try:
-        if pending:
-            listener.fire(pending[0])
         with event.install_listener("numba:compile", listener):
             yield
     finally:

@@ -1050,6 +1050,8 @@ def _kernel(name: str):
     if name not in _ready:
         with _compile_lock:
             if name not in _ready:
+                if name in _workers:
+                    _numba_cache.needs_background()      # the compile notice, if not said
                 _wait(name)          # a background process compiling it into the cache
                 disp.compile(_types(SIGNATURES[name]))
                 disp.disable_compile()
