@@ -239,6 +239,38 @@ def test_the_viewer_is_still_found_where_it_was():
         viz.no_such_thing  # noqa: B018
 
 
+SUBMODULE_ACCESS = """
+import json, sys
+import xray_viz
+before = sorted(m for m in sys.modules if m.startswith("xray_viz."))
+found = {}
+for name in sys.argv[1:]:
+    found[name] = getattr(xray_viz, name).__name__
+print(json.dumps({"before": before, "found": found}))
+"""
+
+
+def test_every_submodule_is_an_attribute_without_an_import():
+    """``import xray_viz`` then ``xray_viz.attenuation.path_lengths(...)`` works as it did when
+    the package imported everything (walkthrough 08 does this): each public module on disk is
+    reached by attribute access in a fresh process and is imported only then."""
+    pkg = os.path.dirname(xray_viz.__file__)
+    functions = {"render", "scan", "reconstruct"}     # modules whose attribute is their function
+    on_disk = {n[:-3] if n.endswith(".py") else n for n in os.listdir(pkg)
+               if not n.startswith("_") and (n.endswith(".py")
+                                             or os.path.isfile(os.path.join(pkg, n, "__init__.py")))}
+    public = sorted(on_disk - functions)
+    assert set(public) == set(xray_viz._SUBMODULES)
+    out = subprocess.run([sys.executable, "-c", SUBMODULE_ACCESS, *public], check=True,
+                         capture_output=True, text=True, timeout=600)
+    result = json.loads(out.stdout.splitlines()[-1])
+    assert result["found"] == {n: f"xray_viz.{n}" for n in public}
+    assert "xray_viz.attenuation" not in result["before"]       # imported on first use only
+    assert callable(xray_viz.render) and callable(xray_viz.scan)
+    with pytest.raises(AttributeError):
+        xray_viz.no_such_module  # noqa: B018
+
+
 WORKER_THEN = """
 import sys
 exec(compile({worker!r}, "worker", "exec"))

@@ -42,6 +42,14 @@ _LAZY = {
     "scan": "scan", "Hits": "tracing", "trace_rays": "tracing",
 }
 
+#: The subpackages and modules reachable as attributes, imported on first use as they would
+#: have been by an eager ``import xray_viz`` (``xray_viz.physics.hvl(...)``).
+_SUBMODULES = frozenset({
+    "attenuation", "bodies", "cli", "convert", "errors", "geometry", "lod", "meshes", "orbit",
+    "output", "phantoms", "physics", "progress", "scene", "scene_options", "tracing", "viz",
+    "walkthroughs",
+})
+
 
 def __getattr__(name):
     where = _LAZY.get(name)
@@ -63,6 +71,10 @@ def __getattr__(name):
         from xray_viz.viz.notebook import show
 
         return show
+    elif name in _SUBMODULES:     # ``xray_viz.attenuation.path_lengths`` without an import
+        import importlib
+
+        return importlib.import_module(f"{__name__}.{name}")
     else:
         raise AttributeError(f"module 'xray_viz' has no attribute {name!r}")
     loaded = locals()
