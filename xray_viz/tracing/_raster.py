@@ -160,13 +160,19 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     strictly between two columns (rows) of samples, or outside the grid, and covers no sample.
     """
     codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
+    # The frame read once: numba cannot prove the outputs do not alias it, so it would
+    # reload every component for every vertex.
+    o0, o1, o2 = r0[0], r0[1], r0[2]
+    f0, f1, f2 = f[0], f[1], f[2]
+    u0, u1, u2 = eu[0], eu[1], eu[2]
+    v0, v1, v2 = ev[0], ev[1], ev[2]
     for i in range(lo, hi):
-        r0x = V[i, 0] - r0[0]
-        r1 = V[i, 1] - r0[1]
-        r2 = V[i, 2] - r0[2]
-        wi = r0x * f[0] + r1 * f[1] + r2 * f[2]
-        a = r0x * eu[0] + r1 * eu[1] + r2 * eu[2]
-        b = r0x * ev[0] + r1 * ev[1] + r2 * ev[2]
+        r0x = V[i, 0] - o0
+        r1 = V[i, 1] - o1
+        r2 = V[i, 2] - o2
+        wi = r0x * f0 + r1 * f1 + r2 * f2
+        a = r0x * u0 + r1 * u1 + r2 * u2
+        b = r0x * v0 + r1 * v1 + r2 * v2
         w[i] = wi
         if perspective:
             if wi > 0.0:
@@ -350,36 +356,10 @@ def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, E
         i0 = F[t, 0]
         i1 = F[t, 1]
         i2 = F[t, 2]
-        # _plane's expressions, written out: numba does not inline _plane, and a call passing
-        # six arrays costs several times the arithmetic (same operations, same bits).
-        f1x = V[i1, 0] - V[i0, 0]
-        f1y = V[i1, 1] - V[i0, 1]
-        f1z = V[i1, 2] - V[i0, 2]
-        f2x = V[i2, 0] - V[i0, 0]
-        f2y = V[i2, 1] - V[i0, 1]
-        f2z = V[i2, 2] - V[i0, 2]
-        nx = f1y * f2z - f1z * f2y
-        ny = f1z * f2x - f1x * f2z
-        nz = f1x * f2y - f1y * f2x
-        qx = V[i0, 0] - r0x
-        qy = V[i0, 1] - r0y
-        qz = V[i0, 2] - r0z
-        nEx = nx * ex0 + ny * ex1 + nz * ex2
-        nEy = nx * ey0 + ny * ey1 + nz * ey2
-        if perspective:
-            coef[m, 0] = FL * (nx * qx + ny * qy + nz * qz)
-            coef[m, 1] = 0.0
-            coef[m, 2] = 0.0
-            coef[m, 3] = nx * p0 + ny * p1 + nz * p2
-            coef[m, 4] = nEx
-            coef[m, 5] = nEy
-        else:
-            coef[m, 0] = nx * (qx - p0) + ny * (qy - p1) + nz * (qz - p2)
-            coef[m, 1] = -nEx
-            coef[m, 2] = -nEy
-            coef[m, 3] = nx * f0 + ny * f1 + nz * f2
-            coef[m, 4] = 0.0
-            coef[m, 5] = 0.0
+        (coef[m, 0], coef[m, 1], coef[m, 2], coef[m, 3], coef[m, 4],
+         coef[m, 5]) = _plane(V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1], V[i1, 2],
+                              V[i2, 0], V[i2, 1], V[i2, 2], perspective, r0x, r0y, r0z,
+                              p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
         w0 = w[i0]
         w1 = w[i1]
         w2 = w[i2]
@@ -743,32 +723,37 @@ def _obliquity(X, Y, P00, Ex, Ey, FL):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _plane(V, i0, i1, i2, perspective, r0, P00, Ex, Ey, f, FL):
+def _plane(ax, ay, az, bx, by, bz, cx, cy, cz, perspective, r0x, r0y, r0z, p0, p1, p2,
+           ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
-    ray of sample (X, Y) with the plane of triangle (i0, i1, i2) (see :func:`setup_planes`).
+    ray of sample (X, Y) with the plane of the triangle of vertices a, b, c (see
+    :func:`setup_planes`).
 
     Point source: ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0), hit depth s * FL.
     Parallel beam: ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
+
+    Scalars only, so that LLVM inlines it: a compiled helper taking arrays is called, not
+    inlined, and pushing every array's fields costs several times this arithmetic.
     """
-    f1x = V[i1, 0] - V[i0, 0]
-    f1y = V[i1, 1] - V[i0, 1]
-    f1z = V[i1, 2] - V[i0, 2]
-    f2x = V[i2, 0] - V[i0, 0]
-    f2y = V[i2, 1] - V[i0, 1]
-    f2z = V[i2, 2] - V[i0, 2]
+    f1x = bx - ax
+    f1y = by - ay
+    f1z = bz - az
+    f2x = cx - ax
+    f2y = cy - ay
+    f2z = cz - az
     nx = f1y * f2z - f1z * f2y
     ny = f1z * f2x - f1x * f2z
     nz = f1x * f2y - f1y * f2x
-    qx = V[i0, 0] - r0[0]
-    qy = V[i0, 1] - r0[1]
-    qz = V[i0, 2] - r0[2]
-    nEx = nx * Ex[0] + ny * Ex[1] + nz * Ex[2]
-    nEy = nx * Ey[0] + ny * Ey[1] + nz * Ey[2]
+    qx = ax - r0x
+    qy = ay - r0y
+    qz = az - r0z
+    nEx = nx * ex0 + ny * ex1 + nz * ex2
+    nEy = nx * ey0 + ny * ey1 + nz * ey2
     if perspective:
-        return (FL * (nx * qx + ny * qy + nz * qz), 0.0, 0.0,
-                nx * P00[0] + ny * P00[1] + nz * P00[2], nEx, nEy)
-    return (nx * (qx - P00[0]) + ny * (qy - P00[1]) + nz * (qz - P00[2]), -nEx, -nEy,
-            nx * f[0] + ny * f[1] + nz * f[2], 0.0, 0.0)
+        return (FL * (nx * qx + ny * qy + nz * qz), 0.0, 0.0, nx * p0 + ny * p1 + nz * p2,
+                nEx, nEy)
+    return (nx * (qx - p0) + ny * (qy - p1) + nz * (qz - p2), -nEx, -nEy,
+            nx * f0 + ny * f1 + nz * f2, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -807,6 +792,11 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
+    r0x, r0y, r0z = r0[0], r0[1], r0[2]
+    p0, p1, p2 = P00[0], P00[1], P00[2]
+    ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
+    ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
+    f0, f1, f2 = f[0], f[1], f[2]
     for c in range(lo, hi):
         err[c] = -1
         Sc = S[c]
@@ -900,8 +890,10 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         if depth_ok:
                             wmin = min(w[i0], min(w[i1], w[i2]))
                             wmax = max(w[i0], max(w[i1], w[i2]))
-                        c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00, Ex,
-                                                        Ey, f, FL)
+                        c0, c1, c2, c3, c4, c5 = _plane(
+                            V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1], V[i1, 2],
+                            V[i2, 0], V[i2, 1], V[i2, 2], perspective, r0x, r0y, r0z,
+                            p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
                         if Wd > FL:
                             continue
@@ -951,8 +943,10 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                             if depth_ok:
                                 wmin = min(w[i0], min(w[i1], w[i2]))
                                 wmax = max(w[i0], max(w[i1], w[i2]))
-                            c0, c1, c2, c3, c4, c5 = _plane(V, i0, i1, i2, perspective, r0, P00,
-                                                            Ex, Ey, f, FL)
+                            c0, c1, c2, c3, c4, c5 = _plane(
+                                V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1], V[i1, 2],
+                                V[i2, 0], V[i2, 1], V[i2, 2], perspective, r0x, r0y, r0z,
+                                p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                         if Wd > FL:
                             continue
