@@ -158,6 +158,10 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     ``K`` receives each vertex's cell code (x code in bits 0-15, y code in bits 16-31, see
     :func:`_axis_code`): a triangle whose three vertices have the same even x (or y) code lies
     strictly between two columns (rows) of samples, or outside the grid, and covers no sample.
+
+    Returns ``(wmin, wmax, odd)``: the least and largest depth of the vertices ``lo .. hi - 1``
+    and whether one of them is huge or has a NaN depth (what decides the raster's
+    ``depth_ok``, without another pass over ``w`` and ``huge``).
     """
     codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
     # The frame read once: numba cannot prove the outputs do not alias it, so it would
@@ -166,6 +170,9 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     f0, f1, f2 = f[0], f[1], f[2]
     u0, u1, u2 = eu[0], eu[1], eu[2]
     v0, v1, v2 = ev[0], ev[1], ev[2]
+    wmin = np.inf
+    wmax = -np.inf
+    odd = False
     for i in range(lo, hi):
         r0x = V[i, 0] - o0
         r1 = V[i, 1] - o1
@@ -197,6 +204,10 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
             K[i] = np.int32(_axis_code(XY[i, 0], nW) | (_axis_code(XY[i, 1], nH) << 16))
         else:
             K[i] = NO_CODE
+        wmin = min(wmin, wi)
+        wmax = max(wmax, wi)
+        odd = odd or huge[i] or wi != wi
+    return wmin, wmax, odd
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -419,6 +430,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
     """
     nb = rank.shape[0]
     few = by_rank.shape[0] <= 65           # ranks fit the bits of a uint64
+    p0, p1, p2 = P00[0], P00[1], P00[2]
+    ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
+    ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
     npix_max = band_height * nW
     cap = 1024
     hk = np.empty(cap, np.int64)          # sample of each hit (index in the band)
@@ -593,7 +607,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
             Y = r0 + p // nW
             X = p % nW
             ray = _sample_ray(X, Y, W, H, n)
-            scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
+            scale = (_obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL)
+                     if perspective else 1.0)
             # The winner (highest precedence among the bodies the ray is inside, the lowest
             # index among equals) is the lowest set bit of ``mask`` over the bodies' ranks.
             mask = np.uint64(0)
@@ -672,6 +687,10 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
     """
     nb = L.shape[1]
     n_chunks = N.shape[0]
+    # The frame read once (numba cannot prove that L does not alias it).
+    p0, p1, p2 = P00[0], P00[1], P00[2]
+    ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
+    ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
     for Y in range(lo, hi):
         j = Y // n
         row = ((H - 1 - j) * W * n + (n - 1 - (Y - j * n))) * n - ray0
@@ -692,7 +711,8 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
                     if v == 0.0:
                         continue
                 ray = row + i * n * n + c
-                scale = _obliquity(X, Y, P00, Ex, Ey, FL) if perspective else 1.0
+                scale = (_obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL)
+                         if perspective else 1.0)
                 if single:
                     L[ray, 0] = v * scale
                 else:
@@ -712,13 +732,14 @@ def _sample_ray(X, Y, W, H, n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _obliquity(X, Y, P00, Ex, Ey, FL):
-    """``|D| / FL`` of fine sample (X, Y), D from a point source to the sample's detector point:
-    a depth span along the beam axis times this is the length along the ray. The one place of
-    this scale in the kernels."""
-    dx = P00[0] + X * Ex[0] + Y * Ey[0]
-    dy = P00[1] + X * Ex[1] + Y * Ey[1]
-    dz = P00[2] + X * Ex[2] + Y * Ey[2]
+def _obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL):
+    """``|D| / FL`` of fine sample (X, Y), D = P00 + X Ex + Y Ey from a point source to the
+    sample's detector point (the frame's vectors as scalars, read once by the caller): a depth
+    span along the beam axis times this is the length along the ray. The one place of this
+    scale in the kernels."""
+    dx = p0 + X * ex0 + Y * ey0
+    dy = p1 + X * ex1 + Y * ey1
+    dz = p2 + X * ex2 + Y * ey2
     return np.sqrt(dx * dx + dy * dy + dz * dz) / FL
 
 
@@ -1253,20 +1274,20 @@ def _pool_for(k: int):
 
 
 def _split(name, lo, hi, args, min_each=1):
-    """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread."""
+    """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread; returns
+    what each piece returned, in order."""
     kernel = _kernel(name)
     k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
     if k <= 1:
-        kernel(lo, hi, *args)
-        return
+        return [kernel(lo, hi, *args)]
     pool = _pool_for(k)
     cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
     futures = [pool.submit(kernel, cut[j], cut[j + 1], *args) for j in range(1, k)]
     try:
-        kernel(cut[0], cut[1], *args)
+        first = kernel(cut[0], cut[1], *args)
     finally:
-        for fut in futures:
-            fut.result()
+        rest = [fut.result() for fut in futures]
+    return [first, *rest]
 
 
 def _in(a, dtype):
@@ -1313,10 +1334,13 @@ def spatial_order(V, F):
 
 
 def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
+    """:func:`_project_vertices` over every vertex; returns ``(wmin, wmax, odd)`` of them all."""
     V = _in(V, _f8)
-    _split("_project_vertices", 0, V.shape[0],
-           (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx), float(bx),
-            float(sy), float(by), bool(perspective), XY, w, huge, int(nW), int(nH), K), _MIN_ITEMS)
+    parts = _split("_project_vertices", 0, V.shape[0],
+                   (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx),
+                    float(bx), float(sy), float(by), bool(perspective), XY, w, huge, int(nW),
+                    int(nH), K), _MIN_ITEMS)
+    return (min(p[0] for p in parts), max(p[1] for p in parts), any(p[2] for p in parts))
 
 
 def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):

@@ -462,11 +462,11 @@ class _Plan:
         perspective = not fr.parallel
         XY, w, huge, status, box, K = _workspace(bodies, len(V), len(F))
         if perspective:
-            R.project_vertices(V, r0, depth_axis, eu, ev, sx * FL, bx, sy * FL, by, True, XY, w,
-                               huge, nW, nH, K)
+            wmin, wmax, odd = R.project_vertices(V, r0, depth_axis, eu, ev, sx * FL, bx,
+                                                 sy * FL, by, True, XY, w, huge, nW, nH, K)
         else:
-            R.project_vertices(V, r0, depth_axis, eu, ev, sx, bx, sy, by, False, XY, w, huge, nW,
-                               nH, K)
+            wmin, wmax, odd = R.project_vertices(V, r0, depth_axis, eu, ev, sx, bx, sy, by,
+                                                 False, XY, w, huge, nW, nH, K)
         self.FL, self.perspective, self.P0, self.Ex, self.Ey = FL, perspective, P0, Ex, Ey
         self.F, self.XY, self.B = F, XY, B
         n_chunks = numba.get_num_threads()
@@ -479,7 +479,7 @@ class _Plan:
                 self.mode = "direct"
                 Sc, Nc = _accumulators(bodies, n_chunks, nH, nW)
                 err = np.empty(n_chunks, np.int64)
-                depth_ok = bool(w.min() > 0 and w.max() < FL and not huge.any())
+                depth_ok = bool(wmin > 0 and wmax < FL and not odd)
                 R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
                                 nW, nH, depth_ok, Sc, Nc, err, K, sides)
                 if err.max() >= 0:
