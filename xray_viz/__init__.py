@@ -42,13 +42,11 @@ _LAZY = {
     "scan": "scan", "Hits": "tracing", "trace_rays": "tracing",
 }
 
-#: The subpackages and modules reachable as attributes, imported on first use as they would
-#: have been by an eager ``import xray_viz`` (``xray_viz.physics.hvl(...)``).
-_SUBMODULES = frozenset({
-    "attenuation", "bodies", "cli", "convert", "errors", "geometry", "lod", "meshes", "orbit",
-    "output", "phantoms", "physics", "progress", "scene", "scene_options", "tracing", "viz",
-    "walkthroughs",
-})
+def _is_submodule(name: str) -> bool:
+    """Whether ``xray_viz.<name>`` is a module or subpackage on disk (found, not imported)."""
+    import importlib.util
+
+    return importlib.util.find_spec(f"{__name__}.{name}") is not None
 
 
 def __getattr__(name):
@@ -71,7 +69,9 @@ def __getattr__(name):
         from xray_viz.viz.notebook import show
 
         return show
-    elif name in _SUBMODULES:     # ``xray_viz.attenuation.path_lengths`` without an import
+    elif not name.startswith("_") and _is_submodule(name):
+        # a public subpackage or module, imported on first use as an eager ``import xray_viz``
+        # would have (``xray_viz.attenuation.path_lengths(...)``, ``xray_viz.physics.hvl``)
         import importlib
 
         return importlib.import_module(f"{__name__}.{name}")
