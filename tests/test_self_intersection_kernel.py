@@ -134,6 +134,30 @@ def test_same_faces_on_triangle_soups(seed):
     _assert_same(flat, rng.integers(0, 60, size=(100, 3)))
 
 
+@pytest.mark.parametrize("threads", [2, 3, 7])
+def test_the_sweep_split_over_threads_selects_the_same_faces(monkeypatch, threads):
+    """The buckets swept by concurrent threads (a flag is only ever set, each pair tested in
+    one bucket): the same faces as one thread and as pymeshlab, whatever the split."""
+    rng = np.random.default_rng(7)
+    s = trimesh.creation.icosphere(subdivisions=3)
+    parts = [trimesh.Trimesh(s.vertices @ random_rotation(rng).T + rng.uniform(-0.6, 0.6, 3),
+                             s.faces, process=False) for _ in range(3)]
+    union = trimesh.util.concatenate(parts)
+    soup_v = rng.integers(0, 4, size=(60, 3)) / 3.0
+    soup_f = rng.integers(0, 60, size=(400, 3))
+    one = [K.self_intersections(union.vertices, union.faces),
+           K.self_intersections(soup_v, soup_f)]
+    monkeypatch.setattr(K, "_PARALLEL_FACES", 1)
+    monkeypatch.setattr(K, "_sweep_threads", lambda: threads)
+    split = [K.self_intersections(union.vertices, union.faces),
+             K.self_intersections(soup_v, soup_f)]
+    assert one[0].sum() > 100 and one[1].sum() > 10        # many pairs in many buckets
+    for a, b in zip(one, split):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(split[0], _reference(union.vertices, union.faces))
+    np.testing.assert_array_equal(split[1], _reference(soup_v, soup_f))
+
+
 def test_degenerate_inputs():
     assert K.self_intersections(np.zeros((0, 3)), np.zeros((0, 3), int)).shape == (0,)
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])

@@ -34,6 +34,7 @@ cache.
 from __future__ import annotations
 
 import math
+import os
 import threading
 
 import numpy as np
@@ -43,6 +44,8 @@ from numba.core import types as _nt
 from xray_viz.tracing import _numba_cache  # where the kernels are cached
 
 _EPSIL = 0.000001
+#: Fewest faces per thread of the self-intersection sweep (below, one thread).
+_PARALLEL_FACES = 20_000
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -361,9 +364,12 @@ def _cell(x, origin, inv, n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _flag_self_intersections(vertices, faces, labels, flags):
-    """Set ``flags[f]`` for every face ``f`` that pymeshlab selects as self-intersecting;
-    with ``labels`` (one per face, else empty), only pairs of faces of the same label count."""
+def _self_intersection_grid(vertices, faces):
+    """The candidate pairs of :func:`_sweep_buckets`: every face's bounding box entered in the
+    cells of a uniform grid it meets, the cells hashed into buckets (``start``: CSR offsets of
+    the buckets' ``keys`` and ``owner`` entries, faces renumbered in the order of their low
+    corner's cell, ``face_id`` back to the mesh's numbers). ``dims[0] == 0`` when no two boxes
+    can overlap (fewer than two faces, or all in one point, or not finite)."""
     m = faces.shape[0]
     lo = np.empty((m, 3))
     hi = np.empty((m, 3))
@@ -384,7 +390,9 @@ def _flag_self_intersections(vertices, faces, labels, flags):
     for k in range(3):
         span = max(span, ghi[k] - glo[k])
     if m < 2 or not (span > 0.0) or not np.isfinite(span):
-        return              # all in one point: no two boxes overlap strictly (or not finite)
+        # all in one point: no two boxes overlap strictly (or not finite)
+        z = np.zeros(1, np.int64)
+        return (z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, np.zeros(3, np.int64), 0)
     # cells about twice the mean face extent, fewer than 2**20 along an axis, and made
     # bigger while a face would be entered in too many (one huge face among small ones)
     size = max(2.0 * extent / (3.0 * m), span / 2.0 ** 20)
@@ -460,13 +468,26 @@ def _flag_self_intersections(vertices, faces, labels, flags):
     widest = 0
     for b in range(n_buckets):
         widest = max(widest, start[b + 1] - start[b])
+    return start, keys, owner, plo, phi, clo, face_id, dims, widest
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owner, plo, phi, clo,
+                   face_id, dims, widest):
+    """Set ``flags[f]`` for every face ``f`` of a pair that pymeshlab selects as
+    self-intersecting among the entries of buckets ``b_lo .. b_hi - 1`` of
+    :func:`_self_intersection_grid`; with ``labels`` (one per face, else empty), only pairs of
+    faces of the same label count. Each pair is tested in one bucket only, and a flag is only
+    ever set, so bucket ranges can be swept by concurrent threads: the flags do not depend on
+    the split (a pair whose two faces are flagged already is not tested again, which changes
+    no flag)."""
     # each bucket's entries gathered, sorted by (cell, low x), and swept along x
     bkey = np.empty(widest, np.int64)
     bface = np.empty(widest, np.int64)
     bcell = np.empty((widest, 3), np.int64)        # the cell of the face's low corner
     blo = np.empty((widest, 3))
     bhi = np.empty((widest, 3))
-    for b in range(n_buckets):
+    for b in range(b_lo, b_hi):
         k = start[b + 1] - start[b]
         if k < 2:
             continue
@@ -598,8 +619,13 @@ _I1r = _nt.Array(_nt.int64, 1, "C", readonly=True)
 _I1 = _nt.Array(_nt.int64, 1, "C")
 _B1 = _nt.Array(_nt.boolean, 1, "C")
 #: The one specialisation of each kernel.
+_F2w = _nt.Array(_nt.float64, 2, "C")
+_I2w = _nt.Array(_nt.int64, 2, "C")
 SIGNATURES = {
-    "_flag_self_intersections": (_F2, _I2, _I1r, _B1),   # vertices, faces, labels, flags (out)
+    "_self_intersection_grid": (_F2, _I2),                 # vertices, faces
+    # buckets lo, hi, vertices, faces, labels, flags (out), then the grid's arrays
+    "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _I1, _I1, _I1, _F2w, _F2w,
+                       _I2w, _I1, _I1, _nt.int64),
     "_edge_facts": (_I2, _nt.int64, _I1),                 # faces, vertex count, labels (out)
 }
 
@@ -660,7 +686,7 @@ def prepare(*, nice: int = 10) -> bool:
     import sys
     import time
 
-    disp = _flag_self_intersections
+    disp = _self_intersection_grid
     cache = getattr(disp, "_cache", None)
     if is_ready() or not isinstance(cache, _numba_cache.KernelCache):
         return False
@@ -709,6 +735,12 @@ def edge_facts(faces, n_vertices):
     return int(boundary), bool(watertight), bool(winding), labels, int(n)
 
 
+def _sweep_threads() -> int:
+    """Threads of the self-intersection sweep: the processors, at most 2 (the machines this is
+    measured on; the sweep is a third of a 1.3M-face check after the grid)."""
+    return min(os.cpu_count() or 1, 2)
+
+
 def self_intersections(vertices, faces, labels=None) -> np.ndarray:
     """The faces pymeshlab selects as self-intersecting (see the module docstring).
 
@@ -747,5 +779,24 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
            else np.ascontiguousarray(labels, dtype=np.int64).reshape(-1))
     flags = np.zeros(len(f), bool)
     if len(f) >= 2:
-        _kernel("_flag_self_intersections")(v, f, lab, flags)
+        grid = _kernel("_self_intersection_grid")(v, f)
+        start, n_buckets = grid[0], len(grid[0]) - 1
+        if grid[7][0] == 0:
+            return flags
+        sweep = _kernel("_sweep_buckets")
+        # one range of buckets per thread, of about equal numbers of entries
+        k = max(1, min(_sweep_threads(), len(f) // _PARALLEL_FACES))
+        cut = [0, *np.searchsorted(start, [start[-1] * j // k for j in range(1, k)]).tolist(),
+               n_buckets]
+        if k == 1:
+            sweep(0, n_buckets, v, f, lab, flags, *grid)
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(k - 1, thread_name_prefix="xray_viz-checks") as pool:
+                rest = [pool.submit(sweep, cut[j], cut[j + 1], v, f, lab, flags, *grid)
+                        for j in range(1, k)]
+                sweep(cut[0], cut[1], v, f, lab, flags, *grid)
+                for fut in rest:
+                    fut.result()
     return flags

