@@ -788,15 +788,7 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
         k = max(1, min(_sweep_threads(), len(f) // _PARALLEL_FACES))
         cut = [0, *np.searchsorted(start, [start[-1] * j // k for j in range(1, k)]).tolist(),
                n_buckets]
-        if k == 1:
-            sweep(0, n_buckets, v, f, lab, flags, *grid)
-        else:
-            from concurrent.futures import ThreadPoolExecutor
+        from xray_viz._threads import run_pieces
 
-            with ThreadPoolExecutor(k - 1, thread_name_prefix="xray_viz-checks") as pool:
-                rest = [pool.submit(sweep, cut[j], cut[j + 1], v, f, lab, flags, *grid)
-                        for j in range(1, k)]
-                sweep(cut[0], cut[1], v, f, lab, flags, *grid)
-                for fut in rest:
-                    fut.result()
+        run_pieces(lambda j: sweep(cut[j], cut[j + 1], v, f, lab, flags, *grid), k)
     return flags

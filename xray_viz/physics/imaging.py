@@ -905,6 +905,28 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
     return _detect_log(log_transmitted, scene, i0=i0, rng=rng, log_variance=log_variance)
 
 
+#: Fewest values whose ``exp`` is shared out over threads (:func:`_exp`).
+_PARALLEL_VALUES = 1 << 16
+
+
+def _exp(x):
+    """``np.exp(x)`` into a new array, the rows of a big image in one piece per thread
+    (:mod:`xray_viz._threads`; NumPy's loop releases the GIL): the same numbers, 0.86 instead
+    of 1.43 ms at 512 x 512 on two cores (scalar libm ``exp`` on an AVX2 processor)."""
+    x = np.asarray(x)
+    if x.ndim == 0 or x.size < _PARALLEL_VALUES or x.dtype != np.float64:
+        return np.exp(x)
+    from xray_viz import _threads
+
+    k = min(_threads.count(), len(x))
+    if k <= 1:
+        return np.exp(x)
+    out = np.empty_like(x)
+    cut = [len(x) * j // k for j in range(k + 1)]
+    _threads.run_pieces(lambda j: np.exp(x[cut[j]:cut[j + 1]], out=out[cut[j]:cut[j + 1]]), k)
+    return out
+
+
 def _detect_log(log_transmitted, scene, *, i0=None, rng=None, log_variance=None,
                 overwrite=False):
     """:func:`detect_log`; with ``overwrite`` (a float64 array the caller no longer needs) a
@@ -920,7 +942,7 @@ def _detect_log(log_transmitted, scene, *, i0=None, rng=None, log_variance=None,
     if not noise and mtf is None and _blur_sigmas(scene) is None:
         # the common case, in place: 16 bytes per pixel besides log_t (big detectors); a
         # factor of exactly 1 is skipped (the same numbers, one pass less)
-        signal = np.exp(log_t)
+        signal = _exp(log_t)
         if gain * i0 != 1.0:
             signal *= gain * i0
         if falloff:

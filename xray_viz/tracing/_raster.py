@@ -1247,10 +1247,6 @@ def _finish_workers() -> None:
 _detached: list = []
 
 
-_pool = None
-_pool_lock = threading.Lock()
-
-
 #: Least vertices or triangles (rows, for the per-row kernels) given to a thread.
 _MIN_ITEMS = 4096
 _MIN_ROWS = 16
@@ -1262,17 +1258,6 @@ def _threads() -> int:
     return numba.get_num_threads()
 
 
-def _pool_for(k: int):
-    """The pool of threads, with at least ``k - 1`` of them (the caller runs one piece)."""
-    global _pool
-    with _pool_lock:
-        if _pool is None or _pool._max_workers < k - 1:
-            from concurrent.futures import ThreadPoolExecutor
-
-            _pool = ThreadPoolExecutor(max_workers=k - 1, thread_name_prefix="xray_viz-raster")
-        return _pool
-
-
 def _split(name, lo, hi, args, min_each=1):
     """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread; returns
     what each piece returned, in order."""
@@ -1280,14 +1265,10 @@ def _split(name, lo, hi, args, min_each=1):
     k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
     if k <= 1:
         return [kernel(lo, hi, *args)]
-    pool = _pool_for(k)
+    from xray_viz._threads import run_pieces
+
     cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
-    futures = [pool.submit(kernel, cut[j], cut[j + 1], *args) for j in range(1, k)]
-    try:
-        first = kernel(cut[0], cut[1], *args)
-    finally:
-        rest = [fut.result() for fut in futures]
-    return [first, *rest]
+    return run_pieces(lambda j: kernel(cut[j], cut[j + 1], *args), k)
 
 
 def _in(a, dtype):
