@@ -85,3 +85,38 @@ def test_a_scene_loads_from_stored_reports(cache):
     assert n >= len(first.bodies) and len(calls) == n        # the second load checked nothing
     assert again.bodies.reports == first.bodies.reports
     assert np.array_equal(xray_viz.render(again).intensity, xray_viz.render(first).intensity)
+
+
+@pytest.mark.parametrize("name", ["default", "nested_spheres", "shepp_logan"])
+def test_containment_read_from_disk_is_what_the_tests_give(cache, monkeypatch, name):
+    """Whether one body lies inside another is kept per pair of content hashes: a second load
+    of the scene tests no pair, and the stored answers (True and False ones) are those of the
+    tests themselves."""
+    folder, _ = cache
+    meshes = [b.mesh for b in xray_viz.load_scene(name).bodies]
+    truth = repair.containers(meshes, cache=False)
+    assert not (folder.parent / "mesh-pairs").exists()
+    assert repair.containers(meshes) == truth              # computed, then stored
+    stored = list((folder.parent / "mesh-pairs").glob("*.json"))
+    assert stored or not any(truth)
+    tested = []
+    real = repair._inside_of
+    monkeypatch.setattr(repair, "_inside_of", lambda meshes, b, cand, *a: tested.extend(cand)
+                        or real(meshes, b, cand, *a))
+    copies = [trimesh.Trimesh(m.vertices.copy(), m.faces.copy(), process=False) for m in meshes]
+    assert repair.containers(copies) == truth and tested == []      # read, not tested
+    if name == "default":
+        assert any(truth) and len(stored) > sum(map(len, truth))   # "not inside" kept too
+        for path in stored:                                # a corrupt answer is tested again
+            path.write_text("{not json")
+        assert repair.containers(copies) == truth and tested
+
+
+def test_a_moved_body_is_tested_again(cache, monkeypatch):
+    big = trimesh.creation.box(extents=[20, 20, 20])
+    small = trimesh.creation.box(extents=[4, 4, 4])
+    assert repair.containers([small, big]) == [[1], []]
+    moved = small.copy()
+    moved.apply_translation([9, 0, 0])                     # pokes out of big
+    assert repair.containers([moved, big]) == [[], []]
+    assert repair.containers([small, big]) == [[1], []]

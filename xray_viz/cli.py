@@ -411,11 +411,14 @@ def run() -> None:
     stderr are flushed: freeing numba's compiled kernels and the libraries' module graphs one
     object at a time took ~0.4 s of a 2.3 s ``render default`` (``BENCHMARKS.md``, cold start).
     The image is written and closed by then (:func:`xray_viz.output.atomic_write`). Any other
-    command, or a thread still running that is not the engine's idle pool, exits as usual.
+    command, a thread still running that is not the library's idle pool, or a profiler or
+    tracer (``python -m cProfile``, coverage: they write their data at the teardown) exits as
+    usual.
     """
     argv = sys.argv[1:]
     code = main(argv)
-    if _only_command(argv) == "render" and _quiet_threads():
+    if (_only_command(argv) == "render" and _quiet_threads() and sys.getprofile() is None
+            and sys.gettrace() is None and "coverage" not in sys.modules):
         import atexit
         import os
 

@@ -1,4 +1,5 @@
-"""Mesh reports kept on disk by content hash, so that loading the same mesh again is free.
+"""Mesh reports kept on disk by content hash, so that loading the same mesh again is free;
+likewise whether one mesh lies inside another (:func:`pair_key`, the precedence rule's test).
 
 :func:`xray_viz.meshes.repair.check_mesh` of a big mesh is the slowest part of loading a scene
 (the self-intersection test of a 1.3M-face sphere alone takes seconds). Its report depends only
@@ -8,7 +9,7 @@ compiled kernels, _check_kernels.py)``: a changed mesh or a changed checker neve
 old report.
 
 Where: ``$XRAY_VIZ_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/xray_viz`` or
-``~/.cache/xray_viz``, in ``mesh-reports/``. ``XRAY_VIZ_CACHE_DIR=off`` (or a place that cannot
+``~/.cache/xray_viz``, in ``mesh-reports/`` (and ``mesh-pairs/`` for the inside tests). ``XRAY_VIZ_CACHE_DIR=off`` (or a place that cannot
 be written) turns it off: reports are then computed every time, nothing else changes. Files
 are written to a temporary name and renamed, and a file that does not parse is ignored (and
 replaced), so a killed process or a corrupt file never gives a wrong report.
@@ -62,6 +63,52 @@ def mesh_key(vertices, faces) -> str:
         h.update(f"{a.dtype.str}{a.shape}".encode())
         h.update(memoryview(a).cast("B"))
     return h.hexdigest()
+
+
+@lru_cache(maxsize=1)
+def _inside_digest() -> bytes:
+    """SHA-256 of the code deciding that one mesh lies inside another (``repair.containers``
+    and the winding numbers of ``tracing/hits.py``), besides the checking code."""
+    h = hashlib.sha256(_checker_digest())
+    h.update((Path(__file__).parents[1] / "tracing" / "hits.py").read_bytes())
+    return h.digest()
+
+
+def pair_key(inner: str, outer: str) -> str:
+    """Hex SHA-256 naming whether the mesh of :func:`mesh_key` ``inner`` lies wholly inside
+    the mesh of ``outer`` (see :func:`load_flag`)."""
+    h = hashlib.sha256(f"xray_viz inside {FORMAT}".encode())
+    h.update(_inside_digest())
+    h.update(f"{inner} in {outer}".encode())
+    return h.hexdigest()
+
+
+def _pairs_dir() -> Path | None:
+    folder = cache_dir()
+    return None if folder is None else folder.parent / "mesh-pairs"
+
+
+def load_flag(key: str):
+    """The stored answer (True or False) of :func:`pair_key` ``key``, or None (kept in
+    ``mesh-pairs/`` beside ``mesh-reports/``)."""
+    folder = _pairs_dir()
+    if folder is None:
+        return None
+    try:
+        data = json.loads((folder / f"{key}.json").read_text(encoding="utf-8"))
+        value = data["inside"] if data.get("format") == FORMAT else None
+        return value if isinstance(value, bool) else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def store_flag(key: str, value: bool) -> None:
+    """Keep the answer of :func:`pair_key` ``key`` (silently nothing where it cannot)."""
+    folder = _pairs_dir()
+    if folder is None:
+        return
+    text = json.dumps({"format": FORMAT, "inside": bool(value)})
+    write_atomically(folder, f"{key}.json", lambda fh: fh.write(text.encode("utf-8")))
 
 
 def load(key: str, report_type):

@@ -530,7 +530,7 @@ def _bounds(mesh):
     return (v.min(axis=0), v.max(axis=0)) if len(v) else (np.full(3, np.inf), np.full(3, -np.inf))
 
 
-def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
+def containers(meshes, *, bounds=None, reports=None, cache: bool = True) -> list[list[int]]:
     """For each closed mesh, the indices of the meshes it lies wholly inside
     (:func:`body_inside`), tested only where its bounding box is inside theirs, with one
     inside/outside trace per containing candidate.
@@ -542,6 +542,11 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
         Their bounding boxes, when known.
     reports : sequence of MeshReport, optional
         Their :func:`check_mesh` reports, when known.
+    cache : bool, optional
+        Read and keep each pair's answer on disk by the two meshes' content hashes, as
+        :func:`check_mesh` keeps reports (``XRAY_VIZ_CACHE_DIR``; the answer depends only on
+        the two meshes): loading the same scene again tests nothing (the frog's 16 bodies:
+        0.27 s).
 
     Examples
     --------
@@ -552,8 +557,6 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
     >>> containers([small, big, poking])
     [[1], [], []]
     """
-    from xray_viz.tracing.hits import inside_counts
-
     n = len(meshes)
     bbox = [tuple(b) for b in bounds] if bounds is not None else [_bounds(m) for m in meshes]
     crossing = [bool(r.self_intersections) for r in reports] if reports is not None else None
@@ -563,32 +566,64 @@ def containers(meshes, *, bounds=None, reports=None) -> list[list[int]]:
     lo = np.array([bx[0] for bx in bbox], dtype=np.float64).reshape(n, 3)
     hi = np.array([bx[1] for bx in bbox], dtype=np.float64).reshape(n, 3)
     solid = np.array([len(m.faces) > 0 for m in meshes], dtype=bool)
+    from xray_viz.meshes import _report_cache
+
+    keys = None
+    if cache and _report_cache.cache_dir() is not None:
+        try:
+            keys = [_report_cache.mesh_key(np.asarray(m.vertices), np.asarray(m.faces))
+                    for m in meshes]
+        except (TypeError, ValueError):      # not arrays of numbers: tested, not stored
+            keys = None
     for b in range(n):
         if not solid[b]:
             continue
         within = solid & np.all(lo >= lo[b], axis=1) & np.all(hi <= hi[b], axis=1)
         within[b] = False
         cand = np.flatnonzero(within).tolist()          # boxes inside b's box: candidates
-        if not cand:
-            continue
-        for a in cand:
-            if a not in points:
-                points[a] = _piece_points(meshes[a])
-        tris = np.asarray(meshes[b].vertices, dtype=np.float64)[np.asarray(meshes[b].faces)]
-        inside = inside_counts(tris, np.concatenate([points[a] for a in cand])) > 0
-        splits = np.cumsum([len(points[a]) for a in cand])[:-1]
-        for a, ok in zip(cand, np.split(inside, splits)):
-            if not ok.all():
-                continue
-            for k in (a, b):
-                if k not in boxes:
-                    boxes[k] = _face_boxes(meshes[k])
-            if not _surfaces_cross(
-                    meshes[a], meshes[b], (bbox[a], bbox[b]),
-                    None if crossing is None else (crossing[a], crossing[b]),
-                    (boxes[a], boxes[b])):
+        known = {}
+        if keys is not None:
+            for a in cand:
+                flag = _report_cache.load_flag(_report_cache.pair_key(keys[a], keys[b]))
+                if flag is not None:
+                    known[a] = flag
+        todo = [a for a in cand if a not in known]
+        found = _inside_of(meshes, b, todo, bbox, crossing, points, boxes)
+        for a in todo:
+            if keys is not None:
+                _report_cache.store_flag(_report_cache.pair_key(keys[a], keys[b]), a in found)
+        for a in cand:                                  # in index order, as they were tested
+            if known.get(a, a in found):
                 out[a].append(b)
     return out
+
+
+def _inside_of(meshes, b, cand, bbox, crossing, points, boxes) -> set:
+    """The meshes ``cand`` (boxes inside ``b``'s) that lie wholly inside mesh ``b``: every
+    piece's point inside it (one trace for them all) and no surfaces crossing."""
+    from xray_viz.tracing.hits import inside_counts
+
+    found = set()
+    if not cand:
+        return found
+    for a in cand:
+        if a not in points:
+            points[a] = _piece_points(meshes[a])
+    tris = np.asarray(meshes[b].vertices, dtype=np.float64)[np.asarray(meshes[b].faces)]
+    inside = inside_counts(tris, np.concatenate([points[a] for a in cand])) > 0
+    splits = np.cumsum([len(points[a]) for a in cand])[:-1]
+    for a, ok in zip(cand, np.split(inside, splits)):
+        if not ok.all():
+            continue
+        for k in (a, b):
+            if k not in boxes:
+                boxes[k] = _face_boxes(meshes[k])
+        if not _surfaces_cross(
+                meshes[a], meshes[b], (bbox[a], bbox[b]),
+                None if crossing is None else (crossing[a], crossing[b]),
+                (boxes[a], boxes[b])):
+            found.add(a)
+    return found
 
 
 def simple_winding(mesh) -> bool:
