@@ -736,9 +736,10 @@ def edge_facts(faces, n_vertices):
 
 
 def _sweep_threads() -> int:
-    """Threads of the self-intersection sweep: the processors, at most 2 (the machines this is
-    measured on; the sweep is a third of a 1.3M-face check after the grid)."""
-    return min(os.cpu_count() or 1, 2)
+    """Threads of the self-intersection sweep: the library's count (:mod:`xray_viz._threads`)."""
+    from xray_viz import _threads
+
+    return _threads.count()
 
 
 def self_intersections(vertices, faces, labels=None) -> np.ndarray:

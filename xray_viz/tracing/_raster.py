@@ -1253,9 +1253,11 @@ _MIN_ROWS = 16
 
 
 def _threads() -> int:
-    """Threads to split a kernel's range over: numba's (``NUMBA_NUM_THREADS``,
-    ``numba.set_num_threads``), as the ``parallel=True`` kernels used."""
-    return numba.get_num_threads()
+    """Threads to split a kernel's range over: the library's count (numba's setting,
+    ``NUMBA_NUM_THREADS`` / ``numba.set_num_threads``, as the ``parallel=True`` kernels used)."""
+    from xray_viz._threads import count
+
+    return count()
 
 
 def _split(name, lo, hi, args, min_each=1):
