@@ -34,7 +34,6 @@ cache.
 from __future__ import annotations
 
 import math
-import os
 import threading
 
 import numpy as np
