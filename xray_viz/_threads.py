@@ -19,10 +19,15 @@ _lock = threading.Lock()
 
 def count() -> int:
     """Threads to split work over: numba's setting when numba is loaded (``NUMBA_NUM_THREADS``,
-    ``numba.set_num_threads``: the engine's), else the processors this process may use."""
+    or ``numba.set_num_threads`` once called: the engine's), else the processors this process
+    may use. It never starts numba's threading layer (the kernels are not ``parallel``; an old
+    TBB, which Open3D brings, makes that start warn)."""
     numba = sys.modules.get("numba")
     if numba is not None:
-        return numba.get_num_threads()
+        layer = sys.modules.get("numba.np.ufunc.parallel")
+        if getattr(layer, "_is_initialized", False):      # set_num_threads was called
+            return numba.get_num_threads()
+        return int(numba.config.NUMBA_NUM_THREADS)
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
