@@ -357,3 +357,31 @@ def test_show_outside_a_notebook_without_a_display(monkeypatch):
         xray_viz.show("sphere")
     assert "\n" not in str(exc.value)
     assert xray_viz.show.__module__ == "xray_viz.viz.notebook"
+
+
+def test_server_loop_drops_messages_to_closing_connections_only(caplog):
+    """A message to a page whose connection is closing fails in a task nobody awaits (Ctrl-C
+    while a frame is on its way): the server's loop drops that one quietly, and still reports
+    any other error of a task as asyncio does."""
+    import asyncio
+    import gc
+
+    from xray_viz.viz import web
+
+    async def fails(exc):
+        raise exc
+
+    async def main():
+        web._own_loop_drops_closing_connections()
+        for exc in (ConnectionResetError("Cannot write to closing transport"),
+                    ValueError("a real bug")):
+            task = asyncio.get_running_loop().create_task(fails(exc))
+            await asyncio.sleep(0.01)
+            assert task.done()
+            del task
+            gc.collect()
+
+    with caplog.at_level("ERROR", logger="asyncio"):
+        asyncio.run(main())
+    logged = [r.getMessage() + str(r.exc_info) for r in caplog.records if r.name == "asyncio"]
+    assert len(logged) == 1 and "a real bug" in logged[0], logged

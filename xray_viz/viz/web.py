@@ -242,7 +242,12 @@ class WebViewer:
 
     def start(self, *, host=DEFAULT_HOST, port=0, exec_mode="main", on_ready=None):
         """Start the trame server (``exec_mode="main"`` blocks until it stops; ``"task"``
-        returns its asyncio task, for a running event loop such as a Jupyter kernel's)."""
+        returns its asyncio task, for a running event loop such as a Jupyter kernel's).
+
+        With ``"main"`` the server's own event loop drops the errors of messages to a page
+        whose connection is closing (:func:`_drop_closing_connections`)."""
+        if exec_mode == "main":
+            self.server.controller.on_server_ready.add(_own_loop_drops_closing_connections)
         if on_ready is not None:
             self.server.controller.on_server_ready.add(lambda **_: on_ready(self))
         return self.server.start(host=host, port=int(port), exec_mode=exec_mode,
@@ -252,6 +257,23 @@ class WebViewer:
     def close(self) -> None:
         """Free the viewer's render window (the server, if running, is left to its loop)."""
         self.viewer.close()
+
+
+def _drop_closing_connections(loop, context) -> None:
+    """asyncio exception handler: an image or state update sent to a page whose connection
+    is closing (the tab closed, or the server stopping on Ctrl-C while a frame was on its way)
+    raises ``ConnectionResetError`` in a task of wslink's that nobody awaits, which asyncio
+    would print as a traceback; there is nobody left to tell, so it is dropped. Anything else
+    is reported as asyncio does."""
+    if isinstance(context.get("exception"), ConnectionResetError):
+        return
+    loop.default_exception_handler(context)
+
+
+def _own_loop_drops_closing_connections(**_) -> None:
+    import asyncio
+
+    asyncio.get_running_loop().set_exception_handler(_drop_closing_connections)
 
 
 def serve(scene, *, host=DEFAULT_HOST, port=0, announce=print, **viewer_options) -> int:
