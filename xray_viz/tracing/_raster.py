@@ -425,7 +425,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
     material is body ``b``, the body of highest precedence among those the ray is inside
     (entries minus exits > 0), up to the detector (depth FL): the body of lowest ``rank``
     (``by_rank[r]`` is the body of rank r; rank -1 never wins; :func:`body_ranks`). Rays are in image order (see
-    :func:`finish`), so ``L`` need only hold the rays of the bands rastered. A sample's hits
+    :func:`finish`), so ``L`` need only hold the rays of the bands rastered; each band's rays
+    are zeroed before its lengths are added (``L`` need not arrive zeroed). A sample's hits
     and their order do not depend on which bands are rastered together.
     """
     nb = rank.shape[0]
@@ -569,7 +570,17 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                     S[Y - row0, X] += sgn * hw[i]
                     N[Y - row0, X] += dn
                 nh = np.int64(0)
-        if single or nh == 0:
+        if single:
+            continue
+        # The band's rays (whole pixel rows j0..j1, Y up; image rows down) start at zero:
+        # ``L`` need not arrive zeroed (a reused buffer), and the rows are then in the cache.
+        j0 = r0 // n
+        j1 = r1 // n
+        Lflat = L.reshape(-1)
+        for i in range(((H - 1 - j1) * W * n * n - ray0) * L.shape[1],
+                       ((H - j0) * W * n * n - ray0) * L.shape[1]):
+            Lflat[i] = 0.0
+        if nh == 0:
             continue
         # Group the hits by sample, keeping their order (counting sort).
         for p in range(npix + 1):
@@ -678,7 +689,8 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
     One body (``single``): the depth span of sample (X, Y) is ``S[0, Y - s_row0, X]``, or with
     per-thread accumulators (``N.shape[0] > 0``) ``sum_c S[c, ...] + sum_c N[c, ...] * FL``
     (as :func:`_reduce_chunks`). Several bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows
-    ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``.
+    ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``: every
+    ray of those rows is written (``L`` need not arrive zeroed).
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
     ``((H - 1 - j) W + i) n n + r n + c`` (:func:`_sample_ray`, here kept incrementally). A
@@ -708,9 +720,10 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
                         v = v + k * FL
                     else:
                         v = S[0, y, X]
-                    if v == 0.0:
-                        continue
                 ray = row + i * n * n + c
+                if single and v == 0.0:
+                    L[ray, 0] = 0.0
+                    continue
                 scale = (_obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL)
                          if perspective else 1.0)
                 if single:

@@ -74,6 +74,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import threading
 
 import numba
@@ -112,6 +113,7 @@ def clear_caches(scene) -> None:
     bodies.forget(("fast", "workspace"))
     bodies.forget(("fast", "setup"))
     bodies.forget(("fast", "accumulators"))
+    bodies.forget(("fast", "result buffer"))
 
 
 def _split(scene):
@@ -223,6 +225,37 @@ def _setup_space(bodies, n_triangles):
         np.empty(n_triangles, np.int8), np.empty(n_triangles, np.int8),
         np.empty((n_triangles, 4), np.int64), np.empty((n_triangles, 6)),
         np.empty((n_triangles, 2))), limit=1)
+
+
+def _refs(box) -> int:
+    """How many references to ``box[0]`` :func:`sys.getrefcount` sees from here."""
+    return sys.getrefcount(box[0])
+
+
+#: What :func:`_refs` gives for an object that only its box holds (measured the same way, so
+#: whatever references the interpreter borrows or takes for the call do not matter).
+_BOX_ONLY = _refs([object()])
+
+
+def _result_buffer(bodies, n_rays, nb):
+    """An ``(n_rays, nb)`` float64 array for a window's path lengths, *not* zeroed: the
+    kernels that fill it write every ray (the several-bodies raster zeroes each band's rays
+    before it adds the band's lengths; :func:`~xray_viz.tracing._raster._finish` writes every
+    ray of its rows).
+
+    The array the last call on these bodies returned, if nothing else holds it any more (not
+    the caller, a view of it, nor the result cache): the first touch of a fresh 33 MB result
+    (the frog's 262144 rays x 16 bodies) cost ~4 ms of page faults a frame. Else a new array,
+    kept for the next call. Results above 64 MiB are not kept (a dead buffer of that size
+    held between frames is memory the caller did not ask for)."""
+    if n_rays * nb * 8 > _RESULT_ENTRY_BYTES:
+        return np.empty((n_rays, nb))
+    box = bodies.cached(("fast", "result buffer", n_rays, nb), lambda: [None], limit=1)
+    if box[0] is not None and _refs(box) == _BOX_ONLY:
+        box[0].setflags(write=True)         # it may have been a cached read-only result
+        return box[0]
+    box[0] = np.empty((n_rays, nb))
+    return box[0]
 
 
 #: Above this many (threads x samples), one body is traced by bands (memory) not per thread.
@@ -434,6 +467,7 @@ class _Plan:
 
         bodies, acq = _split(scene)
         self.R = R
+        self.bodies = bodies
         self.n = n
         W, H = self.shape = acq.detector.shape
         self.nb = nb = len(bodies)
@@ -517,16 +551,19 @@ class _Plan:
         r0, r1 = H - y1 // n, H - y0 // n              # image rows (row 0 at the top)
         ray0 = r0 * W * n * n
         n_rays = (r1 - r0) * W * n * n
-        L = np.zeros((n_rays, self.nb))
         if self.mode == "empty":
-            return r0, r1, L
+            return r0, r1, np.zeros((n_rays, self.nb))
         args = (self.FL, self.perspective, self.P0, self.Ex, self.Ey, n, W, H)
         order = _band_order(b1 - b0) + b0
         if self.mode == "multi":
+            L = _result_buffer(self.bodies, n_rays, self.nb)
             R.raster_multi(order, self.band_start, self.band_tris, bh, nH, nW, self.tri,
                            self.F, self.XY, self.kind, self.cbox, self.orient, self.coef,
                            self.wrange, self.B, self.FL, self.prec, *args[1:], L, ray0)
             return r0, r1, L
+        # (the finish writes every ray of the window's rows)
+        L = (_result_buffer(self.bodies, n_rays, 1) if self.nb == 1
+             else np.zeros((n_rays, self.nb)))
         L1 = L if self.nb == 1 else np.zeros((n_rays, 1))
         if self.mode == "direct" and self.S is None:
             R.finish_chunks(self.Sc, self.Nc, *args, L1, y0, y1, ray0)
