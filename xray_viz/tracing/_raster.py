@@ -576,10 +576,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
         # ``L`` need not arrive zeroed (a reused buffer), and the rows are then in the cache.
         j0 = r0 // n
         j1 = r1 // n
-        Lflat = L.reshape(-1)
-        for i in range(((H - 1 - j1) * W * n * n - ray0) * L.shape[1],
-                       ((H - j0) * W * n * n - ray0) * L.shape[1]):
-            Lflat[i] = 0.0
+        for i in range((H - 1 - j1) * W * n * n - ray0, (H - j0) * W * n * n - ray0):
+            for q in range(L.shape[1]):
+                L[i, q] = 0.0
         if nh == 0:
             continue
         # Group the hits by sample, keeping their order (counting sort).
