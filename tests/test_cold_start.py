@@ -30,7 +30,10 @@ def _sphere(r=20.0, subdivisions=3, center=(0.0, 0.0, 0.0)):
 
 def _every_path():
     """Renders that go through every kernel: one body (direct), one body by bands (single),
-    several bodies (multi), a parallel beam and supersampling."""
+    several bodies (multi), a parallel beam and supersampling; and the meshes' spatial order
+    by its kernel (a cold start orders them in NumPy instead)."""
+    R.spatial_order(*R.spatial_order_numpy(_sphere().vertices, _sphere().faces))
+    R._kernel("_first_use_rank")
     fast.fast_path_lengths(xray_viz.load_scene("sphere"), cache=False)
     fast.fast_path_lengths(xray_viz.load_scene("nested_spheres"), supersample=2, cache=False)
     beam = make_scene(_sphere(), kind="parallel", pitch=1.5)
@@ -74,6 +77,42 @@ def test_helpers_are_specialised_once(tmp_path):
                          capture_output=True, text=True, timeout=1200, cwd=here)
     counts = json.loads(out.stdout.splitlines()[-1])
     assert counts == {n: 1 for n in HELPERS + tuple(R.SIGNATURES)}
+
+
+COLD_ORDER = """
+import hashlib, json, sys
+sys.path.insert(0, sys.argv[1])
+from numba.core import event
+compiled = []
+class Listener(event.Listener):
+    def on_start(self, ev):
+        compiled.append(ev.data["dispatcher"].py_func.__name__)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Listener())
+import test_cold_start as T
+from xray_viz.tracing import _raster as R, fast
+if sys.argv[2] == "kernel":
+    R._kernel("_first_use_rank")
+L = fast.trace_once(T.make_scene(T._sphere(subdivisions=5), pitch=1.5))
+print(json.dumps({"compiled": compiled, "sha": hashlib.sha256(L.tobytes()).hexdigest()}))
+"""
+
+
+def test_a_cold_start_orders_the_meshes_in_numpy_with_the_kernels_bits(tmp_path):
+    """With the spatial-order kernel neither compiled nor cached, a process orders its meshes
+    in NumPy (it never compiles that kernel: ~1.2 s a cold start waited for) and traces the
+    same bits as a process that has the kernel."""
+    here = os.path.dirname(__file__)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = [json.loads(subprocess.run([sys.executable, "-c", COLD_ORDER, here, how], env=env,
+                                     check=True, capture_output=True, text=True, timeout=900,
+                                     cwd=here).stdout.splitlines()[-1])
+           for how in ("numpy", "kernel")]
+    cold, warm = out
+    assert "first_use_rank" not in cold["compiled"] and "_raster_direct" in cold["compiled"]
+    assert "first_use_rank" in warm["compiled"] and "_raster_direct" not in warm["compiled"]
+    assert cold["sha"] == warm["sha"]
 
 
 def test_arguments_of_other_types_are_normalised_not_compiled():
@@ -196,7 +235,7 @@ def test_prepare_starts_nothing_when_only_other_scenes_kernels_are_missing(tmp_p
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", code], env=env, check=True,
                          capture_output=True, text=True, timeout=600)
-    assert json.loads(out.stdout) == [[], [], [False, False]]
+    assert json.loads(out.stdout) == [[], [], [False] * len(R.PATHS["setup"])]
 
 
 RENDER_MODULES = """

@@ -1060,7 +1060,9 @@ SIGNATURES = {
 
 #: Kernels each engine path needs (what :func:`compile_kernels` compiles for a scene).
 PATHS = {
-    "setup": ("_first_use_rank", "_project_vertices"),
+    "setup": ("_project_vertices",),
+    # (a cold start orders the meshes in NumPy: spatial_order_numpy; compiled for later runs)
+    "order": ("_first_use_rank",),
     "direct": ("_raster_direct", "_reduce_chunks", "_finish"),
     "banded": ("_cull_triangles", "_setup_planes", "_bin_triangles"),
     "single": ("_raster_bands", "_reduce_chunks", "_finish"),
@@ -1093,7 +1095,7 @@ def compile_kernels(paths=None) -> list:
     Examples
     --------
     >>> from xray_viz.tracing import _raster
-    >>> names = _raster.compile_kernels(["setup"])
+    >>> names = _raster.compile_kernels(["setup", "order"])
     >>> [len(getattr(_raster, n).signatures) for n in names]
     [1, 1]
     """
@@ -1111,13 +1113,12 @@ def _names(paths=None) -> list:
 
 
 #: Compile CPU seconds of each kernel beyond what a process pays for its first compile
-#: (``benchmarks/compile_profile.py``, one process per kernel and one for the six kernels of
-#: the several-bodies path, less ~0.45 s of numba's start), to share them out among the
-#: workers; kernels of one tuple share helpers and go to the same worker.
-#: (``_first_use_rank`` re-estimated after it took in the spatial order: ~1.6x its former cost.)
-_COSTS = {("_first_use_rank",): 0.4, ("_project_vertices",): 0.3, ("_cull_triangles",): 0.6,
-          ("_setup_planes",): 0.35, ("_bin_triangles",): 0.2, ("_raster_bands",): 2.5,
-          ("_raster_direct",): 2.2, ("_reduce_chunks",): 0.2, ("_finish",): 0.3}
+#: (``benchmarks/compile_profile.py --opt 1``, one process per kernel, less the ~0.5 s of
+#: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-04), to share them out
+#: among the workers; kernels of one tuple share helpers and go to the same worker.
+_COSTS = {("_first_use_rank",): 1.25, ("_project_vertices",): 0.75, ("_cull_triangles",): 1.25,
+          ("_setup_planes",): 0.75, ("_bin_triangles",): 0.3, ("_raster_bands",): 3.3,
+          ("_raster_direct",): 3.35, ("_reduce_chunks",): 0.15, ("_finish",): 0.55}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
 #: A worker compiles its kernels in turn, and names each on its output once it is cached (a
@@ -1315,7 +1316,13 @@ def first_use_rank(flat_faces, n_vertices):
 
 def spatial_order(V, F):
     """``(V', F')``: the vertices and int32 faces of a mesh in spatial order (see
-    :func:`_first_use_rank`): faces along the Morton order, vertices in order of first use."""
+    :func:`_first_use_rank`): faces along the Morton order, vertices in order of first use.
+
+    By the compiled kernel when it is compiled or in numba's cache; else (a cold start: it
+    would cost ~1.2 s of compile while the image waits) by :func:`spatial_order_numpy`, which
+    gives the same arrays, and the kernel is left to the background compile for later runs."""
+    if "_first_use_rank" not in _ready and not _is_cached("_first_use_rank"):
+        return spatial_order_numpy(V, F)
     V = _in(V, _f8)
     F = _in(F, np.int64).reshape(-1)
     nv = len(V)
@@ -1326,6 +1333,47 @@ def spatial_order(V, F):
                                np.empty(max(nv, len(F) // 3), np.int64),
                                np.zeros(nv + 1, np.int64), np.zeros((3, 1025), np.int64))
     return Vout, Fout.reshape(-1, 3)
+
+
+def spatial_order_numpy(V, F):
+    """:func:`spatial_order` in NumPy: the same arrays, from the same Morton codes (the same
+    floating-point steps), stable argsorts in place of the kernel's radix and counting sorts,
+    and the first use of each vertex from :func:`numpy.unique`.
+
+    Examples
+    --------
+    >>> import numpy as np, trimesh
+    >>> m = trimesh.creation.icosphere(subdivisions=4)
+    >>> v, f = spatial_order_numpy(m.vertices, m.faces)
+    >>> bool(np.isclose(trimesh.Trimesh(v, f).volume, m.volume)), f.dtype.name
+    (True, 'int32')
+    >>> bool(np.all(np.diff(np.unique(f, return_index=True)[1]) > 0))   # first use order
+    True
+    """
+    V = _in(V, _f8)
+    tri = _in(F, np.int64).reshape(-1, 3)
+    nv = len(V)
+    if nv == 0:
+        return V.copy(), tri.astype(np.int32)
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    x = ((V - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64).astype(np.int64)
+    x &= 1023                                   # bits b -> 3 b (the kernel's magic masks)
+    x = (x | (x << 16)) & 0x30000FF
+    x = (x | (x << 8)) & 0x300F00F
+    x = (x | (x << 4)) & 0x30C30C3
+    x = (x | (x << 2)) & 0x9249249
+    code = x[:, 0] | (x[:, 1] << 1) | (x[:, 2] << 2)
+    morton = np.argsort(code, kind="stable")    # the vertices in Morton order
+    place = np.empty(nv, np.int64)
+    place[morton] = np.arange(nv)
+    flat = tri[np.argsort(place[tri].min(axis=1), kind="stable")].reshape(-1)
+    seen, first = np.unique(flat, return_index=True)
+    unused = np.ones(nv, bool)
+    unused[seen] = False
+    new = np.concatenate([seen[np.argsort(first)], morton[unused[morton]]])
+    rank = np.empty(nv, np.int64)
+    rank[new] = np.arange(nv)
+    return V[new], rank[flat].astype(np.int32).reshape(-1, 3)
 
 
 def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
