@@ -49,7 +49,9 @@ numbered in order of first use by those faces), its concatenation over the bodie
 scratch memory, and the results of :func:`fast_path_lengths` for the last few acquisitions
 when they are small (64 MiB at most, 128 MiB in all): re-rendering the same geometry with other
 energies or materials costs nothing, and a new acquisition (the source moved) pays no per-mesh
-set-up again.
+set-up again. The kernels write every ray of a result, so the memory of the last result (up to
+64 MiB) is handed to the next call on the same bodies once nothing else holds it
+(:func:`_result_buffer`): a frame does not pay the page faults of a fresh array.
 
 Limits: meshes must be closed and outward oriented (as for the NumPy engine). A body crossing
 the plane of the source inside the beam cannot be projected and is refused with a
