@@ -11,9 +11,9 @@ directories are covered by an empty tmpfs with the needed entries bound back; no
 machine is changed. The tests skip, saying why, only when no unprivileged run is possible.
 
 A cold compile of every kernel a render needs takes 15-60 s, so the default cases compile one
-small kernel (``first_use_rank``) and load the others from cache files copied from this
-process's own warm cache (same source, same machine: numba accepts them); the full cold runs are
-marked slow.
+small kernel (``finish``; ``first_use_rank`` in the probes) and load the others from cache
+files copied from this process's own warm cache (same source, same machine: numba accepts
+them); the full cold runs are marked slow.
 """
 
 from __future__ import annotations
@@ -36,8 +36,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NOBODY = 65534
-#: The small kernel the default cases compile (well under 10 s cold).
+#: The small kernel the probes compile (well under 10 s cold).
 SMALL = "first_use_rank"
+#: The small kernel the default render cases compile: one a render of the sphere waits for
+#: (a cold render orders the meshes in NumPy rather than wait for ``first_use_rank``).
+RENDERED = "finish"
 #: Prints where each kernel is cached, then runs the small kernel on faces whose first-use
 #: ranks are known, and says whether it came from the cache.
 PROBE = """
@@ -370,7 +373,7 @@ def warm():
             cf = cache._cache_file
             files[name] = [Path(cf._index_path),
                            *(Path(cf._data_path(n)) for n in cf._load_index().values())]
-    assert SMALL in files and "raster_direct" in files
+    assert SMALL in files and RENDERED in files and "raster_direct" in files
     assert all(p.is_file() for paths in files.values() for p in paths)
     return image.intensity, files
 
@@ -419,7 +422,7 @@ def test_compile_notice_in_tree(world, warm):
     ref, files = warm
     site = _install(world / "site-rw")  # writable: numba caches beside the module
     pycache = site / "xray_viz" / "tracing" / "__pycache__"
-    _seed(files, pycache, skip={SMALL})
+    _seed(files, pycache, skip={RENDERED})
     env = _env(site, _home(world, "home-rw"), _tmp(world, "tmp-rw"))
     lines, image = _cli(world / "rw1.npy", run=_run_as_root, env=env, cwd=world)
     assert _compiling(lines) == [
@@ -438,7 +441,7 @@ def test_compile_notice_in_the_fallback_location(world, site, warm):
     where = _temp_cache_dir(tmp, site)
     where.parent.mkdir(mode=0o700)
     os.chown(where.parent, NOBODY, NOBODY)
-    _seed(files, where, skip={SMALL}, owner=NOBODY)
+    _seed(files, where, skip={RENDERED}, owner=NOBODY)
     kw = dict(env=_env(site, home, tmp), cwd=home, expose=[site, home, tmp, out])
     lines, image = _cli(out / "fb1.npy", run=run_as_nobody, **kw)
     assert _compiling(lines) == [
@@ -516,7 +519,7 @@ def test_a_corrupt_cache_file_is_rebuilt(world, warm, kind):
     pycache = site / "xray_viz" / "tracing" / "__pycache__"
     _seed(files, pycache)
     suffix, corrupt, named = CORRUPTIONS[kind]
-    (victim,) = [pycache / p.name for p in files[SMALL] if p.suffix == "." + suffix]
+    (victim,) = [pycache / p.name for p in files[RENDERED] if p.suffix == "." + suffix]
     victim.write_bytes(corrupt(victim.read_bytes()))
     env = _env(site, _home(world, f"home-{kind}"), _tmp(world, f"tmp-{kind}"))
     lines, image = _cli(world / f"{kind}.npy", run=_run_as_root, env=env, cwd=world)
@@ -533,7 +536,7 @@ def test_a_corrupt_cache_file_is_rebuilt(world, warm, kind):
     from xray_viz.tracing import _numba_cache as C
     from xray_viz.tracing import _raster as R
 
-    cache = getattr(R, SMALL)._cache
+    cache = getattr(R, RENDERED)._cache
     cf = C.CheckedCacheFile(cache_path=str(pycache), filename_base=cache._impl.filename_base,
                             source_stamp=cache._impl.locator.get_source_stamp())
     overloads = cf._load_index()
