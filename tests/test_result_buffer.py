@@ -4,6 +4,7 @@ write every ray: a reused buffer left full of NaN must give the same bits as a n
 a result anyone still holds (the caller, a view of it, the result cache) is never written."""
 
 import dataclasses
+import weakref
 
 import numpy as np
 import pytest
@@ -98,3 +99,27 @@ def test_results_above_the_bound_are_not_kept(monkeypatch):
     nb = len(scene.bodies)
     assert scene.bodies.lookup(("fast", "result buffer", len(L), nb)) is None
     assert np.array_equal(L, trace_once(scene))
+
+
+def test_results_pushed_out_of_the_cache_are_reused_but_never_while_held():
+    """A render loop through the result cache: each frame's result pushes an older one out,
+    whose memory a later frame is given (the same bits as traced afresh); a result the caller
+    still holds is never given."""
+    name = "nested_spheres"
+    scene = _small(name)
+    fast.clear_caches(scene)
+    shifts = [0.7 * i for i in range(10)]
+    fresh = _small(name)                      # other bodies: their own caches and buffers
+    want = [trace_once(_moved(fresh, dx)).copy() for dx in shifts]
+    held = fast_path_lengths(_moved(scene, shifts[0]))[0]
+    earlier = []                              # weak: a freed result's object cannot come back
+    reused = 0
+    for dx, ref in zip(shifts[1:], want[1:]):
+        got = fast_path_lengths(_moved(scene, dx))[0]
+        reused += any(r() is got for r in earlier)
+        earlier.append(weakref.ref(got))
+        assert not np.shares_memory(got, held)
+        assert np.array_equal(got, ref)
+        del got
+    assert reused >= 3                        # 9 frames through a cache of 4 results
+    assert np.array_equal(held, want[0])

@@ -305,7 +305,7 @@ class Bodies(Sequence):
                 reports=self.reports))
         return self._value("precedence", build)
 
-    def cached(self, key, build, *, limit: int = 8, nbytes=None):
+    def cached(self, key, build, *, limit: int = 8, nbytes=None, on_evict=None):
         """An engine's own derived data, built once per key and kept on these bodies.
 
         Parameters
@@ -320,6 +320,9 @@ class Bodies(Sequence):
         nbytes : int, optional
             Also drop the least recently used values of the family while together they hold
             more than this many bytes (of NumPy arrays, also inside tuples).
+        on_evict : callable, optional
+            ``on_evict(value)`` for each value this call drops (after it is dropped): an
+            engine may hand its memory on.
 
         Returns
         -------
@@ -331,12 +334,16 @@ class Bodies(Sequence):
                 d.cache.move_to_end(key)
                 return d.cache[key]
         value = build()
+        dropped = []
         with d.lock:
             d.cache[key] = value
             family = [k for k in d.cache if k[:2] == key[:2]]
             while len(family) > 1 and (len(family) > limit or (
                     nbytes is not None and sum(_bytes(d.cache[k]) for k in family) > nbytes)):
-                del d.cache[family.pop(0)]
+                dropped.append(d.cache.pop(family.pop(0)))
+        if on_evict is not None:
+            for old in dropped:
+                on_evict(old)
         return value
 
     def lookup(self, key):
@@ -348,9 +355,9 @@ class Bodies(Sequence):
                 return d.cache[key]
         return None
 
-    def store(self, key, value, *, limit: int = 8, nbytes=None):
+    def store(self, key, value, *, limit: int = 8, nbytes=None, on_evict=None):
         """Keep ``value`` for ``key`` as :meth:`cached` would have built it."""
-        return self.cached(key, lambda: value, limit=limit, nbytes=nbytes)
+        return self.cached(key, lambda: value, limit=limit, nbytes=nbytes, on_evict=on_evict)
 
     def forget(self, family=None) -> None:
         """Drop an engine's cached data (of one ``key[:2]`` family, or all of it): for timing

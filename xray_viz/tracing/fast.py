@@ -50,8 +50,9 @@ scratch memory, and the results of :func:`fast_path_lengths` for the last few ac
 when they are small (64 MiB at most, 128 MiB in all): re-rendering the same geometry with other
 energies or materials costs nothing, and a new acquisition (the source moved) pays no per-mesh
 set-up again. The kernels write every ray of a result, so the memory of the last result (up to
-64 MiB) is handed to the next call on the same bodies once nothing else holds it
-(:func:`_result_buffer`): a frame does not pay the page faults of a fresh array.
+64 MiB), or of one the result cache has dropped, is handed to the next call on the same bodies
+once nothing else holds it (:func:`_result_buffer`, :func:`_offer_buffer`): a frame does not
+pay the page faults of a fresh array.
 
 Limits: meshes must be closed and outward oriented (as for the NumPy engine). A body crossing
 the plane of the source inside the beam cannot be projected and is refused with a
@@ -260,6 +261,19 @@ def _result_buffer(bodies, n_rays, nb):
     return box[0]
 
 
+def _offer_buffer(bodies, old):
+    """A result the result cache dropped, kept for :func:`_result_buffer` to hand to the next
+    call of its shape (it does so only once nothing else holds it), unless the buffer kept
+    for that shape is free already: a render loop's frames then reuse the memory of the
+    results they push out of the cache."""
+    if not (isinstance(old, np.ndarray) and old.ndim == 2 and old.dtype == np.float64
+            and old.flags.owndata and old.flags.c_contiguous):
+        return
+    box = bodies.cached(("fast", "result buffer") + old.shape, lambda: [None], limit=1)
+    if box[0] is None or _refs(box) != _BOX_ONLY:
+        box[0] = old
+
+
 #: Above this many (threads x samples), one body is traced by bands (memory) not per thread.
 _DIRECT_MAX_SAMPLES = 1 << 23
 
@@ -316,7 +330,8 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
         objects), source, detector and supersampling (the default); it is kept on the bodies.
         The returned array is then shared and read-only. Only results of at most 64 MiB are
         kept (at most 128 MiB in all, 4 results); larger ones are returned writable and not
-        kept.
+        kept. The memory of a result the cache drops goes to a later call of the same shape
+        once nothing else holds it (a render loop's frames pay no fresh pages).
 
     Returns
     -------
@@ -353,7 +368,8 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
     L = trace_once(scene, supersample=n)
     if cache and L.nbytes <= _RESULT_ENTRY_BYTES:
         L.setflags(write=False)
-        bodies.store(key, L, limit=_RESULTS, nbytes=_RESULT_BYTES)
+        bodies.store(key, L, limit=_RESULTS, nbytes=_RESULT_BYTES,
+                     on_evict=lambda old: _offer_buffer(bodies, old))
     return L, None
 
 
