@@ -123,3 +123,33 @@ def test_results_pushed_out_of_the_cache_are_reused_but_never_while_held():
         del got
     assert reused >= 3                        # 9 frames through a cache of 4 results
     assert np.array_equal(held, want[0])
+
+
+def test_threads_sharing_bodies_never_get_a_result_someone_holds():
+    """Two threads in render loops on the same bodies (frames through the result cache and
+    without it), each keeping every other result: none of those is ever written again."""
+    import threading
+
+    scene = _small("nested_spheres")
+    fast.clear_caches(scene)
+    kept, errors = [], []
+
+    def loop(sign):
+        try:
+            for i in range(8):
+                s = _moved(scene, sign * 0.9 * i)
+                L = fast_path_lengths(s)[0] if i % 2 else trace_once(s)
+                if i % 3 == 0:
+                    kept.append((L, L.copy()))
+        except Exception as e:            # pragma: no cover - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=loop, args=(sg,)) for sg in (1.0, -1.0)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    assert len(kept) == 6
+    for L, copy in kept:
+        assert np.array_equal(L, copy)

@@ -250,7 +250,7 @@ def _result_buffer(bodies, n_rays, nb):
     the caller, a view of it, nor the result cache): the first touch of a fresh 33 MB result
     (the frog's 262144 rays x 16 bodies) cost ~4 ms of page faults a frame. Else a new array,
     kept for the next call. Results above 64 MiB are not kept (a dead buffer of that size
-    held between frames is memory the caller did not ask for)."""
+    held between frames is memory the caller did not ask for). Called under ``_LOCK``."""
     if n_rays * nb * 8 > _RESULT_ENTRY_BYTES:
         return np.empty((n_rays, nb))
     box = bodies.cached(("fast", "result buffer", n_rays, nb), lambda: [None], limit=1)
@@ -269,9 +269,10 @@ def _offer_buffer(bodies, old):
     if not (isinstance(old, np.ndarray) and old.ndim == 2 and old.dtype == np.float64
             and old.flags.owndata and old.flags.c_contiguous):
         return
-    box = bodies.cached(("fast", "result buffer") + old.shape, lambda: [None], limit=1)
-    if box[0] is None or _refs(box) != _BOX_ONLY:
-        box[0] = old
+    with _LOCK:         # as _result_buffer, which runs under it: never between its look and use
+        box = bodies.cached(("fast", "result buffer") + old.shape, lambda: [None], limit=1)
+        if box[0] is None or _refs(box) != _BOX_ONLY:
+            box[0] = old
 
 
 #: Above this many (threads x samples), one body is traced by bands (memory) not per thread.
