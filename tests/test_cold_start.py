@@ -79,9 +79,8 @@ def test_helpers_are_specialised_once(tmp_path):
     assert counts == {n: 1 for n in HELPERS + tuple(R.SIGNATURES)}
 
 
-COLD_ORDER = """
-import hashlib, json, sys
-sys.path.insert(0, sys.argv[1])
+#: A subprocess's names of every function numba compiles there, in ``compiled``.
+LISTEN = """
 from numba.core import event
 compiled = []
 class Listener(event.Listener):
@@ -90,7 +89,11 @@ class Listener(event.Listener):
     def on_end(self, ev):
         pass
 event.register("numba:compile", Listener())
-import test_cold_start as T
+"""
+COLD_ORDER = """
+import hashlib, json, sys
+sys.path.insert(0, sys.argv[1])
+""" + LISTEN + """import test_cold_start as T
 from xray_viz.tracing import _raster as R, fast
 if sys.argv[2] == "kernel":
     R._kernel("_first_use_rank")
@@ -192,15 +195,7 @@ def test_a_background_compile_is_announced_when_first_needed():
 
 PREPARE = """
 import json, sys
-from numba.core import event
-from xray_viz.tracing import _raster as R
-compiled = []
-class Listener(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__name__)
-    def on_end(self, ev):
-        pass
-event.register("numba:compile", Listener())
+""" + LISTEN + """from xray_viz.tracing import _raster as R
 started = R.prepare(["setup"])
 again = R.prepare(["setup"])             # already being compiled: nothing more
 names = R.compile_kernels(["setup"])
