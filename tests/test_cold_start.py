@@ -32,8 +32,8 @@ def _every_path():
     """Renders that go through every kernel: one body (direct), one body by bands (single),
     several bodies (multi), a parallel beam and supersampling; and the meshes' spatial order
     by its kernel (a cold start orders them in NumPy instead)."""
-    R.spatial_order(*R.spatial_order_numpy(_sphere().vertices, _sphere().faces))
     R._kernel("_first_use_rank")
+    R.spatial_order(_sphere().vertices, _sphere().faces)
     fast.fast_path_lengths(xray_viz.load_scene("sphere"), cache=False)
     fast.fast_path_lengths(xray_viz.load_scene("nested_spheres"), supersample=2, cache=False)
     beam = make_scene(_sphere(), kind="parallel", pitch=1.5)

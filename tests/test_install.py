@@ -366,6 +366,7 @@ def warm():
     from xray_viz.tracing import _raster as R
 
     image = xray_viz.render(xray_viz.load_scene("sphere"))
+    R._kernel("_first_use_rank")    # the probes' kernel: a render orders meshes in NumPy cold
     files = {}
     for name, kernel in vars(R).items():
         cache = getattr(kernel, "_cache", None)

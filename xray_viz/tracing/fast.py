@@ -253,7 +253,7 @@ def _result_buffer(bodies, n_rays, nb):
     held between frames is memory the caller did not ask for). Called under ``_LOCK``."""
     if n_rays * nb * 8 > _RESULT_ENTRY_BYTES:
         return np.empty((n_rays, nb))
-    box = bodies.cached(("fast", "result buffer", n_rays, nb), lambda: [None], limit=1)
+    box = _buffer_box(bodies, (n_rays, nb))
     if box[0] is not None and _refs(box) == _BOX_ONLY:
         box[0].setflags(write=True)         # it may have been a cached read-only result
         return box[0]
@@ -261,16 +261,19 @@ def _result_buffer(bodies, n_rays, nb):
     return box[0]
 
 
+def _buffer_box(bodies, shape):
+    """The one-element list holding the buffer of :func:`_result_buffer` for ``shape`` (one
+    shape kept per bodies)."""
+    return bodies.cached(("fast", "result buffer") + tuple(shape), lambda: [None], limit=1)
+
+
 def _offer_buffer(bodies, old):
-    """A result the result cache dropped, kept for :func:`_result_buffer` to hand to the next
-    call of its shape (it does so only once nothing else holds it), unless the buffer kept
-    for that shape is free already: a render loop's frames then reuse the memory of the
-    results they push out of the cache."""
-    if not (isinstance(old, np.ndarray) and old.ndim == 2 and old.dtype == np.float64
-            and old.flags.owndata and old.flags.c_contiguous):
-        return
+    """A result the result cache dropped (an array :func:`trace_once` made), kept for
+    :func:`_result_buffer` to hand to the next call of its shape (it does so only once nothing
+    else holds it), unless the buffer kept for that shape is free already: a render loop's
+    frames then reuse the memory of the results they push out of the cache."""
     with _LOCK:         # as _result_buffer, which runs under it: never between its look and use
-        box = bodies.cached(("fast", "result buffer") + old.shape, lambda: [None], limit=1)
+        box = _buffer_box(bodies, old.shape)
         if box[0] is None or _refs(box) != _BOX_ONLY:
             box[0] = old
 
@@ -580,10 +583,10 @@ class _Plan:
                            self.F, self.XY, self.kind, self.cbox, self.orient, self.coef,
                            self.wrange, self.B, self.FL, self.prec, *args[1:], L, ray0)
             return r0, r1, L
-        # (the finish writes every ray of the window's rows)
-        L = (_result_buffer(self.bodies, n_rays, 1) if self.nb == 1
-             else np.zeros((n_rays, self.nb)))
-        L1 = L if self.nb == 1 else np.zeros((n_rays, 1))
+        if self.nb == 1:                 # the finish writes every ray of the window's rows
+            L = L1 = _result_buffer(self.bodies, n_rays, 1)
+        else:                            # one body of several in the beam: the others' are 0
+            L, L1 = np.zeros((n_rays, self.nb)), np.zeros((n_rays, 1))
         if self.mode == "direct" and self.S is None:
             R.finish_chunks(self.Sc, self.Nc, *args, L1, y0, y1, ray0)
         elif self.mode == "direct":
