@@ -1318,10 +1318,12 @@ def spatial_order(V, F):
     """``(V', F')``: the vertices and int32 faces of a mesh in spatial order (see
     :func:`_first_use_rank`): faces along the Morton order, vertices in order of first use.
 
-    By the compiled kernel when it is compiled or in numba's cache; else (a cold start: it
-    would cost ~1.2 s of compile while the image waits) by :func:`spatial_order_numpy`, which
-    gives the same arrays, and the kernel is left to the background compile for later runs."""
-    if "_first_use_rank" not in _ready and not _is_cached("_first_use_rank"):
+    By the compiled kernel (compiled here if no background process of :func:`prepare` is
+    compiling it, or loaded from numba's cache), except while a background process of this
+    one is compiling it (a cold start: the image would wait ~1.2 s for it): then by
+    :func:`spatial_order_numpy`, which gives the same arrays."""
+    if (_workers.get("_first_use_rank") is not None and "_first_use_rank" not in _ready
+            and not _is_cached("_first_use_rank")):
         return spatial_order_numpy(V, F)
     V = _in(V, _f8)
     F = _in(F, np.int64).reshape(-1)
