@@ -232,6 +232,62 @@ def test_prepare_compiles_in_other_processes_and_this_one_loads(tmp_path):
     assert second["started"] == [] and second["compiled"] == []
 
 
+SHARED = """
+import dataclasses, hashlib, json, sys
+from numba.core import config, event
+compiled = {}
+class Listener(event.Listener):
+    def on_start(self, ev):
+        compiled[ev.data["dispatcher"].py_func.__name__] = int(config.OPT)
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", Listener())
+import xray_viz
+from xray_viz.tracing import _raster as R, fast
+first = ["setup", "banded", "multi"]                  # the frog's, as the command line
+started = R.prepare(first=first)
+worker = sorted(R._urgent)
+scene = xray_viz.load_scene("default")
+scene = scene.replace(detector=dataclasses.replace(scene.detector, shape=(48, 40)))
+L = fast.trace_once(scene)
+for proc in {id(p): p for p in R._workers.values()}.values():
+    proc.wait()                                       # its other kernels, into the cache
+print(json.dumps({"started": started, "mine": sorted(R._mine), "worker": worker,
+                  "compiled": compiled, "sha": hashlib.sha256(L.tobytes()).hexdigest(),
+                  "cached": [n for n in R.SIGNATURES if not R._is_cached(n)]}))
+"""
+
+
+@pytest.mark.slow
+def test_a_cold_start_shares_the_urgent_kernels_with_one_background_process(tmp_path):
+    """The command line's cold start: one background process compiles the costliest urgent
+    kernels, this one the rest when it needs them (at the background's optimisation level),
+    and neither compiles what the other does; the image has the bits of a warm process's, and
+    every kernel ends up cached (the background process compiles the others afterwards)."""
+    import dataclasses
+    import hashlib
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    env.pop("NUMBA_OPT", None)
+    run = subprocess.run([sys.executable, "-c", SHARED], env=env, check=True,
+                         capture_output=True, text=True, timeout=900)
+    out = json.loads(run.stdout.splitlines()[-1])
+    urgent = set(R._names(["setup", "banded", "multi"]))
+    assert sorted(out["started"]) == sorted(R.SIGNATURES)
+    assert out["mine"] and out["worker"] and set(out["mine"]) | set(out["worker"]) == urgent
+    assert not set(out["mine"]) & set(out["worker"])
+    assert "_raster_bands" in out["worker"]            # the costliest one
+    cost = {n: c for unit, c in R._COSTS.items() for n in unit}
+    gap = sum(cost[n] for n in out["worker"]) - sum(cost[n] for n in out["mine"])
+    assert abs(gap - R._HEAD) <= max(cost[n] for n in urgent), gap     # balanced, head start
+    kernels = {n: opt for n, opt in out["compiled"].items() if n in R.SIGNATURES}
+    assert kernels == {n: R._WORKER_OPT for n in out["mine"]}           # nothing else here
+    assert out["cached"] == []
+    scene = xray_viz.load_scene("default")
+    scene = scene.replace(detector=dataclasses.replace(scene.detector, shape=(48, 40)))
+    assert out["sha"] == hashlib.sha256(fast.trace_once(scene).tobytes()).hexdigest()
+
+
 def test_prepare_starts_nothing_when_only_other_scenes_kernels_are_missing(tmp_path):
     """Kernels missing only outside ``first`` (a worker of an earlier command is compiling
     them): no second worker, and no compile notice (``_numba_cache`` is not told)."""

@@ -51,6 +51,10 @@ LOGGER = "xray_viz"
 #: while a band or a compilation takes long).
 REFRESH = 0.5
 
+#: Least seconds between two redraws on a step, or the delay if shorter (a delay of 0 - "draw
+#: at once, however quick the job" - draws every step).
+MININTERVAL = 0.2
+
 _enabled = False
 _current: contextvars.ContextVar = contextvars.ContextVar("xray_viz_progress_task", default=None)
 
@@ -99,9 +103,10 @@ class Task:
             fixed = {} if sized else {"ncols": 80, "nrows": 24}
             if total is None:                 # a count and the time so far
                 fixed["bar_format"] = "{desc}: {n_fmt}{unit} [{elapsed}{postfix}]"
+            delay = _delay()
             self._bar = tqdm(total=total, desc=desc, unit=f" {unit}", file=sys.stderr,
-                             leave=False, delay=_delay(), dynamic_ncols=sized, mininterval=0.2,
-                             **fixed)
+                             leave=False, delay=delay, dynamic_ncols=sized,
+                             mininterval=min(MININTERVAL, delay), **fixed)
             self._stop = threading.Event()
             threading.Thread(target=self._tick, daemon=True, name="xray_viz-progress").start()
 

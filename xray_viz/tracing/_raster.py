@@ -10,6 +10,7 @@ covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracin
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 
@@ -1082,10 +1083,27 @@ def _kernel(name: str):
                 if name in _workers:
                     _numba_cache.needs_background()      # the compile notice, if not said
                 _wait(name)          # a background process compiling it into the cache
-                disp.compile(_types(SIGNATURES[name]))
+                with _opt_level(_WORKER_OPT if name in _mine else None):
+                    disp.compile(_types(SIGNATURES[name]))
                 disp.disable_compile()
                 _ready.add(name)
     return disp
+
+
+@contextlib.contextmanager
+def _opt_level(level):
+    """Inside: numba compiles at LLVM optimisation ``level`` (its ``config.OPT``), unless
+    ``level`` is None or the environment sets ``NUMBA_OPT`` (the user's choice wins)."""
+    if level is None or "NUMBA_OPT" in os.environ:
+        yield
+        return
+    from numba.core import config
+
+    old, config.OPT = config.OPT, config._OptLevel(level)
+    try:
+        yield
+    finally:
+        config.OPT = old
 
 
 def compile_kernels(paths=None) -> list:
@@ -1158,28 +1176,43 @@ def _is_cached(name: str) -> bool:
 
 
 def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
-    """Start compiling, in background processes, the kernels of ``paths`` (keys of
-    :data:`PATHS`; default all) that numba's cache lacks, and return their names.
+    """Start compiling the kernels of ``paths`` (keys of :data:`PATHS`; default all) that
+    numba's cache lacks, in a background process, and return their names.
 
     Meant for a process that has something else to do first (the command line loads the
-    scene meanwhile): each kernel is then loaded from the cache when first needed, after
-    waiting for the process compiling it. The kernels are shared out among ``workers``
-    processes (default: as many as there are processors, at most 2) by their compile cost,
-    the kernels of the paths ``first`` (the ones the scene most likely needs) before the
-    others, so that they are ready soonest. At exit this process waits for a worker still
-    compiling a kernel of ``first`` if it used a kernel, and stops the workers if it used
-    none; a worker left with only other kernels goes on alone, filling the cache for later
-    processes (its kernels are not needed by this one). Nothing starts when every kernel is
-    cached, when only kernels outside ``first`` are missing (a worker of an earlier process is
+    scene meanwhile). By default one background process is started, and this process keeps a
+    share of the urgent kernels (those of the paths ``first``, the ones the scene most likely
+    needs; default all) to compile itself when it first needs them: the background process
+    takes the costliest (by :data:`_COSTS`) until its share is the larger by :data:`_HEAD`, the
+    head start it has while this process loads the scene. Then both processors compile what
+    the image waits for, and neither runs two compiles at once (~15 % slower each on 2
+    processors). With ``workers`` given, every kernel goes to that many background processes
+    instead, shared out by cost. A background process compiles its urgent kernels first, then
+    the others at a lower priority, and last this process's share (by then most likely cached:
+    they are loaded), so that the cache ends up with every kernel; this process loads each of
+    them from the cache when first needed, after waiting for the process compiling it. At exit
+    this process waits for a background process still compiling an urgent kernel if it used a
+    kernel, and stops them if it used none; one left with only other kernels goes on alone,
+    filling the cache for later processes. Nothing starts when every kernel is cached, when
+    only kernels outside ``first`` are missing (a background process of an earlier process is
     most likely compiling them: starting another would compile them twice, and say so), or
-    when there is no cache to share them through (they are compiled in this process when needed, as without
-    :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile` is told.
+    when there is no cache to share them through (they are compiled in this process when
+    needed, as without :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile`
+    is told.
+
+    Examples
+    --------
+    >>> from xray_viz.tracing import _raster
+    >>> _raster.prepare(["setup"]) in ([], ["_project_vertices"])   # [] once it is cached
+    True
+    >>> _raster.compile_kernels(["setup"])          # waits for it (or loads it)
+    ['_project_vertices']
     """
     import subprocess
     import sys
 
     names = [n for n in _names(paths)
-             if n not in _ready and n not in _workers]
+             if n not in _ready and n not in _workers and n not in _mine]
     missing = [n for n in names if not _is_cached(n)]
     if not missing or not isinstance(getattr(globals()[missing[0]], "_cache", None),
                                      _numba_cache.KernelCache):
@@ -1189,17 +1222,33 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
         # only other kinds of scene lack kernels: an earlier process's worker is most likely
         # compiling them now; they are compiled here if this process needs them after all
         return []
-    n_workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(missing)))
-    groups = [[] for _ in range(n_workers)]
-    load = [0.0] * n_workers
-    for pass_ in (True, False):          # the urgent kernels first, shared out by cost
-        for unit, cost in sorted(_COSTS.items(), key=lambda kv: -kv[1]):
-            todo = [n for n in unit if n in missing and (n in urgent) == pass_]
-            if todo:
-                k = load.index(min(load))
-                groups[k] += todo
-                load[k] += cost
-    _urgent.update(n for n in missing if n in urgent)
+    units = [([n for n in unit if n in missing], cost) for unit, cost in
+             sorted(_COSTS.items(), key=lambda kv: -kv[1])]        # costliest first
+    kept = []                            # this process's share of the urgent kernels
+    if workers is None:
+        groups = [[]]
+        ours = [(u, c) for u, c in units if u and u[0] in urgent]
+        share, load = (sum(c for _, c in ours) + _HEAD) / 2, 0.0
+        for unit, cost in ours:
+            if not groups[0] or load + cost <= share + 1e-9:
+                groups[0] += unit
+                load += cost
+            else:
+                kept += unit
+        groups[0] += [n for u, _ in units for n in u if n not in urgent]
+    else:
+        n_workers = max(1, min(workers, len(missing)))
+        groups = [[] for _ in range(n_workers)]
+        load = [0.0] * n_workers
+        for pass_ in (True, False):          # the urgent kernels first, shared out by cost
+            for unit, cost in units:
+                todo = [n for n in unit if (n in urgent) == pass_]
+                if todo:
+                    k = load.index(min(load))
+                    groups[k] += todo
+                    load[k] += cost
+    _urgent.update(n for n in missing if n in urgent and n not in kept)
+    _mine.update(kept)
     need = [n for n in _names(first) if n in _urgent] if first is not None else missing
     _numba_cache.background_compile(globals()[missing[0]])
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -1208,7 +1257,8 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     for group in groups:
         if group:
             urgent_first = [n for n in need if n in group]      # in the order of first use
-            rest = [n for n in group if n not in urgent_first]
+            rest = [n for n in group if n not in urgent_first] + kept
+            kept = []                    # (to the first background process only)
             proc = subprocess.Popen([sys.executable, "-c", _WORKER, root, *urgent_first,
                                      *(["--", *rest] if rest else [])],
                                     stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -1223,6 +1273,14 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     return missing
 
 
+#: Seconds of compiling that the background process of :func:`prepare` takes on beyond this
+#: process's share: its head start while this process loads the scene (~2 s for ``default``,
+#: of which this process's import of numba and first load from the cache, ~0.5 s, is paid
+#: anyway; ``benchmarks/notes/coldstart.md``, eighth pass).
+_HEAD = 1.5
+#: Kernels :func:`prepare` left to this process, compiled when first needed at the background
+#: processes' optimisation level (:data:`_WORKER_OPT`).
+_mine: set = set()
 _atexit_set: list = []
 #: Kernels whose worker this process waits for at exit (when it used a kernel).
 _urgent: set = set()
