@@ -216,6 +216,66 @@ def test_check_mesh_is_the_same_with_the_kernel_and_with_pymeshlab(monkeypatch):
     assert by_kernel[1].self_intersections == 2 * by_kernel[0].self_intersections > 0
 
 
+def _overlapping_spheres(rng):
+    """Two overlapping noisy spheres of 20480 faces each (enough for :func:`K.start_grid`),
+    as one self-crossing piece set."""
+    s = trimesh.creation.icosphere(subdivisions=5)
+    parts = [trimesh.Trimesh(s.vertices + rng.normal(scale=0.004, size=s.vertices.shape)
+                             + [0.7 * k, 0, 0], s.faces, process=False) for k in range(2)]
+    return trimesh.util.concatenate(parts)
+
+
+def test_a_grid_built_on_another_thread_selects_the_same_faces(monkeypatch):
+    """The mesh checks start the self-intersection grid on the pool while they find the edge
+    facts: the same faces as a grid built in place (and as pymeshlab), by piece too; the same
+    reports, whether the test was needed (closed meshes) or the grid is discarded (open)."""
+    K.compile_kernels()
+    monkeypatch.setattr(K, "_sweep_threads", lambda: 2)
+    union = _overlapping_spheres(np.random.default_rng(3))
+    v, f = union.vertices, union.faces
+    pieces = np.repeat([0, 1], len(f) // 2)
+    started = K.start_grid(v, f)
+    assert started is not None
+    early = K.self_intersections(v, f, started=started)
+    here = K.self_intersections(v, f)
+    assert 0 < early.sum() < len(f)
+    np.testing.assert_array_equal(early, here)
+    np.testing.assert_array_equal(early, _reference(v, f))
+    np.testing.assert_array_equal(K.self_intersections(v, f, pieces, started=K.start_grid(v, f)),
+                                  K.self_intersections(v, f, pieces))
+    one = trimesh.Trimesh(union.vertices[: len(union.vertices) // 2], f[: len(f) // 2],
+                          process=False)
+    noisy = trimesh.creation.icosphere(subdivisions=5)
+    noisy.vertices += np.random.default_rng(4).normal(scale=0.01, size=noisy.vertices.shape)
+    opened = trimesh.Trimesh(one.vertices, one.faces[1:], process=False)
+    meshes = [union, one, noisy, opened]
+    calls = []
+    real = K.start_grid
+    monkeypatch.setattr(K, "start_grid", lambda *a: calls.append(1) or real(*a))
+    with_early = [repair.check_mesh(m, cache=False) for m in meshes]
+    assert len(calls) == len(meshes)
+    monkeypatch.setattr(K, "start_grid", lambda *a: None)
+    assert with_early == [repair.check_mesh(m, cache=False) for m in meshes]
+    assert with_early[2].self_intersections > 0 and with_early[3].self_intersections is None
+
+
+def test_no_grid_is_started_for_what_the_test_refuses_or_a_small_mesh(monkeypatch):
+    K.compile_kernels()
+    monkeypatch.setattr(K, "_sweep_threads", lambda: 2)
+    s = trimesh.creation.icosphere(subdivisions=5)
+    v = s.vertices.copy()
+    assert K.start_grid(v, s.faces) is not None
+    bad = s.faces.copy()
+    bad[0, 0] = len(v)
+    v[5] = np.inf
+    assert K.start_grid(s.vertices, bad) is None and K.start_grid(v, s.faces) is None
+    small = trimesh.creation.icosphere(subdivisions=3)
+    assert K.start_grid(small.vertices, small.faces) is None
+    monkeypatch.setattr(K, "_sweep_threads", lambda: 1)
+    assert K.start_grid(s.vertices, s.faces) is None
+    K.discard(None)
+
+
 def test_each_kernel_has_its_one_specialisation():
     """Explicit signatures: compiled (or loaded) once, then nothing else compiles."""
     assert K.compile_kernels() == list(K.SIGNATURES) and K.is_ready()

@@ -741,7 +741,46 @@ def _sweep_threads() -> int:
     return _threads.count()
 
 
-def self_intersections(vertices, faces, labels=None) -> np.ndarray:
+def start_grid(vertices, faces):
+    """Start building the candidate grid of :func:`self_intersections` on a thread of the
+    library's pool (:mod:`xray_viz._threads`), so that it is built while the caller does
+    other work that the test waits for (the edge facts and volume of the mesh checks); pass
+    what this returns as ``started`` to :func:`self_intersections`, which waits for it, or to
+    :func:`discard` if the test is not needed after all. None (nothing started) when the
+    kernels are not ready, the mesh has fewer than :data:`_PARALLEL_FACES` faces, there is one
+    thread, or a face index or a vertex is invalid (:func:`self_intersections` says so).
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(subdivisions=6)
+    >>> _ = compile_kernels()
+    >>> started = start_grid(s.vertices, s.faces)
+    >>> int(self_intersections(s.vertices, s.faces, started=started).sum())
+    0
+    """
+    if len(faces) < _PARALLEL_FACES or _sweep_threads() < 2 or not is_ready():
+        return None
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    try:
+        f = _checked_faces(faces, len(v))
+    except IndexError:
+        return None
+    if not np.isfinite(v).all():
+        return None
+    from xray_viz._threads import pool
+
+    return v, f, pool(2).submit(_kernel("_self_intersection_grid"), v, f)
+
+
+def discard(started) -> None:
+    """Wait for a grid of :func:`start_grid` that is not needed (so that it does not hold a
+    thread of the pool, nor its memory, beyond the caller's work); None does nothing."""
+    if started is not None:
+        started[2].exception()
+
+
+def self_intersections(vertices, faces, labels=None, *, started=None) -> np.ndarray:
     """The faces pymeshlab selects as self-intersecting (see the module docstring).
 
     Parameters
@@ -751,6 +790,10 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
     labels : (m,) int, optional
         A label per face (the edge-connected piece): only faces crossing a face of the same
         label are flagged.
+
+    started : tuple, optional
+        What :func:`start_grid` returned for these ``vertices`` and ``faces`` (its grid is
+        waited for instead of built here).
 
     Returns
     -------
@@ -771,15 +814,19 @@ def self_intersections(vertices, faces, labels=None) -> np.ndarray:
     ...     both.vertices, both.faces).sum())
     (0, 12)
     """
-    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
-    f = _checked_faces(faces, len(v))
-    if not np.isfinite(v).all():
-        raise ValueError("vertices that are not finite")
+    if started is not None:          # checked by start_grid
+        v, f, grid = started[0], started[1], started[2].result()
+    else:
+        v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+        f = _checked_faces(faces, len(v))
+        if not np.isfinite(v).all():
+            raise ValueError("vertices that are not finite")
     lab = (np.zeros(0, np.int64) if labels is None
            else np.ascontiguousarray(labels, dtype=np.int64).reshape(-1))
     flags = np.zeros(len(f), bool)
     if len(f) >= 2:
-        grid = _kernel("_self_intersection_grid")(v, f)
+        if started is None:
+            grid = _kernel("_self_intersection_grid")(v, f)
         start, n_buckets = grid[0], len(grid[0]) - 1
         if grid[7][0] == 0:
             return flags

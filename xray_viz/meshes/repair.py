@@ -238,25 +238,39 @@ def check_mesh(mesh, *, cache: bool = True) -> MeshReport:
 def _check_mesh(mesh) -> MeshReport:
     faces = np.asarray(mesh.faces, dtype=np.int64)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    if len(faces):
-        boundary, watertight, winding, labels, components = _edge_facts(faces, len(vertices))
-        volume = _volume(vertices, faces)
-    else:
-        boundary, volume, components = 0, 0.0, 0
-        watertight = winding = False
-    flat = _is_flat(vertices, volume) if len(faces) else True
-    misoriented = crossing = 0
-    self_crossing = None                     # not checked: only a closed surface is tested
-    simple = components == 1
-    if watertight and winding and components > 1:
-        # pieces may cancel (an inside-out copy beside a good one): not flat then
-        nest = _nesting(vertices, faces, labels, components)
-        flat = _is_flat(vertices, float(np.abs(nest.volume).sum()))
-        misoriented, crossing = int(nest.flip.sum()), int(nest.crossing.sum())
-        simple = nest.simple
-    if watertight and winding and not flat:
-        self_crossing = _self_crossing_faces(vertices, faces, labels, components)
-        simple = simple and self_crossing == 0
+    started = None
+    if len(faces) >= 2:
+        from xray_viz.meshes import _check_kernels
+
+        # the self-intersection test's grid, built on another thread while this one finds
+        # the edge facts and the volume that say whether the test is needed
+        started = _check_kernels.start_grid(vertices, faces)
+    try:
+        if len(faces):
+            boundary, watertight, winding, labels, components = _edge_facts(faces,
+                                                                            len(vertices))
+            volume = _volume(vertices, faces)
+        else:
+            boundary, volume, components = 0, 0.0, 0
+            watertight = winding = False
+        flat = _is_flat(vertices, volume) if len(faces) else True
+        misoriented = crossing = 0
+        self_crossing = None                 # not checked: only a closed surface is tested
+        simple = components == 1
+        if watertight and winding and components > 1:
+            # pieces may cancel (an inside-out copy beside a good one): not flat then
+            nest = _nesting(vertices, faces, labels, components)
+            flat = _is_flat(vertices, float(np.abs(nest.volume).sum()))
+            misoriented, crossing = int(nest.flip.sum()), int(nest.crossing.sum())
+            simple = nest.simple
+        if watertight and winding and not flat:
+            self_crossing = _self_crossing_faces(vertices, faces, labels, components,
+                                                 started=started)
+            started = None
+            simple = simple and self_crossing == 0
+    finally:
+        if started is not None:
+            _check_kernels.discard(started)
     return MeshReport(
         faces=len(faces), vertices=len(mesh.vertices), watertight=watertight,
         winding_consistent=winding, boundary_edges=boundary, components=components,
@@ -386,11 +400,17 @@ def _pymeshlab_self_intersections(vertices, faces) -> np.ndarray:
     return np.asarray(ms.current_mesh().face_selection_array(), dtype=bool)
 
 
-def _self_crossing_faces(vertices, faces, labels, n_pieces) -> int:
+def _self_crossing_faces(vertices, faces, labels, n_pieces, *, started=None) -> int:
     """Faces that cross a face of their own piece (crossings between pieces do not count:
-    overlapping pieces are a union by the nonzero rule)."""
-    return int(self_intersecting_faces(vertices, faces,
-                                       pieces=labels if n_pieces > 1 else None).sum())
+    overlapping pieces are a union by the nonzero rule). ``started``: the compiled test's
+    grid, from ``_check_kernels.start_grid``."""
+    pieces = labels if n_pieces > 1 else None
+    if started is not None:
+        from xray_viz.meshes import _check_kernels
+
+        return int(_check_kernels.self_intersections(vertices, faces, pieces,
+                                                     started=started).sum())
+    return int(self_intersecting_faces(vertices, faces, pieces=pieces).sum())
 
 
 def _self_crossing_pymeshlab(vertices, faces, labels) -> np.ndarray:
@@ -655,7 +675,8 @@ def _is_flat(vertices, volume) -> bool:
     """Zero enclosed volume, to rounding, for the size of the mesh."""
     if not len(vertices) or not np.isfinite(volume):
         return True
-    diag = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    # per column: a strided 1-d reduction is ~20x faster than NumPy's axis-0 one of (n, 3)
+    diag = float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)]))
     return abs(volume) <= 1e-9 * diag ** 3
 
 
@@ -708,7 +729,8 @@ def _nesting(vertices, faces, labels, n) -> _Nesting:
     six_v = np.einsum("ij,ij->i", tris[:, 0], np.cross(tris[:, 1], tris[:, 2]))
     volume = np.bincount(labels, weights=six_v, minlength=n) / 6.0
     none = np.zeros(n, bool)
-    diag = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
+    # per column: a strided 1-d reduction is ~20x faster than NumPy's axis-0 one of (n, 3)
+    diag = float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)])) if len(vertices) else 0.0
     tol = 1e-9 * diag ** 3                            # as _is_flat: zero volume to rounding
     inward, outward = volume < -tol, volume > tol
     if n < 2:
@@ -981,7 +1003,8 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
         return label
 
     step(merged("coincident duplicate vertices"), "meshing_remove_duplicate_vertices")
-    diag = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
+    # per column: a strided 1-d reduction is ~20x faster than NumPy's axis-0 one of (n, 3)
+    diag = float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)])) if len(vertices) else 0.0
     threshold = merge_distance / 100.0 * diag  # an absolute distance in mm, as documented
     if threshold > 0:
         step(merged(f"open-edge vertices closer than {threshold:.3g} mm"),
