@@ -511,9 +511,6 @@ def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owne
                 bcell[j, a] = clo[f, a]
         for p in range(k - 1):
             key = bkey[p]
-            x = key // (dims[1] * dims[2])
-            y = (key // dims[2]) % dims[1]
-            z = key % dims[2]
             for q in range(p + 1, k):
                 if bkey[q] != key or not (blo[q, 0] < bhi[p, 0]):
                     break               # sorted: no later entry of this cell meets p's box
@@ -521,8 +518,9 @@ def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owne
                         and blo[q, 2] < bhi[p, 2] and bhi[q, 2] > blo[p, 2]):
                     continue          # Box3::Collide, strict
                 # test the pair once: in the cell holding the larger of the two low corners
-                if (max(bcell[p, 0], bcell[q, 0]) != x or max(bcell[p, 1], bcell[q, 1]) != y
-                        or max(bcell[p, 2], bcell[q, 2]) != z):
+                # (compared by key, one cell's one number: no divisions to decode this one)
+                if ((max(bcell[p, 0], bcell[q, 0]) * dims[1] + max(bcell[p, 1], bcell[q, 1]))
+                        * dims[2] + max(bcell[p, 2], bcell[q, 2]) != key):
                     continue
                 f0 = min(face_id[bface[p]], face_id[bface[q]])
                 f1 = max(face_id[bface[p]], face_id[bface[q]])
