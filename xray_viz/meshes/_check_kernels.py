@@ -392,9 +392,11 @@ def _self_intersection_grid(vertices, faces):
         # all in one point: no two boxes overlap strictly (or not finite)
         z = np.zeros(1, np.int64)
         return (z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, np.zeros(3, np.int64), 0)
-    # cells about twice the mean face extent, fewer than 2**20 along an axis, and made
-    # bigger while a face would be entered in too many (one huge face among small ones)
-    size = max(2.0 * extent / (3.0 * m), span / 2.0 ** 20)
+    # cells about four times the mean face extent (a face in ~2 cells: grid and sweep 0.68x
+    # of twice at 1.3M faces, 0.91x on the phantoms' meshes; benchmarks/notes/checks.md),
+    # fewer than 2**20 along an axis, and made bigger while a face would be entered in too
+    # many (one huge face among small ones)
+    size = max(4.0 * extent / (3.0 * m), span / 2.0 ** 20)
     dims = np.empty(3, np.int64)
     while True:
         inv = 1.0 / size
@@ -432,22 +434,25 @@ def _self_intersection_grid(vertices, faces):
         b = key % n_buckets
         face_id[start[b]] = f
         start[b] += 1
+    # the boxes in that order, and the cell of each box's low corner (the high corner's is
+    # recomputed where needed: one array less to fill with fresh pages)
     plo = np.empty((m, 3))
     phi = np.empty((m, 3))
     clo = np.empty((m, 3), np.int64)
-    chi = np.empty((m, 3), np.int64)
     for j in range(m):
         f = face_id[j]
         for k in range(3):
             plo[j, k] = lo[f, k]
             phi[j, k] = hi[f, k]
             clo[j, k] = _cell(lo[f, k], glo[k], inv, dims[k])
-            chi[j, k] = _cell(hi[f, k], glo[k], inv, dims[k])
     start[:] = 0
     for f in range(m):
-        for x in range(clo[f, 0], chi[f, 0] + 1):
-            for y in range(clo[f, 1], chi[f, 1] + 1):
-                for z in range(clo[f, 2], chi[f, 2] + 1):
+        c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
+        c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
+        c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
+        for x in range(clo[f, 0], c0 + 1):
+            for y in range(clo[f, 1], c1 + 1):
+                for z in range(clo[f, 2], c2 + 1):
                     key = (x * dims[1] + y) * dims[2] + z
                     start[key % n_buckets + 1] += 1
     for b in range(n_buckets):
@@ -456,9 +461,12 @@ def _self_intersection_grid(vertices, faces):
     keys = np.empty(total, np.int64)
     owner = np.empty(total, np.int64)
     for f in range(m):
-        for x in range(clo[f, 0], chi[f, 0] + 1):
-            for y in range(clo[f, 1], chi[f, 1] + 1):
-                for z in range(clo[f, 2], chi[f, 2] + 1):
+        c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
+        c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
+        c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
+        for x in range(clo[f, 0], c0 + 1):
+            for y in range(clo[f, 1], c1 + 1):
+                for z in range(clo[f, 2], c2 + 1):
                     key = (x * dims[1] + y) * dims[2] + z
                     b = key % n_buckets
                     keys[fill[b]] = key
