@@ -618,6 +618,19 @@ def _edge_facts(faces, n_vertices, labels):
     return boundary, two_uses * 2 == 3 * m, winding, n
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _volume_terms(vertices, faces, out):
+    """``out[f]``: face ``f``'s term of the enclosed volume (``repair._volume``: trimesh's
+    ``mass_properties`` integral, the same arithmetic in the same order, no fused
+    multiply-add), summed by the caller with ``np.sum`` (NumPy's pairwise order)."""
+    for f in range(faces.shape[0]):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        y0, y1, y2 = vertices[i0, 1], vertices[i1, 1], vertices[i2, 1]
+        z0, z1, z2 = vertices[i0, 2], vertices[i1, 2], vertices[i2, 2]
+        cross_x = (y1 - y0) * (z2 - z1) - (z1 - z0) * (y2 - y1)
+        out[f] = cross_x * (vertices[i0, 0] + vertices[i1, 0] + vertices[i2, 0])
+
+
 _F2 = _nt.Array(_nt.float64, 2, "C", readonly=True)
 _I2 = _nt.Array(_nt.int64, 2, "C", readonly=True)
 _I1r = _nt.Array(_nt.int64, 1, "C", readonly=True)
@@ -626,12 +639,14 @@ _B1 = _nt.Array(_nt.boolean, 1, "C")
 #: The one specialisation of each kernel.
 _F2w = _nt.Array(_nt.float64, 2, "C")
 _I2w = _nt.Array(_nt.int64, 2, "C")
+_F1w = _nt.Array(_nt.float64, 1, "C")
 SIGNATURES = {
     "_self_intersection_grid": (_F2, _I2),                 # vertices, faces
     # buckets lo, hi, vertices, faces, labels, flags (out), then the grid's arrays
     "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _I1, _I1, _I1, _F2w, _F2w,
                        _I2w, _I1, _I1, _nt.int64),
     "_edge_facts": (_I2, _nt.int64, _I1),                 # faces, vertex count, labels (out)
+    "_volume_terms": (_F2, _I2, _F1w),                    # vertices, faces, terms (out)
 }
 
 _lock = threading.Lock()
@@ -738,6 +753,25 @@ def edge_facts(faces, n_vertices):
     labels = np.empty(len(f), np.int64)
     boundary, watertight, winding, n = _kernel("_edge_facts")(f, int(n_vertices), labels)
     return int(boundary), bool(watertight), bool(winding), labels, int(n)
+
+
+def volume(vertices, faces) -> float:
+    """The enclosed volume of a mesh: :func:`xray_viz.meshes.repair._volume`'s float (the
+    same terms, summed by ``np.sum``), in one compiled pass over the faces.
+
+    Examples
+    --------
+    >>> import trimesh
+    >>> box = trimesh.creation.box(extents=[2, 3, 4])
+    >>> volume(box.vertices, box.faces) == box.volume
+    True
+    """
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = _checked_faces(faces, len(v))
+    terms = np.empty(len(f))
+    _kernel("_volume_terms")(v, f, terms)
+    with np.errstate(all="ignore"):
+        return float(np.sum(terms) / 6.0)
 
 
 def _sweep_threads() -> int:

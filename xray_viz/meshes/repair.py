@@ -328,9 +328,17 @@ def _volume(vertices, faces) -> float:
     """Enclosed volume (trimesh's ``mass_properties`` integral, its volume term only: the same
     arithmetic, so the same float). The coordinates are gathered one column at a time rather
     than as (m, 3, 3) triangles: 9 arrays of m floats instead of one of 9 m (0.06 s instead of
-    0.16-0.3 s at 1.3M faces), the same numbers."""
+    0.16-0.3 s at 1.3M faces), the same numbers; the compiled checks do it in one pass, once
+    they are ready (``_check_kernels.volume``: 0.05 s -> 0.01 s at 1.3M faces)."""
+    from xray_viz.meshes import _check_kernels
+
     V = np.asarray(vertices)
     F = np.asarray(faces)
+    if _check_kernels.is_ready():
+        try:
+            return _check_kernels.volume(V, F)
+        except IndexError:            # a face index out of range: as NumPy answers below
+            pass
     x, y, z = (np.ascontiguousarray(V[:, k]) for k in range(3))
     i0, i1, i2 = (np.ascontiguousarray(F[:, k]) for k in range(3))
     y0, y1, y2 = y[i0], y[i1], y[i2]
