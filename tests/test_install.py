@@ -427,7 +427,7 @@ def test_compile_notice_in_tree(world, warm):
     env = _env(site, _home(world, "home-rw"), _tmp(world, "tmp-rw"))
     lines, image = _cli(world / "rw1.npy", run=_run_as_root, env=env, cwd=world)
     assert _compiling(lines) == [
-        f"xray-viz: compiling the fast engine on first use (10-30 s, cached in {pycache} "
+        f"xray-viz: compiling the fast engine on first use (a few seconds, cached in {pycache} "
         "afterwards)..."]
     assert _notices("\n".join(lines)) == []
     np.testing.assert_array_equal(image, ref)
@@ -446,7 +446,7 @@ def test_compile_notice_in_the_fallback_location(world, site, warm):
     kw = dict(env=_env(site, home, tmp), cwd=home, expose=[site, home, tmp, out])
     lines, image = _cli(out / "fb1.npy", run=run_as_nobody, **kw)
     assert _compiling(lines) == [
-        f"xray-viz: compiling the fast engine on first use (10-30 s, cached in {where} "
+        f"xray-viz: compiling the fast engine on first use (a few seconds, cached in {where} "
         "afterwards)..."]
     (line,) = _notices("\n".join(lines))
     assert line.startswith("xray-viz: warning: numba cannot write") and str(where) in line
@@ -473,7 +473,7 @@ def test_compile_notice_cold_and_uncached(world, site, warm):
     for k in range(2):
         lines, image = _cli(out / f"n{k}.npy", run=run_as_nobody, **kw)
         assert _compiling(lines) == [
-            "xray-viz: compiling the fast engine on first use (10-30 s, not cached: no "
+            "xray-viz: compiling the fast engine on first use (a few seconds, not cached: no "
             "writable place)..."]
         np.testing.assert_array_equal(image, ref)
 

@@ -34,7 +34,7 @@ def _compile_notice(engine: str):
     def notice(where):
         then = f"cached in {where} afterwards" if where else "not cached: no writable place"
         logging.getLogger("xray_viz.compile").info(
-            "compiling the fast engine on first use (10-30 s, %s)...", then)
+            "compiling the fast engine on first use (a few seconds, %s)...", then)
         progress.status("compiling the fast engine")
 
     return _numba_cache.on_first_compile(notice)

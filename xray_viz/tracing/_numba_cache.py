@@ -1,7 +1,7 @@
 """Where numba caches the fast engine's compiled kernels, and what happens when it cannot.
 
 The fast engine's kernels (:mod:`xray_viz.tracing._raster`, ``@njit(cache=True)``) are
-compiled by numba on first use (10-30 s) and cached on disk, so that later processes load them
+compiled by numba on first use (a few seconds) and cached on disk, so that later processes load them
 in a fraction of a second. ``_raster`` imports this module before its kernels are defined; this
 module wraps numba's ``Dispatcher.enable_caching`` (what ``cache=True`` calls when a function is
 decorated) so that every cached numba function of xray_viz gets the cache described here; other
@@ -299,7 +299,7 @@ def _enable_caching(self):
         why = "" if "no locator available" in str(exc) else f"; {_why(exc)}"
         _warn_once("where", f"no writable place to cache the fast engine's compiled kernels "
                    f"({_places(self.py_func, py_file)}{why}): every process compiles them "
-                   "again (10-30 s); set NUMBA_CACHE_DIR to a writable directory")
+                   "again (a few seconds each); set NUMBA_CACHE_DIR to a writable directory")
         return
     self._cache = cache
     _say_where(cache, self.py_func, py_file)
