@@ -445,33 +445,32 @@ def _self_intersection_grid(vertices, faces):
             plo[j, k] = lo[f, k]
             phi[j, k] = hi[f, k]
             clo[j, k] = _cell(lo[f, k], glo[k], inv, dims[k])
-    start[:] = 0
-    for f in range(m):
-        c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
-        c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
-        c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
-        for x in range(clo[f, 0], c0 + 1):
-            for y in range(clo[f, 1], c1 + 1):
-                for z in range(clo[f, 2], c2 + 1):
-                    key = (x * dims[1] + y) * dims[2] + z
-                    start[key % n_buckets + 1] += 1
-    for b in range(n_buckets):
-        start[b + 1] += start[b]
-    fill = start[:-1].copy()
+    # every cell a box meets: counted per bucket, then entered (the high corner's cell
+    # recomputed in both passes)
     keys = np.empty(total, np.int64)
     owner = np.empty(total, np.int64)
-    for f in range(m):
-        c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
-        c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
-        c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
-        for x in range(clo[f, 0], c0 + 1):
-            for y in range(clo[f, 1], c1 + 1):
-                for z in range(clo[f, 2], c2 + 1):
-                    key = (x * dims[1] + y) * dims[2] + z
-                    b = key % n_buckets
-                    keys[fill[b]] = key
-                    owner[fill[b]] = f
-                    fill[b] += 1
+    start[:] = 0
+    fill = start[:-1]
+    for placing in (False, True):
+        if placing:
+            for b in range(n_buckets):
+                start[b + 1] += start[b]
+            fill = start[:-1].copy()
+        for f in range(m):
+            c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
+            c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
+            c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
+            for x in range(clo[f, 0], c0 + 1):
+                for y in range(clo[f, 1], c1 + 1):
+                    for z in range(clo[f, 2], c2 + 1):
+                        key = (x * dims[1] + y) * dims[2] + z
+                        b = key % n_buckets
+                        if placing:
+                            keys[fill[b]] = key
+                            owner[fill[b]] = f
+                            fill[b] += 1
+                        else:
+                            start[b + 1] += 1
     widest = 0
     for b in range(n_buckets):
         widest = max(widest, start[b + 1] - start[b])
