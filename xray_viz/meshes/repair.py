@@ -238,13 +238,11 @@ def check_mesh(mesh, *, cache: bool = True) -> MeshReport:
 def _check_mesh(mesh) -> MeshReport:
     faces = np.asarray(mesh.faces, dtype=np.int64)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    started = None
-    if len(faces) >= 2:
-        from xray_viz.meshes import _check_kernels
+    from xray_viz.meshes import _check_kernels
 
-        # the self-intersection test's grid, built on another thread while this one finds
-        # the edge facts and the volume that say whether the test is needed
-        started = _check_kernels.start_grid(vertices, faces)
+    # the self-intersection test's grid, built on another thread while this one finds the
+    # edge facts and the volume that say whether the test is needed (None: not started)
+    started = _check_kernels.start_grid(vertices, faces)
     try:
         if len(faces):
             boundary, watertight, winding, labels, components = _edge_facts(faces,
@@ -679,12 +677,20 @@ def _crossing_text(k, n) -> str:
             "(neither a cavity wholly inside it nor a separate inside-out solid)")
 
 
+def _diagonal(vertices) -> float:
+    """Length of the bounding box's diagonal (0 for no vertices). Column by column: NumPy's
+    axis-0 reduction of an (n, 3) array is ~20x slower than three strided 1-d ones (29 ms
+    against 1.3 ms at 655k vertices), for the same numbers."""
+    if not len(vertices):
+        return 0.0
+    return float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)]))
+
+
 def _is_flat(vertices, volume) -> bool:
     """Zero enclosed volume, to rounding, for the size of the mesh."""
     if not len(vertices) or not np.isfinite(volume):
         return True
-    # per column: a strided 1-d reduction is ~20x faster than NumPy's axis-0 one of (n, 3)
-    diag = float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)]))
+    diag = _diagonal(vertices)
     return abs(volume) <= 1e-9 * diag ** 3
 
 
@@ -737,8 +743,7 @@ def _nesting(vertices, faces, labels, n) -> _Nesting:
     six_v = np.einsum("ij,ij->i", tris[:, 0], np.cross(tris[:, 1], tris[:, 2]))
     volume = np.bincount(labels, weights=six_v, minlength=n) / 6.0
     none = np.zeros(n, bool)
-    # per column: a strided 1-d reduction is ~20x faster than NumPy's axis-0 one of (n, 3)
-    diag = float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)])) if len(vertices) else 0.0
+    diag = _diagonal(vertices)
     tol = 1e-9 * diag ** 3                            # as _is_flat: zero volume to rounding
     inward, outward = volume < -tol, volume > tol
     if n < 2:
@@ -1011,8 +1016,7 @@ def repair_mesh(mesh, *, max_hole_edges: int = 1000, min_component_faces: int = 
         return label
 
     step(merged("coincident duplicate vertices"), "meshing_remove_duplicate_vertices")
-    # per column: a strided 1-d reduction is ~20x faster than NumPy's axis-0 one of (n, 3)
-    diag = float(np.linalg.norm([np.ptp(vertices[:, k]) for k in range(3)])) if len(vertices) else 0.0
+    diag = _diagonal(vertices)
     threshold = merge_distance / 100.0 * diag  # an absolute distance in mm, as documented
     if threshold > 0:
         step(merged(f"open-edge vertices closer than {threshold:.3g} mm"),
