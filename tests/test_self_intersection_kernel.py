@@ -167,6 +167,17 @@ def test_degenerate_inputs():
     _assert_same(np.zeros((3, 3)), [[0, 1, 2], [0, 1, 2], [0, 0, 1]])    # all in one point
 
 
+def test_coincident_faces_are_flagged_and_faces_sharing_an_edge_are_not():
+    """vcglib's first answers, known from the vertex indices alone: a face repeated (in any
+    order of its corners) crosses its copy; faces sharing an edge do not cross."""
+    s = trimesh.creation.icosphere(subdivisions=2)
+    faces = np.vstack([s.faces, s.faces[[7]], s.faces[[11], ::-1], s.faces[[30], [1, 2, 0]]])
+    mine, ref = _both(s.vertices, faces)
+    np.testing.assert_array_equal(mine, ref)
+    assert set(np.flatnonzero(mine)) == {7, 11, 30, len(s.faces), len(s.faces) + 1,
+                                        len(s.faces) + 2}
+
+
 def _after_pymeshlab_filters(vertices, faces, calls):
     """pymeshlab's selection and the kernel's after ``calls`` coherent re-orientations of
     another mesh in this process (run in a new process)."""

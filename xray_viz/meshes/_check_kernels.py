@@ -487,50 +487,76 @@ def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owne
     ever set, so bucket ranges can be swept by concurrent threads: the flags do not depend on
     the split (a pair whose two faces are flagged already is not tested again, which changes
     no flag)."""
-    # each bucket's entries gathered, sorted by (cell, low x), and swept along x
-    bkey = np.empty(widest, np.int64)
-    bface = np.empty(widest, np.int64)
-    bcell = np.empty((widest, 3), np.int64)        # the cell of the face's low corner
-    blo = np.empty((widest, 3))
-    bhi = np.empty((widest, 3))
+    # each bucket's entries sorted by (cell, low x): an insertion sort of (key, low x, face),
+    # then the boxes gathered in that order, one array per bound (SoA), and swept along x
+    skey = np.empty(widest, np.int64)
+    sface = np.empty(widest, np.int64)
+    x0 = np.empty(widest)
+    x1 = np.empty(widest)
+    y0 = np.empty(widest)
+    y1 = np.empty(widest)
+    z0 = np.empty(widest)
+    z1 = np.empty(widest)
+    hit = np.empty(widest, np.int64)
+    d1 = dims[1]
+    d2 = dims[2]
     for b in range(b_lo, b_hi):
-        k = start[b + 1] - start[b]
+        s0 = start[b]
+        k = start[b + 1] - s0
         if k < 2:
             continue
         for p in range(k):
-            i = start[b] + p
-            f = owner[i]
-            j = p                                   # insertion sort by (key, low x)
-            while j > 0 and (bkey[j - 1] > keys[i] or (bkey[j - 1] == keys[i]
-                                                       and blo[j - 1, 0] > plo[f, 0])):
-                bkey[j] = bkey[j - 1]
-                bface[j] = bface[j - 1]
-                for a in range(3):
-                    bcell[j, a] = bcell[j - 1, a]
-                    blo[j, a] = blo[j - 1, a]
-                    bhi[j, a] = bhi[j - 1, a]
+            f = owner[s0 + p]
+            key = keys[s0 + p]
+            x = plo[f, 0]
+            j = p
+            while j > 0 and (skey[j - 1] > key or (skey[j - 1] == key and x0[j - 1] > x)):
+                skey[j] = skey[j - 1]
+                x0[j] = x0[j - 1]
+                sface[j] = sface[j - 1]
                 j -= 1
-            bkey[j] = keys[i]
-            bface[j] = f
-            for a in range(3):
-                blo[j, a] = plo[f, a]
-                bhi[j, a] = phi[f, a]
-                bcell[j, a] = clo[f, a]
+            skey[j] = key
+            x0[j] = x
+            sface[j] = f
+        for p in range(k):
+            f = sface[p]
+            x1[p] = phi[f, 0]
+            y0[p] = plo[f, 1]
+            y1[p] = phi[f, 1]
+            z0[p] = plo[f, 2]
+            z1[p] = phi[f, 2]
         for p in range(k - 1):
-            key = bkey[p]
+            key = skey[p]
+            lx, hx, ly, hy, lz, hz = x0[p], x1[p], y0[p], y1[p], z0[p], z1[p]
+            # the later entries of this cell whose box meets p's (Box3::Collide, strict):
+            # sorted, so the first one starting beyond p's box ends the scan; the test itself
+            # is branch free (a candidate is written, and kept when it passes)
+            m = 0
             for q in range(p + 1, k):
-                if bkey[q] != key or not (blo[q, 0] < bhi[p, 0]):
-                    break               # sorted: no later entry of this cell meets p's box
-                if not (bhi[q, 0] > blo[p, 0] and blo[q, 1] < bhi[p, 1] and bhi[q, 1] > blo[p, 1]
-                        and blo[q, 2] < bhi[p, 2] and bhi[q, 2] > blo[p, 2]):
-                    continue          # Box3::Collide, strict
+                if skey[q] != key or not (x0[q] < hx):
+                    break
+                hit[m] = q
+                m += (x1[q] > lx) & (y0[q] < hy) & (y1[q] > ly) & (z0[q] < hz) & (z1[q] > lz)
+            if m == 0:
+                continue
+            fp = sface[p]
+            for r in range(m):
+                fq = sface[hit[r]]
                 # test the pair once: in the cell holding the larger of the two low corners
                 # (compared by key, one cell's one number: no divisions to decode this one)
-                if ((max(bcell[p, 0], bcell[q, 0]) * dims[1] + max(bcell[p, 1], bcell[q, 1]))
-                        * dims[2] + max(bcell[p, 2], bcell[q, 2]) != key):
+                if ((max(clo[fp, 0], clo[fq, 0]) * d1 + max(clo[fp, 1], clo[fq, 1])) * d2
+                        + max(clo[fp, 2], clo[fq, 2]) != key):
                     continue
-                f0 = min(face_id[bface[p]], face_id[bface[q]])
-                f1 = max(face_id[bface[p]], face_id[bface[q]])
+                f0 = min(face_id[fp], face_id[fq])
+                f1 = max(face_id[fp], face_id[fq])
+                # faces sharing exactly two vertex uses (an edge) do not intersect
+                # (TestFaceFaceIntersection's first answer): known before any coordinate
+                shared = 0
+                for a in range(3):
+                    for c in range(3):
+                        shared += faces[f0, a] == faces[f1, c]
+                if shared != 0 and shared != 1 and shared != 3:
+                    continue
                 if flags[f0] and flags[f1]:
                     continue
                 if labels.shape[0] != 0 and labels[f0] != labels[f1]:
