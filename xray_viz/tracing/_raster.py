@@ -117,32 +117,43 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
             code[tmp[j]] = j
             order[j] = tmp[j]
         # Faces by the Morton rank of their first vertex in that order (stable counting sort).
+        # (each face's key kept in Fout, not yet written, for the second pass)
+        keep = Fout.shape[0] >= nf // 3
         for t in range(nf // 3):
             m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
                                                  code[flat_faces[3 * t + 2]]))
             cnt[m + 1] += 1
+            if keep:
+                Fout[t] = m
         for j in range(nv):
             cnt[j + 1] += cnt[j]
         for t in range(nf // 3):
-            m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
-                                                 code[flat_faces[3 * t + 2]]))
+            if keep:
+                m = Fout[t]
+            else:
+                m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
+                                                     code[flat_faces[3 * t + 2]]))
             tmp[cnt[m]] = t
             cnt[m] += 1
     for i in range(nv):
         rank[i] = -1
+    # Each vertex numbered at its first use, and each face written renumbered in the same
+    # pass (a vertex's number is final once given): one visit of the faces, not two.
     k = 0
-    for j in range(nf):
-        v = flat_faces[3 * tmp[j // 3] + j % 3 if spatial else j]
-        if rank[v] < 0:
-            rank[v] = k
-            k += 1
+    write = Fout.shape[0] != 0
+    for j in range(nf // 3 if spatial else nf):
+        for c in range(3 if spatial else 1):
+            v = flat_faces[3 * tmp[j] + c if spatial else j]
+            if rank[v] < 0:
+                rank[v] = k
+                k += 1
+            if write:
+                Fout[3 * j + c if spatial else j] = rank[v]
     for j in range(nv):
         v = order[j] if spatial else j
         if rank[v] < 0:
             rank[v] = k
             k += 1
-    for j in range(Fout.shape[0]):
-        Fout[j] = rank[flat_faces[3 * tmp[j // 3] + j % 3 if spatial else j]]
     for i in range(Vout.shape[0]):
         for a in range(3):
             Vout[rank[i], a] = V[i, a]
