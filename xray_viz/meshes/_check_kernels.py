@@ -363,17 +363,15 @@ def _cell(x, origin, inv, n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _self_intersection_grid(vertices, faces):
-    """The candidate pairs of :func:`_sweep_buckets`: every face's bounding box entered in the
-    cells of a uniform grid it meets, the cells hashed into buckets (``start``: CSR offsets of
-    the buckets' ``keys`` and ``owner`` entries, faces renumbered in the order of their low
-    corner's cell, ``face_id`` back to the mesh's numbers). ``dims[0] == 0`` when no two boxes
-    can overlap (fewer than two faces, or all in one point, or not finite)."""
+def _grid_boxes(vertices, faces, lo, hi, glo, dims):
+    """The first half of :func:`_grid`: each face's bounding box (``lo``, ``hi``), the low
+    corner of them all (``glo``) and the grid's cells per axis (``dims``); returns
+    ``(inv, total)``: the inverse of the cell size and the number of (cell, face) entries.
+    ``dims[0] == 0`` when no two boxes can overlap (fewer than two faces, or all in one point,
+    or not finite)."""
     m = faces.shape[0]
-    lo = np.empty((m, 3))
-    hi = np.empty((m, 3))
-    glo = np.full(3, np.inf)
     ghi = np.full(3, -np.inf)
+    glo[:] = np.inf
     extent = 0.0
     for f in range(m):
         for k in range(3):
@@ -390,14 +388,13 @@ def _self_intersection_grid(vertices, faces):
         span = max(span, ghi[k] - glo[k])
     if m < 2 or not (span > 0.0) or not np.isfinite(span):
         # all in one point: no two boxes overlap strictly (or not finite)
-        z = np.zeros(1, np.int64)
-        return (z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, np.zeros(3, np.int64), 0)
+        dims[:] = 0
+        return 0.0, 0
     # cells about four times the mean face extent (a face in ~2 cells: grid and sweep 0.68x
     # of twice at 1.3M faces, 0.91x on the phantoms' meshes; benchmarks/notes/checks.md),
     # fewer than 2**20 along an axis, and made bigger while a face would be entered in too
     # many (one huge face among small ones)
     size = max(4.0 * extent / (3.0 * m), span / 2.0 ** 20)
-    dims = np.empty(3, np.int64)
     while True:
         inv = 1.0 / size
         total = 0
@@ -410,15 +407,20 @@ def _self_intersection_grid(vertices, faces):
                       - _cell(lo[f, k], glo[k], inv, dims[k]) + 1)
             total += c
         if total <= 16 * m + 1024:
-            break
+            return inv, total
         size *= 2.0
-    # the faces in the order of the cell of their low corner (a counting sort), so that the
-    # faces of a cell are near in memory; then (cell key, face) entries, in buckets by cell.
-    # A cell's bucket: its key itself when the grid is small, else the key modulo an odd
-    # number (neighbouring cells in neighbouring buckets).
-    n_cells = dims[0] * dims[1] * dims[2]
-    n_buckets = n_cells if n_cells <= total else (total // 4) | 1
-    start = np.zeros(n_buckets + 1, np.int64)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _grid_entries(lo, hi, glo, inv, dims, start, face_id, plo, phi, clo, keys, owner):
+    """The second half of :func:`_grid`: the faces renumbered in the order of the bucket of
+    their low corner's cell (a counting sort: the faces of a cell near in memory), with their
+    boxes (``plo``, ``phi``) and low corner's cell (``clo``; the high corner's is recomputed
+    where needed), ``face_id`` back to the mesh's numbers; then every (cell key, face) entry
+    of every cell a box meets, in buckets (``start``: CSR offsets, zeros on entry, one more
+    than the buckets). Returns the most entries of a bucket."""
+    m = lo.shape[0]
+    n_buckets = start.shape[0] - 1
     for f in range(m):
         key = ((_cell(lo[f, 0], glo[0], inv, dims[0]) * dims[1]
                 + _cell(lo[f, 1], glo[1], inv, dims[1])) * dims[2]
@@ -426,29 +428,23 @@ def _self_intersection_grid(vertices, faces):
         start[key % n_buckets + 1] += 1
     for b in range(n_buckets):
         start[b + 1] += start[b]
-    face_id = np.empty(m, np.int64)
+    # placed with its box and cell, written where they go (the faces read in order)
     for f in range(m):
-        key = ((_cell(lo[f, 0], glo[0], inv, dims[0]) * dims[1]
-                + _cell(lo[f, 1], glo[1], inv, dims[1])) * dims[2]
-               + _cell(lo[f, 2], glo[2], inv, dims[2]))
-        b = key % n_buckets
-        face_id[start[b]] = f
+        c0 = _cell(lo[f, 0], glo[0], inv, dims[0])
+        c1 = _cell(lo[f, 1], glo[1], inv, dims[1])
+        c2 = _cell(lo[f, 2], glo[2], inv, dims[2])
+        b = ((c0 * dims[1] + c1) * dims[2] + c2) % n_buckets
+        j = start[b]
         start[b] += 1
-    # the boxes in that order, and the cell of each box's low corner (the high corner's is
-    # recomputed where needed: one array less to fill with fresh pages)
-    plo = np.empty((m, 3))
-    phi = np.empty((m, 3))
-    clo = np.empty((m, 3), np.int64)
-    for j in range(m):
-        f = face_id[j]
+        face_id[j] = f
         for k in range(3):
             plo[j, k] = lo[f, k]
             phi[j, k] = hi[f, k]
-            clo[j, k] = _cell(lo[f, k], glo[k], inv, dims[k])
+        clo[j, 0] = c0
+        clo[j, 1] = c1
+        clo[j, 2] = c2
     # every cell a box meets: counted per bucket, then entered (the high corner's cell
     # recomputed in both passes)
-    keys = np.empty(total, np.int64)
-    owner = np.empty(total, np.int64)
     start[:] = 0
     fill = start[:-1]
     for placing in (False, True):
@@ -474,7 +470,44 @@ def _self_intersection_grid(vertices, faces):
     widest = 0
     for b in range(n_buckets):
         widest = max(widest, start[b + 1] - start[b])
-    return start, keys, owner, plo, phi, clo, face_id, dims, widest
+    return widest
+
+
+def _grid(vertices, faces):
+    """The candidate pairs of :func:`_sweep_buckets`: every face's bounding box entered in the
+    cells of a uniform grid it meets, the cells hashed into buckets; ``(start, keys, owner,
+    plo, phi, clo, face_id, dims, widest)`` (:func:`_grid_entries`), ``dims[0] == 0`` when no
+    two boxes can overlap.
+
+    The arrays are NumPy's, made here: NumPy asks the kernel for transparent huge pages for
+    large arrays (where the system gives them on request: ``madvise`` on this project's
+    machines), numba's own allocations do not; filling fresh pages was a third of the grid's
+    time (150 -> 110 ms at 1.3M faces; ``benchmarks/notes/checks.md``).
+    """
+    m = len(faces)
+    lo = np.empty((m, 3))
+    hi = np.empty((m, 3))
+    glo = np.empty(3)
+    dims = np.zeros(3, np.int64)
+    inv, total = _kernel("_grid_boxes")(vertices, faces, lo, hi, glo, dims)
+    if dims[0] == 0:
+        z = np.zeros(1, np.int64)
+        return z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, dims, 0
+    # a cell's bucket: its key itself when the grid is small, else the key modulo an odd
+    # number (neighbouring cells in neighbouring buckets)
+    n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
+    n_buckets = n_cells if n_cells <= total else (total // 4) | 1
+    start = np.zeros(n_buckets + 1, np.int64)
+    face_id = np.empty(m, np.int64)
+    plo = np.empty((m, 3))
+    phi = np.empty((m, 3))
+    clo = np.empty((m, 3), np.int64)
+    keys = np.empty(total, np.int64)
+    owner = np.empty(total, np.int64)
+    widest = _kernel("_grid_entries")(lo, hi, glo, inv, dims, start, face_id, plo, phi, clo,
+                                      keys, owner)
+    del lo, hi
+    return start, keys, owner, plo, phi, clo, face_id, dims, int(widest)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -482,7 +515,7 @@ def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owne
                    face_id, dims, widest):
     """Set ``flags[f]`` for every face ``f`` of a pair that pymeshlab selects as
     self-intersecting among the entries of buckets ``b_lo .. b_hi - 1`` of
-    :func:`_self_intersection_grid`; with ``labels`` (one per face, else empty), only pairs of
+    :func:`_grid`; with ``labels`` (one per face, else empty), only pairs of
     faces of the same label count. Each pair is tested in one bucket only, and a flag is only
     ever set, so bucket ranges can be swept by concurrent threads: the flags do not depend on
     the split (a pair whose two faces are flagged already is not tested again, which changes
@@ -577,21 +610,22 @@ def _find(parent, a):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _edge_facts(faces, n_vertices, labels):
+def _edge_facts(faces, n_vertices, labels, start, fill, other, use, parent):
     """``(boundary edges, watertight, winding consistent, pieces)`` of a face array, and the
     piece of every face in ``labels`` (numbered by their lowest face), from the edges grouped
-    by their lower vertex (a counting sort): the answers of ``repair._edge_facts``."""
+    by their lower vertex (a counting sort): the answers of ``repair._edge_facts``. Scratch
+    from the caller (NumPy's pages, see :func:`_grid`): ``start`` (``n_vertices + 1``,
+    zeros), ``fill`` (``n_vertices``), ``other`` and ``use`` (3 per face), ``parent`` (one per
+    face)."""
     m = faces.shape[0]
-    start = np.zeros(n_vertices + 1, np.int64)
     for f in range(m):
         for k in range(3):
             a, b = faces[f, k], faces[f, (k + 1) % 3]
             start[min(a, b) + 1] += 1
     for v in range(n_vertices):
         start[v + 1] += start[v]
-    fill = start[:-1].copy()
-    other = np.empty(3 * m, np.int64)           # the higher vertex of each edge use
-    use = np.empty(3 * m, np.int64)             # 3 face + k: the use (directed edge)
+    fill[:] = start[:-1]
+    # other: the higher vertex of each edge use; use: 3 face + k, the use (directed edge)
     for f in range(m):
         for k in range(3):
             a, b = faces[f, k], faces[f, (k + 1) % 3]
@@ -599,7 +633,8 @@ def _edge_facts(faces, n_vertices, labels):
             other[fill[lo]] = max(a, b)
             use[fill[lo]] = 3 * f + k
             fill[lo] += 1
-    parent = np.arange(m)
+    for f in range(m):
+        parent[f] = f
     boundary = 0
     two_uses = 0
     winding = True
@@ -632,6 +667,14 @@ def _edge_facts(faces, n_vertices, labels):
                 ra, rb = _find(parent, fa), _find(parent, fb)
                 if ra != rb:
                     parent[max(ra, rb)] = min(ra, rb)
+    # one piece (most meshes): every label 0, without a find per face (random reads: as
+    # long as the edge pass at a million faces)
+    roots = 0
+    for f in range(m):
+        roots += parent[f] == f
+    if roots == 1:
+        labels[:] = 0
+        return boundary, two_uses * 2 == 3 * m, winding, 1
     n = 0
     for f in range(m):
         r = _find(parent, f)
@@ -665,12 +708,18 @@ _B1 = _nt.Array(_nt.boolean, 1, "C")
 _F2w = _nt.Array(_nt.float64, 2, "C")
 _I2w = _nt.Array(_nt.int64, 2, "C")
 _F1w = _nt.Array(_nt.float64, 1, "C")
+_F1r = _nt.Array(_nt.float64, 1, "C", readonly=True)
 SIGNATURES = {
-    "_self_intersection_grid": (_F2, _I2),                 # vertices, faces
+    # vertices, faces, then lo, hi, glo, dims (out)
+    "_grid_boxes": (_F2, _I2, _F2w, _F2w, _F1w, _I1),
+    # lo, hi, glo, inv, dims, then start, face_id, plo, phi, clo, keys, owner (out)
+    "_grid_entries": (_F2, _F2, _F1r, _nt.float64, _I1r, _I1, _I1, _F2w, _F2w, _I2w, _I1,
+                      _I1),
     # buckets lo, hi, vertices, faces, labels, flags (out), then the grid's arrays
     "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _I1, _I1, _I1, _F2w, _F2w,
                        _I2w, _I1, _I1, _nt.int64),
-    "_edge_facts": (_I2, _nt.int64, _I1),                 # faces, vertex count, labels (out)
+    # faces, vertex count, labels (out), then scratch: start, fill, other, use, parent
+    "_edge_facts": (_I2, _nt.int64, _I1, _I1, _I1, _I1, _I1, _I1),
     "_volume_terms": (_F2, _I2, _F1w),                    # vertices, faces, terms (out)
 }
 
@@ -731,7 +780,7 @@ def prepare(*, nice: int = 10) -> bool:
     import sys
     import time
 
-    disp = _self_intersection_grid
+    disp = _grid_boxes
     cache = getattr(disp, "_cache", None)
     if is_ready() or not isinstance(cache, _numba_cache.KernelCache):
         return False
@@ -775,8 +824,11 @@ def edge_facts(faces, n_vertices):
     (0, True, True, 1)
     """
     f = _checked_faces(faces, n_vertices)
-    labels = np.empty(len(f), np.int64)
-    boundary, watertight, winding, n = _kernel("_edge_facts")(f, int(n_vertices), labels)
+    m, nv = len(f), int(n_vertices)
+    labels = np.empty(m, np.int64)
+    boundary, watertight, winding, n = _kernel("_edge_facts")(
+        f, nv, labels, np.zeros(nv + 1, np.int64), np.empty(nv, np.int64),
+        np.empty(3 * m, np.int64), np.empty(3 * m, np.int64), np.empty(m, np.int64))
     return int(boundary), bool(watertight), bool(winding), labels, int(n)
 
 
@@ -835,7 +887,7 @@ def start_grid(vertices, faces):
         return None
     from xray_viz._threads import pool
 
-    return v, f, pool(2).submit(_kernel("_self_intersection_grid"), v, f)
+    return v, f, pool(2).submit(_grid, v, f)
 
 
 def discard(started) -> None:
@@ -891,7 +943,7 @@ def self_intersections(vertices, faces, labels=None, *, started=None) -> np.ndar
     flags = np.zeros(len(f), bool)
     if len(f) >= 2:
         if started is None:
-            grid = _kernel("_self_intersection_grid")(v, f)
+            grid = _grid(v, f)
         start, n_buckets = grid[0], len(grid[0]) - 1
         if grid[7][0] == 0:
             return flags
