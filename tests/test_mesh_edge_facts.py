@@ -49,7 +49,7 @@ def test_the_cases_cover_each_answer():
     assert facts["two"][4] == 2
 
 
-@pytest.mark.parametrize("name", list(_cases()) + ["soup", "noisy"])
+@pytest.mark.parametrize("name", list(_cases()) + ["soup", "noisy", "collapsed"])
 def test_compiled_edge_facts_equal_the_numpy_ones(name, monkeypatch):
     """The compiled edge facts (:mod:`xray_viz.meshes._check_kernels`) are the NumPy ones
     (checked against trimesh above), labels included, also on a soup with repeated corners
@@ -59,6 +59,12 @@ def test_compiled_edge_facts_equal_the_numpy_ones(name, monkeypatch):
     rng = np.random.default_rng(7)
     if name == "soup":
         f, nv = rng.integers(0, 40, size=(300, 3)), 40
+    elif name == "collapsed":
+        # a closed box and two faces with a repeated corner: their edge from vertex 8 to
+        # itself is used twice, and ends where it starts whichever use comes first
+        box = trimesh.creation.box()
+        f = np.vstack([box.faces, [[8, 8, 9], [8, 8, 10]]])
+        nv = 11
     elif name == "noisy":
         ball = trimesh.creation.icosphere(subdivisions=3)
         f = ball.faces[rng.permutation(len(ball.faces))[:1200]]
@@ -71,6 +77,8 @@ def test_compiled_edge_facts_equal_the_numpy_ones(name, monkeypatch):
     numpy = R._edge_facts(np.asarray(f, np.int64), nv)
     assert compiled[:3] == numpy[:3] and compiled[4] == numpy[4]
     np.testing.assert_array_equal(compiled[3], numpy[3])
+    if name == "collapsed":
+        assert compiled[2]            # the winding is consistent
 
 
 @pytest.mark.parametrize("seed", range(3))

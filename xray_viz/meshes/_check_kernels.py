@@ -412,11 +412,12 @@ def _grid_boxes(vertices, faces, lo, hi, glo, dims):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _grid_entries(lo, hi, glo, inv, dims, start, face_id, plo, phi, clo, keys, owner):
+def _grid_entries(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi, clo, keys,
+                  owner):
     """The second half of :func:`_grid`: the faces renumbered in the order of the bucket of
     their low corner's cell (a counting sort: the faces of a cell near in memory), with their
-    boxes (``plo``, ``phi``) and low corner's cell (``clo``; the high corner's is recomputed
-    where needed), ``face_id`` back to the mesh's numbers; then every (cell key, face) entry
+    boxes (``plo``, ``phi``), low corner's cell (``clo``; the high corner's is recomputed
+    where needed) and vertices (``pface``), ``face_id`` back to the mesh's numbers; then every (cell key, face) entry
     of every cell a box meets, in buckets (``start``: CSR offsets, zeros on entry, one more
     than the buckets). Returns the most entries of a bucket."""
     m = lo.shape[0]
@@ -440,6 +441,7 @@ def _grid_entries(lo, hi, glo, inv, dims, start, face_id, plo, phi, clo, keys, o
         for k in range(3):
             plo[j, k] = lo[f, k]
             phi[j, k] = hi[f, k]
+            pface[j, k] = faces[f, k]
         clo[j, 0] = c0
         clo[j, 1] = c1
         clo[j, 2] = c2
@@ -476,8 +478,8 @@ def _grid_entries(lo, hi, glo, inv, dims, start, face_id, plo, phi, clo, keys, o
 def _grid(vertices, faces):
     """The candidate pairs of :func:`_sweep_buckets`: every face's bounding box entered in the
     cells of a uniform grid it meets, the cells hashed into buckets; ``(start, keys, owner,
-    plo, phi, clo, face_id, dims, widest)`` (:func:`_grid_entries`), ``dims[0] == 0`` when no
-    two boxes can overlap.
+    plo, phi, clo, face_id, dims, widest, pface)`` (:func:`_grid_entries`), ``dims[0] == 0``
+    when no two boxes can overlap.
 
     The arrays are NumPy's, made here: NumPy asks the kernel for transparent huge pages for
     large arrays (where the system gives them on request: ``madvise`` on this project's
@@ -492,27 +494,29 @@ def _grid(vertices, faces):
     inv, total = _kernel("_grid_boxes")(vertices, faces, lo, hi, glo, dims)
     if dims[0] == 0:
         z = np.zeros(1, np.int64)
-        return z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, dims, 0
+        return z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, dims, 0, np.zeros((0, 3),
+                                                                              np.int64)
     # a cell's bucket: its key itself when the grid is small, else the key modulo an odd
     # number (neighbouring cells in neighbouring buckets)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
     n_buckets = n_cells if n_cells <= total else (total // 4) | 1
     start = np.zeros(n_buckets + 1, np.int64)
     face_id = np.empty(m, np.int64)
+    pface = np.empty((m, 3), np.int64)
     plo = np.empty((m, 3))
     phi = np.empty((m, 3))
     clo = np.empty((m, 3), np.int64)
     keys = np.empty(total, np.int64)
     owner = np.empty(total, np.int64)
-    widest = _kernel("_grid_entries")(lo, hi, glo, inv, dims, start, face_id, plo, phi, clo,
-                                      keys, owner)
+    widest = _kernel("_grid_entries")(faces, lo, hi, glo, inv, dims, start, face_id, pface,
+                                      plo, phi, clo, keys, owner)
     del lo, hi
-    return start, keys, owner, plo, phi, clo, face_id, dims, int(widest)
+    return start, keys, owner, plo, phi, clo, face_id, dims, int(widest), pface
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owner, plo, phi, clo,
-                   face_id, dims, widest):
+                   face_id, dims, widest, pface):
     """Set ``flags[f]`` for every face ``f`` of a pair that pymeshlab selects as
     self-intersecting among the entries of buckets ``b_lo .. b_hi - 1`` of
     :func:`_grid`; with ``labels`` (one per face, else empty), only pairs of
@@ -580,21 +584,24 @@ def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owne
                 if ((max(clo[fp, 0], clo[fq, 0]) * d1 + max(clo[fp, 1], clo[fq, 1])) * d2
                         + max(clo[fp, 2], clo[fq, 2]) != key):
                     continue
-                f0 = min(face_id[fp], face_id[fq])
-                f1 = max(face_id[fp], face_id[fq])
                 # faces sharing exactly two vertex uses (an edge) do not intersect
-                # (TestFaceFaceIntersection's first answer): known before any coordinate
+                # (TestFaceFaceIntersection's first answer): known before any coordinate,
+                # from the faces' vertices in the grid's order (near in memory)
                 shared = 0
                 for a in range(3):
                     for c in range(3):
-                        shared += faces[f0, a] == faces[f1, c]
+                        shared += pface[fp, a] == pface[fq, c]
                 if shared != 0 and shared != 1 and shared != 3:
                     continue
+                # the mesh's lower-numbered face first (vcglib's order)
+                ga, gb = (fp, fq) if face_id[fp] < face_id[fq] else (fq, fp)
+                f0 = face_id[ga]
+                f1 = face_id[gb]
                 if flags[f0] and flags[f1]:
                     continue
                 if labels.shape[0] != 0 and labels[f0] != labels[f1]:
                     continue
-                if _face_face(vertices, faces, f0, f1):
+                if _face_face(vertices, pface, ga, gb):
                     flags[f0] = True
                     flags[f1] = True
 
@@ -625,13 +632,14 @@ def _edge_facts(faces, n_vertices, labels, start, fill, other, use, parent):
     for v in range(n_vertices):
         start[v + 1] += start[v]
     fill[:] = start[:-1]
-    # other: the higher vertex of each edge use; use: 3 face + k, the use (directed edge)
+    # other: the higher vertex of each edge use; use: 2 face + whether it goes from the lower
+    # vertex to the higher (its direction, so that the winding needs no look-up of the faces)
     for f in range(m):
         for k in range(3):
             a, b = faces[f, k], faces[f, (k + 1) % 3]
             lo = min(a, b)
             other[fill[lo]] = max(a, b)
-            use[fill[lo]] = 3 * f + k
+            use[fill[lo]] = 2 * f + (1 if a < b else 0)
             fill[lo] += 1
     for f in range(m):
         parent[f] = f
@@ -659,10 +667,10 @@ def _edge_facts(faces, n_vertices, labels, start, fill, other, use, parent):
             elif count == 2:
                 two_uses += 1
                 ua, ub = use[p], use[first]
-                fa, ka = ua // 3, ua % 3
-                fb, kb = ub // 3, ub % 3
-                # the first use ends where the second starts (opposite directions)
-                if faces[fa, (ka + 1) % 3] != faces[fb, kb]:
+                fa, fb = ua >> 1, ub >> 1
+                # the first use ends where the second starts: opposite directions (an edge
+                # from a vertex to itself ends where it starts, whatever its direction)
+                if hi != v and (ua & 1) == (ub & 1):
                     winding = False
                 ra, rb = _find(parent, fa), _find(parent, fb)
                 if ra != rb:
@@ -712,12 +720,12 @@ _F1r = _nt.Array(_nt.float64, 1, "C", readonly=True)
 SIGNATURES = {
     # vertices, faces, then lo, hi, glo, dims (out)
     "_grid_boxes": (_F2, _I2, _F2w, _F2w, _F1w, _I1),
-    # lo, hi, glo, inv, dims, then start, face_id, plo, phi, clo, keys, owner (out)
-    "_grid_entries": (_F2, _F2, _F1r, _nt.float64, _I1r, _I1, _I1, _F2w, _F2w, _I2w, _I1,
-                      _I1),
+    # faces, lo, hi, glo, inv, dims, then start, face_id, pface, plo, phi, clo, keys, owner
+    "_grid_entries": (_I2, _F2, _F2, _F1r, _nt.float64, _I1r, _I1, _I1, _I2w, _F2w, _F2w, _I2w,
+                      _I1, _I1),
     # buckets lo, hi, vertices, faces, labels, flags (out), then the grid's arrays
     "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _I1, _I1, _I1, _F2w, _F2w,
-                       _I2w, _I1, _I1, _nt.int64),
+                       _I2w, _I1, _I1, _nt.int64, _I2w),
     # faces, vertex count, labels (out), then scratch: start, fill, other, use, parent
     "_edge_facts": (_I2, _nt.int64, _I1, _I1, _I1, _I1, _I1, _I1),
     "_volume_terms": (_F2, _I2, _F1w),                    # vertices, faces, terms (out)
