@@ -158,6 +158,26 @@ def test_the_sweep_split_over_threads_selects_the_same_faces(monkeypatch, thread
     np.testing.assert_array_equal(split[1], _reference(soup_v, soup_f))
 
 
+@pytest.mark.parametrize("threads", [2, 3, 7])
+def test_the_grid_entered_by_ranges_of_faces_is_the_grid_of_one_pass(monkeypatch, threads):
+    """The grid's entries counted and entered by several threads, each a range of faces from
+    its offsets in each bucket: the same arrays, entry for entry, as one thread's pass."""
+    rng = np.random.default_rng(11)
+    s = trimesh.creation.icosphere(subdivisions=4)
+    v = s.vertices @ random_rotation(rng).T
+    f = np.asarray(s.faces, np.int64)
+    one = K._grid(v, f)
+    monkeypatch.setattr(K, "_PARALLEL_FACES", 1)
+    monkeypatch.setattr(K, "_sweep_threads", lambda: threads)
+    placed = K._grid(v, f, finish=False)
+    assert isinstance(placed, K._Placed)
+    split = K._grid_finish(placed)
+    assert len(one) == len(split) == 10
+    for a, b in zip(one, split):
+        np.testing.assert_array_equal(a, b)
+    assert one[8] == int(np.diff(one[0]).max()) > 1 and one[1].shape == (one[0][-1],)
+
+
 def test_degenerate_inputs():
     assert K.self_intersections(np.zeros((0, 3)), np.zeros((0, 3), int)).shape == (0,)
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]])

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import threading
+import typing
 
 import numpy as np
 from numba import njit
@@ -412,14 +413,12 @@ def _grid_boxes(vertices, faces, lo, hi, glo, dims):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _grid_entries(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi, clo, keys,
-                  owner):
-    """The second half of :func:`_grid`: the faces renumbered in the order of the bucket of
-    their low corner's cell (a counting sort: the faces of a cell near in memory), with their
-    boxes (``plo``, ``phi``), low corner's cell (``clo``; the high corner's is recomputed
-    where needed) and vertices (``pface``), ``face_id`` back to the mesh's numbers; then every (cell key, face) entry
-    of every cell a box meets, in buckets (``start``: CSR offsets, zeros on entry, one more
-    than the buckets). Returns the most entries of a bucket."""
+def _grid_place(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi, clo):
+    """The faces renumbered in the order of the bucket of their low corner's cell (a counting
+    sort, ``start`` zeros on entry, one more than the buckets: the faces of a cell near in
+    memory), with their boxes (``plo``, ``phi``), low corner's cell (``clo``; the high
+    corner's is recomputed where needed) and vertices (``pface``), ``face_id`` back to the
+    mesh's numbers; written where they go, the faces read in order."""
     m = lo.shape[0]
     n_buckets = start.shape[0] - 1
     for f in range(m):
@@ -429,7 +428,6 @@ def _grid_entries(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi
         start[key % n_buckets + 1] += 1
     for b in range(n_buckets):
         start[b + 1] += start[b]
-    # placed with its box and cell, written where they go (the faces read in order)
     for f in range(m):
         c0 = _cell(lo[f, 0], glo[0], inv, dims[0])
         c1 = _cell(lo[f, 1], glo[1], inv, dims[1])
@@ -445,41 +443,37 @@ def _grid_entries(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi
         clo[j, 0] = c0
         clo[j, 1] = c1
         clo[j, 2] = c2
-    # every cell a box meets: counted per bucket, then entered (the high corner's cell
-    # recomputed in both passes)
-    start[:] = 0
-    fill = start[:-1]
-    for placing in (False, True):
-        if placing:
-            for b in range(n_buckets):
-                start[b + 1] += start[b]
-            fill = start[:-1].copy()
-        for f in range(m):
-            c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
-            c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
-            c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
-            for x in range(clo[f, 0], c0 + 1):
-                for y in range(clo[f, 1], c1 + 1):
-                    for z in range(clo[f, 2], c2 + 1):
-                        key = (x * dims[1] + y) * dims[2] + z
-                        b = key % n_buckets
-                        if placing:
-                            keys[fill[b]] = key
-                            owner[fill[b]] = f
-                            fill[b] += 1
-                        else:
-                            start[b + 1] += 1
-    widest = 0
-    for b in range(n_buckets):
-        widest = max(widest, start[b + 1] - start[b])
-    return widest
 
 
-def _grid(vertices, faces):
+@njit(cache=True, nogil=True, error_model="numpy")
+def _grid_entries(j_lo, j_hi, placing, phi, clo, glo, inv, dims, fill, keys, owner):
+    """Every cell that the boxes of (renumbered) faces ``j_lo .. j_hi - 1`` meet: counted per
+    bucket into ``fill`` (``placing`` False), or entered as (cell key, face) at ``fill[b]``,
+    which counts on (``placing``). Ranges of faces counted apart, and entered from their
+    offsets in each bucket (the ranges in order), give the entries of one pass, in order."""
+    n_buckets = fill.shape[0]
+    for f in range(j_lo, j_hi):
+        c0 = _cell(phi[f, 0], glo[0], inv, dims[0])
+        c1 = _cell(phi[f, 1], glo[1], inv, dims[1])
+        c2 = _cell(phi[f, 2], glo[2], inv, dims[2])
+        for x in range(clo[f, 0], c0 + 1):
+            for y in range(clo[f, 1], c1 + 1):
+                for z in range(clo[f, 2], c2 + 1):
+                    key = (x * dims[1] + y) * dims[2] + z
+                    b = key % n_buckets
+                    if placing:
+                        keys[fill[b]] = key
+                        owner[fill[b]] = f
+                    fill[b] += 1
+
+
+def _grid(vertices, faces, *, finish=True):
     """The candidate pairs of :func:`_sweep_buckets`: every face's bounding box entered in the
     cells of a uniform grid it meets, the cells hashed into buckets; ``(start, keys, owner,
-    plo, phi, clo, face_id, dims, widest, pface)`` (:func:`_grid_entries`), ``dims[0] == 0``
-    when no two boxes can overlap.
+    plo, phi, clo, face_id, dims, widest, pface)``: CSR offsets of the buckets' ``keys`` and
+    ``owner`` entries, then what :func:`_grid_place` gives, ``widest`` the most entries of a
+    bucket; ``dims[0] == 0`` when no two boxes can overlap. With ``finish=False``, what
+    :func:`_grid_finish` completes (the entries: on every thread of the sweep).
 
     The arrays are NumPy's, made here: NumPy asks the kernel for transparent huge pages for
     large arrays (where the system gives them on request: ``madvise`` on this project's
@@ -506,12 +500,60 @@ def _grid(vertices, faces):
     plo = np.empty((m, 3))
     phi = np.empty((m, 3))
     clo = np.empty((m, 3), np.int64)
-    keys = np.empty(total, np.int64)
-    owner = np.empty(total, np.int64)
-    widest = _kernel("_grid_entries")(faces, lo, hi, glo, inv, dims, start, face_id, pface,
-                                      plo, phi, clo, keys, owner)
+    _kernel("_grid_place")(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi, clo)
     del lo, hi
-    return start, keys, owner, plo, phi, clo, face_id, dims, int(widest), pface
+    placed = _Placed(plo, phi, clo, face_id, dims, pface, glo, float(inv), int(total),
+                     n_buckets)
+    return _grid_finish(placed) if finish else placed
+
+
+def _grid_finish(placed):
+    """The entries of a grid placed by ``_grid(..., finish=False)`` (a :class:`_Placed`;
+    anything else is a finished grid, returned as it is): the faces in :func:`_sweep_threads`
+    contiguous ranges, each range's cells counted per bucket on its own thread, then each
+    range entered from its offsets in each bucket (after the entries of the ranges before it):
+    the same arrays as one pass over the faces."""
+    if not isinstance(placed, _Placed):
+        return placed
+    p = placed
+    m, n_buckets = len(p.face_id), p.n_buckets
+    kernel = _kernel("_grid_entries")
+    k = max(1, min(_sweep_threads(), m // _PARALLEL_FACES))
+    cut = [m * j // k for j in range(k + 1)]
+    counts = np.zeros((k, n_buckets), np.int64)
+    none = np.zeros(0, np.int64)
+    from xray_viz._threads import run_pieces
+
+    run_pieces(lambda j: kernel(cut[j], cut[j + 1], False, p.phi, p.clo, p.glo, p.inv, p.dims,
+                                counts[j], none, none), k)
+    start = np.zeros(n_buckets + 1, np.int64)
+    np.cumsum(counts.sum(axis=0), out=start[1:])
+    fill = np.empty((k, n_buckets), np.int64)
+    fill[0] = start[:-1]
+    if k > 1:
+        np.cumsum(counts[:-1], axis=0, out=fill[1:])
+        fill[1:] += start[:-1]
+    keys = np.empty(p.total, np.int64)
+    owner = np.empty(p.total, np.int64)
+    run_pieces(lambda j: kernel(cut[j], cut[j + 1], True, p.phi, p.clo, p.glo, p.inv, p.dims,
+                                fill[j], keys, owner), k)
+    widest = int(np.diff(start).max())
+    return start, keys, owner, p.plo, p.phi, p.clo, p.face_id, p.dims, widest, p.pface
+
+
+class _Placed(typing.NamedTuple):
+    """A grid of :func:`_grid` before its entries (:func:`_grid_finish`)."""
+
+    plo: np.ndarray
+    phi: np.ndarray
+    clo: np.ndarray
+    face_id: np.ndarray
+    dims: np.ndarray
+    pface: np.ndarray
+    glo: np.ndarray
+    inv: float
+    total: int
+    n_buckets: int
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -720,9 +762,11 @@ _F1r = _nt.Array(_nt.float64, 1, "C", readonly=True)
 SIGNATURES = {
     # vertices, faces, then lo, hi, glo, dims (out)
     "_grid_boxes": (_F2, _I2, _F2w, _F2w, _F1w, _I1),
-    # faces, lo, hi, glo, inv, dims, then start, face_id, pface, plo, phi, clo, keys, owner
-    "_grid_entries": (_I2, _F2, _F2, _F1r, _nt.float64, _I1r, _I1, _I1, _I2w, _F2w, _F2w, _I2w,
-                      _I1, _I1),
+    # faces, lo, hi, glo, inv, dims, then start, face_id, pface, plo, phi, clo (out)
+    "_grid_place": (_I2, _F2, _F2, _F1r, _nt.float64, _I1r, _I1, _I1, _I2w, _F2w, _F2w, _I2w),
+    # faces j_lo, j_hi, placing, phi, clo, glo, inv, dims, then fill, keys, owner (out)
+    "_grid_entries": (_nt.int64, _nt.int64, _nt.boolean, _F2, _I2, _F1r, _nt.float64, _I1r,
+                      _I1, _I1, _I1),
     # buckets lo, hi, vertices, faces, labels, flags (out), then the grid's arrays
     "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _I1, _I1, _I1, _F2w, _F2w,
                        _I2w, _I1, _I1, _nt.int64, _I2w),
@@ -895,7 +939,7 @@ def start_grid(vertices, faces):
         return None
     from xray_viz._threads import pool
 
-    return v, f, pool(2).submit(_grid, v, f)
+    return v, f, pool(2).submit(_grid, v, f, finish=False)
 
 
 def discard(started) -> None:
@@ -940,7 +984,7 @@ def self_intersections(vertices, faces, labels=None, *, started=None) -> np.ndar
     (0, 12)
     """
     if started is not None:          # checked by start_grid
-        v, f, grid = started[0], started[1], started[2].result()
+        v, f, grid = started[0], started[1], _grid_finish(started[2].result())
     else:
         v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
         f = _checked_faces(faces, len(v))
