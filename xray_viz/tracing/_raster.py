@@ -74,8 +74,9 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
     position quantised to 1024 steps per axis of the bounding box (a stable LSD radix sort,
     ties keep the vertex order); vertices used by no face then follow in Morton order. Then
     ``Vout[rank[i]] = V[i]`` and ``Fout`` receives the faces, renumbered, in the order
-    visited (outputs of length 0 are not written). Scratch (``spatial`` only, int64):
-    ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt`` (V + 1), ``hist`` (3 x 1025, zeros).
+    visited (outputs of length 0 are not written; with ``spatial``, ``Fout`` is needed).
+    Scratch (``spatial`` only, int64): ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt``
+    (V + 1), ``hist`` (3 x 1025, zeros).
     """
     nv = rank.shape[0]
     nf = flat_faces.shape[0]
@@ -116,39 +117,43 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
         for j in range(nv):               # tmp: the Morton order; code: each vertex's rank
             code[tmp[j]] = j
             order[j] = tmp[j]
-        # Faces by the Morton rank of their first vertex in that order (stable counting sort).
-        # (each face's key kept in Fout, not yet written, for the second pass)
-        keep = Fout.shape[0] >= nf // 3
+        # Faces by the Morton rank of their first vertex in that order (stable counting sort,
+        # each face's key kept in tmp for the second pass), written where they go into Fout
+        # (the faces read in order), renumbered there below.
         for t in range(nf // 3):
             m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
                                                  code[flat_faces[3 * t + 2]]))
             cnt[m + 1] += 1
-            if keep:
-                Fout[t] = m
+            tmp[t] = m
         for j in range(nv):
             cnt[j + 1] += cnt[j]
         for t in range(nf // 3):
-            if keep:
-                m = Fout[t]
-            else:
-                m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
-                                                     code[flat_faces[3 * t + 2]]))
-            tmp[cnt[m]] = t
+            m = tmp[t]
+            j = cnt[m]
             cnt[m] += 1
+            for c in range(3):
+                Fout[3 * j + c] = flat_faces[3 * t + c]
     for i in range(nv):
         rank[i] = -1
     # Each vertex numbered at its first use, and each face written renumbered in the same
     # pass (a vertex's number is final once given): one visit of the faces, not two.
     k = 0
-    write = Fout.shape[0] != 0
-    for j in range(nf // 3 if spatial else nf):
-        for c in range(3 if spatial else 1):
-            v = flat_faces[3 * tmp[j] + c if spatial else j]
+    if spatial:
+        for j in range(nf):
+            v = Fout[j]
+            if rank[v] < 0:
+                rank[v] = k
+                k += 1
+            Fout[j] = rank[v]
+    else:
+        write = Fout.shape[0] != 0
+        for j in range(nf):
+            v = flat_faces[j]
             if rank[v] < 0:
                 rank[v] = k
                 k += 1
             if write:
-                Fout[3 * j + c if spatial else j] = rank[v]
+                Fout[j] = rank[v]
     for j in range(nv):
         v = order[j] if spatial else j
         if rank[v] < 0:
