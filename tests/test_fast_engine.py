@@ -376,6 +376,28 @@ def test_body_bounds_are_kept_by_the_bodies_not_measured_per_scene(monkeypatch):
     assert scene.bodies.bounds[0, 0, 0] == pytest.approx(lo[0] + 5) and calls == ["bounds"]
 
 
+def test_a_frame_hashes_each_mesh_once_and_a_change_in_place_is_still_seen(monkeypatch):
+    """The engine's set-up reads a dozen derived values of the bodies inside one
+    ``Bodies.checked()`` block: each mesh is hashed (trimesh's change detection) once for the
+    block, not once per lookup; a mesh changed in place inside the block is found changed at
+    the next lookup after it (the bounds measured again)."""
+    from xray_viz import bodies as B
+
+    meshes = [_sphere(r, 2, (20.0 * k - 20.0, 0, 0)) for k, r in enumerate((5.0, 6.0, 7.0))]
+    scene = make_scene(meshes, pitch=1.5)
+    trace_once(scene)
+    hashed = []
+    real = B._mesh_hash
+    monkeypatch.setattr(B, "_mesh_hash", lambda m: hashed.append(id(m)) or real(m))
+    trace_once(scene)
+    assert sorted(hashed) == sorted(id(m) for m in meshes)     # one each, for the whole frame
+    box = scene.bodies.bounds.copy()
+    with scene.bodies.checked():
+        meshes[1].apply_translation([0, 4, 0])
+        assert scene.bodies.bounds[1, 0, 1] == box[1, 0, 1]       # taken as unchanged inside
+    assert scene.bodies.bounds[1, 0, 1] == pytest.approx(box[1, 0, 1] + 4)
+
+
 # --------------------------------------------------------------------------------------------
 # one body of several pieces: the nonzero rule, whatever else is in the scene
 

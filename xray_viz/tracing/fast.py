@@ -396,7 +396,7 @@ def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
 
 def _trace(scene, *, supersample):
     n = check_supersample(supersample)
-    with _LOCK:
+    with _LOCK, _split(scene)[0].checked():     # the meshes hashed once for the frame
         plan = _Plan(scene, n, None)
         return plan.window(0, plan.n_bands)[2]
 
@@ -485,9 +485,13 @@ class _Plan:
     """
 
     def __init__(self, scene, n, window):
+        bodies, acq = _split(scene)
+        with bodies.checked():               # the meshes hashed once, not at every lookup
+            self._set_up(scene, bodies, acq, n, window)
+
+    def _set_up(self, scene, bodies, acq, n, window):
         from xray_viz.tracing import _raster as R
 
-        bodies, acq = _split(scene)
         self.R = R
         self.bodies = bodies
         self.n = n
