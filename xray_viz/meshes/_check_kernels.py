@@ -371,8 +371,11 @@ def _grid_boxes(vertices, faces, lo, hi, glo, dims):
     ``dims[0] == 0`` when no two boxes can overlap (fewer than two faces, or all in one point,
     or not finite)."""
     m = faces.shape[0]
-    ghi = np.full(3, -np.inf)
-    glo[:] = np.inf
+    # (element by element: a slice assignment costs numba a second of compile)
+    ghi = np.empty(3)
+    for k in range(3):
+        glo[k] = np.inf
+        ghi[k] = -np.inf
     extent = 0.0
     for f in range(m):
         for k in range(3):
@@ -389,7 +392,8 @@ def _grid_boxes(vertices, faces, lo, hi, glo, dims):
         span = max(span, ghi[k] - glo[k])
     if m < 2 or not (span > 0.0) or not np.isfinite(span):
         # all in one point: no two boxes overlap strictly (or not finite)
-        dims[:] = 0
+        for k in range(3):
+            dims[k] = 0
         return 0.0, 0
     # cells about four times the mean face extent (a face in ~2 cells: grid and sweep 0.68x
     # of twice at 1.3M faces, 0.91x on the phantoms' meshes; benchmarks/notes/checks.md),
@@ -673,7 +677,8 @@ def _edge_facts(faces, n_vertices, labels, start, fill, other, use, parent):
             start[min(a, b) + 1] += 1
     for v in range(n_vertices):
         start[v + 1] += start[v]
-    fill[:] = start[:-1]
+    for v in range(n_vertices):
+        fill[v] = start[v]
     # other: the higher vertex of each edge use; use: 2 face + whether it goes from the lower
     # vertex to the higher (its direction, so that the winding needs no look-up of the faces)
     for f in range(m):
@@ -723,7 +728,8 @@ def _edge_facts(faces, n_vertices, labels, start, fill, other, use, parent):
     for f in range(m):
         roots += parent[f] == f
     if roots == 1:
-        labels[:] = 0
+        for f in range(m):
+            labels[f] = 0
         return boundary, two_uses * 2 == 3 * m, winding, 1
     n = 0
     for f in range(m):
