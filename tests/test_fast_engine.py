@@ -398,6 +398,39 @@ def test_a_frame_hashes_each_mesh_once_and_a_change_in_place_is_still_seen(monke
     assert scene.bodies.bounds[1, 0, 1] == pytest.approx(box[1, 0, 1] + 4)
 
 
+def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
+    """With every vertex between the source and detector planes, the banded rasters' cull
+    first drops the triangles whose cell codes say they cover no sample: the same status and
+    boxes as the full test of every triangle, and the list of kept triangles is the non-zero
+    statuses in order."""
+    from xray_viz.tracing import _raster as R
+
+    ball = _sphere(20.0, 5)
+    V = np.ascontiguousarray(ball.vertices, float)
+    F = np.ascontiguousarray(ball.faces, np.int32)
+    r0, f = np.array([0.3, -0.2, 1000.0]), np.array([0, 0, -1.0])
+    eu, ev = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    planes = np.zeros((4, 4))
+    planes[:, 0] = 1.0
+    planes[:, 3] = 1e9
+    XY, w = np.empty((len(V), 2), np.int64), np.empty(len(V))
+    huge, K = np.empty(len(V), np.bool_), np.empty(len(V), np.int32)
+    wmin, wmax, odd = R.project_vertices(V, r0, f, eu, ev, 3000.0, 63.5, 3000.0, 47.5, True,
+                                         XY, w, huge, 128, 96, K)
+    assert wmin > 0 and wmax < 1500.0 and not odd
+    out = []
+    for depth_ok in (False, True):
+        status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)
+        kept = R.cull_triangles(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V, r0,
+                                planes, K=K, depth_ok=depth_ok)
+        np.testing.assert_array_equal(kept, np.flatnonzero(status))
+        out.append((status, box * (status != 0)[:, None]))
+    np.testing.assert_array_equal(out[0][0], out[1][0])
+    np.testing.assert_array_equal(out[0][1], out[1][1])
+    skipped = out[0][0] == 0
+    assert 0.2 < skipped.mean() < 0.9          # many triangles between samples, many not
+
+
 # --------------------------------------------------------------------------------------------
 # one body of several pieces: the nonzero rule, whatever else is in the scene
 

@@ -298,66 +298,94 @@ def beyond_side(V, i0, i1, i2, r0, planes):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
+def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
+                    K, depth_ok, kept):
     """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
 
     Only triangles that can cover a sample get a box; ``status`` is written for all. A triangle
     crossing the plane of the source is an error (ERR_STRADDLE) unless it lies wholly outside
     one of the beam's side ``planes`` (:func:`beyond_side`).
+
+    When ``depth_ok`` (every vertex strictly between the source and the detector planes, none
+    huge: no error possible), a first branch-free pass by blocks of ``_BLOCK`` skips the
+    triangles whose vertices' cell codes ``K`` say they cover no sample (as their box would:
+    the same status), as :func:`_raster_direct` does. ``kept[lo:lo + n]`` receives the
+    triangles given a non-zero status other than an error, in order; returns ``(lo, n)``.
     """
-    for t in range(lo, hi):
-        i0 = F[t, 0]
-        i1 = F[t, 1]
-        i2 = F[t, 2]
-        status[t] = SKIP
-        ax = XY[i0, 0]
-        ay = XY[i0, 1]
-        bx_ = XY[i1, 0]
-        by_ = XY[i1, 1]
-        cx = XY[i2, 0]
-        cy = XY[i2, 1]
-        xmin = min(ax, min(bx_, cx))
-        xmax = max(ax, max(bx_, cx))
-        ymin = min(ay, min(by_, cy))
-        ymax = max(ay, max(by_, cy))
-        # Sample bounding box: integer fine-grid points inside the snapped box.
-        X0 = max(-((-xmin) >> FRAC_BITS), 0)
-        X1 = min(xmax >> FRAC_BITS, nW - 1)
-        Y0 = max(-((-ymin) >> FRAC_BITS), 0)
-        Y1 = min(ymax >> FRAC_BITS, nH - 1)
-        w0 = w[i0]
-        w1 = w[i1]
-        w2 = w[i2]
-        wmin = min(w0, min(w1, w2))
-        wmax = max(w0, max(w1, w2))
-        if wmax < 0.0 or wmin > FL:
-            continue  # behind the source or beyond the detector
-        if perspective and wmax <= 0.0:
-            continue
-        if wmin < 0.0 or (perspective and wmin <= 0.0):
-            if not beyond_side(V, i0, i1, i2, r0, planes):
-                status[t] = ERR_STRADDLE
-            continue
-        if X0 > X1 or Y0 > Y1:
-            continue  # covers no sample (outside the beam or between samples)
-        if huge[i0] or huge[i1] or huge[i2]:
-            status[t] = ERR_TOO_CLOSE
-            continue
-        ext = max(xmax - xmin, ymax - ymin)
-        if ext < SAFE_EXTENT:
-            area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
-            o = 1 if area > 0 else (-1 if area < 0 else 0)
-            kind = SMALL
-        else:
-            o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
-            kind = GIANT
-        if o == 0:
-            continue  # zero projected area: never hit
-        status[t] = kind * o
-        box[t, 0] = X0
-        box[t, 1] = X1
-        box[t, 2] = Y0
-        box[t, 3] = Y1
+    n = 0
+    cand = np.empty(_BLOCK, np.int64)
+    for b0 in range(lo, hi, _BLOCK):
+        b1 = min(hi, b0 + _BLOCK)
+        m = 0
+        for t in range(b0, b1):
+            status[t] = SKIP
+            cand[m] = t
+            if depth_ok:
+                ka = K[F[t, 0]]
+                kb = K[F[t, 1]]
+                kc = K[F[t, 2]]
+                d = (ka ^ kb) | (ka ^ kc)
+                gone = (((d & 0xFFFF) | (ka & 1)) == 0) | (((d >> 16) | ((ka >> 16) & 1)) == 0)
+                m += 0 if gone else 1
+            else:
+                m += 1
+        for j in range(m):
+            t = cand[j]
+            i0 = F[t, 0]
+            i1 = F[t, 1]
+            i2 = F[t, 2]
+            ax = XY[i0, 0]
+            ay = XY[i0, 1]
+            bx_ = XY[i1, 0]
+            by_ = XY[i1, 1]
+            cx = XY[i2, 0]
+            cy = XY[i2, 1]
+            xmin = min(ax, min(bx_, cx))
+            xmax = max(ax, max(bx_, cx))
+            ymin = min(ay, min(by_, cy))
+            ymax = max(ay, max(by_, cy))
+            # Sample bounding box: integer fine-grid points inside the snapped box.
+            X0 = max(-((-xmin) >> FRAC_BITS), 0)
+            X1 = min(xmax >> FRAC_BITS, nW - 1)
+            Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+            Y1 = min(ymax >> FRAC_BITS, nH - 1)
+            if not depth_ok:
+                w0 = w[i0]
+                w1 = w[i1]
+                w2 = w[i2]
+                wmin = min(w0, min(w1, w2))
+                wmax = max(w0, max(w1, w2))
+                if wmax < 0.0 or wmin > FL:
+                    continue  # behind the source or beyond the detector
+                if perspective and wmax <= 0.0:
+                    continue
+                if wmin < 0.0 or (perspective and wmin <= 0.0):
+                    if not beyond_side(V, i0, i1, i2, r0, planes):
+                        status[t] = ERR_STRADDLE
+                    continue
+            if X0 > X1 or Y0 > Y1:
+                continue  # covers no sample (outside the beam or between samples)
+            if not depth_ok and (huge[i0] or huge[i1] or huge[i2]):
+                status[t] = ERR_TOO_CLOSE
+                continue
+            ext = max(xmax - xmin, ymax - ymin)
+            if ext < SAFE_EXTENT:
+                area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
+                o = 1 if area > 0 else (-1 if area < 0 else 0)
+                kind = SMALL
+            else:
+                o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
+                kind = GIANT
+            if o == 0:
+                continue  # zero projected area: never hit
+            status[t] = kind * o
+            box[t, 0] = X0
+            box[t, 1] = X1
+            box[t, 2] = Y0
+            box[t, 3] = Y1
+            kept[lo + n] = t
+            n += 1
+    return lo, n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1061,7 +1089,7 @@ SIGNATURES = {
     "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
-                       "f8[2]r",
+                       "f8[2]r i4[1]r b1 i8[1]",
     "_setup_planes": "i8 i8 i8[1]r f8[2]r i4[2]r f8[1]r i1[1]r i8[2]r b1 f8[1]r f8[1]r f8[1]r "
                      "f8[1]r f8[1]r f8 i1[1] i1[1] i8[2] f8[2] f8[2]",
     "_bin_triangles": "i8 i8 i8[2]r i8 i8 i8 i8[2] i4[1] b1",
@@ -1462,11 +1490,22 @@ def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
     return (min(p[0] for p in parts), max(p[1] for p in parts), any(p[2] for p in parts))
 
 
-def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes):
+def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, *,
+                   K=None, depth_ok=False):
+    """:func:`_cull_triangles` over every triangle; returns the triangles of non-zero status
+    other than an error, in order (int64). ``K`` and ``depth_ok``: the cell codes and the
+    depth check of :func:`project_vertices` (without them, no first pass)."""
     F = _faces(F, len(V))
-    _split("_cull_triangles", 0, F.shape[0],
-           (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
-            _in(V, _f8), _in(r0, _f8), _in(planes, _f8)), _MIN_ITEMS)
+    if K is None:
+        K, depth_ok = np.zeros(0, np.int32), False
+    kept = np.empty(F.shape[0], np.int64)
+    parts = _split("_cull_triangles", 0, F.shape[0],
+                   (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
+                    _in(V, _f8), _in(r0, _f8), _in(planes, _f8), _in(K, np.int32),
+                    bool(depth_ok), kept), _MIN_ITEMS)
+    if len(parts) == 1:
+        return kept[:parts[0][1]]
+    return np.concatenate([kept[a:a + n] for a, n in parts])
 
 
 def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
@@ -1575,8 +1614,8 @@ class _Entry:
         self.__name__ = call.__name__
         self.__doc__ = globals()[kernel].py_func.__doc__
 
-    def __call__(self, *args):
-        return self._call(*args)
+    def __call__(self, *args, **options):
+        return self._call(*args, **options)
 
     def __getattr__(self, attr):
         return getattr(globals()[self.__dict__["_kernel_name"]], attr)

@@ -530,6 +530,9 @@ class _Plan:
         self.FL, self.perspective, self.P0, self.Ex, self.Ey = FL, perspective, P0, Ex, Ey
         self.F, self.XY, self.B = F, XY, B
         n_chunks = numba.get_num_threads()
+        # every vertex strictly between the source and detector planes, none huge: no triangle
+        # can be refused, and cell codes may cull (the rasters' first pass)
+        depth_ok = bool(wmin > 0 and wmax < FL and not odd)
         # The signed depth sum is a body's path length only where its winding number is 0 or 1
         # (from the mesh reports the bodies keep).
         if len(keep) == 1 and bodies.simple[keep[0]]:
@@ -539,7 +542,6 @@ class _Plan:
                 self.mode = "direct"
                 Sc, Nc = _accumulators(bodies, n_chunks, nH, nW)
                 err = np.empty(n_chunks, np.int64)
-                depth_ok = bool(wmin > 0 and wmax < FL and not odd)
                 R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
                                 nW, nH, depth_ok, Sc, Nc, err, K, sides)
                 if err.max() >= 0:
@@ -555,7 +557,7 @@ class _Plan:
         (self.tri, self.kind, self.orient, self.cbox, self.coef, self.wrange, self.band_start,
          self.band_tris) = _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW,
                                   nH, sides, status, box, B, (bodies, acq), bh, self.n_bands,
-                                  _setup_space(bodies, len(F)))
+                                  _setup_space(bodies, len(F)), K, depth_ok)
 
     def detach(self):
         """Own copies of the shared scratch arrays still needed by :meth:`window`."""
@@ -610,14 +612,14 @@ class _Plan:
 
 
 def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides, status,
-           box, B, where, band_height, n_bands, space):
+           box, B, where, band_height, n_bands, space, K, depth_ok):
     """Cull, set up and bin the triangles by bands of ``band_height`` detector rows; the
     per-triangle data are written to the first rows of the arrays ``space``
-    (:func:`_setup_space`)."""
-    R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides)
-    if status.min() <= R.ERR_STRADDLE:
+    (:func:`_setup_space`). ``K``, ``depth_ok``: see :func:`_raster.cull_triangles`."""
+    tri = R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides,
+                           K=K, depth_ok=depth_ok)
+    if not depth_ok and status.min() <= R.ERR_STRADDLE:
         _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
-    tri = np.flatnonzero(status).astype(np.int64, copy=False)
     M = len(tri)
     kind, orient, cbox, coef, wrange = (a[:M] for a in space)
     R.setup_planes(tri, V, F, w, status, box, perspective, r0, P0, Ex, Ey, f, FL,
