@@ -522,7 +522,7 @@ def _grid_finish(placed):
     p = placed
     m, n_buckets = len(p.face_id), p.n_buckets
     kernel = _kernel("_grid_entries")
-    k = max(1, min(_sweep_threads(), m // _PARALLEL_FACES))
+    k = _pieces(m)
     cut = [m * j // k for j in range(k + 1)]
     counts = np.zeros((k, n_buckets), np.int64)
     none = np.zeros(0, np.int64)
@@ -916,6 +916,11 @@ def _sweep_threads() -> int:
     return _threads.count()
 
 
+def _pieces(m) -> int:
+    """Pieces (threads) to split the grid's entries and the sweep of ``m`` faces into."""
+    return max(1, min(_sweep_threads(), m // _PARALLEL_FACES))
+
+
 def start_grid(vertices, faces):
     """Start building the candidate grid of :func:`self_intersections` on a thread of the
     library's pool (:mod:`xray_viz._threads`), so that it is built while the caller does
@@ -1007,7 +1012,7 @@ def self_intersections(vertices, faces, labels=None, *, started=None) -> np.ndar
             return flags
         sweep = _kernel("_sweep_buckets")
         # one range of buckets per thread, of about equal numbers of entries
-        k = max(1, min(_sweep_threads(), len(f) // _PARALLEL_FACES))
+        k = _pieces(len(f))
         cut = [0, *np.searchsorted(start, [start[-1] * j // k for j in range(1, k)]).tolist(),
                n_buckets]
         from xray_viz._threads import run_pieces

@@ -298,6 +298,32 @@ def beyond_side(V, i0, i1, i2, r0, planes):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _between_samples(ka, kb, kc):
+    """Whether a triangle whose vertices have the cell codes ``ka``, ``kb``, ``kc``
+    (:func:`_axis_code`, x in bits 0-15, y in 16-31) covers no sample: the three share an
+    even code on an axis (strictly between two sample columns or rows, or off the grid on one
+    side). Branch free, scalars only (inlined)."""
+    d = (ka ^ kb) | (ka ^ kc)
+    return (((d & 0xFFFF) | (ka & 1)) == 0) | (((d >> 16) | ((ka >> 16) & 1)) == 0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _sample_box(ax, ay, bx, by, cx, cy, nW, nH):
+    """``(xmin, xmax, ymin, ymax, X0, X1, Y0, Y1)``: the snapped bounding box of a projected
+    triangle and the fine-grid samples inside it, clipped to the grid (empty when ``X0 > X1``
+    or ``Y0 > Y1``). Scalars only (inlined)."""
+    xmin = min(ax, min(bx, cx))
+    xmax = max(ax, max(bx, cx))
+    ymin = min(ay, min(by, cy))
+    ymax = max(ay, max(by, cy))
+    X0 = max(-((-xmin) >> FRAC_BITS), 0)
+    X1 = min(xmax >> FRAC_BITS, nW - 1)
+    Y0 = max(-((-ymin) >> FRAC_BITS), 0)
+    Y1 = min(ymax >> FRAC_BITS, nH - 1)
+    return xmin, xmax, ymin, ymax, X0, X1, Y0, Y1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
                     K, depth_ok, kept):
     """Per triangle: status (SKIP, SMALL, GIANT or an error code) and sample bounding box.
@@ -320,15 +346,7 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
         for t in range(b0, b1):
             status[t] = SKIP
             cand[m] = t
-            if depth_ok:
-                ka = K[F[t, 0]]
-                kb = K[F[t, 1]]
-                kc = K[F[t, 2]]
-                d = (ka ^ kb) | (ka ^ kc)
-                gone = (((d & 0xFFFF) | (ka & 1)) == 0) | (((d >> 16) | ((ka >> 16) & 1)) == 0)
-                m += 0 if gone else 1
-            else:
-                m += 1
+            m += 0 if depth_ok and _between_samples(K[F[t, 0]], K[F[t, 1]], K[F[t, 2]]) else 1
         for j in range(m):
             t = cand[j]
             i0 = F[t, 0]
@@ -340,15 +358,8 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             by_ = XY[i1, 1]
             cx = XY[i2, 0]
             cy = XY[i2, 1]
-            xmin = min(ax, min(bx_, cx))
-            xmax = max(ax, max(bx_, cx))
-            ymin = min(ay, min(by_, cy))
-            ymax = max(ay, max(by_, cy))
-            # Sample bounding box: integer fine-grid points inside the snapped box.
-            X0 = max(-((-xmin) >> FRAC_BITS), 0)
-            X1 = min(xmax >> FRAC_BITS, nW - 1)
-            Y0 = max(-((-ymin) >> FRAC_BITS), 0)
-            Y1 = min(ymax >> FRAC_BITS, nH - 1)
+            xmin, xmax, ymin, ymax, X0, X1, Y0, Y1 = _sample_box(ax, ay, bx_, by_, cx, cy, nW,
+                                                                 nH)
             if not depth_ok:
                 w0 = w[i0]
                 w1 = w[i1]
@@ -886,11 +897,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
             # code on an axis (strictly between two sample columns or rows: no sample covered).
             m = 0
             for t in range(b0, min(hi, b0 + _BLOCK)):
-                ka = K[F[t, 0]]
-                kb = K[F[t, 1]]
-                kc = K[F[t, 2]]
-                d = (ka ^ kb) | (ka ^ kc)
-                gone = (((d & 0xFFFF) | (ka & 1)) == 0) | (((d >> 16) | ((ka >> 16) & 1)) == 0)
+                gone = _between_samples(K[F[t, 0]], K[F[t, 1]], K[F[t, 2]])
                 cand[m] = t
                 m += 0 if (gone and depth_ok) else 1
             # Pass 2: the remaining triangles.
@@ -905,14 +912,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 by = XY[i1, 1]
                 cx = XY[i2, 0]
                 cy = XY[i2, 1]
-                xmin = min(ax, min(bx, cx))
-                xmax = max(ax, max(bx, cx))
-                ymin = min(ay, min(by, cy))
-                ymax = max(ay, max(by, cy))
-                X0 = max(-((-xmin) >> FRAC_BITS), 0)
-                X1 = min(xmax >> FRAC_BITS, nW - 1)
-                Y0 = max(-((-ymin) >> FRAC_BITS), 0)
-                Y1 = min(ymax >> FRAC_BITS, nH - 1)
+                xmin, xmax, ymin, ymax, X0, X1, Y0, Y1 = _sample_box(ax, ay, bx, by, cx, cy, nW,
+                                                                     nH)
                 if depth_ok:
                     if X0 > X1 or Y0 > Y1:
                         continue

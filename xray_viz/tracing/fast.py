@@ -75,6 +75,7 @@ whose length is ambiguous (either one-sided limit is correct).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import sys
@@ -208,6 +209,15 @@ def visible_bodies(scene, planes=None) -> tuple:
 
 
 _LOCK = threading.RLock()     # one trace at a time: numba's parallel kernels, shared scratch
+
+
+@contextlib.contextmanager
+def _locked(scene):
+    """``_LOCK`` held, and the scene's meshes taken as unchanged once checked on entry
+    (:meth:`xray_viz.bodies.Bodies.checked`): a frame's dozen lookups of the bodies' derived
+    data hash each mesh once."""
+    with _LOCK, scene.bodies.checked():
+        yield
 
 
 def _workspace(bodies, n_vertices, n_triangles):
@@ -396,7 +406,7 @@ def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
 
 def _trace(scene, *, supersample):
     n = check_supersample(supersample)
-    with _LOCK, _split(scene)[0].checked():     # the meshes hashed once for the frame
+    with _locked(scene):
         plan = _Plan(scene, n, None)
         return plan.window(0, plan.n_bands)[2]
 
@@ -444,7 +454,7 @@ def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
         yield from numpy_rows(scene, supersample=n, rows=rows)
         return
     window = None if rows is None or rows >= H else n * max(1, int(rows))
-    with _LOCK:
+    with _locked(scene):
         plan = _Plan(scene, n, window)
         if plan.per_window >= plan.n_bands:         # one window: done under this lock
             part = plan.window(0, plan.n_bands)
@@ -455,7 +465,7 @@ def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
         return
     # Windows from the top of the image down: the bands from the last one down.
     for b1 in range(plan.n_bands, 0, -plan.per_window):
-        with _LOCK:
+        with _locked(scene):
             part = plan.window(max(0, b1 - plan.per_window), b1)
         yield part
 
@@ -485,13 +495,9 @@ class _Plan:
     """
 
     def __init__(self, scene, n, window):
-        bodies, acq = _split(scene)
-        with bodies.checked():               # the meshes hashed once, not at every lookup
-            self._set_up(scene, bodies, acq, n, window)
-
-    def _set_up(self, scene, bodies, acq, n, window):
         from xray_viz.tracing import _raster as R
 
+        bodies, acq = _split(scene)
         self.R = R
         self.bodies = bodies
         self.n = n
