@@ -114,3 +114,82 @@ def test_fine_mesh_of_sub_sample_triangles_matches_numpy(kind, shift):
     ref, _ = ENGINES["numpy"](scene, keep_hits=False)
     assert ref.max() > 50
     assert np.all(np.abs(L - ref) <= 1e-9 * ref.max())
+
+
+def _numpy_projection(V, r0, f, eu, ev, sx, bx, sy, by, perspective, nW, nH):
+    """The projection and snap of :func:`R._project_vertices` spelt in NumPy (the same
+    operations in the same order), with the cell codes of the documented rule."""
+    r = V - r0
+    w = r[:, 0] * f[0] + r[:, 1] * f[1] + r[:, 2] * f[2]
+    a = r[:, 0] * eu[0] + r[:, 1] * eu[1] + r[:, 2] * eu[2]
+    b = r[:, 0] * ev[0] + r[:, 1] * ev[1] + r[:, 2] * ev[2]
+    with np.errstate(all="ignore"):
+        if perspective:
+            ahead = w > 0
+            x = np.where(ahead, sx * (a / w) + bx, np.inf)
+            y = np.where(ahead, sy * (b / w) + by, np.inf)
+        else:
+            x, y = sx * a + bx, sy * b + by
+        ok = (np.abs(x) < R.COORD_LIMIT) & (np.abs(y) < R.COORD_LIMIT)
+        snap = lambda c: np.floor(np.where(ok, c, 0.0) * R.ONE + 0.5).astype(np.int64)  # noqa: E731
+        clamp = lambda c: np.where(c == c, np.clip(np.nan_to_num(c, nan=0.0), -R.COORD_LIMIT,  # noqa: E731
+                                                    R.COORD_LIMIT) * R.ONE, 0).astype(np.int64)
+        XY = np.stack([np.where(ok, snap(x), clamp(x)), np.where(ok, snap(y), clamp(y))], 1)
+
+    def code(c, n):
+        k = 2 * (c >> R.FRAC_BITS) + ((c & (R.ONE - 1)) == 0) + 2
+        return np.where(c < 0, 0, np.where(c > (n - 1) * R.ONE, 2 * n + 2, k))
+
+    if nW <= R.CODE_MAX_SAMPLES and nH <= R.CODE_MAX_SAMPLES:
+        K = (code(XY[:, 0], nW) | (code(XY[:, 1], nH) << 16)).astype(np.int32)
+    else:
+        K = np.full(len(V), R.NO_CODE, np.int32)
+    K[~ok] = R.NO_CODE
+    finite = w[w == w]
+    wmin, wmax = (finite.min(), finite.max()) if len(finite) else (np.inf, -np.inf)
+    return XY, w, ~ok, K, (wmin, wmax, bool((~ok).any() or (w != w).any()))
+
+
+@pytest.mark.parametrize("perspective", [True, False])
+@pytest.mark.parametrize("case", ["plain", "odd", "on samples", "wide"])
+def test_projection_is_the_numpy_spelling_bit_for_bit(perspective, case):
+    """The vectorised projection (blocks of 256 vertices, the vertices that cannot be snapped
+    written again after their block) gives the bits of the same formulas in NumPy: the snapped
+    coordinates, depths, huge flags, cell codes and depth range, for vertex counts that end
+    mid-block; with NaN vertices, vertices behind the source and far off the grid; with
+    coordinates exactly on samples; with a grid too wide for cell codes."""
+    rng = np.random.default_rng(7)
+    n = 3 * R._PROJ_BLOCK + 37
+    V = rng.normal(size=(n, 3)) * 40.0
+    nW, nH, sx, sy = 512, 384, 2560.0, 2560.0
+    if case == "odd":
+        V[5] = np.nan                      # a NaN vertex
+        V[300, 2] = 1000.0                 # in the plane of the source
+        V[301, 2] = 1500.0                 # behind it
+        V[600, 0] = 1e30                   # far off the grid: huge
+        V[-1, 1] = -1e25
+    elif case == "on samples":
+        V = np.round(V * 4) / 4
+        sx = sy = 1000.0
+    elif case == "wide":
+        nW = R.CODE_MAX_SAMPLES + 1
+    r0, f = np.array([0.3, -0.2, 1000.0]), np.array([0.0, 0.0, -1.0])
+    eu, ev = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    if not perspective:
+        sx, sy = 2.5, 2.5
+    bx, by = (nW - 1) / 2, (nH - 1) / 2
+    XY = np.full((n, 2), -7, np.int64)
+    w, huge, K = np.full(n, -7.0), np.zeros(n, np.bool_), np.full(n, -7, np.int32)
+    got = R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH,
+                             K)
+    XYn, wn, hn, Kn, want = _numpy_projection(V, r0, f, eu, ev, sx, bx, sy, by, perspective,
+                                              nW, nH)
+    np.testing.assert_array_equal(w.view(np.int64), wn.view(np.int64))
+    np.testing.assert_array_equal(XY, XYn)
+    np.testing.assert_array_equal(huge, hn)
+    np.testing.assert_array_equal(K, Kn)
+    assert got == want
+    if case == "odd":
+        assert got[2] and huge[600] and huge[n - 1] and (huge[301] or not perspective)
+    else:
+        assert not got[2] and 0 < got[0] < got[1]

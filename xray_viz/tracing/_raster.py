@@ -56,12 +56,11 @@ CODE_MAX_SAMPLES = 16382
 def _axis_code(x, n):
     """Cell code of a snapped coordinate on an axis of ``n`` samples (0 .. n - 1): 0 left of
     sample 0, ``2 n + 2`` right of sample ``n - 1``, ``2 k + 2`` strictly between samples k and
-    k + 1, ``2 k + 3`` exactly on sample k. Three equal even codes: no sample in between."""
-    if x < 0:
-        return 0
-    if x > (n - 1) * ONE:
-        return 2 * n + 2
-    return 2 * (x >> FRAC_BITS) + (1 if (x & (ONE - 1)) == 0 else 0) + 2
+    k + 1, ``2 k + 3`` exactly on sample k. Three equal even codes: no sample in between.
+    Branch free (selects), so that the projection's loop over vertices is vectorised."""
+    c = 2 * (x >> FRAC_BITS) + np.int64((x & (ONE - 1)) == 0) + 2
+    c = np.int64(2 * n + 2) if x > (n - 1) * ONE else c
+    return np.int64(0) if x < 0 else c
 
 
 def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, cnt, hist):
@@ -168,6 +167,31 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
 _first_use_rank = njit(cache=True, nogil=True, error_model="numpy")(first_use_rank)
 
 
+#: Vertices a block of the projection (its scratch rows stay in the first-level cache).
+_PROJ_BLOCK = 256
+_LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)
+_KEY_MAX = np.int64(0x7FFFFFFFFFFFFFFF)
+_KEY_MIN = np.int64(-0x7FFFFFFFFFFFFFFF - 1)
+
+
+def depth_key(w):
+    """``int64`` keys in the order of the float64 depths ``w`` (and back, the same map):
+    the sign-magnitude bits turned two's complement, so that a min or max of integers (which
+    LLVM vectorises, unlike a float one with NaN rules) is the min or max of the floats.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> k = depth_key(np.array([-2.0, -0.5, 0.0, 0.5, 3.0]))
+    >>> bool(np.all(np.diff(k) > 0))
+    True
+    >>> depth_key(k.view(np.float64)).view(np.float64).tolist()
+    [-2.0, -0.5, 0.0, 0.5, 3.0]
+    """
+    bits = np.asarray(w, np.float64).view(np.int64)
+    return bits ^ ((bits >> 63) & _LOW63)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
     """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
@@ -176,9 +200,15 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     :func:`_axis_code`): a triangle whose three vertices have the same even x (or y) code lies
     strictly between two columns (rows) of samples, or outside the grid, and covers no sample.
 
-    Returns ``(wmin, wmax, odd)``: the least and largest depth of the vertices ``lo .. hi - 1``
-    and whether one of them is huge or has a NaN depth (what decides the raster's
-    ``depth_ok``, without another pass over ``w`` and ``huge``).
+    Returns ``(kmin, kmax, odd)``: the :func:`depth_key` of the least and largest depth of the
+    vertices ``lo .. hi - 1`` (NaN depths left out; ``kmin > kmax`` when there is none) and
+    whether one of them is huge or has a NaN depth (what decides the raster's ``depth_ok``,
+    without another pass over ``w`` and ``huge``).
+
+    By blocks of :data:`_PROJ_BLOCK` vertices, in loops that LLVM vectorises (the divisions,
+    the snapping, the codes and the depth range: no branch in them); the few vertices
+    that cannot be snapped (huge, or behind a point source) are written again after their
+    block. The same operations in the same order as one scalar loop: the same bits.
     """
     codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
     # The frame read once: numba cannot prove the outputs do not alias it, so it would
@@ -187,44 +217,77 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     f0, f1, f2 = f[0], f[1], f[2]
     u0, u1, u2 = eu[0], eu[1], eu[2]
     v0, v1, v2 = ev[0], ev[1], ev[2]
-    wmin = np.inf
-    wmax = -np.inf
-    odd = False
-    for i in range(lo, hi):
-        r0x = V[i, 0] - o0
-        r1 = V[i, 1] - o1
-        r2 = V[i, 2] - o2
-        wi = r0x * f0 + r1 * f1 + r2 * f2
-        a = r0x * u0 + r1 * u1 + r2 * u2
-        b = r0x * v0 + r1 * v1 + r2 * v2
-        w[i] = wi
+    xs = np.empty(_PROJ_BLOCK)
+    ys = np.empty(_PROJ_BLOCK)
+    xi = np.empty(_PROJ_BLOCK, np.int64)
+    yi = np.empty(_PROJ_BLOCK, np.int64)
+    wk = w.view(np.int64)
+    kmin = _KEY_MAX
+    kmax = _KEY_MIN
+    n_odd = 0
+    for b0 in range(lo, hi, _PROJ_BLOCK):
+        m = min(_PROJ_BLOCK, hi - b0)
+        # Slices of the block: indices from 0 are known not to wrap around (vectorisable).
+        Vb = V[b0:b0 + m]
+        wb = w[b0:b0 + m]
+        kb = wk[b0:b0 + m]
+        XYb = XY[b0:b0 + m]
+        hb = huge[b0:b0 + m]
+        Kb = K[b0:b0 + m]
         if perspective:
-            if wi > 0.0:
-                x = sx * (a / wi) + bx
-                y = sy * (b / wi) + by
-            else:
-                x = np.inf
-                y = np.inf
+            for j in range(m):
+                rx = Vb[j, 0] - o0
+                ry = Vb[j, 1] - o1
+                rz = Vb[j, 2] - o2
+                wi = rx * f0 + ry * f1 + rz * f2
+                a = rx * u0 + ry * u1 + rz * u2
+                b = rx * v0 + ry * v1 + rz * v2
+                wb[j] = wi
+                ahead = wi > 0.0
+                xs[j] = sx * (a / wi) + bx if ahead else np.inf
+                ys[j] = sy * (b / wi) + by if ahead else np.inf
         else:
-            x = sx * a + bx
-            y = sy * b + by
-        if abs(x) < COORD_LIMIT and abs(y) < COORD_LIMIT:
-            XY[i, 0] = np.int64(np.floor(x * ONE + 0.5))
-            XY[i, 1] = np.int64(np.floor(y * ONE + 0.5))
-            huge[i] = False
-        else:
-            # Keep the float position (clamped) for culling only.
-            XY[i, 0] = np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE) if x == x else 0
-            XY[i, 1] = np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE) if y == y else 0
-            huge[i] = True
-        if codes and not huge[i]:
-            K[i] = np.int32(_axis_code(XY[i, 0], nW) | (_axis_code(XY[i, 1], nH) << 16))
-        else:
-            K[i] = NO_CODE
-        wmin = min(wmin, wi)
-        wmax = max(wmax, wi)
-        odd = odd or huge[i] or wi != wi
-    return wmin, wmax, odd
+            for j in range(m):
+                rx = Vb[j, 0] - o0
+                ry = Vb[j, 1] - o1
+                rz = Vb[j, 2] - o2
+                wb[j] = rx * f0 + ry * f1 + rz * f2
+                xs[j] = sx * (rx * u0 + ry * u1 + rz * u2) + bx
+                ys[j] = sy * (rx * v0 + ry * v1 + rz * v2) + by
+        n_huge = 0
+        for j in range(m):
+            x = xs[j]
+            y = ys[j]
+            ok = (abs(x) < COORD_LIMIT) & (abs(y) < COORD_LIMIT)
+            xi[j] = np.int64(np.floor((x if ok else 0.0) * ONE + 0.5))
+            yi[j] = np.int64(np.floor((y if ok else 0.0) * ONE + 0.5))
+            n_huge += np.int64(not ok)
+        for j in range(m):
+            X = xi[j]
+            Y = yi[j]
+            XYb[j, 0] = X
+            XYb[j, 1] = Y
+            hb[j] = False
+            Kb[j] = np.int32(_axis_code(X, nW) | (_axis_code(Y, nH) << 16)) if codes else NO_CODE
+        for j in range(m):
+            bits = kb[j]
+            key = bits ^ ((bits >> 63) & _LOW63)
+            nan = wb[j] != wb[j]
+            kmin = min(kmin, _KEY_MAX if nan else key)
+            kmax = max(kmax, _KEY_MIN if nan else key)
+            n_odd += np.int64(nan)
+        if n_huge:
+            n_odd += n_huge
+            for j in range(m):
+                x = xs[j]
+                y = ys[j]
+                if not (abs(x) < COORD_LIMIT and abs(y) < COORD_LIMIT):
+                    # Keep the float position (clamped) for culling only.
+                    XYb[j, 0] = np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE) if x == x else 0
+                    XYb[j, 1] = np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE) if y == y else 0
+                    hb[j] = True
+                    Kb[j] = NO_CODE
+    return kmin, kmax, n_odd > 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1482,13 +1545,18 @@ def spatial_order_numpy(V, F):
 
 
 def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
-    """:func:`_project_vertices` over every vertex; returns ``(wmin, wmax, odd)`` of them all."""
+    """:func:`_project_vertices` over every vertex; returns ``(wmin, wmax, odd)`` of them all
+    (the least and largest depth, NaN depths left out: ``(inf, -inf)`` when none is left)."""
     V = _in(V, _f8)
     parts = _split("_project_vertices", 0, V.shape[0],
                    (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx),
                     float(bx), float(sy), float(by), bool(perspective), XY, w, huge, int(nW),
                     int(nH), K), _MIN_ITEMS)
-    return (min(p[0] for p in parts), max(p[1] for p in parts), any(p[2] for p in parts))
+    kmin, kmax = min(p[0] for p in parts), max(p[1] for p in parts)
+    if kmin > kmax:
+        return np.inf, -np.inf, any(p[2] for p in parts)
+    wmin, wmax = depth_key(np.array([kmin, kmax], np.int64).view(np.float64)).view(np.float64)
+    return float(wmin), float(wmax), any(p[2] for p in parts)
 
 
 def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, *,
