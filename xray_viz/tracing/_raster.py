@@ -928,19 +928,24 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                   depth_ok, S, N, err, K, planes):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
-    By blocks of ``_BLOCK`` triangles: when ``depth_ok``, a branch-free first pass drops the
-    triangles whose three vertices share an even cell code on an axis (``K``, see
-    :func:`project_vertices`: strictly between two sample columns or rows, or off the grid).
-
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
     own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
     triangle that cannot be projected (straddling or too close to the source plane), else -1;
     a straddling triangle wholly outside one of the beam's side ``planes`` is skipped instead.
 
-    Fast path: a triangle whose sample box holds a single sample (most triangles of a fine mesh)
-    evaluates its three edge functions there once; when none is zero, the sample is inside
-    exactly when all three have the same sign (which is then the orientation), and no tie rule
-    is needed. Otherwise, the general path below (same decisions, same depths).
+    By blocks of ``_BLOCK`` triangles. When ``depth_ok``, a branch-free first pass drops the
+    triangles whose three vertices share an even cell code on an axis (``K``, see
+    :func:`project_vertices`: strictly between two sample columns or rows, or off the grid).
+
+    Then, when ``depth_ok`` and the previous block decided at least half of its triangles so
+    (re-tried every 16th block), the triangles whose sample box holds a single sample (most
+    triangles of a fine mesh) are decided in loops that LLVM vectorises: their snapped
+    vertices gathered into columns, the three edge functions at the sample (inside when none
+    is zero and all have one sign, which is then the orientation), and the depth of each hit
+    (its vertices gathered likewise). Every other triangle takes the general path below (tie
+    rules, exact limb arithmetic for large ones, the depth checks when not ``depth_ok``).
+    The accumulation visits the block's hits and general triangles in triangle order, so
+    every sample's sum is added in the order of one scalar loop: the same bits.
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -954,7 +959,34 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
         Sc = S[c]
         Nc = N[c]
         cand = np.empty(_BLOCK, np.int64)
+        # Columns of the block's one-sample work: arrays of their own, contiguous (as views of
+        # the rows of one 2-D array they are not known to be, and the loops stay scalar).
+        Pax = np.empty(_BLOCK, np.int64)
+        Pay = np.empty(_BLOCK, np.int64)
+        Pbx = np.empty(_BLOCK, np.int64)
+        Pby = np.empty(_BLOCK, np.int64)
+        Pcx = np.empty(_BLOCK, np.int64)
+        Pcy = np.empty(_BLOCK, np.int64)
+        Qax = np.empty(_BLOCK)
+        Qay = np.empty(_BLOCK)
+        Qaz = np.empty(_BLOCK)
+        Qbx = np.empty(_BLOCK)
+        Qby = np.empty(_BLOCK)
+        Qbz = np.empty(_BLOCK)
+        Qcx = np.empty(_BLOCK)
+        Qcy = np.empty(_BLOCK)
+        Qcz = np.empty(_BLOCK)
+        Qw0 = np.empty(_BLOCK)
+        Qw1 = np.empty(_BLOCK)
+        Qw2 = np.empty(_BLOCK)
+        kind = np.empty(_BLOCK, np.int64)
+        sample_x = np.empty(_BLOCK, np.int64)
+        sample_y = np.empty(_BLOCK, np.int64)
+        hits = np.empty(_BLOCK, np.int64)
+        general = np.empty(_BLOCK + 1, np.int64)
+        depth = np.empty(_BLOCK)
         hi = min(T, (c + 1) * per)
+        mostly_one = True
         for b0 in range(c * per, hi, _BLOCK):
             # Pass 1 (branch free): drop the triangles whose three vertices share an even cell
             # code on an axis (strictly between two sample columns or rows: no sample covered).
@@ -963,9 +995,107 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 gone = _between_samples(K[F[t, 0]], K[F[t, 1]], K[F[t, 2]])
                 cand[m] = t
                 m += 0 if (gone and depth_ok) else 1
-            # Pass 2: the remaining triangles.
-            for j in range(m):
+            # Pass 2, on the first mm candidates (all or none): one-sample triangles decided,
+            # kind +-1 a hit (the sign is the orientation), 0 missed, +-2 the general path.
+            mm = m if (depth_ok and (mostly_one or (b0 // _BLOCK) % 16 == 0)) else 0
+            for j in range(mm):
                 t = cand[j]
+                i0 = F[t, 0]
+                i1 = F[t, 1]
+                i2 = F[t, 2]
+                Pax[j] = XY[i0, 0]
+                Pay[j] = XY[i0, 1]
+                Pbx[j] = XY[i1, 0]
+                Pby[j] = XY[i1, 1]
+                Pcx[j] = XY[i2, 0]
+                Pcy[j] = XY[i2, 1]
+            for j in range(mm):
+                ax = Pax[j]
+                ay = Pay[j]
+                bx = Pbx[j]
+                by = Pby[j]
+                cx = Pcx[j]
+                cy = Pcy[j]
+                xmin, xmax, ymin, ymax, X0, X1, Y0, Y1 = _sample_box(ax, ay, bx, by, cx, cy, nW,
+                                                                     nH)
+                one = (X0 == X1) & (Y0 == Y1) & (max(xmax - xmin, ymax - ymin) < SAFE_EXTENT)
+                # E_k = e_k x (p - start of edge k) at p = (X0, Y0); the inputs are zeroed
+                # unless the box is small, so that no product can overflow.
+                px = X0 * ONE
+                py = Y0 * ONE
+                E0 = ((bx - ax) if one else 0) * ((py - ay) if one else 0) - (
+                    (by - ay) if one else 0) * ((px - ax) if one else 0)
+                E1 = ((cx - bx) if one else 0) * ((py - by) if one else 0) - (
+                    (cy - by) if one else 0) * ((px - bx) if one else 0)
+                E2 = ((ax - cx) if one else 0) * ((py - cy) if one else 0) - (
+                    (ay - cy) if one else 0) * ((px - cx) if one else 0)
+                # E0 + E1 + E2 is the projected area: all one sign -> inside, and that sign is
+                # the orientation; mixed signs -> outside (or zero area). A zero: general path.
+                decided = one & (E0 != 0) & (E1 != 0) & (E2 != 0)
+                inside = ((E0 > 0) & (E1 > 0) & (E2 > 0)) | ((E0 < 0) & (E1 < 0) & (E2 < 0))
+                k = (np.int64(1) if inside else np.int64(0)) if decided else np.int64(2)
+                k = np.int64(0) if (X0 > X1) | (Y0 > Y1) else k
+                kind[j] = k if E0 > 0 else -k
+                sample_x[j] = X0
+                sample_y[j] = Y0
+            h = 0
+            ng = 0
+            for j in range(mm):
+                kj = kind[j]
+                hits[h] = j
+                h += (kj == 1) | (kj == -1)
+                general[ng] = j
+                ng += (kj == 2) | (kj == -2)
+            for q in range(h):
+                t = cand[hits[q]]
+                i0 = F[t, 0]
+                i1 = F[t, 1]
+                i2 = F[t, 2]
+                Qax[q] = V[i0, 0]
+                Qay[q] = V[i0, 1]
+                Qaz[q] = V[i0, 2]
+                Qbx[q] = V[i1, 0]
+                Qby[q] = V[i1, 1]
+                Qbz[q] = V[i1, 2]
+                Qcx[q] = V[i2, 0]
+                Qcy[q] = V[i2, 1]
+                Qcz[q] = V[i2, 2]
+                Qw0[q] = w[i0]
+                Qw1[q] = w[i1]
+                Qw2[q] = w[i2]
+            for q in range(h):
+                c0, c1, c2, c3, c4, c5 = _plane(
+                    Qax[q], Qay[q], Qaz[q], Qbx[q], Qby[q], Qbz[q], Qcx[q], Qcy[q], Qcz[q],
+                    perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1,
+                    f2, FL)
+                depth[q] = _clamped(c0, c1, c2, c3, c4, c5, sample_x[hits[q]], sample_y[hits[q]],
+                                    min(Qw0[q], min(Qw1[q], Qw2[q])),
+                                    max(Qw0[q], max(Qw1[q], Qw2[q])))
+            if mm:
+                mostly_one = 2 * (mm - ng) >= mm
+            else:
+                ng = m                          # every candidate: general[g] is g
+            general[ng] = _BLOCK
+            # Pass 3, in triangle order: the hits accumulated, the general path.
+            q = 0
+            g = 0
+            while q < h or g < ng:
+                if g < ng and (q >= h or general[g] < hits[q]):
+                    t = cand[general[g] if mm else g]
+                    g += 1
+                else:
+                    j = hits[q]
+                    Wd = depth[q]
+                    q += 1
+                    if Wd > FL:
+                        continue
+                    if kind[j] > 0:
+                        Sc[sample_y[j], sample_x[j]] -= Wd
+                        Nc[sample_y[j], sample_x[j]] += 1
+                    else:
+                        Sc[sample_y[j], sample_x[j]] += Wd
+                        Nc[sample_y[j], sample_x[j]] -= 1
+                    continue
                 i0 = F[t, 0]
                 i1 = F[t, 1]
                 i2 = F[t, 2]
