@@ -245,11 +245,45 @@ def test_the_vectorised_one_sample_passes_add_the_bits_of_the_scalar_path(case, 
     out = []
     for ok in (True, False):
         err = np.empty(threads, np.int64)
-        S = np.zeros((threads,) + rest[15].shape[1:])
-        N = np.zeros((threads,) + rest[16].shape[1:], np.int32)
+        S = np.full((threads,) + rest[15].shape[1:], np.nan)       # the kernel zeroes them
+        N = np.full((threads,) + rest[16].shape[1:], 7, np.int32)
         real(threads, *rest[:14], ok, S, N, err, *rest[18:])
-        assert (err == -1).all()
+        assert (err == -1).all() and np.isfinite(S).all()
         out.append((S, N))
     np.testing.assert_array_equal(out[0][0].view(np.int64), out[1][0].view(np.int64))
     np.testing.assert_array_equal(out[0][1], out[1][1])
     assert np.count_nonzero(out[0][1].sum(0)) == 0 and np.count_nonzero(out[0][0]) > 2000
+
+
+@pytest.mark.parametrize("perspective", [True, False])
+@pytest.mark.parametrize("n", [1, 2])
+def test_the_finish_from_per_thread_sums_is_the_finish_of_their_reduction(perspective, n):
+    """The one-body finish reads the per-thread accumulators itself (vectorised rows when
+    there is no supersampling): bit for bit the finish of the sums that ``reduce_chunks``
+    stores, for the whole grid and for windows of rows at an offset into the rays; zero depth
+    spans (and -0.0) give +0.0."""
+    rng = np.random.default_rng(11)
+    W, H = 37, 23
+    nW, nH = W * n, H * n
+    S = rng.normal(size=(3, nH, nW)) * 50.0
+    N = rng.integers(-2, 3, size=(3, nH, nW)).astype(np.int32)
+    S[:, :, :5] = 0.0
+    N[:, :, :5] = 0
+    S[0, :, 5] = -0.0
+    S[1:, :, 5] = 0.0
+    N[:, :, 5] = 0
+    FL = 1500.0
+    P00, Ex, Ey = np.array([-40.0, -30.0, -1500.0]), np.array([0.8, 0.1, 0.0]), np.array(
+        [0.0, 0.9, 0.05])
+    total = np.empty((nH, nW))
+    R.reduce_chunks(S, N, FL, total)
+    for y0, y1 in ((0, nH), (n * 4, n * 11)):
+        r0, r1 = H - y1 // n, H - y0 // n
+        ray0, n_rays = r0 * W * n * n, (r1 - r0) * W * n * n
+        got, want = np.full((n_rays, 1), np.nan), np.full((n_rays, 1), np.nan)
+        R.finish_chunks(S, N, FL, perspective, P00, Ex, Ey, n, W, H, got, y0, y1, ray0)
+        R.finish(total, np.zeros((1, 1, 1)), True, FL, perspective, P00, Ex, Ey, n, W, H, want,
+                 y0, y1, 0, ray0)
+        np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+        assert np.count_nonzero(got == 0) >= 6 * (y1 - y0)        # six zero columns
+        assert not np.signbit(got[got == 0]).any()

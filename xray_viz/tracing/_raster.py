@@ -821,6 +821,30 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
     p0, p1, p2 = P00[0], P00[1], P00[2]
     ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
     ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
+    if single and n_chunks and n == 1:
+        # One body, per-thread accumulators, no supersampling: a row of samples is a row of
+        # rays, done in loops that LLVM vectorises (the same sums in the same order).
+        Lr = L.reshape(L.shape[0])
+        acc = np.empty(W)
+        cnt = np.empty(W, np.int64)
+        for Y in range(lo, hi):
+            row = (H - 1 - Y) * W - ray0
+            y = Y - s_row0
+            for X in range(W):
+                acc[X] = 0.0
+                cnt[X] = 0
+            for q in range(n_chunks):
+                Sq = S[q, y]
+                Nq = N[q, y]
+                for X in range(W):
+                    acc[X] += Sq[X]
+                    cnt[X] += Nq[X]
+            for X in range(W):
+                v = acc[X] + cnt[X] * FL
+                scale = (_obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL)
+                         if perspective else 1.0)
+                Lr[row + X] = v * scale          # (v is never -0.0: sums start at 0.0)
+        return
     for Y in range(lo, hi):
         j = Y // n
         row = ((H - 1 - j) * W * n + (n - 1 - (Y - j * n))) * n - ray0
@@ -928,8 +952,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                   depth_ok, S, N, err, K, planes):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
-    Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
-    own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
+    Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` zeroes, then
+    accumulates into its own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
     triangle that cannot be projected (straddling or too close to the source plane), else -1;
     a straddling triangle wholly outside one of the beam's side ``planes`` is skipped instead.
 
@@ -958,6 +982,11 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
         err[c] = -1
         Sc = S[c]
         Nc = N[c]
+        # Zeroed here, by the thread that fills them (a loop: LLVM makes it a memset).
+        for Y in range(Sc.shape[0]):
+            for X in range(Sc.shape[1]):
+                Sc[Y, X] = 0.0
+                Nc[Y, X] = 0
         cand = np.empty(_BLOCK, np.int64)
         # Columns of the block's one-sample work: arrays of their own, contiguous (as views of
         # the rows of one 2-D array they are not known to be, and the loops stay scalar).
@@ -1370,11 +1399,12 @@ def _names(paths=None) -> list:
 
 #: Compile CPU seconds of each kernel beyond what a process pays for its first compile
 #: (``benchmarks/compile_profile.py --opt 1``, one process per kernel, less the ~0.5 s of
-#: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-04), to share them out
-#: among the workers; kernels of one tuple share helpers and go to the same worker.
-_COSTS = {("_first_use_rank",): 1.25, ("_project_vertices",): 0.75, ("_cull_triangles",): 1.25,
-          ("_setup_planes",): 0.75, ("_bin_triangles",): 0.3, ("_raster_bands",): 3.3,
-          ("_raster_direct",): 3.35, ("_reduce_chunks",): 0.15, ("_finish",): 0.55}
+#: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-05, the Xeon VM, after the
+#: vectorised projection and one-body raster), to share them out among the workers; kernels
+#: of one tuple share helpers and go to the same worker.
+_COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 0.9,
+          ("_setup_planes",): 0.35, ("_bin_triangles",): 0.12, ("_raster_bands",): 2.25,
+          ("_raster_direct",): 3.3, ("_reduce_chunks",): 0.05, ("_finish",): 0.35}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
 #: A worker compiles its kernels in turn, and names each on its output once it is cached (a

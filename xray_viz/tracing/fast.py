@@ -311,15 +311,10 @@ def _refuse(bodies, acq, B, t, r0, w, F):
 
 
 def _accumulators(bodies, n_chunks, nH, nW):
-    """Zeroed per-thread accumulators, reused between calls on the same bodies (no fresh
-    pages to fault in)."""
-    fresh = []
-    acc = bodies.cached(("fast", "accumulators", n_chunks, nH, nW), lambda: fresh.append(1) or (
-        np.zeros((n_chunks, nH, nW)), np.zeros((n_chunks, nH, nW), np.int32)), limit=1)
-    if not fresh:
-        for a in acc:
-            a.fill(0)
-    return acc
+    """Per-thread accumulators, reused between calls on the same bodies (no fresh pages to
+    fault in); :func:`~xray_viz.tracing._raster.raster_direct` zeroes each on its own thread."""
+    return bodies.cached(("fast", "accumulators", n_chunks, nH, nW), lambda: (
+        np.empty((n_chunks, nH, nW)), np.empty((n_chunks, nH, nW), np.int32)), limit=1)
 
 
 def _band_order(n_bands):
