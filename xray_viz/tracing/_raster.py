@@ -988,6 +988,10 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 Sc[Y, X] = 0.0
                 Nc[Y, X] = 0
         cand = np.empty(_BLOCK, np.int64)
+        Ka = np.empty(_BLOCK, np.int32)
+        Kb = np.empty(_BLOCK, np.int32)
+        Kc = np.empty(_BLOCK, np.int32)
+        keep = np.empty(_BLOCK, np.int64)
         # Columns of the block's one-sample work: arrays of their own, contiguous (as views of
         # the rows of one 2-D array they are not known to be, and the loops stay scalar).
         Pax = np.empty(_BLOCK, np.int64)
@@ -1018,12 +1022,20 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
         mostly_one = True
         for b0 in range(c * per, hi, _BLOCK):
             # Pass 1 (branch free): drop the triangles whose three vertices share an even cell
-            # code on an axis (strictly between two sample columns or rows: no sample covered).
+            # code on an axis (strictly between two sample columns or rows: no sample covered);
+            # the codes gathered into columns, the test vectorised, then the list.
+            nb = min(hi, b0 + _BLOCK) - b0
+            Fb = F[b0:b0 + nb]
+            for j in range(nb):
+                Ka[j] = K[Fb[j, 0]]
+                Kb[j] = K[Fb[j, 1]]
+                Kc[j] = K[Fb[j, 2]]
+            for j in range(nb):
+                keep[j] = 0 if _between_samples(Ka[j], Kb[j], Kc[j]) & depth_ok else 1
             m = 0
-            for t in range(b0, min(hi, b0 + _BLOCK)):
-                gone = _between_samples(K[F[t, 0]], K[F[t, 1]], K[F[t, 2]])
-                cand[m] = t
-                m += 0 if (gone and depth_ok) else 1
+            for j in range(nb):
+                cand[m] = b0 + j
+                m += keep[j]
             # Pass 2, on the first mm candidates (all or none): one-sample triangles decided,
             # kind +-1 a hit (the sign is the orientation), 0 missed, +-2 the general path.
             mm = m if (depth_ok and (mostly_one or (b0 // _BLOCK) % 16 == 0)) else 0
