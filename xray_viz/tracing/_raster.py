@@ -952,8 +952,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                   depth_ok, S, N, err, K, planes):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
-    Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` zeroes, then
-    accumulates into its own ``S[c]``, ``N[c]`` (no races), summed by the caller. ``err[c]`` receives the index of a
+    Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
+    own ``S[c]``, ``N[c]`` (no races; zeroed by the caller), summed by the caller. ``err[c]`` receives the index of a
     triangle that cannot be projected (straddling or too close to the source plane), else -1;
     a straddling triangle wholly outside one of the beam's side ``planes`` is skipped instead.
 
@@ -982,11 +982,6 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
         err[c] = -1
         Sc = S[c]
         Nc = N[c]
-        # Zeroed here, by the thread that fills them (a loop: LLVM makes it a memset).
-        for Y in range(Sc.shape[0]):
-            for X in range(Sc.shape[1]):
-                Sc[Y, X] = 0.0
-                Nc[Y, X] = 0
         cand = np.empty(_BLOCK, np.int64)
         Ka = np.empty(_BLOCK, np.int32)
         Kb = np.empty(_BLOCK, np.int32)
