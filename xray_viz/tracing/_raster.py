@@ -1411,7 +1411,7 @@ def _names(paths=None) -> list:
 #: of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 0.9,
           ("_setup_planes",): 0.35, ("_bin_triangles",): 0.12, ("_raster_bands",): 2.25,
-          ("_raster_direct",): 3.3, ("_reduce_chunks",): 0.05, ("_finish",): 0.35}
+          ("_raster_direct",): 3.8, ("_reduce_chunks",): 0.05, ("_finish",): 0.75}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
 #: A worker compiles its kernels in turn, and names each on its output once it is cached (a
