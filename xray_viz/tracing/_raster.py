@@ -953,23 +953,25 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
-    own ``S[c]``, ``N[c]`` (no races; zeroed by the caller), summed by the caller. ``err[c]`` receives the index of a
-    triangle that cannot be projected (straddling or too close to the source plane), else -1;
-    a straddling triangle wholly outside one of the beam's side ``planes`` is skipped instead.
+    own ``S[c]``, ``N[c]`` (no races; zeroed by the caller), summed by the caller. ``err[c]``
+    receives the index of a triangle that cannot be projected (straddling or too close to the
+    source plane), else -1; a straddling triangle wholly outside one of the beam's side
+    ``planes`` is skipped instead.
 
     By blocks of ``_BLOCK`` triangles. When ``depth_ok``, a branch-free first pass drops the
     triangles whose three vertices share an even cell code on an axis (``K``, see
-    :func:`project_vertices`: strictly between two sample columns or rows, or off the grid).
+    :func:`project_vertices`: strictly between two sample columns or rows, or off the grid);
+    the codes are gathered into columns and tested in a loop that LLVM vectorises.
 
     Then, when ``depth_ok`` and the previous block decided at least half of its triangles so
     (re-tried every 16th block), the triangles whose sample box holds a single sample (most
-    triangles of a fine mesh) are decided in loops that LLVM vectorises: their snapped
-    vertices gathered into columns, the three edge functions at the sample (inside when none
-    is zero and all have one sign, which is then the orientation), and the depth of each hit
-    (its vertices gathered likewise). Every other triangle takes the general path below (tie
-    rules, exact limb arithmetic for large ones, the depth checks when not ``depth_ok``).
-    The accumulation visits the block's hits and general triangles in triangle order, so
-    every sample's sum is added in the order of one scalar loop: the same bits.
+    triangles of a fine mesh) are decided in a vectorised loop, their snapped vertices
+    gathered into columns first: the three edge functions at the sample (inside when none is
+    zero and all have one sign, which is then the orientation). Every other triangle takes
+    the general path below (tie rules, exact limb arithmetic for large ones, the depth checks
+    when not ``depth_ok``). The last pass visits the block's hits (their depth: plane and
+    clamp) and its general triangles in triangle order, so that every sample's sum is added
+    in the order of one scalar loop: the same bits.
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -995,24 +997,11 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
         Pby = np.empty(_BLOCK, np.int64)
         Pcx = np.empty(_BLOCK, np.int64)
         Pcy = np.empty(_BLOCK, np.int64)
-        Qax = np.empty(_BLOCK)
-        Qay = np.empty(_BLOCK)
-        Qaz = np.empty(_BLOCK)
-        Qbx = np.empty(_BLOCK)
-        Qby = np.empty(_BLOCK)
-        Qbz = np.empty(_BLOCK)
-        Qcx = np.empty(_BLOCK)
-        Qcy = np.empty(_BLOCK)
-        Qcz = np.empty(_BLOCK)
-        Qw0 = np.empty(_BLOCK)
-        Qw1 = np.empty(_BLOCK)
-        Qw2 = np.empty(_BLOCK)
         kind = np.empty(_BLOCK, np.int64)
         sample_x = np.empty(_BLOCK, np.int64)
         sample_y = np.empty(_BLOCK, np.int64)
         hits = np.empty(_BLOCK, np.int64)
         general = np.empty(_BLOCK + 1, np.int64)
-        depth = np.empty(_BLOCK)
         hi = min(T, (c + 1) * per)
         mostly_one = True
         for b0 in range(c * per, hi, _BLOCK):
@@ -1082,31 +1071,6 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 h += (kj == 1) | (kj == -1)
                 general[ng] = j
                 ng += (kj == 2) | (kj == -2)
-            for q in range(h):
-                t = cand[hits[q]]
-                i0 = F[t, 0]
-                i1 = F[t, 1]
-                i2 = F[t, 2]
-                Qax[q] = V[i0, 0]
-                Qay[q] = V[i0, 1]
-                Qaz[q] = V[i0, 2]
-                Qbx[q] = V[i1, 0]
-                Qby[q] = V[i1, 1]
-                Qbz[q] = V[i1, 2]
-                Qcx[q] = V[i2, 0]
-                Qcy[q] = V[i2, 1]
-                Qcz[q] = V[i2, 2]
-                Qw0[q] = w[i0]
-                Qw1[q] = w[i1]
-                Qw2[q] = w[i2]
-            for q in range(h):
-                c0, c1, c2, c3, c4, c5 = _plane(
-                    Qax[q], Qay[q], Qaz[q], Qbx[q], Qby[q], Qbz[q], Qcx[q], Qcy[q], Qcz[q],
-                    perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1,
-                    f2, FL)
-                depth[q] = _clamped(c0, c1, c2, c3, c4, c5, sample_x[hits[q]], sample_y[hits[q]],
-                                    min(Qw0[q], min(Qw1[q], Qw2[q])),
-                                    max(Qw0[q], max(Qw1[q], Qw2[q])))
             if mm:
                 mostly_one = 2 * (mm - ng) >= mm
             else:
@@ -1121,8 +1085,17 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                     g += 1
                 else:
                     j = hits[q]
-                    Wd = depth[q]
                     q += 1
+                    t = cand[j]
+                    i0 = F[t, 0]
+                    i1 = F[t, 1]
+                    i2 = F[t, 2]
+                    c0, c1, c2, c3, c4, c5 = _plane(
+                        V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1], V[i1, 2],
+                        V[i2, 0], V[i2, 1], V[i2, 2], perspective, r0x, r0y, r0z,
+                        p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, sample_x[j], sample_y[j],
+                                  min(w[i0], min(w[i1], w[i2])), max(w[i0], max(w[i1], w[i2])))
                     if Wd > FL:
                         continue
                     if kind[j] > 0:
