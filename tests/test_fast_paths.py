@@ -131,10 +131,13 @@ def _numpy_projection(V, r0, f, eu, ev, sx, bx, sy, by, perspective, nW, nH):
         else:
             x, y = sx * a + bx, sy * b + by
         ok = (np.abs(x) < R.COORD_LIMIT) & (np.abs(y) < R.COORD_LIMIT)
-        snap = lambda c: np.floor(np.where(ok, c, 0.0) * R.ONE + 0.5).astype(np.int64)  # noqa: E731
-        clamp = lambda c: np.where(c == c, np.clip(np.nan_to_num(c, nan=0.0), -R.COORD_LIMIT,  # noqa: E731
-                                                    R.COORD_LIMIT) * R.ONE, 0).astype(np.int64)
-        XY = np.stack([np.where(ok, snap(x), clamp(x)), np.where(ok, snap(y), clamp(y))], 1)
+
+        def snapped(c):                   # snapped when it can be, else clamped (cull only)
+            near = np.floor(np.where(ok, c, 0.0) * R.ONE + 0.5).astype(np.int64)
+            far = np.clip(np.nan_to_num(c, nan=0.0), -R.COORD_LIMIT, R.COORD_LIMIT) * R.ONE
+            return np.where(ok, near, np.where(c == c, far, 0).astype(np.int64))
+
+        XY = np.stack([snapped(x), snapped(y)], 1)
 
     def code(c, n):
         k = 2 * (c >> R.FRAC_BITS) + ((c & (R.ONE - 1)) == 0) + 2
@@ -221,8 +224,8 @@ def test_the_vectorised_one_sample_passes_add_the_bits_of_the_scalar_path(case, 
     their depths in triangle order among the general path's; with ``depth_ok`` False every
     triangle takes the scalar path (same decisions, no cell-code cull). Both give the same
     depth sums and counts bit for bit: two spheres one behind the other (four surfaces on a
-    ray, so the order of a sample's terms shows), radially jittered (a mix of one-sample and larger boxes in a
-    block), with vertices on sample rows and columns (zero edge functions: the general path
+    ray, so the order of a sample's terms shows), radially jittered (a mix of one-sample and
+    larger boxes in a block), with vertices on sample rows and columns (zero edge functions: the general path
     inside a one-sample block), a parallel beam, and 2 x 2 supersampling."""
     rng = np.random.default_rng(3)
     mesh = _pair(rng, 0.004 if case == "jittered" else 0.0)

@@ -170,8 +170,8 @@ _first_use_rank = njit(cache=True, nogil=True, error_model="numpy")(first_use_ra
 #: Vertices a block of the projection (its scratch rows stay in the first-level cache).
 _PROJ_BLOCK = 256
 _LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)
-_KEY_MAX = np.int64(0x7FFFFFFFFFFFFFFF)
-_KEY_MIN = np.int64(-0x7FFFFFFFFFFFFFFF - 1)
+_KEY_MAX = _LOW63
+_KEY_MIN = np.int64(-_LOW63 - 1)
 
 
 def depth_key(w):
@@ -271,7 +271,7 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
             Kb[j] = np.int32(_axis_code(X, nW) | (_axis_code(Y, nH) << 16)) if codes else NO_CODE
         for j in range(m):
             bits = kb[j]
-            key = bits ^ ((bits >> 63) & _LOW63)
+            key = bits ^ ((bits >> 63) & _LOW63)          # depth_key
             nan = wb[j] != wb[j]
             kmin = min(kmin, _KEY_MAX if nan else key)
             kmax = max(kmax, _KEY_MIN if nan else key)
@@ -283,8 +283,10 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
                 y = ys[j]
                 if not (abs(x) < COORD_LIMIT and abs(y) < COORD_LIMIT):
                     # Keep the float position (clamped) for culling only.
-                    XYb[j, 0] = np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE) if x == x else 0
-                    XYb[j, 1] = np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE) if y == y else 0
+                    XYb[j, 0] = (np.int64(max(min(x, COORD_LIMIT), -COORD_LIMIT) * ONE)
+                                 if x == x else 0)
+                    XYb[j, 1] = (np.int64(max(min(y, COORD_LIMIT), -COORD_LIMIT) * ONE)
+                                 if y == y else 0)
                     hb[j] = True
                     Kb[j] = NO_CODE
     return kmin, kmax, n_odd > 0
@@ -1001,7 +1003,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
         sample_x = np.empty(_BLOCK, np.int64)
         sample_y = np.empty(_BLOCK, np.int64)
         hits = np.empty(_BLOCK, np.int64)
-        general = np.empty(_BLOCK + 1, np.int64)
+        general = np.empty(_BLOCK, np.int64)
         hi = min(T, (c + 1) * per)
         mostly_one = True
         for b0 in range(c * per, hi, _BLOCK):
@@ -1075,7 +1077,6 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 mostly_one = 2 * (mm - ng) >= mm
             else:
                 ng = m                          # every candidate: general[g] is g
-            general[ng] = _BLOCK
             # Pass 3, in triangle order: the hits accumulated, the general path.
             q = 0
             g = 0
