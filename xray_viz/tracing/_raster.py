@@ -465,77 +465,50 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _setup_planes(lo, hi, tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
-                 kind, orient, cbox, coef, wrange):
-    """Compact per-triangle data of the triangles ``tri`` that cover samples.
-
-    Depth of the hit of the ray of sample (X, Y) with the triangle's plane, along the beam:
-    ``W = (c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)``, clamped to the triangle's depth range
-    (the coefficients of :func:`_plane`).
-    """
-    r0x, r0y, r0z = r0[0], r0[1], r0[2]
-    p0, p1, p2 = P00[0], P00[1], P00[2]
-    ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
-    ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
-    f0, f1, f2 = f[0], f[1], f[2]
-    for m in range(lo, hi):
-        t = tri[m]
-        st = status[t]
-        orient[m] = 1 if st > 0 else -1
-        kind[m] = abs(st)
-        for q in range(4):
-            cbox[m, q] = box[t, q]
-        i0 = F[t, 0]
-        i1 = F[t, 1]
-        i2 = F[t, 2]
-        (coef[m, 0], coef[m, 1], coef[m, 2], coef[m, 3], coef[m, 4],
-         coef[m, 5]) = _plane(V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1], V[i1, 2],
-                              V[i2, 0], V[i2, 1], V[i2, 2], perspective, r0x, r0y, r0z,
-                              p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
-        w0 = w[i0]
-        w1 = w[i1]
-        w2 = w[i2]
-        wrange[m, 0] = min(w0, min(w1, w2))
-        wrange[m, 1] = max(w0, max(w1, w2))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _bin_triangles(lo, hi, box, band_height, n_bands, n_chunks, counts, tris, fill):
-    """The triangles whose sample rows meet each band of ``band_height`` rows, for chunks
-    ``lo .. hi - 1`` of ``n_chunks`` contiguous chunks of the triangles (rows of ``box``).
+def _bin_triangles(lo, hi, tri, box, band_height, n_bands, n_chunks, counts, tris, fill):
+    """The triangles ``tri`` (in triangle order) whose sample rows ``box[t, 2] .. box[t, 3]``
+    meet each band of ``band_height`` rows, for chunks ``lo .. hi - 1`` of ``n_chunks``
+    contiguous chunks of ``tri``.
 
     Without ``fill``: ``counts[c, b]`` receives the number of chunk ``c``'s triangles that
     meet band ``b``. With ``fill``: ``counts[c, b]`` is where chunk ``c``'s first entry of band
-    ``b`` goes in ``tris``, and the chunk writes its triangles there in triangle order (so each
+    ``b`` goes in ``tris``, and the chunk writes its triangles' indices there in order (so each
     band's list is in triangle order whatever the chunks; :func:`bin_triangles`).
     """
-    T = box.shape[0]
+    T = tri.shape[0]
     per = (T + n_chunks - 1) // n_chunks
     for c in range(lo, hi):
-        t0 = min(T, c * per)
-        t1 = min(T, t0 + per)
+        m0 = min(T, c * per)
+        m1 = min(T, m0 + per)
         if not fill:
             for b in range(n_bands):
                 counts[c, b] = 0
-            for t in range(t0, t1):
+            for m in range(m0, m1):
+                t = tri[m]
                 for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
                     counts[c, b] += 1
         else:
-            for t in range(t0, t1):
+            for m in range(m0, m1):
+                t = tri[m]
                 for b in range(box[t, 2] // band_height, box[t, 3] // band_height + 1):
                     tris[counts[c, b]] = t
                     counts[c, b] += 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                  cbox, orient, coef, wrange, tri_body, FL, single, S, N, row0, rank, by_rank,
-                  perspective, P00, Ex, Ey, n, W, H, L, ray0):
+def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, status, box, F, XY,
+                  V, w, origin, f, tri_body, FL, single, S, N, row0, rank, by_rank, perspective,
+                  P00, Ex, Ey, n, W, H, L, ray0):
     """The banded raster, one body (``single``) or several: bands ``order[lo:hi]``.
 
-    Each band's triangles (``band_tris``, in triangle order) visit the samples of their rows
-    that they cover (exact edge functions and the tie rule, int64 for SMALL triangles, limbs
-    for GIANT ones); a hit beyond the detector (depth > FL) is dropped.
+    Each band's triangles (``band_tris``, in triangle order: indices of the triangles of
+    :func:`_cull_triangles`' ``status`` and ``box``) visit the samples of their rows that they
+    cover (exact edge functions and the tie rule, int64 for SMALL triangles, limbs for GIANT
+    ones); a hit's depth is that of the triangle's plane (:func:`_plane`, from the vertices
+    ``V``, the source ``origin`` and a parallel beam's direction ``f``) clamped to the range of
+    its vertices' depths ``w``; a hit beyond the detector (depth > FL) is dropped. The plane is
+    computed where the triangle is rastered, once per band it meets (1.1 times per triangle
+    for the frog): that costs the raster no more than reading it from a set-up pass did.
 
     ``single``: ``S[Y - row0, X] += sign * depth`` and ``N[Y - row0, X] += entering`` (so
     ``S`` and ``N`` need only hold the rows of the bands rastered, a window).
@@ -545,8 +518,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
     swept: ``L[ray - ray0, b]`` receives the length (mm) of the ray of sample (X, Y) whose
     material is body ``b``, the body of highest precedence among those the ray is inside
     (entries minus exits > 0), up to the detector (depth FL): the body of lowest ``rank``
-    (``by_rank[r]`` is the body of rank r; rank -1 never wins; :func:`body_ranks`). Rays are in image order (see
-    :func:`finish`), so ``L`` need only hold the rays of the bands rastered; each band's rays
+    (``by_rank[r]`` is the body of rank r; rank -1 never wins; :func:`body_ranks`). Rays are
+    in image order (see :func:`finish`), so ``L`` need only hold the rays of the bands rastered; each band's rays
     are zeroed before its lengths are added (``L`` need not arrive zeroed). A sample's hits
     and their order do not depend on which bands are rastered together.
     """
@@ -555,6 +528,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
     p0, p1, p2 = P00[0], P00[1], P00[2]
     ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
     ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
+    r0x, r0y, r0z = origin[0], origin[1], origin[2]
+    f0, f1, f2 = f[0], f[1], f[2]
     npix_max = band_height * nW
     cap = 1024
     hk = np.empty(cap, np.int64)          # sample of each hit (index in the band)
@@ -569,11 +544,11 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
         npix = (r1 - r0 + 1) * nW
         nh = np.int64(0)
         for idx in range(band_start[b], band_start[b + 1]):
-            m = band_tris[idx]
-            y0 = max(cbox[m, 2], r0)
-            y1 = min(cbox[m, 3], r1)
-            X0 = cbox[m, 0]
-            X1 = cbox[m, 1]
+            t = band_tris[idx]
+            y0 = max(box[t, 2], r0)
+            y1 = min(box[t, 3], r1)
+            X0 = box[t, 0]
+            X1 = box[t, 1]
             need = nh + (X1 - X0 + 1) * (y1 - y0 + 1)
             if need > cap:
                 cap = max(2 * cap, need)
@@ -588,8 +563,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                 hw = hw2
                 hb = hb2
             n0 = nh
-            t = tri[m]
-            code = np.int64(tri_body[t]) * 2 + (1 if orient[m] > 0 else 0)
+            st = status[t]
+            code = np.int64(tri_body[t]) * 2 + (1 if st > 0 else 0)
             i0 = F[t, 0]
             i1 = F[t, 1]
             i2 = F[t, 2]
@@ -604,16 +579,17 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
             by = XY[i1, 1]
             cx = XY[i2, 0]
             cy = XY[i2, 1]
-            o = np.int64(orient[m])
-            small = kind[m] == SMALL
-            c0 = coef[m, 0]
-            c1 = coef[m, 1]
-            c2 = coef[m, 2]
-            c3 = coef[m, 3]
-            c4 = coef[m, 4]
-            c5 = coef[m, 5]
-            wmin = wrange[m, 0]
-            wmax = wrange[m, 1]
+            o = np.int64(1 if st > 0 else -1)
+            small = abs(st) == SMALL
+            c0, c1, c2, c3, c4, c5 = _plane(V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1],
+                                            V[i1, 2], V[i2, 0], V[i2, 1], V[i2, 2], perspective,
+                                            r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1,
+                                            ey2, f0, f1, f2, FL)
+            w0 = w[i0]
+            w1 = w[i1]
+            w2 = w[i2]
+            wmin = min(w0, min(w1, w2))
+            wmax = max(w0, max(w1, w2))
             # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
             # E > 0).
             e0x = bx - ax
@@ -683,8 +659,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, tri
                                     hb[nh] = code
                                     nh += 1
             if single:
-                sgn = -1.0 if orient[m] > 0 else 1.0
-                dn = 1 if orient[m] > 0 else -1
+                sgn = -1.0 if st > 0 else 1.0
+                dn = 1 if st > 0 else -1
                 for i in range(n0, nh):
                     Y = r0 + hk[i] // nW
                     X = hk[i] - (Y - r0) * nW
@@ -905,7 +881,7 @@ def _plane(ax, ay, az, bx, by, bz, cx, cy, cz, perspective, r0x, r0y, r0z, p0, p
            ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
     ray of sample (X, Y) with the plane of the triangle of vertices a, b, c (see
-    :func:`setup_planes`).
+    :func:`_raster_bands`).
 
     Point source: ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0), hit depth s * FL.
     Parallel beam: ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
@@ -1294,11 +1270,9 @@ SIGNATURES = {
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 i4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
                        "f8[2]r i4[1]r b1 i8[1]",
-    "_setup_planes": "i8 i8 i8[1]r f8[2]r i4[2]r f8[1]r i1[1]r i8[2]r b1 f8[1]r f8[1]r f8[1]r "
-                     "f8[1]r f8[1]r f8 i1[1] i1[1] i8[2] f8[2] f8[2]",
-    "_bin_triangles": "i8 i8 i8[2]r i8 i8 i8 i8[2] i4[1] b1",
-    "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i8[1]r i4[2]r i8[2]r i1[1]r i8[2]r "
-                     "i1[1]r f8[2]r f8[2]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
+    "_bin_triangles": "i8 i8 i8[1]r i8[2]r i8 i8 i8 i8[2] i4[1] b1",
+    "_raster_bands": "i8 i8 i8[1]r i8[1]r i4[1]r i8 i8 i8 i1[1]r i8[2]r i4[2]r i8[2]r f8[2]r "
+                     "f8[1]r f8[1]r f8[1]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
                      "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
     "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 "
                "i8",
@@ -1313,7 +1287,7 @@ PATHS = {
     # (a cold start orders the meshes in NumPy: spatial_order_numpy; compiled for later runs)
     "order": ("_first_use_rank",),
     "direct": ("_raster_direct", "_reduce_chunks", "_finish"),
-    "banded": ("_cull_triangles", "_setup_planes", "_bin_triangles"),
+    "banded": ("_cull_triangles", "_bin_triangles"),
     "single": ("_raster_bands", "_reduce_chunks", "_finish"),
     "multi": ("_raster_bands",),
 }
@@ -1384,7 +1358,7 @@ def _names(paths=None) -> list:
 #: vectorised projection and one-body raster), to share them out among the workers; kernels
 #: of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 0.9,
-          ("_setup_planes",): 0.35, ("_bin_triangles",): 0.12, ("_raster_bands",): 2.25,
+          ("_bin_triangles",): 0.12, ("_raster_bands",): 2.25,
           ("_raster_direct",): 3.8, ("_reduce_chunks",): 0.05, ("_finish",): 0.75}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
@@ -1718,25 +1692,21 @@ def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, 
     return np.concatenate([kept[a:a + n] for a, n in parts])
 
 
-def setup_planes(tri, V, F, w, status, box, perspective, r0, P00, Ex, Ey, f, FL,
-                 kind, orient, cbox, coef, wrange):
-    tri = _in(tri, np.int64)
-    _split("_setup_planes", 0, tri.shape[0],
-           (tri, _in(V, _f8), _faces(F, len(V)), w, status, box, bool(perspective),
-            _in(r0, _f8), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), _in(f, _f8), float(FL),
-            kind, orient, cbox, coef, wrange), _MIN_ITEMS)
-
-
-def bin_triangles(box, band_height, n_bands):
+def bin_triangles(tri, box, band_height, n_bands):
     """``(band_start, band_tris)``: CSR lists (each band's in triangle order) of the triangles
-    whose sample rows ``box[:, 2] .. box[:, 3]`` meet each band of ``band_height`` rows; one
-    chunk of triangles per thread (a count, then a fill)."""
+    ``tri`` (indices into ``box``, increasing) whose sample rows ``box[t, 2] .. box[t, 3]``
+    meet each band of ``band_height`` rows; one chunk of ``tri`` per thread (a count, then a
+    fill). ``band_tris`` holds triangle indices (int32: fewer than 2**31 triangles)."""
     box = _in(box, np.int64)
+    if len(box) >= 2**31:
+        raise ValueError(f"{len(box)} triangles: the fast engine's banded raster takes fewer "
+                         f"than 2**31; split the mesh or use the NumPy engine")
+    tri = _in(tri, np.int64)
     band_height, n_bands = int(band_height), int(n_bands)
-    k = max(1, min(_threads(), len(box) // _MIN_ITEMS))
+    k = max(1, min(_threads(), len(tri) // _MIN_ITEMS))
     counts = np.empty((k, n_bands), np.int64)
     tris = np.empty(0, np.int32)
-    args = (box, band_height, n_bands, k, counts)
+    args = (tri, box, band_height, n_bands, k, counts)
     _split("_bin_triangles", 0, k, args + (tris, False))
     band_start = np.zeros(n_bands + 1, np.int64)
     np.cumsum(counts.sum(axis=0), out=band_start[1:])
@@ -1749,30 +1719,28 @@ def bin_triangles(box, band_height, n_bands):
     return band_start, tris
 
 
-def _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-               orient, coef, wrange, tri_body, FL):
+def _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
+               r0, f, tri_body, FL):
     return (_in(order, np.int64), _in(band_start, np.int64), _in(band_tris, np.int32),
-            int(band_height), int(nH), int(nW), _in(tri, np.int64), _faces(F, 0),
-            _in(XY, np.int64), _in(kind, np.int8), _in(cbox, np.int64), _in(orient, np.int8),
-            _in(coef, _f8), _in(wrange, _f8), _in(tri_body, np.int32), float(FL))
+            int(band_height), int(nH), int(nW), _in(status, np.int8), _in(box, np.int64),
+            _faces(F, 0), _in(XY, np.int64), _in(V, _f8), _in(w, _f8), _in(r0, _f8), _in(f, _f8),
+            _in(tri_body, np.int32), float(FL))
 
 
-def raster_single(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-                  orient, coef, wrange, tri_body, FL, S, N, row0):
-    args = _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                      cbox, orient, coef, wrange, tri_body, FL)
-    z3 = np.zeros(3)
+def raster_single(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
+                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0):
+    args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
+                      w, r0, f, tri_body, FL)
     _split("_raster_bands", 0, len(args[0]),
-           args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64), False,
-                   z3, z3, z3, 1, 1, 1,
+           args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64),
+                   bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), 1, 1, 1,
                    np.zeros((1, 1)), 0))
 
 
-def raster_multi(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind, cbox,
-                 orient, coef, wrange, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W,
-                 H, L, ray0):
-    args = _band_args(order, band_start, band_tris, band_height, nH, nW, tri, F, XY, kind,
-                      cbox, orient, coef, wrange, tri_body, FL)
+def raster_multi(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
+                 r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0):
+    args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
+                      w, r0, f, tri_body, FL)
     rank, by_rank = body_ranks(precedence)
     _split("_raster_bands", 0, len(args[0]),
            args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
@@ -1836,7 +1804,7 @@ class _Entry:
 
 for _name, _kern in (("first_use_rank", None), ("spatial_order", "_first_use_rank"),
                      ("project_vertices", None),
-                     ("cull_triangles", None), ("setup_planes", None), ("bin_triangles", None),
+                     ("cull_triangles", None), ("bin_triangles", None),
                      ("raster_single", "_raster_bands"), ("raster_multi", "_raster_bands"),
                      ("finish", None), ("finish_chunks", "_finish"), ("raster_direct", None),
                      ("reduce_chunks", None)):

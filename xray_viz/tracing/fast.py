@@ -115,7 +115,6 @@ def clear_caches(scene) -> None:
     bodies.forget(("fast", "geometry"))
     bodies.forget(("fast", "result"))
     bodies.forget(("fast", "workspace"))
-    bodies.forget(("fast", "setup"))
     bodies.forget(("fast", "accumulators"))
     bodies.forget(("fast", "result buffer"))
 
@@ -227,17 +226,6 @@ def _workspace(bodies, n_vertices, n_triangles):
         np.empty((n_vertices, 2), np.int64), np.empty(n_vertices),
         np.empty(n_vertices, np.bool_), np.empty(n_triangles, np.int8),
         np.empty((n_triangles, 4), np.int64), np.empty(n_vertices, np.int32)), limit=1)
-
-
-def _setup_space(bodies, n_triangles):
-    """Scratch for the banded rasters' per-triangle data (:func:`_setup`), reused between
-    calls on the same bodies like :func:`_workspace`: ``kind``, ``orient`` (T,) int8, ``cbox``
-    (T, 4) int64, ``coef`` (T, 6) and ``wrange`` (T, 2) float64 (16 MB for the frog's 173k
-    triangles: fresh pages each frame cost ~2 ms)."""
-    return bodies.cached(("fast", "setup", n_triangles), lambda: (
-        np.empty(n_triangles, np.int8), np.empty(n_triangles, np.int8),
-        np.empty((n_triangles, 4), np.int64), np.empty((n_triangles, 6)),
-        np.empty((n_triangles, 2))), limit=1)
 
 
 def _refs(box) -> int:
@@ -537,7 +525,7 @@ class _Plan:
             wmin, wmax, odd = R.project_vertices(V, r0, depth_axis, eu, ev, sx, bx, sy, by,
                                                  False, XY, w, huge, nW, nH, K)
         self.FL, self.perspective, self.P0, self.Ex, self.Ey = FL, perspective, P0, Ex, Ey
-        self.F, self.XY, self.B = F, XY, B
+        self.F, self.XY, self.B, self.V, self.w, self.r0, self.f = F, XY, B, V, w, r0, f
         n_chunks = numba.get_num_threads()
         # every vertex strictly between the source and detector planes, none huge: no triangle
         # can be refused, and cell codes may cull (the rasters' first pass)
@@ -563,21 +551,25 @@ class _Plan:
         else:
             self.mode = "multi"
             self.prec = np.ascontiguousarray(bodies.precedence, dtype=np.int64)
-        (self.tri, self.kind, self.orient, self.cbox, self.coef, self.wrange, self.band_start,
-         self.band_tris) = _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW,
-                                  nH, sides, status, box, B, (bodies, acq), bh, self.n_bands,
-                                  _setup_space(bodies, len(F)), K, depth_ok)
+        self.status, self.box = status, box
+        self.band_start, self.band_tris = _setup(R, F, XY, w, huge, V, perspective, r0, FL, nW,
+                                                 nH, sides, status, box, B, (bodies, acq), bh,
+                                                 self.n_bands, K, depth_ok)
 
     def detach(self):
         """Own copies of the shared scratch arrays still needed by :meth:`window`."""
         if self.mode in ("single", "multi"):
-            self.XY = self.XY.copy()
-            self.kind, self.orient, self.cbox, self.coef, self.wrange = (
-                a.copy() for a in (self.kind, self.orient, self.cbox, self.coef, self.wrange))
+            self.XY, self.w, self.status, self.box = (
+                a.copy() for a in (self.XY, self.w, self.status, self.box))
         elif self.mode == "direct" and self.S is None:
             self.S = np.empty((self.nH, self.nW))
             self.R.reduce_chunks(self.Sc, self.Nc, self.FL, self.S)
             self.Sc = self.Nc = None
+
+    def _bands(self):
+        """The per-triangle arguments of the banded rasters after ``band_height, nH, nW``."""
+        return (self.status, self.box, self.F, self.XY, self.V, self.w, self.r0, self.f, self.B,
+                self.FL)
 
     def window(self, b0, b1):
         """``(r0, r1, L)``: path lengths of the image rows of bands ``b0 .. b1 - 1``."""
@@ -594,9 +586,8 @@ class _Plan:
         order = _band_order(b1 - b0) + b0
         if self.mode == "multi":
             L = _result_buffer(self.bodies, n_rays, self.nb)
-            R.raster_multi(order, self.band_start, self.band_tris, bh, nH, nW, self.tri,
-                           self.F, self.XY, self.kind, self.cbox, self.orient, self.coef,
-                           self.wrange, self.B, self.FL, self.prec, *args[1:], L, ray0)
+            R.raster_multi(order, self.band_start, self.band_tris, bh, nH, nW, *self._bands(),
+                           self.prec, *args[1:], L, ray0)
             return r0, r1, L
         if self.nb == 1:                 # the finish writes every ray of the window's rows
             L = L1 = _result_buffer(self.bodies, n_rays, 1)
@@ -609,9 +600,8 @@ class _Plan:
         else:
             Sd = np.zeros((y1 - y0, nW))
             N = np.zeros((y1 - y0, nW), np.int32)
-            R.raster_single(order, self.band_start, self.band_tris, bh, nH, nW, self.tri, self.F,
-                            self.XY, self.kind, self.cbox, self.orient, self.coef, self.wrange,
-                            self.B, self.FL, Sd, N, y0)
+            R.raster_single(order, self.band_start, self.band_tris, bh, nH, nW, *self._bands(),
+                            *args[1:5], Sd, N, y0)
             S = np.empty((y1 - y0, nW))
             R.reduce_chunks(Sd[None], N[None], self.FL, S)
             R.finish(S, np.zeros((1, 1, 1)), True, *args, L1, y0, y1, y0, ray0)
@@ -620,18 +610,14 @@ class _Plan:
         return r0, r1, L
 
 
-def _setup(R, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL, nW, nH, sides, status,
-           box, B, where, band_height, n_bands, space, K, depth_ok):
-    """Cull, set up and bin the triangles by bands of ``band_height`` detector rows; the
-    per-triangle data are written to the first rows of the arrays ``space``
-    (:func:`_setup_space`). ``K``, ``depth_ok``: see :func:`_raster.cull_triangles`."""
+def _setup(R, F, XY, w, huge, V, perspective, r0, FL, nW, nH, sides, status, box, B, where,
+           band_height, n_bands, K, depth_ok):
+    """Cull the triangles (their ``status`` and sample ``box``) and bin those that cover
+    samples by bands of ``band_height`` detector rows: ``(band_start, band_tris)``. The
+    rasters compute each triangle's plane where they raster it. ``K``, ``depth_ok``: see
+    :func:`_raster.cull_triangles`."""
     tri = R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides,
                            K=K, depth_ok=depth_ok)
     if not depth_ok and status.min() <= R.ERR_STRADDLE:
         _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
-    M = len(tri)
-    kind, orient, cbox, coef, wrange = (a[:M] for a in space)
-    R.setup_planes(tri, V, F, w, status, box, perspective, r0, P0, Ex, Ey, f, FL,
-                   kind, orient, cbox, coef, wrange)
-    band_start, band_tris = R.bin_triangles(cbox, band_height, n_bands)
-    return tri, kind, orient, cbox, coef, wrange, band_start, band_tris
+    return R.bin_triangles(tri, box, band_height, n_bands)
