@@ -616,8 +616,8 @@ def _setup(R, F, XY, w, huge, V, perspective, r0, FL, nW, nH, sides, status, box
     samples by bands of ``band_height`` detector rows: ``(band_start, band_tris)``. The
     rasters compute each triangle's plane where they raster it. ``K``, ``depth_ok``: see
     :func:`_raster.cull_triangles`."""
-    tri = R.cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides,
-                           K=K, depth_ok=depth_ok)
+    bands = R.cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides,
+                           band_height, n_bands, K=K, depth_ok=depth_ok)
     if not depth_ok and status.min() <= R.ERR_STRADDLE:
         _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
-    return R.bin_triangles(tri, box, band_height, n_bands)
+    return bands
