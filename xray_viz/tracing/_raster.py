@@ -1545,16 +1545,21 @@ def _threads() -> int:
     return count()
 
 
-def _split(name, lo, hi, args, min_each=1):
-    """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread; returns
-    what each piece returned, in order."""
+def _split(name, lo, hi, args, min_each=1, cuts=None):
+    """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread (or the
+    pieces ``cuts[j] .. cuts[j + 1] - 1`` given, one per thread); returns what each piece
+    returned, in order."""
     kernel = _kernel(name)
-    k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
+    if cuts is not None:
+        cut = list(cuts)
+        k = len(cut) - 1
+    else:
+        k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
+        cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
     if k <= 1:
-        return [kernel(lo, hi, *args)]
+        return [kernel(cut[0], cut[-1], *args)]
     from xray_viz._threads import run_pieces
 
-    cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
     return run_pieces(lambda j: kernel(cut[j], cut[j + 1], *args), k)
 
 
@@ -1741,24 +1746,25 @@ def _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F
 
 
 def raster_single(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0):
+                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0, *, cuts=None):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
                       w, r0, f, tri_body, FL)
     _split("_raster_bands", 0, len(args[0]),
            args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64),
                    bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), 1, 1, 1,
-                   np.zeros((1, 1)), 0))
+                   np.zeros((1, 1)), 0), cuts=cuts)
 
 
 def raster_multi(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                 r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0):
+                 r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0, *,
+                 cuts=None):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
                       w, r0, f, tri_body, FL)
     rank, by_rank = body_ranks(precedence)
     _split("_raster_bands", 0, len(args[0]),
            args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
                    bool(perspective), _in(P00, _f8), _in(Ex, _f8),
-                   _in(Ey, _f8), int(n), int(W), int(H), L, int(ray0)))
+                   _in(Ey, _f8), int(n), int(W), int(H), L, int(ray0)), cuts=cuts)
 
 
 def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
