@@ -398,11 +398,9 @@ def test_a_frame_hashes_each_mesh_once_and_a_change_in_place_is_still_seen(monke
     assert scene.bodies.bounds[1, 0, 1] == pytest.approx(box[1, 0, 1] + 4)
 
 
-def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
-    """With every vertex between the source and detector planes, the banded rasters' cull
-    first drops the triangles whose cell codes say they cover no sample: the same status and
-    boxes as the full test of every triangle, and the list of kept triangles is the non-zero
-    statuses in order."""
+def _projected_ball():
+    """A projected sphere of 20,480 faces on a 128 x 96 grid (every vertex between the source
+    and detector planes): the arguments of the cull, and the cell codes."""
     from xray_viz.tracing import _raster as R
 
     ball = _sphere(20.0, 5)
@@ -415,9 +413,20 @@ def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
     planes[:, 3] = 1e9
     XY, w = np.empty((len(V), 2), np.int64), np.empty(len(V))
     huge, K = np.empty(len(V), np.bool_), np.empty(len(V), np.int32)
-    wmin, wmax, odd = R.project_vertices(V, r0, f, eu, ev, 3000.0, 63.5, 3000.0, 47.5, True,
-                                         XY, w, huge, 128, 96, K)
-    assert wmin > 0 and wmax < 1500.0 and not odd
+    R.project_vertices(V, r0, f, eu, ev, 3000.0, 63.5, 3000.0, 47.5, True, XY, w, huge, 128,
+                       96, K)
+    return F, XY, w, huge, V, r0, planes, K
+
+
+def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
+    """With every vertex between the source and detector planes, the banded rasters' cull
+    first drops the triangles whose cell codes say they cover no sample: the same status and
+    boxes as the full test of every triangle, and the list of kept triangles is the non-zero
+    statuses in order."""
+    from xray_viz.tracing import _raster as R
+
+    F, XY, w, huge, V, r0, planes, K = _projected_ball()
+    assert w.min() > 0 and w.max() < 1500.0 and not huge.any()
     out = []
     for depth_ok in (False, True):
         status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)
@@ -429,6 +438,55 @@ def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
     np.testing.assert_array_equal(out[0][1], out[1][1])
     skipped = out[0][0] == 0
     assert 0.2 < skipped.mean() < 0.9          # many triangles between samples, many not
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_band_lists_hold_each_kept_triangle_in_every_band_its_rows_meet(monkeypatch, threads):
+    """``cull_and_bin``: the cull counts each piece's kept triangles per band (a row table,
+    not divisions), a second pass fills the lists. Against NumPy: band b lists, in triangle
+    order, exactly the kept triangles whose sample rows meet its rows, however many pieces
+    (a band height of 7 rows, not a power of two; the last band cut by the grid)."""
+    from xray_viz.tracing import _raster as R
+
+    monkeypatch.setattr(R, "_threads", lambda: threads)
+    F, XY, w, huge, V, r0, planes, K = _projected_ball()
+    status, box = np.full(len(F), 9, np.int8), np.full((len(F), 4), -1, np.int64)
+    band_start, tris = R.cull_and_bin(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V,
+                                      r0, planes, 7, 14, K=K, depth_ok=True)
+    kept = np.flatnonzero(status)
+    assert len(kept) > 1000 and band_start[0] == 0 and band_start[-1] == len(tris)
+    spans = 0
+    for b in range(14):
+        want = kept[(box[kept, 2] <= 7 * b + 6) & (box[kept, 3] >= 7 * b)]
+        np.testing.assert_array_equal(tris[band_start[b]:band_start[b + 1]], want)
+        spans += len(want)
+    assert spans > len(kept)                      # some triangles meet two bands
+
+
+def test_bands_dealt_to_any_number_of_threads_give_the_same_bits(monkeypatch):
+    """The banded raster's bands are dealt out to the threads by their entries
+    (``fast._band_order``): every band once, each thread's in increasing order, the loads
+    within one band's work of each other; and the path lengths are the same bits for 1, 2, 3
+    and 5 threads (each band writes its own rays)."""
+    from xray_viz.tracing import fast as fast_mod
+
+    entries = np.array([0, 5, 900, 40, 1000, 3, 3, 77, 600, 0, 12])
+    for k in (1, 2, 3, 5, 20):
+        order, cuts = fast_mod._band_order(entries, k)
+        assert sorted(order.tolist()) == list(range(len(entries)))
+        parts = [order[cuts[j]:cuts[j + 1]] for j in range(len(cuts) - 1)]
+        assert len(parts) == min(k, len(entries)) and all(len(p) for p in parts)
+        assert all(np.all(np.diff(p) > 0) for p in parts)
+        load = [int((entries[p] + 200).sum()) for p in parts]
+        assert max(load) - min(load) <= entries.max() + 200
+    scene = xray_viz.load_scene("frog")
+    out = []
+    for k in (1, 2, 3, 5):
+        monkeypatch.setattr(fast_mod.numba, "get_num_threads", lambda k=k: k)
+        out.append(fast_mod.trace_once(scene))
+    assert out[0].shape[1] == 16 and out[0].max() > 10
+    for L in out[1:]:
+        np.testing.assert_array_equal(L, out[0])
 
 
 # --------------------------------------------------------------------------------------------
@@ -472,9 +530,9 @@ def test_one_body_of_one_piece_keeps_the_signed_sum_path(monkeypatch):
     calls = []
     multi = R.raster_multi
 
-    def spy(*args):
+    def spy(*args, **options):
         calls.append(1)
-        return multi(*args)
+        return multi(*args, **options)
 
     monkeypatch.setattr(R, "raster_multi", spy)
     one = make_scene(_sphere(), pitch=1.5)
