@@ -1346,10 +1346,11 @@ def _names(paths=None) -> list:
 #: Compile CPU seconds of each kernel beyond what a process pays for its first compile
 #: (``benchmarks/compile_profile.py --opt 1``, one process per kernel, less the ~0.5 s of
 #: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-05, the Xeon VM, after the
-#: vectorised projection and one-body raster), to share them out among the workers; kernels
+#: vectorised projection and one-body raster; ``_raster_bands`` ~10 % more once it computed the
+#: planes itself), to share them out among the workers; kernels
 #: of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 0.9,
-          ("_bin_triangles",): 0.12, ("_raster_bands",): 2.25,
+          ("_bin_triangles",): 0.12, ("_raster_bands",): 2.5,
           ("_raster_direct",): 3.8, ("_reduce_chunks",): 0.05, ("_finish",): 0.75}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
