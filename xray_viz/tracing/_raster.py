@@ -512,9 +512,10 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     material is body ``b``, the body of highest precedence among those the ray is inside
     (entries minus exits > 0), up to the detector (depth FL): the body of lowest ``rank``
     (``by_rank[r]`` is the body of rank r; rank -1 never wins; :func:`body_ranks`). Rays are
-    in image order (see :func:`finish`), so ``L`` need only hold the rays of the bands rastered; each band's rays
-    are zeroed before its lengths are added (``L`` need not arrive zeroed). A sample's hits
-    and their order do not depend on which bands are rastered together.
+    in image order (see :func:`finish`), so ``L`` need only hold the rays of the bands
+    rastered; each band's rays are zeroed before its lengths are added (``L`` need not arrive
+    zeroed). A sample's hits and their order do not depend on which bands are rastered
+    together, nor on which thread rasters a band.
     """
     nb = rank.shape[0]
     few = by_rank.shape[0] <= 65           # ranks fit the bits of a uint64
