@@ -1547,22 +1547,29 @@ def _threads() -> int:
     return count()
 
 
-def _split(name, lo, hi, args, min_each=1, cuts=None):
+def _cuts(lo, hi, min_each=1) -> list:
+    """Bounds of the contiguous pieces of ``range(lo, hi)``, one per thread (at most one per
+    ``min_each`` items): piece j is ``cut[j] .. cut[j + 1] - 1``."""
+    k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
+    return [lo + (hi - lo) * j // k for j in range(k + 1)]
+
+
+def _split(name, lo, hi, args, min_each=1, cuts=None, each=None):
     """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread (or the
-    pieces ``cuts[j] .. cuts[j + 1] - 1`` given, one per thread); returns what each piece
-    returned, in order."""
+    pieces ``cuts[j] .. cuts[j + 1] - 1`` given, one per thread), with ``args`` and, when
+    ``each`` is given, ``each(j)``'s arguments of piece j after them; returns what each
+    piece returned, in order."""
     kernel = _kernel(name)
-    if cuts is not None:
-        cut = list(cuts)
-        k = len(cut) - 1
-    else:
-        k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
-        cut = [lo + (hi - lo) * j // k for j in range(k + 1)]
+    cut = _cuts(lo, hi, min_each) if cuts is None else list(cuts)
+    k = len(cut) - 1
+
+    def piece(j):
+        return kernel(cut[j], cut[j + 1], *args, *(each(j) if each else ()))
     if k <= 1:
-        return [kernel(cut[0], cut[-1], *args)]
+        return [piece(0)]
     from xray_viz._threads import run_pieces
 
-    return run_pieces(lambda j: kernel(cut[j], cut[j + 1], *args), k)
+    return run_pieces(piece, k)
 
 
 def _in(a, dtype):
@@ -1678,28 +1685,21 @@ def _band_of(nH, band_height):
 
 
 def _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, K, depth_ok,
-          band_height, n_bands):
+          band_of):
     """:func:`_cull_triangles` over every triangle, one contiguous piece per thread: ``(kept,
     starts, sizes, counts)``, piece c's kept triangles ``kept[starts[c]:starts[c] + sizes[c]]``
-    and ``counts[c, b]`` of them in band b."""
+    and ``counts[c, b]`` of them in band b (``band_of``: :func:`_band_of`)."""
     F = _faces(F, len(V))
     if K is None:
         K, depth_ok = np.zeros(0, np.int32), False
     T = F.shape[0]
     kept = np.empty(T, np.int64)
-    k = min(_threads(), max(1, T // _MIN_ITEMS))
-    counts = np.empty((k, n_bands), np.int64)
-    cut = [T * j // k for j in range(k + 1)]
-    args = (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
-            _in(V, _f8), _in(r0, _f8), _in(planes, _f8), _in(K, np.int32), bool(depth_ok), kept,
-            _band_of(nH, band_height))
-    kernel = _kernel("_cull_triangles")
-    if k == 1:
-        parts = [kernel(0, T, *args, counts[0])]
-    else:
-        from xray_viz._threads import run_pieces
-
-        parts = run_pieces(lambda j: kernel(cut[j], cut[j + 1], *args, counts[j]), k)
+    cut = _cuts(0, T, _MIN_ITEMS)
+    counts = np.empty((len(cut) - 1, int(band_of[-1]) + 1), np.int64)
+    parts = _split("_cull_triangles", 0, T,
+                   (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
+                    _in(V, _f8), _in(r0, _f8), _in(planes, _f8), _in(K, np.int32),
+                    bool(depth_ok), kept, band_of), cuts=cut, each=lambda j: (counts[j],))
     starts = np.array([a for a, _ in parts], np.int64)
     sizes = np.array([n for _, n in parts], np.int64)
     return kept, starts, sizes, counts
@@ -1711,12 +1711,12 @@ def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, 
     other than an error, in order (int64). ``K`` and ``depth_ok``: the cell codes and the
     depth check of :func:`project_vertices` (without them, no first pass)."""
     kept, starts, sizes, _ = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0,
-                                   planes, K, depth_ok, max(int(nH), 1), 1)
+                                   planes, K, depth_ok, _band_of(nH, max(int(nH), 1)))
     return np.concatenate([kept[a:a + n] for a, n in zip(starts, sizes)])
 
 
 def cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
-                 band_height, n_bands, *, K=None, depth_ok=False):
+                 band_height, *, K=None, depth_ok=False):
     """:func:`cull_triangles`, then the CSR lists ``(band_start, band_tris)`` (each band's in
     triangle order) of the kept triangles whose sample rows ``box[t, 2] .. box[t, 3]`` meet
     each band of ``band_height`` rows. The cull counts each piece's triangles per band, so the
@@ -1726,16 +1726,17 @@ def cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, pl
     if len(F) >= 2**31:
         raise ValueError(f"{len(F)} triangles: the fast engine's banded raster takes fewer "
                          f"than 2**31; split the mesh or use the NumPy engine")
-    band_height, n_bands = int(band_height), int(n_bands)
+    band_of = _band_of(nH, band_height)
+    n_bands = int(band_of[-1]) + 1
     kept, starts, sizes, counts = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V,
-                                        r0, planes, K, depth_ok, band_height, n_bands)
+                                        r0, planes, K, depth_ok, band_of)
     band_start = np.zeros(n_bands + 1, np.int64)
     np.cumsum(counts.sum(axis=0), out=band_start[1:])
     # Piece c's entries of band b follow those of pieces 0 .. c - 1.
     offsets = np.cumsum(counts, axis=0) - counts + band_start[:-1]
     tris = np.empty(band_start[-1], np.int32)
     _split("_bin_triangles", 0, len(starts),
-           (kept, starts, sizes, _in(box, np.int64), _band_of(nH, band_height), offsets, tris))
+           (kept, starts, sizes, _in(box, np.int64), band_of, offsets, tris))
     return band_start, tris
 
 

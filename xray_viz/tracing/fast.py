@@ -576,8 +576,8 @@ class _Plan:
             self.prec = np.ascontiguousarray(bodies.precedence, dtype=np.int64)
         self.status, self.box = status, box
         self.band_start, self.band_tris = _setup(R, F, XY, w, huge, V, perspective, r0, FL, nW,
-                                                 nH, sides, status, box, B, (bodies, acq), bh,
-                                                 self.n_bands, K, depth_ok)
+                                                 nH, sides, status, box, B, (bodies, acq), bh, K,
+                                                 depth_ok)
 
     def detach(self):
         """Own copies of the shared scratch arrays still needed by :meth:`window`."""
@@ -640,13 +640,13 @@ class _Plan:
 
 
 def _setup(R, F, XY, w, huge, V, perspective, r0, FL, nW, nH, sides, status, box, B, where,
-           band_height, n_bands, K, depth_ok):
+           band_height, K, depth_ok):
     """Cull the triangles (their ``status`` and sample ``box``) and bin those that cover
     samples by bands of ``band_height`` detector rows: ``(band_start, band_tris)``. The
     rasters compute each triangle's plane where they raster it. ``K``, ``depth_ok``: see
     :func:`_raster.cull_triangles`."""
     bands = R.cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides,
-                           band_height, n_bands, K=K, depth_ok=depth_ok)
+                           band_height, K=K, depth_ok=depth_ok)
     if not depth_ok and status.min() <= R.ERR_STRADDLE:
         _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
     return bands
