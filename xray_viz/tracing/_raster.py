@@ -262,13 +262,19 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
             xi[j] = np.int64(np.floor((x if ok else 0.0) * ONE + 0.5))
             yi[j] = np.int64(np.floor((y if ok else 0.0) * ONE + 0.5))
             n_huge += np.int64(not ok)
+        # One output a loop, the choice of codes outside the loops: all in one loop (with
+        # ``if codes`` in it) cost the projection ~12 % more.
         for j in range(m):
-            X = xi[j]
-            Y = yi[j]
-            XYb[j, 0] = X
-            XYb[j, 1] = Y
+            XYb[j, 0] = xi[j]
+            XYb[j, 1] = yi[j]
+        for j in range(m):
             hb[j] = False
-            Kb[j] = np.int32(_axis_code(X, nW) | (_axis_code(Y, nH) << 16)) if codes else NO_CODE
+        if codes:
+            for j in range(m):
+                Kb[j] = np.int32(_axis_code(xi[j], nW) | (_axis_code(yi[j], nH) << 16))
+        else:
+            for j in range(m):
+                Kb[j] = NO_CODE
         for j in range(m):
             bits = kb[j]
             key = bits ^ ((bits >> 63) & _LOW63)          # depth_key
