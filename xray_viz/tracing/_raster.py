@@ -632,13 +632,16 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                         E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
                         E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
                         for X in range(X0, X1 + 1):
-                            if E0 >= bias0 and E1 >= bias1 and E2 >= bias2:
-                                Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                                if Wd <= FL:
-                                    hk[nh] = (Y - r0) * nW + X
-                                    hw[nh] = Wd
-                                    hb[nh] = code
-                                    nh += 1
+                            # Every sample of the row is stored and kept (nh moves on) when
+                            # it is covered: no branch to mispredict at the triangle's edges
+                            # (0.85x the raster of the frog). The room made for the band
+                            # counts every sample of its boxes.
+                            Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                            hk[nh] = (Y - r0) * nW + X
+                            hw[nh] = Wd
+                            hb[nh] = code
+                            nh += np.int64((E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
+                                           & (Wd <= FL))
                             E0 += stepx0
                             E1 += stepx1
                             E2 += stepx2
@@ -910,14 +913,14 @@ def _plane(ax, ay, az, bx, by, bz, cx, cy, cz, perspective, r0x, r0y, r0z, p0, p
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax):
+    """The depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of :func:`_plane`'s coefficients
+    at sample (X, Y), clamped to ``[wmin, wmax]`` (the middle of the range when it is NaN).
+    Selects, no branch: a caller may evaluate it at samples it then drops without a branch
+    of its own to mispredict (the banded raster's rows)."""
     Wd = (c0 + c1 * X + c2 * Y) / (c3 + c4 * X + c5 * Y)
-    if Wd != Wd:
-        return 0.5 * (wmin + wmax)
-    if Wd < wmin:
-        return wmin
-    if Wd > wmax:
-        return wmax
-    return Wd
+    Wd = 0.5 * (wmin + wmax) if Wd != Wd else Wd
+    Wd = wmin if Wd < wmin else Wd
+    return wmax if Wd > wmax else Wd
 
 
 _BLOCK = 1024
@@ -1169,6 +1172,33 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
                 bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
                 bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                if small:
+                    # Every sample of the box: its depth, then added (or 0 added) by whether
+                    # it is covered, without a branch to mispredict at the triangle's edges
+                    # (0.85x the raster of 82k faces at 512 x 512). Adding 0.0 to a sum
+                    # that starts at +0.0 leaves its bits as they are.
+                    if depth_ok:
+                        wmin = min(w[i0], min(w[i1], w[i2]))
+                        wmax = max(w[i0], max(w[i1], w[i2]))
+                    c0, c1, c2, c3, c4, c5 = _plane(
+                        V[i0, 0], V[i0, 1], V[i0, 2], V[i1, 0], V[i1, 1], V[i1, 2],
+                        V[i2, 0], V[i2, 1], V[i2, 2], perspective, r0x, r0y, r0z,
+                        p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                    for Y in range(Y0, Y1 + 1):
+                        py = Y * ONE
+                        E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax))
+                        E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx))
+                        E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx))
+                        for X in range(X0, X1 + 1):
+                            Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                            kept = (E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2) & (Wd <= FL)
+                            Sc[Y, X] += sgn * Wd if kept else 0.0
+                            Nc[Y, X] += dn if kept else 0
+                            E0 -= o * e0y * ONE
+                            E1 -= o * e1y * ONE
+                            E2 -= o * e2y * ONE
+                    continue
+                # A GIANT triangle: exact signs, its plane once a sample is covered.
                 have_plane = False
                 c0 = 0.0
                 c1 = 0.0
@@ -1178,21 +1208,11 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 c5 = 0.0
                 for Y in range(Y0, Y1 + 1):
                     py = Y * ONE
-                    E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax)) if small else 0
-                    E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx)) if small else 0
-                    E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx)) if small else 0
                     for X in range(X0, X1 + 1):
-                        if small:
-                            inside = E0 >= bias0 and E1 >= bias1 and E2 >= bias2
-                            E0 -= o * e0y * ONE
-                            E1 -= o * e1y * ONE
-                            E2 -= o * e2y * ONE
-                        else:
-                            px = X * ONE
-                            inside = (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
-                                      and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
-                                      and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
-                        if not inside:
+                        px = X * ONE
+                        if not (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
+                                and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
+                                and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2):
                             continue
                         if not have_plane:
                             have_plane = True
