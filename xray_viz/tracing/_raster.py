@@ -1127,7 +1127,10 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 e2x = ax - cx
                 e2y = ay - cy
                 if small and X0 == X1 and Y0 == Y1:
-                    # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0).
+                    # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0). Apart
+                    # from the rows below (which give it the same bits) because it needs no
+                    # orientation or tie rule: the scalar path (depth_ok False) at 1.3M faces
+                    # is 1.22x slower through the rows.
                     px = X0 * ONE
                     py = Y0 * ONE
                     E0 = e0x * (py - ay) - e0y * (px - ax)
