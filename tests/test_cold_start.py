@@ -57,7 +57,7 @@ def test_every_kernel_has_exactly_its_one_explicit_signature():
 
 HELPERS = ("_lowest_bit", "_plane", "_sample_ray", "_obliquity", "exact_cross_sign",
            "beyond_side", "_tie", "_clamped", "_axis_code", "_side_value", "_between_samples",
-           "_sample_box")
+           "_sample_box", "_i32")
 EVERY_PATH = """
 import json, sys
 sys.path.insert(0, sys.argv[1])

@@ -379,6 +379,13 @@ def _between_samples(ka, kb, kc):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _i32(x):
+    """``x`` (which the caller knows to fit in 32 bits) through int32, so that LLVM knows a
+    product of two of them needs only a 32 x 32 -> 64-bit multiply. Scalars only (inlined)."""
+    return np.int64(np.int32(x))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _sample_box(ax, ay, bx, by, cx, cy, nW, nH):
     """``(xmin, xmax, ymin, ymax, X0, X1, Y0, Y1)``: the snapped bounding box of a projected
     triangle and the fine-grid samples inside it, clipped to the grid (empty when ``X0 > X1``
@@ -1024,15 +1031,18 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                                                                      nH)
                 one = (X0 == X1) & (Y0 == Y1) & (max(xmax - xmin, ymax - ymin) < SAFE_EXTENT)
                 # E_k = e_k x (p - start of edge k) at p = (X0, Y0); the inputs are zeroed
-                # unless the box is small, so that no product can overflow.
+                # unless the box is small, so that no product can overflow. Every factor is
+                # then below 2**30 in magnitude (p lies in the box): through int32
+                # (:func:`_i32`), LLVM multiplies 32 x 32 -> 64 bits (vpmuldq, one uop,
+                # against three of a 64-bit vpmullq): 0.93-0.96x this raster at 1.3M faces.
                 px = X0 * ONE
                 py = Y0 * ONE
-                E0 = ((bx - ax) if one else 0) * ((py - ay) if one else 0) - (
-                    (by - ay) if one else 0) * ((px - ax) if one else 0)
-                E1 = ((cx - bx) if one else 0) * ((py - by) if one else 0) - (
-                    (cy - by) if one else 0) * ((px - bx) if one else 0)
-                E2 = ((ax - cx) if one else 0) * ((py - cy) if one else 0) - (
-                    (ay - cy) if one else 0) * ((px - cx) if one else 0)
+                E0 = _i32((bx - ax) if one else 0) * _i32((py - ay) if one else 0) - _i32(
+                    (by - ay) if one else 0) * _i32((px - ax) if one else 0)
+                E1 = _i32((cx - bx) if one else 0) * _i32((py - by) if one else 0) - _i32(
+                    (cy - by) if one else 0) * _i32((px - bx) if one else 0)
+                E2 = _i32((ax - cx) if one else 0) * _i32((py - cy) if one else 0) - _i32(
+                    (ay - cy) if one else 0) * _i32((px - cx) if one else 0)
                 # E0 + E1 + E2 is the projected area: all one sign -> inside, and that sign is
                 # the orientation; mixed signs -> outside (or zero area). A zero: general path.
                 decided = one & (E0 != 0) & (E1 != 0) & (E2 != 0)
