@@ -141,13 +141,13 @@ def test_arguments_of_other_types_are_normalised_not_compiled():
     nW = nH = 64
     XY = np.empty((len(v), 2), np.int64)
     w, huge, K = np.empty(len(v)), np.empty(len(v), np.bool_), np.empty(len(v), np.int32)
-    wide = np.zeros((len(v), 6))
-    wide[:, ::2] = v                             # a strided view: not C-contiguous
-    R.project_vertices(wide[:, ::2], np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
+    wide = np.zeros((6, len(v)))
+    wide[::2] = v.T                              # a strided view: not C-contiguous
+    R.project_vertices(wide[::2], np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
                        np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
                        True, XY, w, huge, nW, nH, K)
     XY2, w2, huge2, K2 = XY.copy(), w.copy(), huge.copy(), K.copy()
-    R.project_vertices(v, np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
+    R.project_vertices(v.T.copy(), np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
                        np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
                        True, XY2, w2, huge2, nW, nH, K2)
     for a, b in ((XY, XY2), (w, w2), (huge, huge2), (K, K2)):
@@ -166,8 +166,8 @@ def test_a_kernel_split_over_threads_gives_the_serial_result_bit_for_bit(monkeyp
     """Every iteration of a split loop writes its own outputs: splitting the range over
     threads changes nothing (projection, then culling with its bounding boxes)."""
     rng = np.random.default_rng(5)
-    V = rng.normal(0, 30, (5000, 3))
-    F = rng.integers(0, len(V), (9000, 3)).astype(np.int32)
+    V = rng.normal(0, 30, (3, 5000))                # coordinate-major, as the kernels take it
+    F = rng.integers(0, V.shape[1], (9000, 3)).astype(np.int32)
     r0, f = np.array([0, 0, 1000.0]), np.array([0, 0, -1.0])
     eu, ev = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     planes = np.zeros((4, 4))
@@ -177,8 +177,9 @@ def test_a_kernel_split_over_threads_gives_the_serial_result_bit_for_bit(monkeyp
     def run(k):
         monkeypatch.setattr(R, "_threads", lambda: k)
         monkeypatch.setattr(R, "_MIN_ITEMS", 1)
-        XY, w = np.empty((len(V), 2), np.int64), np.empty(len(V))
-        huge, K = np.empty(len(V), np.bool_), np.empty(len(V), np.int32)
+        n = V.shape[1]
+        XY, w = np.empty((n, 2), np.int64), np.empty(n)
+        huge, K = np.empty(n, np.bool_), np.empty(n, np.int32)
         R.project_vertices(V, r0, f, eu, ev, 200.0, 255.5, 200.0, 255.5, True, XY, w, huge,
                            512, 512, K)
         status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)

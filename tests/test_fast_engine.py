@@ -404,15 +404,16 @@ def _projected_ball():
     from xray_viz.tracing import _raster as R
 
     ball = _sphere(20.0, 5)
-    V = np.ascontiguousarray(ball.vertices, float)
+    V = np.ascontiguousarray(ball.vertices.T, float)      # coordinate-major, as the kernels
     F = np.ascontiguousarray(ball.faces, np.int32)
     r0, f = np.array([0.3, -0.2, 1000.0]), np.array([0, 0, -1.0])
     eu, ev = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     planes = np.zeros((4, 4))
     planes[:, 0] = 1.0
     planes[:, 3] = 1e9
-    XY, w = np.empty((len(V), 2), np.int64), np.empty(len(V))
-    huge, K = np.empty(len(V), np.bool_), np.empty(len(V), np.int32)
+    n = V.shape[1]
+    XY, w = np.empty((n, 2), np.int64), np.empty(n)
+    huge, K = np.empty(n, np.bool_), np.empty(n, np.int32)
     R.project_vertices(V, r0, f, eu, ev, 3000.0, 63.5, 3000.0, 47.5, True, XY, w, huge, 128,
                        96, K)
     return F, XY, w, huge, V, r0, planes, K

@@ -24,7 +24,8 @@ def test_first_use_rank_is_a_permutation_in_order_of_first_use():
 def test_spatial_order_keeps_the_mesh():
     m = trimesh.creation.icosphere(subdivisions=5, radius=10.0)
     v, f = _spatial_order(np.asarray(m.vertices, float), np.asarray(m.faces, np.int64))
-    assert sorted(map(tuple, v[f].reshape(-1, 9).round(12).tolist())) == \
+    assert v.shape == (3, len(m.vertices)) and v.flags.c_contiguous   # the kernels' layout
+    assert sorted(map(tuple, v.T[f].reshape(-1, 9).round(12).tolist())) == \
         sorted(map(tuple, m.vertices[m.faces].reshape(-1, 9).round(12).tolist()))
     # Vertices numbered in order of first use by the faces.
     first = np.unique(f.ravel(), return_index=True)[1]
@@ -50,7 +51,7 @@ def _numpy_spatial_order(v, f):
     new = np.concatenate([used, np.setdiff1d(np.arange(len(v)), used)])
     renumber = np.empty_like(new)
     renumber[new] = np.arange(len(new))
-    return v[order][new], renumber[f]
+    return v[order][new].T, renumber[f]
 
 
 @pytest.mark.parametrize("case", ["sphere", "ties", "unused"])
@@ -183,8 +184,8 @@ def test_projection_is_the_numpy_spelling_bit_for_bit(perspective, case):
     bx, by = (nW - 1) / 2, (nH - 1) / 2
     XY = np.full((n, 2), -7, np.int64)
     w, huge, K = np.full(n, -7.0), np.zeros(n, np.bool_), np.full(n, -7, np.int32)
-    got = R.project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH,
-                             K)
+    got = R.project_vertices(V.T.copy(), r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
+                             nW, nH, K)
     XYn, wn, hn, Kn, want = _numpy_projection(V, r0, f, eu, ev, sx, bx, sy, by, perspective,
                                               nW, nH)
     np.testing.assert_array_equal(w.view(np.int64), wn.view(np.int64))
@@ -223,7 +224,7 @@ def test_the_vectorised_one_sample_passes_add_the_bits_of_the_scalar_path(case, 
     """The one-body raster decides its one-sample triangles in vectorised passes and adds
     their depths in triangle order among the general path's; with ``depth_ok`` False every
     triangle takes the scalar path (same decisions, no cell-code cull). Both give the same
-    depth sums and counts bit for bit: two spheres one behind the other (four surfaces on a
+    depth sums bit for bit: two spheres one behind the other (four surfaces on a
     ray, so the order of a sample's terms shows), radially jittered (a mix of one-sample and
     larger boxes in a block), with vertices on sample rows and columns (zero edge functions: the general path
     inside a one-sample block), a parallel beam, and 2 x 2 supersampling."""
@@ -249,13 +250,12 @@ def test_the_vectorised_one_sample_passes_add_the_bits_of_the_scalar_path(case, 
     for ok in (True, False):
         err = np.empty(threads, np.int64)
         S = np.zeros((threads,) + rest[15].shape[1:])
-        N = np.zeros((threads,) + rest[16].shape[1:], np.int32)
-        real(threads, *rest[:14], ok, S, N, err, *rest[18:])
+        real(threads, *rest[:14], ok, S, err, *rest[17:])
         assert (err == -1).all()
-        out.append((S, N))
-    np.testing.assert_array_equal(out[0][0].view(np.int64), out[1][0].view(np.int64))
-    np.testing.assert_array_equal(out[0][1], out[1][1])
-    assert np.count_nonzero(out[0][1].sum(0)) == 0 and np.count_nonzero(out[0][0]) > 2000
+        out.append(S)
+    np.testing.assert_array_equal(out[0].view(np.int64), out[1].view(np.int64))
+    span = out[0].sum(0)                 # depth spans: two shells, so up to two chords a ray
+    assert np.count_nonzero(span) > 2000 and span.min() > -1e-9
 
 
 @pytest.mark.parametrize("perspective", [True, False])
@@ -264,7 +264,8 @@ def test_the_finish_from_per_thread_sums_is_the_finish_of_their_reduction(perspe
     """The one-body finish reads the per-thread accumulators itself (vectorised rows when
     there is no supersampling): bit for bit the finish of the sums that ``reduce_chunks``
     stores, for the whole grid and for windows of rows at an offset into the rays; zero depth
-    spans (and -0.0) give +0.0."""
+    spans (and -0.0) give +0.0. With crossing counts (the banded one-body raster's), the
+    reduction adds ``FL`` per net crossing."""
     rng = np.random.default_rng(11)
     W, H = 37, 23
     nW, nH = W * n, H * n
@@ -278,15 +279,44 @@ def test_the_finish_from_per_thread_sums_is_the_finish_of_their_reduction(perspe
     FL = 1500.0
     P00, Ex, Ey = np.array([-40.0, -30.0, -1500.0]), np.array([0.8, 0.1, 0.0]), np.array(
         [0.0, 0.9, 0.05])
-    total = np.empty((nH, nW))
-    R.reduce_chunks(S, N, FL, total)
+    total, counted = np.empty((nH, nW)), np.empty((nH, nW))
+    R.reduce_chunks(S, None, FL, total)
+    R.reduce_chunks(S, N, FL, counted)
+    np.testing.assert_allclose(total, S.sum(0), rtol=1e-15, atol=1e-12)
+    np.testing.assert_allclose(counted - total, N.sum(0) * FL, rtol=1e-13, atol=1e-11)
+    assert np.count_nonzero(N.sum(0)) > 100
     for y0, y1 in ((0, nH), (n * 4, n * 11)):
         r0, r1 = H - y1 // n, H - y0 // n
         ray0, n_rays = r0 * W * n * n, (r1 - r0) * W * n * n
         got, want = np.full((n_rays, 1), np.nan), np.full((n_rays, 1), np.nan)
-        R.finish_chunks(S, N, FL, perspective, P00, Ex, Ey, n, W, H, got, y0, y1, ray0)
+        R.finish_chunks(S, FL, perspective, P00, Ex, Ey, n, W, H, got, y0, y1, ray0)
         R.finish(total, np.zeros((1, 1, 1)), True, FL, perspective, P00, Ex, Ey, n, W, H, want,
                  y0, y1, 0, ray0)
         np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
         assert np.count_nonzero(got == 0) >= 6 * (y1 - y0)        # six zero columns
         assert not np.signbit(got[got == 0]).any()
+
+
+@pytest.mark.parametrize("kind", ["point", "parallel"])
+def test_a_body_reaching_beyond_the_detector_takes_the_bands_and_ends_rays_there(kind):
+    """The one-body raster sums hit depths without counting crossings, which needs every
+    vertex before the detector plane; a ball through that plane is traced by bands (which
+    count the crossings dropped beyond it), and rays still inside at the detector end there:
+    against the NumPy engine, and the analytic chord cut at the detector for the central ray."""
+    from xray_viz.tracing import fast
+
+    ball = trimesh.creation.icosphere(subdivisions=5, radius=30.0)
+    modes = {}
+    for z, name in ((-480.0, "through"), (-300.0, "before")):
+        m = ball.copy()
+        m.apply_translation([0.0, 0.0, z])
+        scene = make_scene(m, kind=kind, pitch=1.5, center=(0, 0, -500), shape=(41, 41))
+        with fast._locked(scene):
+            modes[name] = fast._Plan(scene, 1, None).mode
+        L, _ = fast_path_lengths(scene, cache=False)
+        ref, _ = ENGINES["numpy"](scene, keep_hits=False)
+        assert np.all(np.abs(L - ref) <= 1e-9 * ref.max()) and ref.max() > 40
+        if name == "through":
+            # the central ray: from the near pole (z + 30) to the detector plane (-500)
+            assert abs(L[(41 * 41) // 2, 0] - (z + 30.0 + 500.0)) < 0.05
+    assert modes == {"through": "single", "before": "direct"}

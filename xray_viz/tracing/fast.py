@@ -28,7 +28,8 @@ beam), so tracing all hits is rasterising the scene's triangles onto the detecto
    :attr:`xray_viz.bodies.Bodies.simple`, from the mesh reports):
    ``L = sum(exit depths) - sum(entry depths)`` (+ the detector depth when the ray is still
    inside there), accumulated per ray in one parallel pass over the triangles (one accumulator
-   per thread; for very large detectors, per band of rows); no hit list. Otherwise (several
+   per thread; per band of rows for very large detectors, and when the body reaches beyond
+   the detector plane, where the crossings it drops are counted); no hit list. Otherwise (several
    bodies, or one body of overlapping, nested or hollow pieces): per band of detector rows,
    the hits of each ray are counted, stored, sorted and swept with the reference semantics of
    :func:`xray_viz.attenuation.path_lengths`: a body contains the stretches of ray where the
@@ -127,18 +128,19 @@ def _split(scene):
 def _spatial_order(v, f):
     """Faces sorted along the Morton (Z-curve) order of their first vertex, and vertices
     numbered in order of first use by those faces, so that the per-call passes over triangles
-    and vertices touch memory nearly in sequence (1.3M faces: -25 % time). Projection
+    and vertices touch memory nearly in sequence (1.3M faces: -25 % time); the vertices
+    coordinate-major, ``(3, n)`` (the kernels' layout; small meshes keep their order). Projection
     independent: done once per mesh, in compiled code (:func:`xray_viz.tracing._raster.
     spatial_order`: a radix sort of the vertices' Morton codes, a counting sort of the faces)."""
     if len(v) < 4096 or len(v) >= 2**31:
-        return np.ascontiguousarray(v), f
+        return np.ascontiguousarray(v.T), f
     from xray_viz.tracing._raster import spatial_order
 
     return spatial_order(v, f)
 
 
 def _prepared(bodies, k):
-    """Body ``k``'s vertices (V, 3) float64 and faces (T, 3) int32/int64 in spatial order
+    """Body ``k``'s vertices (3, V) float64 (coordinate-major) and faces (T, 3) int32/int64 in spatial order
     (:func:`_spatial_order`), kept by the bodies."""
     def build():
         body = bodies[k]
@@ -157,7 +159,7 @@ def _prepared(bodies, k):
 
 
 def _geometry(bodies, keep=None):
-    """Concatenated vertices (V, 3) float64, faces (T, 3) int32 (int64 beyond 2**31 vertices)
+    """Concatenated vertices (3, V) float64 (coordinate-major), faces (T, 3) int32 (int64 beyond 2**31 vertices)
     and triangle bodies (T,) int32 (indices into ``bodies``) of the bodies ``keep`` (default:
     all), kept by the bodies per tuple ``keep``."""
     keep = tuple(range(len(bodies))) if keep is None else tuple(keep)
@@ -167,14 +169,14 @@ def _geometry(bodies, keep=None):
         if len(parts) == 1:
             V, F = parts[0]             # shared with the per-mesh set-up: no copy
         elif parts:
-            offset = np.cumsum([0] + [len(v) for v, _ in parts])
+            offset = np.cumsum([0] + [v.shape[1] for v, _ in parts])
             wide = offset[-1] >= 2**31
-            V = np.ascontiguousarray(np.concatenate([v for v, _ in parts]))
+            V = np.ascontiguousarray(np.concatenate([v for v, _ in parts], axis=1))
             F = np.ascontiguousarray(np.concatenate(
                 [f.astype(np.int64) + o for (_, f), o in zip(parts, offset)]),
                 dtype=np.int64 if wide else np.int32)
         else:
-            V, F = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+            V, F = np.zeros((3, 0)), np.zeros((0, 3), np.int32)
         B = np.concatenate([np.full(len(f), k, np.int32) for k, (_, f) in zip(keep, parts)]) \
             if parts else np.zeros(0, np.int32)
         for a in (V, F, B):
@@ -299,18 +301,18 @@ def _refuse(bodies, acq, B, t, r0, w, F):
 
 
 def _accumulators(bodies, n_chunks, nH, nW):
-    """Zeroed per-thread accumulators, reused between calls on the same bodies (no fresh
-    pages to fault in); each thread's pair is zeroed on a thread of the pool (NumPy's fill
-    releases the GIL: 0.2 ms for two pairs at 512 x 512 against 0.3 ms in turn; zeroing in
-    the raster kernel cost 0.6 s more of its compile)."""
+    """Zeroed per-thread depth sums, reused between calls on the same bodies (no fresh
+    pages to fault in); each thread's is zeroed on a thread of the pool (NumPy's fill
+    releases the GIL: 0.2 ms for two at 512 x 512 against 0.3 ms in turn; zeroing in the
+    raster kernel cost 0.6 s more of its compile)."""
     from xray_viz._threads import run_pieces
 
     fresh = []
-    S, N = bodies.cached(("fast", "accumulators", n_chunks, nH, nW), lambda: fresh.append(1) or (
-        np.zeros((n_chunks, nH, nW)), np.zeros((n_chunks, nH, nW), np.int32)), limit=1)
+    S = bodies.cached(("fast", "accumulators", n_chunks, nH, nW), lambda: fresh.append(1) or
+                      np.zeros((n_chunks, nH, nW)), limit=1)
     if not fresh:
-        run_pieces(lambda c: (S[c].fill(0), N[c].fill(0)), n_chunks)
-    return S, N
+        run_pieces(lambda c: S[c].fill(0), n_chunks)
+    return S
 
 
 def _band_order(entries, k):
@@ -540,7 +542,7 @@ class _Plan:
             return
         sides = np.ascontiguousarray(planes[:4])
         perspective = not fr.parallel
-        XY, w, huge, status, box, K = _workspace(bodies, len(V), len(F))
+        XY, w, huge, status, box, K = _workspace(bodies, V.shape[1], len(F))
         if perspective:
             wmin, wmax, odd = R.project_vertices(V, r0, depth_axis, eu, ev, sx * FL, bx,
                                                  sy * FL, by, True, XY, w, huge, nW, nH, K)
@@ -556,19 +558,21 @@ class _Plan:
         # The signed depth sum is a body's path length only where its winding number is 0 or 1
         # (from the mesh reports the bodies keep).
         if len(keep) == 1 and bodies.simple[keep[0]]:
-            if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES:
+            if n_chunks * nH * nW <= _DIRECT_MAX_SAMPLES and wmax <= FL:
                 # A single pass over the triangles, one accumulator per thread: the depth
-                # spans S of every sample now (O(samples), at most _DIRECT_MAX_SAMPLES).
+                # spans S of every sample now (O(samples), at most _DIRECT_MAX_SAMPLES). A
+                # body beyond the detector plane takes the bands, which count the crossings
+                # that end rays at the detector.
                 self.mode = "direct"
-                Sc, Nc = _accumulators(bodies, n_chunks, nH, nW)
+                Sc = _accumulators(bodies, n_chunks, nH, nW)
                 err = np.empty(n_chunks, np.int64)
                 R.raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P0, Ex, Ey, f, FL,
-                                nW, nH, depth_ok, Sc, Nc, err, K, sides)
+                                nW, nH, depth_ok, Sc, err, K, sides)
                 if err.max() >= 0:
                     _refuse(bodies, acq, B, int(err.max()), r0, w, F)
                 # The accumulators are summed where they are read (window), or into S when
                 # the plan outlives the lock (detach).
-                self.Sc, self.Nc, self.S = Sc, Nc, None
+                self.Sc, self.S = Sc, None
                 return
             self.mode = "single"
         else:
@@ -586,8 +590,8 @@ class _Plan:
                 a.copy() for a in (self.XY, self.w, self.status, self.box))
         elif self.mode == "direct" and self.S is None:
             self.S = np.empty((self.nH, self.nW))
-            self.R.reduce_chunks(self.Sc, self.Nc, self.FL, self.S)
-            self.Sc = self.Nc = None
+            self.R.reduce_chunks(self.Sc, None, self.FL, self.S)
+            self.Sc = None
 
     def _bands(self):
         """The per-triangle arguments of the banded rasters after ``band_height, nH, nW``."""
@@ -622,7 +626,7 @@ class _Plan:
         else:                            # one body of several in the beam: the others' are 0
             L, L1 = np.zeros((n_rays, self.nb)), np.zeros((n_rays, 1))
         if self.mode == "direct" and self.S is None:
-            R.finish_chunks(self.Sc, self.Nc, *args, L1, y0, y1, ray0)
+            R.finish_chunks(self.Sc, *args, L1, y0, y1, ray0)
         elif self.mode == "direct":
             R.finish(self.S, np.zeros((1, 1, 1)), True, *args, L1, y0, y1, 0, ray0)
         else:
