@@ -136,7 +136,7 @@ def test_arguments_of_other_types_are_normalised_not_compiled():
     ref = fast.trace_once(scene)
     v = np.asarray(scene.bodies[0].vertices, np.float64)
     f = np.asarray(scene.bodies[0].faces, np.int64)
-    assert R._faces(f, len(v)).dtype == np.int32
+    assert R._faces(f, len(v)).dtype == np.uint32
     np.testing.assert_array_equal(R._faces(f, len(v)), f)
     nW = nH = 64
     XY = np.empty((len(v), 2), np.int64)
@@ -157,7 +157,8 @@ def test_arguments_of_other_types_are_normalised_not_compiled():
 
 
 def test_more_than_2_to_the_31_vertices_is_refused_in_one_line():
-    with pytest.raises(SceneError, match=r"2\*\*31 - 1 vertices; use the NumPy engine"):
+    with pytest.raises(SceneError,
+                       match=r"2\*\*31 - 1 vertices and triangles; use the NumPy engine"):
         R._faces(np.zeros((1, 3), np.int64), 2**31)
 
 
