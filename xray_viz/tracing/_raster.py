@@ -635,9 +635,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     if E0 > 0 and E1 > 0 and E2 > 0:
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, y0, wmin, wmax)
                         if Wd <= FL:
-                            hk[nh] = (y0 - r0) * nW + X0
-                            hw[nh] = Wd
-                            hb[nh] = code
+                            hk[np.uint64(nh)] = (y0 - r0) * nW + X0
+                            hw[np.uint64(nh)] = Wd
+                            hb[np.uint64(nh)] = code
                             nh += 1
             if not one:
                 # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
@@ -661,9 +661,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                             # (0.85x the raster of the frog). The room made for the band
                             # counts every sample of its boxes.
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                            hk[nh] = (Y - r0) * nW + X
-                            hw[nh] = Wd
-                            hb[nh] = code
+                            hk[np.uint64(nh)] = (Y - r0) * nW + X
+                            hw[np.uint64(nh)] = Wd
+                            hb[np.uint64(nh)] = code
                             nh += np.int64((E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
                                            & (Wd <= FL))
                             E0 += stepx0
@@ -680,9 +680,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                             if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                                 if Wd <= FL:
-                                    hk[nh] = (Y - r0) * nW + X
-                                    hw[nh] = Wd
-                                    hb[nh] = code
+                                    hk[np.uint64(nh)] = (Y - r0) * nW + X
+                                    hw[np.uint64(nh)] = Wd
+                                    hb[np.uint64(nh)] = code
                                     nh += 1
             if single:
                 sgn = -1.0 if st > 0 else 1.0
@@ -715,11 +715,19 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
         for i in range(nh):
             j = cnt[hk[i]]
             cnt[hk[i]] = j + 1
-            bw[j] = hw[i]
-            bb[j] = hb[i]
+            bw[np.uint64(j)] = hw[i]
+            bb[np.uint64(j)] = hb[i]
         # cnt[p] is now the end of sample p's hits (the start of p + 1's).
+        # Unsigned indices where they are read from memory or counted (``nh``, ``j``, ``i``
+        # from ``cnt``): numba adds a negative-index fix-up to a signed one (the frog's raster
+        # 0.90x without them); the sample's X, Y kept alongside p, not divided out of it.
         start = 0
+        Xp = -1
+        Yp = r0
         for p in range(npix):
+            Xp += 1
+            Yp = Yp + 1 if Xp == nW else Yp
+            Xp = 0 if Xp == nW else Xp
             lo_ = start
             hi_ = cnt[p]
             start = hi_
@@ -727,17 +735,17 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                 continue
             # Insertion sort of the sample's hits by depth (few per sample).
             for i in range(lo_ + 1, hi_):
-                kw = bw[i]
-                kb = bb[i]
+                kw = bw[np.uint64(i)]
+                kb = bb[np.uint64(i)]
                 j = i - 1
-                while j >= lo_ and bw[j] > kw:
-                    bw[j + 1] = bw[j]
-                    bb[j + 1] = bb[j]
+                while j >= lo_ and bw[np.uint64(j)] > kw:
+                    bw[np.uint64(j + 1)] = bw[np.uint64(j)]
+                    bb[np.uint64(j + 1)] = bb[np.uint64(j)]
                     j -= 1
-                bw[j + 1] = kw
-                bb[j + 1] = kb
-            Y = r0 + p // nW
-            X = p % nW
+                bw[np.uint64(j + 1)] = kw
+                bb[np.uint64(j + 1)] = kb
+            Y = Yp
+            X = Xp
             ray = _sample_ray(X, Y, W, H, n)
             scale = (_obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL)
                      if perspective else 1.0)
@@ -745,7 +753,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
             # index among equals) is the lowest set bit of ``mask`` over the bodies' ranks.
             mask = np.uint64(0)
             for i in range(lo_, hi_):
-                c = bb[i]
+                c = bb[np.uint64(i)]
                 q = c >> np.uint32(1)
                 if c & 1:
                     inside[q] += 1
@@ -768,12 +776,12 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                             best = rank[qq]
                             win = qq
                 if win >= 0:
-                    nxt = bw[i + 1] if i + 1 < hi_ else FL
-                    seg = nxt - bw[i]
+                    nxt = bw[np.uint64(i + 1)] if i + 1 < hi_ else FL
+                    seg = nxt - bw[np.uint64(i)]
                     if seg > 0.0:
-                        L[ray - ray0, win] += seg * scale
+                        L[np.uint64(ray - ray0), np.uint64(win)] += seg * scale
             for i in range(lo_, hi_):
-                inside[bb[i] >> np.uint32(1)] = 0
+                inside[bb[np.uint64(i)] >> np.uint32(1)] = 0
 
 
 _DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
@@ -885,6 +893,8 @@ def _sample_ray(X, Y, W, H, n):
     with ``X = n i + c`` and ``Y = n j + (n - 1 - r)`` (Y up, image rows down), ray
     ``((H - 1 - j) W + i) n n + r n + c`` of :func:`xray_viz.geometry.detector_rays`. The one
     place of this index in the kernels."""
+    if n == 1:                        # no supersampling: no divisions
+        return (H - 1 - Y) * W + X
     j = Y // n
     i = X // n
     return ((H - 1 - j) * W + i) * n * n + (n - 1 - (Y - j * n)) * n + (X - i * n)
@@ -977,14 +987,14 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
     gathered into columns first: the three edge functions at the sample (inside when none is
     zero and all have one sign, which is then the orientation). Every other triangle takes
     the general path below (tie rules, exact limb arithmetic for large ones, the depth checks
-    when not ``depth_ok``).
-
-    Indices read from memory (``F``'s vertex numbers, the block's lists) are unsigned: numba
-    then indexes without the fix-up of negative indices that it adds for signed ones (a
-    compare and select each, which made the gathers of the cell codes 1.6x slower): the
-    raster 0.87x at 1.3M faces. The last pass visits the block's hits (their depth: plane and
+    when not ``depth_ok``). The last pass visits the block's hits (their depth: plane and
     clamp) and its general triangles in triangle order, so that every sample's sum is added
     in the order of one scalar loop: the same bits.
+
+    Indices read from memory (``F``'s vertex numbers, the block's lists) or counted are
+    unsigned (or made so where they index): numba then indexes without the fix-up of negative
+    indices that it adds for signed ones (a compare and select each, which made the gathers
+    of the cell codes 1.6x slower): the raster 0.80x at 1.3M faces, 0.87x at 82k.
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -1030,7 +1040,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 keep[j] = 0 if _between_samples(Ka[j], Kb[j], Kc[j]) & depth_ok else 1
             m = 0
             for j in range(nb):
-                cand[m] = b0 + j
+                cand[np.uint64(m)] = b0 + j
                 m += keep[j]
             # Pass 2, on the first mm candidates (all or none): one-sample triangles decided,
             # kind +-1 a hit (the sign is the orientation), 0 missed, +-2 the general path.
@@ -1082,9 +1092,9 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
             ng = 0
             for j in range(mm):
                 kj = kind[j]
-                hits[h] = j
+                hits[np.uint64(h)] = j
                 h += (kj == 1) | (kj == -1)
-                general[ng] = j
+                general[np.uint64(ng)] = j
                 ng += (kj == 2) | (kj == -2)
             if mm:
                 mostly_one = 2 * (mm - ng) >= mm
@@ -1094,11 +1104,11 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
             q = 0
             g = 0
             while q < h or g < ng:
-                if g < ng and (q >= h or general[g] < hits[q]):
-                    t = cand[general[g]] if mm else cand[g]
+                if g < ng and (q >= h or general[np.uint64(g)] < hits[np.uint64(q)]):
+                    t = cand[general[np.uint64(g)]] if mm else cand[np.uint64(g)]
                     g += 1
                 else:
-                    j = hits[q]
+                    j = hits[np.uint64(q)]
                     q += 1
                     t = cand[j]
                     i0 = F[t, 0]
@@ -1187,7 +1197,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                             V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
                             p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
-                        Sc[Y0, X0] += sgn * Wd
+                        Sc[np.uint64(Y0), np.uint64(X0)] += sgn * Wd
                         continue
                 if small:
                     area = e0x * (cy - ay) - e0y * (cx - ax)
@@ -1220,7 +1230,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         for X in range(X0, X1 + 1):
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                             kept = (E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
-                            Sc[Y, X] += sgn * Wd if kept else 0.0
+                            Sc[np.uint64(Y), np.uint64(X)] += sgn * Wd if kept else 0.0
                             E0 -= o * e0y * ONE
                             E1 -= o * e1y * ONE
                             E2 -= o * e2y * ONE
