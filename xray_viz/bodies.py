@@ -434,37 +434,37 @@ class Bodies(Sequence):
             return
         parallel = acq.parallel
         boxes = self.bounds
-        if parallel:
-            fr = acq.frame
-            forward, eu, ev = fr.depth_axis, fr.project_u, fr.project_v
-            if not fr.plain:       # tilted or offset: the source plane from the middle ray
-                r0 = fr.source + (fr.middle - fr.center)
-            hu, hv = acq.half_widths
-            slab = beam_planes(r0, forward, eu, ev, 0.0, hu, hv, False)[:4]
-            aside = boxes_outside_beam(boxes[:, 0], boxes[:, 1], r0, slab)
+        if not parallel:        # a point source: only the bodies whose box holds it (at once)
+            around = np.all((boxes[:, 0] <= r0) & (r0 <= boxes[:, 1]), axis=1)
+            for k in np.flatnonzero(around):
+                body = self._bodies[k]
+                if _winding(body.vertices[body.faces], r0) > 0:
+                    raise SceneError(
+                        f"{where}the source {r0.tolist()} is inside body {body.name!r}: move "
+                        "the source outside every body")
+            return
+        fr = acq.frame
+        forward, eu, ev = fr.depth_axis, fr.project_u, fr.project_v
+        if not fr.plain:           # tilted or offset: the source plane from the middle ray
+            r0 = fr.source + (fr.middle - fr.center)
+        hu, hv = acq.half_widths
+        slab = beam_planes(r0, forward, eu, ev, 0.0, hu, hv, False)[:4]
+        aside = boxes_outside_beam(boxes[:, 0], boxes[:, 1], r0, slab)
         for k, body in enumerate(self._bodies):
             lo, hi = boxes[k]
-            if parallel:
-                mid, half = (lo + hi) / 2 - r0, (hi - lo) / 2
-                centre, reach = float(mid @ forward), float(half @ np.abs(forward))
-                if aside[k] or not centre - reach < 0 < centre + reach:
-                    continue
-                v = body.vertices
-                depth = (v - r0) @ forward
-                if not depth.min() < 0 < depth.max():
-                    continue
-                if _crosses_within(body, v - r0, depth, eu, ev, hu, hv) or \
-                        _winding(v[body.faces], r0) > 0:
-                    raise SceneError(
-                        f"{where}body {body.name!r} crosses the plane of the parallel-beam source "
-                        f"(through {r0.tolist()}, across the beam): move the source back")
+            mid, half = (lo + hi) / 2 - r0, (hi - lo) / 2
+            centre, reach = float(mid @ forward), float(half @ np.abs(forward))
+            if aside[k] or not centre - reach < 0 < centre + reach:
                 continue
-            if np.any(r0 < lo) or np.any(r0 > hi):
+            v = body.vertices
+            depth = (v - r0) @ forward
+            if not depth.min() < 0 < depth.max():
                 continue
-            if _winding(body.vertices[body.faces], r0) > 0:
+            if _crosses_within(body, v - r0, depth, eu, ev, hu, hv) or \
+                    _winding(v[body.faces], r0) > 0:
                 raise SceneError(
-                    f"{where}the source {r0.tolist()} is inside body {body.name!r}: move the "
-                    "source outside every body")
+                    f"{where}body {body.name!r} crosses the plane of the parallel-beam source "
+                    f"(through {r0.tolist()}, across the beam): move the source back")
 
     # ------------------------------------------------------------------ moving them
     def transform(self, matrix, *, changes=None) -> "Bodies":
