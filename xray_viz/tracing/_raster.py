@@ -78,9 +78,11 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
     position quantised to 1024 steps per axis of the bounding box (a stable LSD radix sort,
     ties keep the vertex order); vertices used by no face then follow in Morton order. Then
     ``Vout[:, rank[i]] = V[i]`` (``Vout`` coordinate-major, ``(3, n)``) and ``Fout`` receives
-    the faces, renumbered, in the order visited (outputs of length 0 are not written; with ``spatial``, ``Fout`` is needed).
-    Scratch (``spatial`` only, int64): ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt``
-    (V + 1), ``hist`` (3 x 1025, zeros).
+    the faces, renumbered, in the order visited (outputs of length 0 are not written; with
+    ``spatial``, ``Fout`` is needed). Indices read from memory are made unsigned where they
+    index (no negative-index fix-up, see :func:`_faces`: 0.93x). Scratch (``spatial`` only,
+    int64): ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt`` (V + 1), ``hist`` (3 x 1025,
+    zeros).
     """
     nv = rank.shape[0]
     nf = flat_faces.shape[0]
@@ -115,28 +117,29 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
                 hist[p, j + 1] += hist[p, j]
             for j in range(nv):
                 i = src[j]
-                b = ((code[i] >> (10 * p)) & 1023)
-                dst[hist[p, b]] = i
+                b = ((code[np.uint64(i)] >> (10 * p)) & 1023)
+                dst[np.uint64(hist[p, b])] = i
                 hist[p, b] += 1
         for j in range(nv):               # tmp: the Morton order; code: each vertex's rank
-            code[tmp[j]] = j
+            code[np.uint64(tmp[j])] = j
             order[j] = tmp[j]
         # Faces by the Morton rank of their first vertex in that order (stable counting sort,
         # each face's key kept in tmp for the second pass), written where they go into Fout
         # (the faces read in order), renumbered there below.
         for t in range(nf // 3):
-            m = min(code[flat_faces[3 * t]], min(code[flat_faces[3 * t + 1]],
-                                                 code[flat_faces[3 * t + 2]]))
-            cnt[m + 1] += 1
+            m = min(code[np.uint64(flat_faces[3 * t])],
+                    min(code[np.uint64(flat_faces[3 * t + 1])],
+                        code[np.uint64(flat_faces[3 * t + 2])]))
+            cnt[np.uint64(m + 1)] += 1
             tmp[t] = m
         for j in range(nv):
             cnt[j + 1] += cnt[j]
         for t in range(nf // 3):
-            m = tmp[t]
+            m = np.uint64(tmp[t])
             j = cnt[m]
             cnt[m] += 1
             for c in range(3):
-                Fout[3 * j + c] = flat_faces[3 * t + c]
+                Fout[np.uint64(3 * j + c)] = flat_faces[3 * t + c]
     for i in range(nv):
         rank[i] = -1
     # Each vertex numbered at its first use, and each face written renumbered in the same
@@ -144,7 +147,7 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
     k = 0
     if spatial:
         for j in range(nf):
-            v = Fout[j]
+            v = np.uint64(Fout[j])
             if rank[v] < 0:
                 rank[v] = k
                 k += 1
@@ -152,21 +155,23 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
     else:
         write = Fout.shape[0] != 0
         for j in range(nf):
-            v = flat_faces[j]
+            v = np.uint64(flat_faces[j])
             if rank[v] < 0:
                 rank[v] = k
                 k += 1
             if write:
                 Fout[j] = rank[v]
     for j in range(nv):
-        v = order[j] if spatial else j
+        v = np.uint64(order[j] if spatial else j)
         if rank[v] < 0:
             rank[v] = k
             k += 1
-    for a in range(3):
-        Va = Vout[a]
-        for i in range(Vout.shape[1]):
-            Va[rank[i]] = V[i, a]
+    for i in range(Vout.shape[1]):
+        r = np.uint64(rank[i])          # unsigned: no negative-index fix-up (see _faces)
+        Vout[0, r] = V[i, 0]
+        Vout[1, r] = V[i, 1]
+        Vout[2, r] = V[i, 2]
+
 
 
 # (named first_use_rank in numba's cache files; the entry below is first_use_rank)
