@@ -824,8 +824,8 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
 
     One body (``single``): the depth span of sample (X, Y) is ``sum_c S[c, Y - s_row0, X]``
     over the per-thread accumulators (one when ``S`` is a sum already), plus
-    ``sum_c N[c, ...] * FL`` when ``N`` has chunks (as :func:`_reduce_chunks`). Several bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows
-    ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``: every
+    ``sum_c N[c, ...] * FL`` when ``N`` has chunks (as :func:`_reduce_chunks`). Several
+    bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``: every
     ray of those rows is written (``L`` need not arrive zeroed).
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray

@@ -140,8 +140,8 @@ def _spatial_order(v, f):
 
 
 def _prepared(bodies, k):
-    """Body ``k``'s vertices (3, V) float64 (coordinate-major) and faces (T, 3) int32/int64 in spatial order
-    (:func:`_spatial_order`), kept by the bodies."""
+    """Body ``k``'s vertices (3, V) float64 (coordinate-major) and faces (T, 3) int32/int64 in
+    spatial order (:func:`_spatial_order`), kept by the bodies."""
     def build():
         body = bodies[k]
         v, f = _spatial_order(np.asarray(body.vertices, dtype=np.float64),
@@ -159,9 +159,9 @@ def _prepared(bodies, k):
 
 
 def _geometry(bodies, keep=None):
-    """Concatenated vertices (3, V) float64 (coordinate-major), faces (T, 3) int32 (int64 beyond 2**31 vertices)
-    and triangle bodies (T,) int32 (indices into ``bodies``) of the bodies ``keep`` (default:
-    all), kept by the bodies per tuple ``keep``."""
+    """Concatenated vertices (3, V) float64 (coordinate-major), faces (T, 3) int32 (int64 beyond
+    2**31 vertices) and triangle bodies (T,) int32 (indices into ``bodies``) of the bodies
+    ``keep`` (default: all), kept by the bodies per tuple ``keep``."""
     keep = tuple(range(len(bodies))) if keep is None else tuple(keep)
 
     def build():
