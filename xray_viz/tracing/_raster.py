@@ -1125,8 +1125,10 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
                         V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
                         p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
-                    Wd = _clamped(c0, c1, c2, c3, c4, c5, sample_x[j], sample_y[j],
-                                  min(w[i0], min(w[i1], w[i2])), max(w[i0], max(w[i1], w[i2])))
+                    # (the sample as int64: _clamped has one specialisation)
+                    Wd = _clamped(c0, c1, c2, c3, c4, c5, np.int64(sample_x[j]),
+                                  np.int64(sample_y[j]), min(w[i0], min(w[i1], w[i2])),
+                                  max(w[i0], max(w[i1], w[i2])))
                     if kind[j] > 0:
                         Sc[sample_y[j], sample_x[j]] -= Wd
                     else:
