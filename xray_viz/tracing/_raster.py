@@ -173,7 +173,6 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
         Vout[2, r] = V[i, 2]
 
 
-
 # (named first_use_rank in numba's cache files; the entry below is first_use_rank)
 _first_use_rank = njit(cache=True, nogil=True, error_model="numpy")(first_use_rank)
 
@@ -825,8 +824,9 @@ def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, 
     One body (``single``): the depth span of sample (X, Y) is ``sum_c S[c, Y - s_row0, X]``
     over the per-thread accumulators (one when ``S`` is a sum already), plus
     ``sum_c N[c, ...] * FL`` when ``N`` has chunks (as :func:`_reduce_chunks`). Several
-    bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows ``y0 <= Y < y1`` are done (a window of whole pixel rows), into ``L[ray - ray0]``: every
-    ray of those rows is written (``L`` need not arrive zeroed).
+    bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows ``y0 <= Y < y1`` are done (a window
+    of whole pixel rows), into ``L[ray - ray0]``: every ray of those rows is written (``L``
+    need not arrive zeroed).
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
     ``((H - 1 - j) W + i) n n + r n + c`` (:func:`_sample_ray`, here kept incrementally). A
@@ -978,10 +978,9 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
     its hits, minus where the surface enters the body (seen from the source), plus where it
     leaves, which is its depth span. No vertex may lie beyond the detector plane (depth
     ``FL``): the caller sends such a body to the banded raster, which counts the crossings
-    it drops there. ``err[c]``
-    receives the index of a triangle that cannot be projected (straddling or too close to the
-    source plane), else -1; a straddling triangle wholly outside one of the beam's side
-    ``planes`` is skipped instead.
+    it drops there. ``err[c]`` receives the index of a triangle that cannot be projected
+    (straddling or too close to the source plane), else -1; a straddling triangle wholly
+    outside one of the beam's side ``planes`` is skipped instead.
 
     By blocks of ``_BLOCK`` triangles. When ``depth_ok``, a branch-free first pass drops the
     triangles whose three vertices share an even cell code on an axis (``K``, see
@@ -1814,10 +1813,7 @@ def cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, pl
     each band of ``band_height`` rows. The cull counts each piece's triangles per band, so the
     lists take one more pass (:func:`_bin_triangles`). ``band_tris`` holds triangle indices
     (uint32, as :func:`_faces`: fewer than 2**31 triangles). Not meaningful if a status is an
-    error (the caller refuses the scene)."""
-    if len(F) >= 2**31:
-        raise ValueError(f"{len(F)} triangles: the fast engine's banded raster takes fewer "
-                         f"than 2**31; split the mesh or use the NumPy engine")
+    error (the caller refuses the scene). Too many triangles are refused by :func:`_faces`."""
     band_of = _band_of(nH, band_height)
     n_bands = int(band_of[-1]) + 1
     kept, starts, sizes, counts = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V,
