@@ -382,7 +382,7 @@ print(" ".join(sorted(m for m in sys.modules if m.startswith("xray_viz"))), flus
 """
 IS_CACHED = """
 from xray_viz.tracing import _raster as R
-print(R._is_cached("_first_use_rank"), R._is_cached("_bin_triangles"))
+print(R._is_cached("_first_use_rank"), R._is_cached("_reduce_chunks"))
 """
 
 

@@ -504,10 +504,11 @@ def test_the_cull_decides_boxes_of_up_to_two_by_two_samples_as_the_edge_function
 
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_band_lists_hold_each_kept_triangle_in_every_band_its_rows_meet(monkeypatch, threads):
-    """``cull_and_bin``: the cull counts each piece's kept triangles per band (a row table,
-    not divisions), a second pass fills the lists. Against NumPy: band b lists, in triangle
-    order, exactly the kept triangles whose sample rows meet its rows, however many pieces
-    (a band height of 7 rows, not a power of two; the last band cut by the grid)."""
+    """``cull_and_bin``: each piece of the cull counts its kept triangles per band (a row
+    table, not divisions), then lists them by band. Against NumPy: band b's lists, the
+    pieces' in turn, are in triangle order exactly the kept triangles whose sample rows meet
+    its rows, however many pieces (a band height of 7 rows, not a power of two; the last
+    band cut by the grid)."""
     from xray_viz.tracing import _raster as R
 
     monkeypatch.setattr(R, "_threads", lambda: threads)
@@ -516,14 +517,17 @@ def test_band_lists_hold_each_kept_triangle_in_every_band_its_rows_meet(monkeypa
     band_start, tris = R.cull_and_bin(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V,
                                       r0, planes, 7, K=K, depth_ok=True)
     kept = np.flatnonzero(status)
-    assert len(band_start) == 15                  # 14 bands of 7 rows cover 96 rows
-    assert len(kept) > 1000 and band_start[0] == 0 and band_start[-1] == len(tris)
+    assert len(kept) > 1000
+    assert band_start.shape == (threads, 15)       # 14 bands of 7 rows cover 96 rows
+    assert band_start[0, 0] == 0 and band_start[-1, -1] == len(tris)
     spans = 0
     for b in range(14):
         want = kept[(box[kept, 2] <= 7 * b + 6) & (box[kept, 3] >= 7 * b)]
-        np.testing.assert_array_equal(tris[band_start[b]:band_start[b + 1]], want)
+        got = np.concatenate([tris[band_start[c, b]:band_start[c, b + 1]]
+                              for c in range(threads)])
+        np.testing.assert_array_equal(got, want)
         spans += len(want)
-    assert spans > len(kept)                      # some triangles meet two bands
+    assert spans == len(tris) > len(kept)         # some triangles meet two bands
 
 
 def test_bands_dealt_to_any_number_of_threads_give_the_same_bits(monkeypatch):

@@ -498,10 +498,15 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     the same status), as :func:`_raster_direct` does; the others' vertices are gathered into
     columns and their boxes and statuses computed in a loop LLVM vectorises (GIANT
     triangles' exact orientation after it). ``kept[lo:lo + n]`` receives the triangles given
-    a non-zero status other than an error, in order; returns ``(lo, n)``. ``counts[b]``
-    receives how many of them meet the rows of band ``b`` (``band_of[Y]`` is the band of
-    sample row Y: a look-up, not two divisions, which cost this loop 25 %;
-    :func:`_bin_triangles`).
+    a non-zero status other than an error, in order. ``counts[b]`` receives how many of
+    them meet the rows of band ``b`` (``band_of[Y]`` is the band of sample row Y: a look-up,
+    not two divisions, which cost this loop 25 %).
+
+    Returns ``(lo, n, tris)``: ``tris`` lists, band after band, the kept triangles that meet
+    each band's rows, each band's in triangle order (band ``b``'s are ``tris[s[b]:s[b] +
+    counts[b]]``, ``s`` the running sum of ``counts``): this piece's band lists, made here
+    while its boxes are in cache, so that no other pass, nor a wait for the other threads,
+    comes between the cull and the raster (:func:`cull_and_bin`).
     """
     n = 0
     for b in range(counts.shape[0]):
@@ -627,29 +632,24 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             counts[bf] += 1
             for b in range(bf + 1, band_of[Y1] + 1):
                 counts[b] += 1
-    return lo, n
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _bin_triangles(lo, hi, kept, starts, sizes, box, band_of, offsets, tris):
-    """The band lists of pieces ``lo .. hi - 1`` of :func:`_cull_triangles`' kept triangles
-    (piece ``c``'s are ``kept[starts[c]:starts[c] + sizes[c]]``, in triangle order): each
-    triangle ``t`` is written to ``tris[offsets[c, b]]`` for every band ``b`` that its sample
-    rows ``box[t, 2] .. box[t, 3]`` meet (``band_of[Y]``: the band of row Y), ``offsets[c, b]``
-    advancing. With the offsets of :func:`cull_and_bin` (piece c's entries of a band after
-    those of pieces 0 .. c - 1), each band's list is in triangle order.
-    """
-    for c in range(lo, hi):
-        for m in range(starts[c], starts[c] + sizes[c]):
-            t = kept[m]
-            # The first band apart, as the cull (0.93x); indices read from memory unsigned
-            # (no negative-index fix-up: 0.84x).
-            b0 = band_of[np.uint64(box[t, 2])]
-            tris[np.uint64(offsets[c, b0])] = t
-            offsets[c, np.uint64(b0)] += 1
-            for b in range(b0 + 1, band_of[np.uint64(box[t, 3])] + 1):
-                tris[np.uint64(offsets[c, b])] = t
-                offsets[c, np.uint64(b)] += 1
+    # The band lists: each kept triangle written to every band its rows meet (the first band
+    # apart, as above; indices read from memory unsigned: no negative-index fix-up).
+    nbands = counts.shape[0]
+    off = np.empty(nbands, np.int64)
+    total = np.int64(0)
+    for b in range(nbands):
+        off[b] = total
+        total += counts[b]
+    tris = np.empty(total, np.uint32)
+    for m in range(lo, lo + n):
+        t = kept[m]
+        bf = band_of[np.uint64(box[t, 2])]
+        tris[np.uint64(off[bf])] = t
+        off[np.uint64(bf)] += 1
+        for b in range(bf + 1, band_of[np.uint64(box[t, 3])] + 1):
+            tris[np.uint64(off[b])] = t
+            off[b] += 1
+    return lo, n, tris
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -658,13 +658,14 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                   P00, Ex, Ey, n, W, H, L, ray0):
     """The banded raster, one body (``single``) or several: bands ``order[lo:hi]``.
 
-    Each band's triangles (``band_tris``, in triangle order: indices of the triangles of
-    :func:`_cull_triangles`' ``status`` and ``box``) visit the samples of their rows that they
+    Each band's triangles (``band_tris[band_start[c, b]:band_start[c, b + 1]]`` over the
+    cull's pieces ``c`` in turn, which is triangle order: :func:`cull_and_bin`; indices of
+    the triangles of :func:`_cull_triangles`' ``status`` and ``box``) visit the samples of their rows that they
     cover (exact edge functions and the tie rule, int64 for SMALL triangles, limbs for GIANT
     ones; a DECIDED triangle's covered samples are the bits of its status, set by the cull:
-    :func:`_small_status`); a hit's depth is that of the triangle's plane (:func:`_plane`, from the vertices
-    ``V``, the source ``origin`` and a parallel beam's direction ``f``) clamped to the range of
-    its vertices' depths ``w``; a hit beyond the detector (depth > FL) is dropped. The plane is
+    :func:`_small_status`); a hit's depth is that of the triangle's plane (:func:`_plane`,
+    from the vertices ``V``, the source ``origin`` and a parallel beam's direction ``f``)
+    clamped to the range of its vertices' depths ``w``; a hit beyond the detector (depth > FL) is dropped. The plane is
     computed where the triangle is rastered, once per band it meets (1.1 times per triangle
     for the frog): that costs the raster no more than reading it from a set-up pass did.
 
@@ -690,6 +691,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     r0x, r0y, r0z = origin[0], origin[1], origin[2]
     f0, f1, f2 = f[0], f[1], f[2]
     npix_max = band_height * nW
+    pieces = band_start.shape[0]
     cap = 1024
     # Unsigned, as the faces (:func:`_faces`): indices without numba's negative-index fix-up
     # (the frog's raster 0.95-0.97x).
@@ -706,128 +708,131 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
         # Room for every sample of the band's boxes (one triangle's with ``single``), made
         # before the band: buffers grown inside the triangle loop cost that loop ~15 %.
         need = np.int64(0)
-        for idx in range(band_start[b], band_start[b + 1]):
-            t = band_tris[idx]
-            area = (box[t, 1] - box[t, 0] + 1) * (min(box[t, 3], r1) - max(box[t, 2], r0) + 1)
-            need = max(need, area) if single else need + area
+        for c in range(pieces):
+            for idx in range(band_start[c, b], band_start[c, b + 1]):
+                t = band_tris[idx]
+                area = ((box[t, 1] - box[t, 0] + 1)
+                        * (min(box[t, 3], r1) - max(box[t, 2], r0) + 1))
+                need = max(need, area) if single else need + area
         if need > cap:
             cap = max(2 * cap, need)
             hk = np.empty(cap, np.uint32)
             hw = np.empty(cap, np.float64)
             hb = np.empty(cap, np.uint32)
         nh = np.int64(0)
-        for idx in range(band_start[b], band_start[b + 1]):
-            t = band_tris[idx]
-            y0 = max(box[t, 2], r0)
-            y1 = min(box[t, 3], r1)
-            X0 = box[t, 0]
-            X1 = box[t, 1]
-            n0 = nh
-            st = status[t]
-            code = np.int64(tri_body[t]) * 2 + (1 if st > 0 else 0)
-            i0 = F[t, 0]
-            i1 = F[t, 1]
-            i2 = F[t, 2]
-            # The triangle's hits in rows y0..y1, columns X0..X1, appended to hk (sample index
-            # in the band), hw (depth), hb (code), samples in row then column order. Written
-            # out here: numba does not inline a function of this size, and its call (the
-            # arrays and some 25 numbers pushed per triangle entry) costs as much as a small
-            # triangle's coverage.
-            ax = XY[i0, 0]
-            ay = XY[i0, 1]
-            bx = XY[i1, 0]
-            by = XY[i1, 1]
-            cx = XY[i2, 0]
-            cy = XY[i2, 1]
-            o = np.int64(1 if st > 0 else -1)
-            small = abs(st) == SMALL
-            c0, c1, c2, c3, c4, c5 = _plane(V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1],
-                                            V[2, i1], V[0, i2], V[1, i2], V[2, i2], perspective,
-                                            r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1,
-                                            ey2, f0, f1, f2, FL)
-            w0 = w[i0]
-            w1 = w[i1]
-            w2 = w[i2]
-            wmin = min(w0, min(w1, w2))
-            wmax = max(w0, max(w1, w2))
-            # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
-            # E > 0).
-            e0x = bx - ax
-            e0y = by - ay
-            e1x = cx - bx
-            e1y = cy - by
-            e2x = ax - cx
-            e2y = ay - cy
-            if abs(st) > DECIDED:
-                # The cull decided this triangle's coverage (a box of at most 2 x 2 samples,
-                # no edge function zero at them: _small_status): its covered samples in the
-                # band's rows, in row then column order, as the rows below would give them.
-                cover = np.int64(abs(st)) - DECIDED
-                Yb = box[t, 2]
-                for q in range(4):
-                    X = X0 + (q & 1)
-                    Y = Yb + (q >> 1)
-                    if (cover >> q) & 1 and y0 <= Y <= y1:
-                        Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                        if Wd <= FL:
-                            hk[np.uint64(nh)] = (Y - r0) * nW + X
-                            hw[np.uint64(nh)] = Wd
-                            hb[np.uint64(nh)] = code
-                            nh += 1
-            else:
-                # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
-                # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
-                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-                if small:
-                    px0 = X0 * ONE
-                    stepx0 = -o * e0y * ONE
-                    stepx1 = -o * e1y * ONE
-                    stepx2 = -o * e2y * ONE
-                    for Y in range(y0, y1 + 1):
-                        py = Y * ONE
-                        E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
-                        E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
-                        E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
-                        for X in range(X0, X1 + 1):
-                            # Every sample of the row is stored and kept (nh moves on) when
-                            # it is covered: no branch to mispredict at the triangle's edges
-                            # (0.85x the raster of the frog). The room made for the band
-                            # counts every sample of its boxes.
+        for c in range(pieces):
+            for idx in range(band_start[c, b], band_start[c, b + 1]):
+                t = band_tris[idx]
+                y0 = max(box[t, 2], r0)
+                y1 = min(box[t, 3], r1)
+                X0 = box[t, 0]
+                X1 = box[t, 1]
+                n0 = nh
+                st = status[t]
+                code = np.int64(tri_body[t]) * 2 + (1 if st > 0 else 0)
+                i0 = F[t, 0]
+                i1 = F[t, 1]
+                i2 = F[t, 2]
+                # The triangle's hits in rows y0..y1, columns X0..X1, appended to hk (sample index
+                # in the band), hw (depth), hb (code), samples in row then column order. Written
+                # out here: numba does not inline a function of this size, and its call (the
+                # arrays and some 25 numbers pushed per triangle entry) costs as much as a small
+                # triangle's coverage.
+                ax = XY[i0, 0]
+                ay = XY[i0, 1]
+                bx = XY[i1, 0]
+                by = XY[i1, 1]
+                cx = XY[i2, 0]
+                cy = XY[i2, 1]
+                o = np.int64(1 if st > 0 else -1)
+                small = abs(st) == SMALL
+                c0, c1, c2, c3, c4, c5 = _plane(V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1],
+                                                V[2, i1], V[0, i2], V[1, i2], V[2, i2], perspective,
+                                                r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1,
+                                                ey2, f0, f1, f2, FL)
+                w0 = w[i0]
+                w1 = w[i1]
+                w2 = w[i2]
+                wmin = min(w0, min(w1, w2))
+                wmax = max(w0, max(w1, w2))
+                # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
+                # E > 0).
+                e0x = bx - ax
+                e0y = by - ay
+                e1x = cx - bx
+                e1y = cy - by
+                e2x = ax - cx
+                e2y = ay - cy
+                if abs(st) > DECIDED:
+                    # The cull decided this triangle's coverage (a box of at most 2 x 2 samples,
+                    # no edge function zero at them: _small_status): its covered samples in the
+                    # band's rows, in row then column order, as the rows below would give them.
+                    cover = np.int64(abs(st)) - DECIDED
+                    Yb = box[t, 2]
+                    for q in range(4):
+                        X = X0 + (q & 1)
+                        Y = Yb + (q >> 1)
+                        if (cover >> q) & 1 and y0 <= Y <= y1:
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                            hk[np.uint64(nh)] = (Y - r0) * nW + X
-                            hw[np.uint64(nh)] = Wd
-                            hb[np.uint64(nh)] = code
-                            nh += np.int64((E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
-                                           & (Wd <= FL))
-                            E0 += stepx0
-                            E1 += stepx1
-                            E2 += stepx2
+                            if Wd <= FL:
+                                hk[np.uint64(nh)] = (Y - r0) * nW + X
+                                hw[np.uint64(nh)] = Wd
+                                hb[np.uint64(nh)] = code
+                                nh += 1
                 else:
-                    for Y in range(y0, y1 + 1):
-                        py = Y * ONE
-                        for X in range(X0, X1 + 1):
-                            px = X * ONE
-                            s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
-                            s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
-                            s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
-                            if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                    # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
+                    # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
+                    bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+                    bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+                    bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                    if small:
+                        px0 = X0 * ONE
+                        stepx0 = -o * e0y * ONE
+                        stepx1 = -o * e1y * ONE
+                        stepx2 = -o * e2y * ONE
+                        for Y in range(y0, y1 + 1):
+                            py = Y * ONE
+                            E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
+                            E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
+                            E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+                            for X in range(X0, X1 + 1):
+                                # Every sample of the row is stored and kept (nh moves on) when
+                                # it is covered: no branch to mispredict at the triangle's edges
+                                # (0.85x the raster of the frog). The room made for the band
+                                # counts every sample of its boxes.
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                                if Wd <= FL:
-                                    hk[np.uint64(nh)] = (Y - r0) * nW + X
-                                    hw[np.uint64(nh)] = Wd
-                                    hb[np.uint64(nh)] = code
-                                    nh += 1
-            if single:
-                sgn = -1.0 if st > 0 else 1.0
-                dn = 1 if st > 0 else -1
-                for i in range(n0, nh):
-                    Y = r0 + hk[i] // nW
-                    X = hk[i] - (Y - r0) * nW
-                    S[Y - row0, X] += sgn * hw[i]
-                    N[Y - row0, X] += dn
-                nh = np.int64(0)
+                                hk[np.uint64(nh)] = (Y - r0) * nW + X
+                                hw[np.uint64(nh)] = Wd
+                                hb[np.uint64(nh)] = code
+                                nh += np.int64((E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
+                                               & (Wd <= FL))
+                                E0 += stepx0
+                                E1 += stepx1
+                                E2 += stepx2
+                    else:
+                        for Y in range(y0, y1 + 1):
+                            py = Y * ONE
+                            for X in range(X0, X1 + 1):
+                                px = X * ONE
+                                s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
+                                s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
+                                s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
+                                if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                                    if Wd <= FL:
+                                        hk[np.uint64(nh)] = (Y - r0) * nW + X
+                                        hw[np.uint64(nh)] = Wd
+                                        hb[np.uint64(nh)] = code
+                                        nh += 1
+                if single:
+                    sgn = -1.0 if st > 0 else 1.0
+                    dn = 1 if st > 0 else -1
+                    for i in range(n0, nh):
+                        Y = r0 + hk[i] // nW
+                        X = hk[i] - (Y - r0) * nW
+                        S[Y - row0, X] += sgn * hw[i]
+                        N[Y - row0, X] += dn
+                    nh = np.int64(0)
         if single:
             continue
         # The band's rays (whole pixel rows j0..j1, Y up; image rows down) start at zero:
@@ -1461,8 +1466,7 @@ SIGNATURES = {
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 u4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
                        "f8[2]r i4[1]r b1 i8[1] i8[1]r i8[1]",
-    "_bin_triangles": "i8 i8 i8[1]r i8[1]r i8[1]r i8[2]r i8[1]r i8[2] u4[1]",
-    "_raster_bands": "i8 i8 i8[1]r i8[1]r u4[1]r i8 i8 i8 i1[1]r i8[2]r u4[2]r i8[2]r f8[2]r "
+    "_raster_bands": "i8 i8 i8[1]r i8[2]r u4[1]r i8 i8 i8 i1[1]r i8[2]r u4[2]r i8[2]r f8[2]r "
                      "f8[1]r f8[1]r f8[1]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
                      "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
     "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 "
@@ -1478,7 +1482,7 @@ PATHS = {
     # (a cold start orders the meshes in NumPy: spatial_order_numpy; compiled for later runs)
     "order": ("_first_use_rank",),
     "direct": ("_raster_direct", "_reduce_chunks", "_finish"),
-    "banded": ("_cull_triangles", "_bin_triangles"),
+    "banded": ("_cull_triangles",),
     "single": ("_raster_bands", "_reduce_chunks", "_finish"),
     "multi": ("_raster_bands",),
 }
@@ -1549,8 +1553,8 @@ def _names(paths=None) -> list:
 #: vectorised projection and one-body raster; ``_raster_bands`` ~10 % more once it computed the
 #: planes itself), to share them out among the workers; kernels
 #: of one tuple share helpers and go to the same worker.
-_COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 0.9,
-          ("_bin_triangles",): 0.12, ("_raster_bands",): 2.5,
+_COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 1.0,
+          ("_raster_bands",): 2.5,
           ("_raster_direct",): 3.8, ("_reduce_chunks",): 0.05, ("_finish",): 0.75}
 #: Kernel name -> the background process compiling it into numba's cache.
 _workers: dict = {}
@@ -1906,8 +1910,9 @@ def _band_of(nH, band_height):
 def _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, K, depth_ok,
           band_of):
     """:func:`_cull_triangles` over every triangle, one contiguous piece per thread: ``(kept,
-    starts, sizes, counts)``, piece c's kept triangles ``kept[starts[c]:starts[c] + sizes[c]]``
-    and ``counts[c, b]`` of them in band b (``band_of``: :func:`_band_of`)."""
+    starts, sizes, counts, lists)``, piece c's kept triangles ``kept[starts[c]:starts[c] +
+    sizes[c]]``, ``counts[c, b]`` of them in band b (``band_of``: :func:`_band_of`) and its
+    band lists ``lists[c]``."""
     V = _vertices(V)
     F = _faces(F, V.shape[1])
     if K is None:
@@ -1920,9 +1925,9 @@ def _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, K
                    (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
                     V, _in(r0, _f8), _in(planes, _f8), _in(K, np.int32),
                     bool(depth_ok), kept, band_of), cuts=cut, each=lambda j: (counts[j],))
-    starts = np.array([a for a, _ in parts], np.int64)
-    sizes = np.array([n for _, n in parts], np.int64)
-    return kept, starts, sizes, counts
+    starts = np.array([a for a, _, _ in parts], np.int64)
+    sizes = np.array([n for _, n, _ in parts], np.int64)
+    return kept, starts, sizes, counts, [lists for _, _, lists in parts]
 
 
 def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, *,
@@ -1930,30 +1935,36 @@ def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, 
     """:func:`_cull_triangles` over every triangle; returns the triangles of non-zero status
     other than an error, in order (int64). ``K`` and ``depth_ok``: the cell codes and the
     depth check of :func:`project_vertices` (without them, no first pass)."""
-    kept, starts, sizes, _ = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0,
-                                   planes, K, depth_ok, _band_of(nH, max(int(nH), 1)))
+    kept, starts, sizes, _, _ = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V,
+                                      r0, planes, K, depth_ok, _band_of(nH, max(int(nH), 1)))
     return np.concatenate([kept[a:a + n] for a, n in zip(starts, sizes)])
 
 
 def cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
                  band_height, *, K=None, depth_ok=False):
-    """:func:`cull_triangles`, then the CSR lists ``(band_start, band_tris)`` (each band's in
-    triangle order) of the kept triangles whose sample rows ``box[t, 2] .. box[t, 3]`` meet
-    each band of ``band_height`` rows. The cull counts each piece's triangles per band, so the
-    lists take one more pass (:func:`_bin_triangles`). ``band_tris`` holds triangle indices
-    (uint32, as :func:`_faces`: fewer than 2**31 triangles). Not meaningful if a status is an
-    error (the caller refuses the scene). Too many triangles are refused by :func:`_faces`."""
+    """:func:`cull_triangles` and the lists ``(band_start, band_tris)`` of the kept triangles
+    whose sample rows ``box[t, 2] .. box[t, 3]`` meet each band of ``band_height`` rows: each
+    piece of the cull (one per thread) lists its own triangles by band, and band ``b``'s list
+    is ``band_tris[band_start[c, b]:band_start[c, b + 1]]`` over the pieces ``c`` in turn,
+    which is triangle order. ``band_tris`` holds triangle indices (uint32, as :func:`_faces`:
+    fewer than 2**31 triangles). Not meaningful if a status is an error (the caller refuses
+    the scene). Too many triangles are refused by :func:`_faces`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> start = np.array([[0, 2, 3], [3, 3, 5]])          # 2 pieces, 2 bands
+    >>> tris = np.array([4, 7, 7, 90, 91])
+    >>> [[int(t) for c in range(2) for t in tris[start[c, b]:start[c, b + 1]]] for b in range(2)]
+    [[4, 7], [7, 90, 91]]
+    """
     band_of = _band_of(nH, band_height)
-    n_bands = int(band_of[-1]) + 1
-    kept, starts, sizes, counts = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V,
-                                        r0, planes, K, depth_ok, band_of)
-    band_start = np.zeros(n_bands + 1, np.int64)
-    np.cumsum(counts.sum(axis=0), out=band_start[1:])
-    # Piece c's entries of band b follow those of pieces 0 .. c - 1.
-    offsets = np.cumsum(counts, axis=0) - counts + band_start[:-1]
-    tris = np.empty(band_start[-1], np.uint32)
-    _split("_bin_triangles", 0, len(starts),
-           (kept, starts, sizes, _in(box, np.int64), band_of, offsets, tris))
+    _, _, _, counts, lists = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0,
+                                   planes, K, depth_ok, band_of)
+    band_start = np.zeros((len(lists), counts.shape[1] + 1), np.int64)
+    np.cumsum(counts, axis=1, out=band_start[:, 1:])
+    band_start += np.cumsum([0] + [len(t) for t in lists[:-1]])[:, None]
+    tris = lists[0] if len(lists) == 1 else np.concatenate(lists)
     return band_start, tris
 
 

@@ -600,7 +600,8 @@ class _Plan:
 
     def _order(self, b0, b1):
         """Bands ``b0 .. b1 - 1`` dealt out to the threads (:func:`_band_order`)."""
-        order, cuts = _band_order(np.diff(self.band_start[b0:b1 + 1]), numba.get_num_threads())
+        entries = np.diff(self.band_start[:, b0:b1 + 1], axis=1).sum(axis=0)   # over pieces
+        order, cuts = _band_order(entries, numba.get_num_threads())
         return order + b0, cuts
 
     def window(self, b0, b1):
