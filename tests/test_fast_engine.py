@@ -441,67 +441,6 @@ def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
     assert 0.2 < skipped.mean() < 0.9          # many triangles between samples, many not
 
 
-def _decided_reference(xy, R, nW, nH):
-    """A triangle's status by the rule of ``_small_status``, in Python integers: the snapped
-    vertices ``xy`` (3 x 2 fixed-point), its sample box on an ``nW x nH`` grid and the edge
-    functions at each of its samples."""
-    (ax, ay), (bx, by), (cx, cy) = (tuple(int(v) for v in p) for p in xy)
-    one = R.ONE
-    X0, X1 = max(-(-min(ax, bx, cx) // one), 0), min(max(ax, bx, cx) // one, nW - 1)
-    Y0, Y1 = max(-(-min(ay, by, cy) // one), 0), min(max(ay, by, cy) // one, nH - 1)
-    area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    o = (area > 0) - (area < 0)
-    if X0 > X1 or Y0 > Y1 or o == 0:
-        return R.SKIP
-    if X1 - X0 > 1 or Y1 - Y0 > 1:
-        return o * R.SMALL
-    mask, decided = 0, True
-    for k, (X, Y) in enumerate([(X0, Y0), (X0 + 1, Y0), (X0, Y0 + 1), (X0 + 1, Y0 + 1)]):
-        if X > X1 or Y > Y1:
-            continue
-        px, py = X * one, Y * one
-        E = [(bx - ax) * (py - ay) - (by - ay) * (px - ax),
-             (cx - bx) * (py - by) - (cy - by) * (px - bx),
-             (ax - cx) * (py - cy) - (ay - cy) * (px - cx)]
-        decided &= all(e != 0 for e in E)
-        mask |= all(o * e > 0 for e in E) << k
-    if not decided:
-        return o * R.SMALL
-    return o * (R.DECIDED + mask) if mask else R.SKIP
-
-
-def test_the_cull_decides_boxes_of_up_to_two_by_two_samples_as_the_edge_functions_do():
-    """``_small_status``: a triangle whose sample box is at most 2 x 2 and whose edge
-    functions are non-zero at those samples gets its covered samples as bits of its status
-    (and SKIP, not kept, when it covers none); one with a zero edge function there keeps
-    SMALL (the raster applies the tie rule). Against the same rule in Python integers, for
-    every triangle of a projected ball, with and without the cell-code pass."""
-    from xray_viz.tracing import _raster as R
-
-    F, XY, w, huge, V, r0, planes, K = _projected_ball()
-    for depth_ok in (False, True):
-        status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)
-        R.cull_triangles(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V, r0, planes,
-                         K=K, depth_ok=depth_ok)
-        want = np.array([_decided_reference(XY[F[t]], R, 128, 96) for t in range(len(F))])
-        np.testing.assert_array_equal(status, want)
-        kinds = np.abs(status.astype(np.int64))
-        assert (kinds > R.DECIDED).sum() > 1000 and (kinds == R.SMALL).sum() > 1000
-        assert (want == R.SKIP).sum() > 1000      # decided, no sample covered: not kept
-
-    # A vertex exactly on a sample: two edge functions are zero there, the cull leaves it
-    # SMALL and the raster's tie rule decides (here: the sample is not the triangle's).
-    one = R.ONE
-    XY1 = np.array([[one, one], [3 * one // 2, one + one // 5], [one + one // 5, 2 * one - 1]],
-                   np.int64)
-    status, box = np.full(1, 9, np.int8), np.zeros((1, 4), np.int64)
-    R.cull_triangles(np.array([[0, 1, 2]], np.int32), XY1, np.full(3, 500.0),
-                     np.zeros(3, np.bool_), True, 1500.0, 4, 4, status, box, V[:, :3], r0,
-                     planes)
-    assert status[0] == _decided_reference(XY1, R, 4, 4) == R.SMALL
-    assert box[0].tolist() == [1, 1, 1, 1]
-
-
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_band_lists_hold_each_kept_triangle_in_every_band_its_rows_meet(monkeypatch, threads):
     """``cull_and_bin``: each piece of the cull counts its kept triangles per band (a row

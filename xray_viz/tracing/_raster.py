@@ -47,10 +47,6 @@ _MASK30 = (1 << 30) - 1
 SKIP = 0
 SMALL = 1
 GIANT = 2
-#: A SMALL triangle whose sample box is at most 2 x 2 and whose coverage the cull decided:
-#: status ``o * (DECIDED + mask)``, bit ``2 dy + dx`` of ``mask`` (1 .. 15) set when sample
-#: (X0 + dx, Y0 + dy) of its box is covered (:func:`_small_status`).
-DECIDED = 16
 ERR_STRADDLE = -100
 ERR_TOO_CLOSE = -101
 
@@ -401,71 +397,6 @@ def _i32(x):
     return np.int64(np.int32(x))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _small_status(ax, ay, bx, by, cx, cy, X0, X1, Y0, Y1, small):
-    """The status of a triangle with snapped vertices a, b, c and a non-empty sample box
-    ``X0..X1, Y0..Y1`` (:func:`_sample_box`) whose extent is below ``SAFE_EXTENT`` when
-    ``small`` (else 0, for the caller to replace with GIANT's exact orientation).
-
-    ``o * SMALL`` (o the orientation, the sign of the projected area; SKIP for none), unless
-    the box is at most 2 x 2 samples and no edge function is zero at any of them: then the
-    coverage is decided here, with no tie rule to apply (a sample is covered when the three
-    edge functions have the orientation's sign), and the status is ``o * (DECIDED + mask)``
-    for the covered samples' ``mask`` (bit ``2 dy + dx``: sample (X0 + dx, Y0 + dy)), SKIP
-    when none is. The banded raster then visits only the covered samples, and the triangles
-    that cover none are not binned. Every factor of the products is below 2**30 in magnitude
-    (the samples lie in the box, a small one), so they go through int32 (:func:`_i32`).
-    Selects only, scalars only: inlined into the cull's vectorised loop.
-    """
-    f = small
-    e0x = _i32(bx - ax if f else 0)
-    e0y = _i32(by - ay if f else 0)
-    e1x = _i32(cx - bx if f else 0)
-    e1y = _i32(cy - by if f else 0)
-    e2x = _i32(ax - cx if f else 0)
-    e2y = _i32(ay - cy if f else 0)
-    area = e0x * _i32((cy - ay) if f else 0) - e0y * _i32((cx - ax) if f else 0)
-    o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
-    tiny = f & (X1 - X0 <= 1) & (Y1 - Y0 <= 1)
-    wide = X1 > X0
-    high = Y1 > Y0
-    # E_k at sample (X0, Y0), then one sample right (- e_ky ONE) and up (+ e_kx ONE); a box
-    # one sample wide (high) repeats the first column (row), not counted.
-    px = X0 * ONE
-    py = Y0 * ONE
-    E0 = e0x * _i32((py - ay) if tiny else 0) - e0y * _i32((px - ax) if tiny else 0)
-    E1 = e1x * _i32((py - by) if tiny else 0) - e1y * _i32((px - bx) if tiny else 0)
-    E2 = e2x * _i32((py - cy) if tiny else 0) - e2y * _i32((px - cx) if tiny else 0)
-    dx0 = -(e0y << FRAC_BITS) if wide else np.int64(0)
-    dx1 = -(e1y << FRAC_BITS) if wide else np.int64(0)
-    dx2 = -(e2y << FRAC_BITS) if wide else np.int64(0)
-    dy0 = (e0x << FRAC_BITS) if high else np.int64(0)
-    dy1 = (e1x << FRAC_BITS) if high else np.int64(0)
-    dy2 = (e2x << FRAC_BITS) if high else np.int64(0)
-    nz00 = (E0 != 0) & (E1 != 0) & (E2 != 0)
-    in00 = (o * E0 > 0) & (o * E1 > 0) & (o * E2 > 0)
-    F0 = E0 + dx0
-    F1 = E1 + dx1
-    F2 = E2 + dx2
-    nz10 = (F0 != 0) & (F1 != 0) & (F2 != 0)
-    in10 = (o * F0 > 0) & (o * F1 > 0) & (o * F2 > 0) & wide
-    G0 = E0 + dy0
-    G1 = E1 + dy1
-    G2 = E2 + dy2
-    nz01 = (G0 != 0) & (G1 != 0) & (G2 != 0)
-    in01 = (o * G0 > 0) & (o * G1 > 0) & (o * G2 > 0) & high
-    H0 = F0 + dy0
-    H1 = F1 + dy1
-    H2 = F2 + dy2
-    nz11 = (H0 != 0) & (H1 != 0) & (H2 != 0)
-    in11 = (o * H0 > 0) & (o * H1 > 0) & (o * H2 > 0) & wide & high
-    decided = tiny & nz00 & nz10 & nz01 & nz11
-    mask = (np.int64(in00) | (np.int64(in10) << 1) | (np.int64(in01) << 2)
-            | (np.int64(in11) << 3))
-    st = o * (DECIDED + mask) if decided else o * SMALL
-    return np.int64(0) if decided & (mask == 0) else st
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _sample_box(ax, ay, bx, by, cx, cy, nW, nH):
     """``(xmin, xmax, ymin, ymax, X0, X1, Y0, Y1)``: the snapped bounding box of a projected
@@ -485,22 +416,20 @@ def _sample_box(ax, ay, bx, by, cx, cy, nW, nH):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
                     K, depth_ok, kept, band_of, counts):
-    """Per triangle: status (SKIP, SMALL, DECIDED, GIANT or an error code, times the
-    orientation: :func:`_small_status`) and sample bounding box.
+    """Per triangle: status (SKIP, SMALL or GIANT times the orientation, +-1, or an error
+    code) and sample bounding box.
 
     Only triangles that can cover a sample get a box; ``status`` is written for all. A triangle
     crossing the plane of the source is an error (ERR_STRADDLE) unless it lies wholly outside
     one of the beam's side ``planes`` (:func:`beyond_side`).
 
     When ``depth_ok`` (every vertex strictly between the source and the detector planes, none
-    huge: no error possible), by blocks of ``_BLOCK``: a branch-free first pass skips the
+    huge: no error possible), a first branch-free pass by blocks of ``_BLOCK`` skips the
     triangles whose vertices' cell codes ``K`` say they cover no sample (as their box would:
-    the same status), as :func:`_raster_direct` does; the others' vertices are gathered into
-    columns and their boxes and statuses computed in a loop LLVM vectorises (GIANT
-    triangles' exact orientation after it). ``kept[lo:lo + n]`` receives the triangles given
-    a non-zero status other than an error, in order. ``counts[b]`` receives how many of
-    them meet the rows of band ``b`` (``band_of[Y]`` is the band of sample row Y: a look-up,
-    not two divisions, which cost this loop 25 %).
+    the same status), as :func:`_raster_direct` does. ``kept[lo:lo + n]`` receives the
+    triangles given a non-zero status other than an error, in order. ``counts[b]`` receives
+    how many of them meet the rows of band ``b`` (``band_of[Y]`` is the band of sample row
+    Y: a look-up, not two divisions, which cost this loop 25 %).
 
     Returns ``(lo, n, tris)``: ``tris`` lists, band after band, the kept triangles that meet
     each band's rows, each band's in triangle order (band ``b``'s are ``tris[s[b]:s[b] +
@@ -512,18 +441,6 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     for b in range(counts.shape[0]):
         counts[b] = 0
     cand = np.empty(_BLOCK, np.uint32)        # unsigned: see _faces
-    # Columns of the vectorised pass: arrays of their own (see _raster_direct).
-    Pax = np.empty(_BLOCK, np.int64)
-    Pay = np.empty(_BLOCK, np.int64)
-    Pbx = np.empty(_BLOCK, np.int64)
-    Pby = np.empty(_BLOCK, np.int64)
-    Pcx = np.empty(_BLOCK, np.int64)
-    Pcy = np.empty(_BLOCK, np.int64)
-    Bst = np.empty(_BLOCK, np.int64)
-    BX0 = np.empty(_BLOCK, np.int64)
-    BX1 = np.empty(_BLOCK, np.int64)
-    BY0 = np.empty(_BLOCK, np.int64)
-    BY1 = np.empty(_BLOCK, np.int64)
     for b0 in range(lo, hi, _BLOCK):
         b1 = min(hi, b0 + _BLOCK)
         m = 0
@@ -531,59 +448,6 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             status[t] = SKIP
             cand[m] = t
             m += 0 if depth_ok and _between_samples(K[F[t, 0]], K[F[t, 1]], K[F[t, 2]]) else 1
-        if depth_ok:
-            for j in range(m):
-                t = cand[j]
-                i0 = F[t, 0]
-                i1 = F[t, 1]
-                i2 = F[t, 2]
-                Pax[j] = XY[i0, 0]
-                Pay[j] = XY[i0, 1]
-                Pbx[j] = XY[i1, 0]
-                Pby[j] = XY[i1, 1]
-                Pcx[j] = XY[i2, 0]
-                Pcy[j] = XY[i2, 1]
-            for j in range(m):
-                ax = Pax[j]
-                ay = Pay[j]
-                bx_ = Pbx[j]
-                by_ = Pby[j]
-                cx = Pcx[j]
-                cy = Pcy[j]
-                xmin, xmax, ymin, ymax, X0, X1, Y0, Y1 = _sample_box(ax, ay, bx_, by_, cx, cy,
-                                                                     nW, nH)
-                small = max(xmax - xmin, ymax - ymin) < SAFE_EXTENT
-                st = _small_status(ax, ay, bx_, by_, cx, cy, X0, X1, Y0, Y1, small)
-                st = st if small else np.int64(GIANT + DECIDED + 16)      # decided below
-                Bst[j] = np.int64(SKIP) if (X0 > X1) | (Y0 > Y1) else st
-                BX0[j] = X0
-                BX1[j] = X1
-                # (clipped to the grid, so that an empty box's band look-up stays in range)
-                BY0[j] = min(Y0, nH - 1)
-                BY1[j] = max(Y1, 0)
-            for j in range(m):
-                st = Bst[j]
-                if st == GIANT + DECIDED + 16:
-                    st = GIANT * exact_cross_sign(Pbx[j] - Pax[j], Pcy[j] - Pay[j],
-                                                  Pby[j] - Pay[j], Pcx[j] - Pax[j])
-                if st == SKIP:
-                    continue
-                t = cand[j]
-                status[t] = st
-                box[t, 0] = BX0[j]
-                box[t, 1] = BX1[j]
-                box[t, 2] = BY0[j]
-                box[t, 3] = BY1[j]
-                kept[lo + n] = t
-                n += 1
-                # The first band apart: the loop over the others (most triangles meet one
-                # band) is then mostly empty, not a loop of one to mispredict at its end
-                # (0.93x).
-                bf = band_of[BY0[j]]
-                counts[bf] += 1
-                for b in range(bf + 1, band_of[BY1[j]] + 1):
-                    counts[b] += 1
-            continue
         for j in range(m):
             t = cand[j]
             i0 = F[t, 0]
@@ -597,37 +461,44 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             cy = XY[i2, 1]
             xmin, xmax, ymin, ymax, X0, X1, Y0, Y1 = _sample_box(ax, ay, bx_, by_, cx, cy, nW,
                                                                  nH)
-            w0 = w[i0]
-            w1 = w[i1]
-            w2 = w[i2]
-            wmin = min(w0, min(w1, w2))
-            wmax = max(w0, max(w1, w2))
-            if wmax < 0.0 or wmin > FL:
-                continue  # behind the source or beyond the detector
-            if perspective and wmax <= 0.0:
-                continue
-            if wmin < 0.0 or (perspective and wmin <= 0.0):
-                if not beyond_side(V, i0, i1, i2, r0, planes):
-                    status[t] = ERR_STRADDLE
-                continue
+            if not depth_ok:
+                w0 = w[i0]
+                w1 = w[i1]
+                w2 = w[i2]
+                wmin = min(w0, min(w1, w2))
+                wmax = max(w0, max(w1, w2))
+                if wmax < 0.0 or wmin > FL:
+                    continue  # behind the source or beyond the detector
+                if perspective and wmax <= 0.0:
+                    continue
+                if wmin < 0.0 or (perspective and wmin <= 0.0):
+                    if not beyond_side(V, i0, i1, i2, r0, planes):
+                        status[t] = ERR_STRADDLE
+                    continue
             if X0 > X1 or Y0 > Y1:
                 continue  # covers no sample (outside the beam or between samples)
-            if huge[i0] or huge[i1] or huge[i2]:
+            if not depth_ok and (huge[i0] or huge[i1] or huge[i2]):
                 status[t] = ERR_TOO_CLOSE
                 continue
-            if max(xmax - xmin, ymax - ymin) < SAFE_EXTENT:
-                st = _small_status(ax, ay, bx_, by_, cx, cy, X0, X1, Y0, Y1, True)
+            ext = max(xmax - xmin, ymax - ymin)
+            if ext < SAFE_EXTENT:
+                area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
+                o = 1 if area > 0 else (-1 if area < 0 else 0)
+                kind = SMALL
             else:
-                st = GIANT * exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
-            if st == SKIP:
-                continue  # zero projected area, or decided and covering no sample
-            status[t] = st
+                o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
+                kind = GIANT
+            if o == 0:
+                continue  # zero projected area: never hit
+            status[t] = kind * o
             box[t, 0] = X0
             box[t, 1] = X1
             box[t, 2] = Y0
             box[t, 3] = Y1
             kept[lo + n] = t
             n += 1
+            # The first band apart: the loop over the others (most triangles meet one band)
+            # is then mostly empty, not a loop of one to mispredict at its end (0.93x).
             bf = band_of[Y0]
             counts[bf] += 1
             for b in range(bf + 1, band_of[Y1] + 1):
@@ -660,14 +531,17 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
 
     Each band's triangles (``band_tris[band_start[c, b]:band_start[c, b + 1]]`` over the
     cull's pieces ``c`` in turn, which is triangle order: :func:`cull_and_bin`; indices of
-    the triangles of :func:`_cull_triangles`' ``status`` and ``box``) visit the samples of their rows that they
-    cover (exact edge functions and the tie rule, int64 for SMALL triangles, limbs for GIANT
-    ones; a DECIDED triangle's covered samples are the bits of its status, set by the cull:
-    :func:`_small_status`); a hit's depth is that of the triangle's plane (:func:`_plane`,
-    from the vertices ``V``, the source ``origin`` and a parallel beam's direction ``f``)
-    clamped to the range of its vertices' depths ``w``; a hit beyond the detector (depth > FL) is dropped. The plane is
-    computed where the triangle is rastered, once per band it meets (1.1 times per triangle
-    for the frog): that costs the raster no more than reading it from a set-up pass did.
+    the triangles of :func:`_cull_triangles`' ``status`` and ``box``) visit the samples of
+    their rows that they cover (exact edge functions and the tie rule, int64 for SMALL
+    triangles, limbs for GIANT ones; a SMALL triangle's box of at most 4 x 4 samples in one
+    branch-free mask, wider ones row by row); a hit's depth is that of the triangle's plane
+    (:func:`_plane`, from the vertices ``V``, the source ``origin`` and a parallel beam's
+    direction ``f``) clamped to the range of its vertices' depths ``w``; a hit beyond the
+    detector (depth > FL) is dropped. The plane is computed where the triangle is rastered,
+    once per band it meets (1.1 times per triangle for the frog): that costs the raster no
+    more than reading it from a set-up pass did. Several bodies: the band's hits are stored
+    in triangle order; a triangle covers a sample once, so the order of its own hits (mask or
+    rows) does not matter to the grouping below.
 
     ``single``: ``S[Y - row0, X] += sign * depth`` and ``N[Y - row0, X] += entering`` (so
     ``S`` and ``N`` need only hold the rows of the bands rastered, a window).
@@ -763,67 +637,86 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                 e1y = cy - by
                 e2x = ax - cx
                 e2y = ay - cy
-                if abs(st) > DECIDED:
-                    # The cull decided this triangle's coverage (a box of at most 2 x 2 samples,
-                    # no edge function zero at them: _small_status): its covered samples in the
-                    # band's rows, in row then column order, as the rows below would give them.
-                    cover = np.int64(abs(st)) - DECIDED
-                    Yb = box[t, 2]
-                    for q in range(4):
-                        X = X0 + (q & 1)
-                        Y = Yb + (q >> 1)
-                        if (cover >> q) & 1 and y0 <= Y <= y1:
+                # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
+                # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
+                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
+                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
+                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                if small and X1 - X0 <= 3 and y1 - y0 <= 3:
+                    # A box of at most 4 x 4 samples (most of a fine mesh's): its covered
+                    # samples as the bits of a mask, the edge functions at all 16 places
+                    # and the tie rule without a branch, then each covered sample's depth
+                    # (the same hits, in the same order, as the rows below).
+                    px = X0 * ONE
+                    py = y0 * ONE
+                    E0 = o * (e0x * (py - ay) - e0y * (px - ax))
+                    E1 = o * (e1x * (py - by) - e1y * (px - bx))
+                    E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+                    sx0 = -o * e0y * ONE
+                    sx1 = -o * e1y * ONE
+                    sx2 = -o * e2y * ONE
+                    sy0 = o * e0x * ONE
+                    sy1 = o * e1x * ONE
+                    sy2 = o * e2x * ONE
+                    wx = X1 - X0
+                    wy = y1 - y0
+                    cover = np.int64(0)
+                    for q in range(16):
+                        dx = q & 3
+                        dy = q >> 2
+                        inq = ((E0 + dx * sx0 + dy * sy0 >= bias0)
+                               & (E1 + dx * sx1 + dy * sy1 >= bias1)
+                               & (E2 + dx * sx2 + dy * sy2 >= bias2) & (dx <= wx) & (dy <= wy))
+                        cover |= np.int64(inq) << q
+                    while cover:
+                        q = _lowest_bit(np.uint64(cover))
+                        cover &= cover - 1
+                        X = X0 + (q & 3)
+                        Y = y0 + (q >> 2)
+                        Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
+                        hk[np.uint64(nh)] = (Y - r0) * nW + X
+                        hw[np.uint64(nh)] = Wd
+                        hb[np.uint64(nh)] = code
+                        nh += np.int64(Wd <= FL)
+                elif small:
+                    px0 = X0 * ONE
+                    stepx0 = -o * e0y * ONE
+                    stepx1 = -o * e1y * ONE
+                    stepx2 = -o * e2y * ONE
+                    for Y in range(y0, y1 + 1):
+                        py = Y * ONE
+                        E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
+                        E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
+                        E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+                        for X in range(X0, X1 + 1):
+                            # Every sample of the row is stored and kept (nh moves on) when
+                            # it is covered: no branch to mispredict at the triangle's edges
+                            # (0.85x the raster of the frog). The room made for the band
+                            # counts every sample of its boxes.
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                            if Wd <= FL:
-                                hk[np.uint64(nh)] = (Y - r0) * nW + X
-                                hw[np.uint64(nh)] = Wd
-                                hb[np.uint64(nh)] = code
-                                nh += 1
+                            hk[np.uint64(nh)] = (Y - r0) * nW + X
+                            hw[np.uint64(nh)] = Wd
+                            hb[np.uint64(nh)] = code
+                            nh += np.int64((E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
+                                           & (Wd <= FL))
+                            E0 += stepx0
+                            E1 += stepx1
+                            E2 += stepx2
                 else:
-                    # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
-                    # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
-                    bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-                    bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-                    bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
-                    if small:
-                        px0 = X0 * ONE
-                        stepx0 = -o * e0y * ONE
-                        stepx1 = -o * e1y * ONE
-                        stepx2 = -o * e2y * ONE
-                        for Y in range(y0, y1 + 1):
-                            py = Y * ONE
-                            E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
-                            E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
-                            E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
-                            for X in range(X0, X1 + 1):
-                                # Every sample of the row is stored and kept (nh moves on) when
-                                # it is covered: no branch to mispredict at the triangle's edges
-                                # (0.85x the raster of the frog). The room made for the band
-                                # counts every sample of its boxes.
+                    for Y in range(y0, y1 + 1):
+                        py = Y * ONE
+                        for X in range(X0, X1 + 1):
+                            px = X * ONE
+                            s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
+                            s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
+                            s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
+                            if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                                hk[np.uint64(nh)] = (Y - r0) * nW + X
-                                hw[np.uint64(nh)] = Wd
-                                hb[np.uint64(nh)] = code
-                                nh += np.int64((E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
-                                               & (Wd <= FL))
-                                E0 += stepx0
-                                E1 += stepx1
-                                E2 += stepx2
-                    else:
-                        for Y in range(y0, y1 + 1):
-                            py = Y * ONE
-                            for X in range(X0, X1 + 1):
-                                px = X * ONE
-                                s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
-                                s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
-                                s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
-                                if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
-                                    Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
-                                    if Wd <= FL:
-                                        hk[np.uint64(nh)] = (Y - r0) * nW + X
-                                        hw[np.uint64(nh)] = Wd
-                                        hb[np.uint64(nh)] = code
-                                        nh += 1
+                                if Wd <= FL:
+                                    hk[np.uint64(nh)] = (Y - r0) * nW + X
+                                    hw[np.uint64(nh)] = Wd
+                                    hb[np.uint64(nh)] = code
+                                    nh += 1
                 if single:
                     sgn = -1.0 if st > 0 else 1.0
                     dn = 1 if st > 0 else -1
