@@ -22,6 +22,7 @@ import threading
 import numba
 import numpy as np
 from numba import njit
+from numba.extending import intrinsic
 
 from xray_viz.tracing import _numba_cache  # where the kernels below are cached
 
@@ -523,11 +524,32 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     return lo, n, tris
 
 
+@intrinsic
+def _claim(typingctx, counter):
+    """``counter[0]``, then ``counter[0] += 1``, atomically (one ``lock xadd``): the threads
+    rastering bands take the next band each from one shared counter (numba has no atomics of
+    its own; this is LLVM's ``atomicrmw add``)."""
+    if not (isinstance(counter, numba.types.Array) and counter.dtype == numba.types.int64):
+        return None
+    sig = numba.types.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        from llvmlite import ir
+
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        return builder.atomic_rmw("add", ary.data, ir.Constant(ir.IntType(64), 1), "monotonic")
+    return sig, codegen
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, status, box, F, XY,
                   V, w, origin, f, tri_body, FL, single, S, N, row0, rank, by_rank, perspective,
-                  P00, Ex, Ey, n, W, H, L, ray0):
-    """The banded raster, one body (``single``) or several: bands ``order[lo:hi]``.
+                  P00, Ex, Ey, n, W, H, L, ray0, claim):
+    """The banded raster, one body (``single``) or several: bands ``order[k]``, ``lo <= k <
+    hi``, each taken in turn from the counter ``claim[0]`` (:func:`_claim`), which every
+    thread rastering these bands shares: a thread that starts late or runs slow takes fewer
+    bands, none waits for another at the end (with ``order`` longest first, a greedy list
+    schedule). ``claim[0]`` must start at ``lo``.
 
     Each band's triangles (``band_tris[band_start[c, b]:band_start[c, b + 1]]`` over the
     cull's pieces ``c`` in turn, which is triangle order: :func:`cull_and_bin`; indices of
@@ -574,7 +596,10 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     hb = np.empty(cap, np.uint32)         # body * 2 + entering
     cnt = np.zeros(npix_max + 1, np.int64)
     inside = np.zeros(max(nb, 1), np.int64)
-    for k in range(lo, hi):
+    while True:
+        k = _claim(claim)
+        if k >= hi:
+            break
         b = order[k]
         r0 = b * band_height
         r1 = min(nH, r0 + band_height) - 1
@@ -1361,7 +1386,7 @@ SIGNATURES = {
                        "f8[2]r i4[1]r b1 i8[1] i8[1]r i8[1]",
     "_raster_bands": "i8 i8 i8[1]r i8[2]r u4[1]r i8 i8 i8 i1[1]r i8[2]r u4[2]r i8[2]r f8[2]r "
                      "f8[1]r f8[1]r f8[1]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
-                     "f8[1]r f8[1]r i8 i8 i8 f8[2] i8",
+                     "f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8[1]",
     "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 "
                "i8",
     "_raster_direct": "i8 i8 i8 u4[2]r i8[2]r f8[1]r b1[1]r f8[2]r b1 f8[1]r f8[1]r f8[1]r "
@@ -1869,26 +1894,39 @@ def _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F
             _in(f, _f8), _in(tri_body, np.int32), float(FL))
 
 
+def _claimed(args, threads=None):
+    """:func:`_raster_bands` on ``threads`` threads (the library's count by default, at most
+    one per band) that take the bands ``args[0]`` in turn from one shared counter."""
+    kernel = _kernel("_raster_bands")
+    n = len(args[0])
+    k = max(1, min(_threads() if threads is None else int(threads), n))
+    claim = np.zeros(1, np.int64)
+    if k == 1:
+        kernel(0, n, *args, claim)
+        return
+    from xray_viz._threads import run_pieces
+
+    run_pieces(lambda j: kernel(0, n, *args, claim), k)
+
+
 def raster_single(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0, *, cuts=None):
+                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0, *, threads=None):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
                       w, r0, f, tri_body, FL)
-    _split("_raster_bands", 0, len(args[0]),
-           args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64),
-                   bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), 1, 1, 1,
-                   np.zeros((1, 1)), 0), cuts=cuts)
+    _claimed(args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64),
+                     bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), 1, 1, 1,
+                     np.zeros((1, 1)), 0), threads)
 
 
 def raster_multi(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
                  r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0, *,
-                 cuts=None):
+                 threads=None):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
                       w, r0, f, tri_body, FL)
     rank, by_rank = body_ranks(precedence)
-    _split("_raster_bands", 0, len(args[0]),
-           args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
-                   bool(perspective), _in(P00, _f8), _in(Ex, _f8),
-                   _in(Ey, _f8), int(n), int(W), int(H), L, int(ray0)), cuts=cuts)
+    _claimed(args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
+                     bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n),
+                     int(W), int(H), L, int(ray0)), threads)
 
 
 #: The crossing counts of depth sums that need none (:func:`_raster_direct`'s).
