@@ -474,6 +474,7 @@ def test_bands_taken_by_any_number_of_threads_give_the_same_bits(monkeypatch):
     first (``fast._band_order``: by triangle entries, a permutation), so a thread that
     starts late takes fewer; the path lengths are the same bits for 1, 2, 3 and 5 threads,
     and when one thread starts a frame late (each band writes its own rays)."""
+    from xray_viz.tracing import _raster as R
     from xray_viz.tracing import fast as fast_mod
 
     entries = np.array([0, 5, 900, 40, 1000, 3, 3, 77, 600, 0, 12])
@@ -483,8 +484,9 @@ def test_bands_taken_by_any_number_of_threads_give_the_same_bits(monkeypatch):
     assert order.tolist()[-2:] == [0, 9]                           # ties in band order
     scene = xray_viz.load_scene("frog")
     out = []
-    for k in (1, 2, 3, 5):
+    for k in (1, 2, 3, 5):          # the cull's pieces and the raster's threads
         monkeypatch.setattr(fast_mod.numba, "get_num_threads", lambda k=k: k)
+        monkeypatch.setattr(R, "_threads", lambda k=k: k)
         out.append(fast_mod.trace_once(scene))
     assert out[0].shape[1] == 16 and out[0].max() > 10
     for L in out[1:]:
@@ -506,6 +508,7 @@ def test_bands_taken_by_any_number_of_threads_give_the_same_bits(monkeypatch):
         return real(piece, k)
 
     monkeypatch.setattr(fast_mod.numba, "get_num_threads", lambda: 2)
+    monkeypatch.setattr(R, "_threads", lambda: 2)
     monkeypatch.setattr(_threads, "run_pieces", late)
     np.testing.assert_array_equal(fast_mod.trace_once(scene), out[0])
     assert seen.count(1) == seen.count(0) >= 3     # each kernel of the frame on both threads

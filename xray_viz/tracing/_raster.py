@@ -546,10 +546,10 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                   V, w, origin, f, tri_body, FL, single, S, N, row0, rank, by_rank, perspective,
                   P00, Ex, Ey, n, W, H, L, ray0, claim):
     """The banded raster, one body (``single``) or several: bands ``order[k]``, ``lo <= k <
-    hi``, each taken in turn from the counter ``claim[0]`` (:func:`_claim`), which every
-    thread rastering these bands shares: a thread that starts late or runs slow takes fewer
-    bands, none waits for another at the end (with ``order`` longest first, a greedy list
-    schedule). ``claim[0]`` must start at ``lo``.
+    hi``, each taken in turn (``k = lo + claim[0]``, the counter advanced atomically:
+    :func:`_claim`) by every thread rastering these bands with the same ``claim``, which
+    starts at 0: a thread that starts late or runs slow takes fewer bands, none waits for
+    another at the end (with ``order`` longest first, a greedy list schedule).
 
     Each band's triangles (``band_tris[band_start[c, b]:band_start[c, b + 1]]`` over the
     cull's pieces ``c`` in turn, which is triangle order: :func:`cull_and_bin`; indices of
@@ -597,7 +597,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     cnt = np.zeros(npix_max + 1, np.int64)
     inside = np.zeros(max(nb, 1), np.int64)
     while True:
-        k = _claim(claim)
+        k = lo + _claim(claim)
         if k >= hi:
             break
         b = order[k]
@@ -1894,39 +1894,34 @@ def _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F
             _in(f, _f8), _in(tri_body, np.int32), float(FL))
 
 
-def _claimed(args, threads=None):
-    """:func:`_raster_bands` on ``threads`` threads (the library's count by default, at most
-    one per band) that take the bands ``args[0]`` in turn from one shared counter."""
-    kernel = _kernel("_raster_bands")
-    n = len(args[0])
-    k = max(1, min(_threads() if threads is None else int(threads), n))
-    claim = np.zeros(1, np.int64)
-    if k == 1:
-        kernel(0, n, *args, claim)
-        return
+def _claimed(args):
+    """:func:`_raster_bands` on the library's threads (:func:`_threads`, at most one per
+    band), which take the bands ``args[0]`` in turn from one shared counter."""
     from xray_viz._threads import run_pieces
 
-    run_pieces(lambda j: kernel(0, n, *args, claim), k)
+    kernel = _kernel("_raster_bands")
+    n = len(args[0])
+    claim = np.zeros(1, np.int64)
+    run_pieces(lambda j: kernel(0, n, *args, claim), max(1, min(_threads(), n)))
 
 
 def raster_single(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0, *, threads=None):
+                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
                       w, r0, f, tri_body, FL)
     _claimed(args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64),
                      bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), 1, 1, 1,
-                     np.zeros((1, 1)), 0), threads)
+                     np.zeros((1, 1)), 0))
 
 
 def raster_multi(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                 r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0, *,
-                 threads=None):
+                 r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0):
     args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
                       w, r0, f, tri_body, FL)
     rank, by_rank = body_ranks(precedence)
     _claimed(args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
                      bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n),
-                     int(W), int(H), L, int(ray0)), threads)
+                     int(W), int(H), L, int(ray0)))
 
 
 #: The crossing counts of depth sums that need none (:func:`_raster_direct`'s).

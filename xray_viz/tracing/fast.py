@@ -608,8 +608,7 @@ class _Plan:
         if self.mode == "multi":
             L = _result_buffer(self.bodies, n_rays, self.nb)
             R.raster_multi(self._order(b0, b1), self.band_start, self.band_tris, bh, nH, nW,
-                           *self._bands(), self.prec, *args[1:], L, ray0,
-                           threads=numba.get_num_threads())
+                           *self._bands(), self.prec, *args[1:], L, ray0)
             return r0, r1, L
         if self.nb == 1:                 # the finish writes every ray of the window's rows
             L = L1 = _result_buffer(self.bodies, n_rays, 1)
@@ -623,8 +622,7 @@ class _Plan:
             Sd = np.zeros((y1 - y0, nW))
             N = np.zeros((y1 - y0, nW), np.int32)
             R.raster_single(self._order(b0, b1), self.band_start, self.band_tris, bh, nH, nW,
-                            *self._bands(), *args[1:5], Sd, N, y0,
-                            threads=numba.get_num_threads())
+                            *self._bands(), *args[1:5], Sd, N, y0)
             S = np.empty((y1 - y0, nW))
             R.reduce_chunks(Sd[None], N[None], self.FL, S)
             R.finish(S, np.zeros((1, 1, 1)), True, *args, L1, y0, y1, y0, ray0)
