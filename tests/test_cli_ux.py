@@ -333,9 +333,11 @@ def test_a_render_shows_its_bands_on_a_terminal(tmp_path):
                                       "--engine", "numpy"], env=NOW)
     assert status == 0, text
     from xray_viz.render import _band_rows
+    from xray_viz.tracing.engines import Projector
 
     scene = xray_viz.load_scene("sphere")
-    h, step = scene.detector.shape[1], _band_rows(scene, "numpy", 1)
+    h, step = scene.detector.shape[1], _band_rows(Projector(scene.bodies, "numpy"),
+                                                  scene.acquisition, 1)
     assert step < h                                              # several bands
     counts = {int(n) for n in re.findall(rf"rendering:.*?(\d+)/{h} ", text)}
     assert 0 in counts and counts - {0}, text                   # it moved

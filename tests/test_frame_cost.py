@@ -118,14 +118,16 @@ def test_polychromatic_log_sums_equal_the_explicit_sum_over_bins(heel):
     mu = imaging.body_mu(scene, spectrum.energies[keep]) / 10.0
     w = imaging.ray_weights(scene)
     expected = np.log((w * np.exp(-(L @ mu.T))).sum(axis=1))
-    old = imaging.CHUNK_BYTES
+    from xray_viz.physics import beam as beam_module
+
+    old = beam_module.CHUNK_BYTES
     try:
         for chunk_rays in (7, 1000):
-            imaging.CHUNK_BYTES = 8 * len(mu) * chunk_rays
+            beam_module.CHUNK_BYTES = 8 * len(mu) * chunk_rays
             got = imaging.log_transmission(L, scene)
             np.testing.assert_allclose(got, expected, rtol=1e-13, atol=1e-15)
     finally:
-        imaging.CHUNK_BYTES = old
+        beam_module.CHUNK_BYTES = old
 
 
 @pytest.mark.parametrize("detector", [{}, {"falloff": True, "i0": 1e4, "gain": 2.5}])
@@ -158,8 +160,8 @@ def test_render_of_two_bodies_matches_beer_lambert_of_its_path_lengths():
 
 
 def _faulty_windows(value, n_bodies, first=3.0):
-    def windows(scene, engine, n, keep_hits=False):
-        w, h = scene.detector.shape
+    def windows(projector, acquisition, n, keep_hits=False):
+        w, h = acquisition.detector.shape
         L = np.full((w * h * n * n, n_bodies), 3.0)
         L[7, 0] = first
         L[7, n_bodies - 1] = value

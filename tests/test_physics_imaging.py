@@ -53,19 +53,19 @@ def test_polychromatic_equals_explicit_sum_over_spectrum(tmp_path, response):
 
 
 def test_transmission_chunks_agree():
-    from xray_viz.physics import imaging
-
     scene = xray_viz.load_scene("sphere").replace()
     scene = scene.replace(source=type(scene.source)(position=[0, 0, 1000],
                                                     spectrum={"kvp": 80.0}, energy=None))
     L = np.random.default_rng(0).uniform(0, 80, (5000, 1))
     full = transmission(L, scene)
-    old = imaging.CHUNK_BYTES
+    from xray_viz.physics import beam as beam_module
+
+    old = beam_module.CHUNK_BYTES
     try:
-        imaging.CHUNK_BYTES = 8 * 79 * 7                          # 7 rays per chunk
+        beam_module.CHUNK_BYTES = 8 * 79 * 7                          # 7 rays per chunk
         np.testing.assert_allclose(transmission(L, scene), full, rtol=1e-14)
     finally:
-        imaging.CHUNK_BYTES = old
+        beam_module.CHUNK_BYTES = old
     assert np.all(np.diff(full[np.argsort(L[:, 0])]) <= 0)        # more material, less signal
 
 

@@ -163,9 +163,9 @@ def test_cli_line_integral_of_an_opaque_body_is_finite(tmp_path):
 
 
 def _faulty_windows(value):
-    def windows(scene, engine, n, keep_hits=False):
-        w, h = scene.detector.shape
-        L = np.full((w * h * n * n, len(scene.bodies)), 3.0)
+    def windows(projector, acquisition, n, keep_hits=False):
+        w, h = acquisition.detector.shape
+        L = np.full((w * h * n * n, len(projector.bodies)), 3.0)
         L[7, 0] = value
         yield 0, h, L, None
     return windows

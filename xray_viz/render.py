@@ -1,7 +1,15 @@
 """The main job: render a scene's radiograph.
 
-scene -> rays (:mod:`~xray_viz.geometry`) -> hits (:mod:`~xray_viz.tracing`) -> path lengths
-(:mod:`~xray_viz.attenuation`) -> image (:mod:`~xray_viz.physics`).
+The pipeline's stages are values, each built once and reused (``ARCHITECTURE.md``):
+
+    bodies -> Projector -> path lengths -> Beam -> DetectorModel -> image
+
+a :class:`~xray_viz.tracing.engines.Projector` (bodies and an engine) gives the path lengths
+of an :class:`~xray_viz.geometry.Acquisition`; a :class:`~xray_viz.physics.beam.Beam` (source
+spectrum and the bodies' attenuation) turns them into ``ln(I / I0)``; a
+:class:`~xray_viz.physics.detector_model.DetectorModel` reads that as the image. :func:`render`
+builds the three values from a scene; :func:`xray_viz.scan` builds them once for every
+projection.
 
 Memory
 ------
@@ -32,10 +40,10 @@ import numpy as np
 
 from xray_viz.errors import SceneError
 from xray_viz.geometry import check_supersample
-from xray_viz.tracing.engines import ENGINES
+from xray_viz.tracing.engines import ENGINES, Projector
 from xray_viz.tracing.hits import Hits
 
-__all__ = ["Radiograph", "render", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
+__all__ = ["Radiograph", "render", "stages", "image", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
            "check_memory", "available_memory"]
 
 #: Names accepted by ``--quantity`` and :meth:`Radiograph.quantity`.
@@ -51,8 +59,8 @@ BAND_BYTES = 64 << 20
 LOG_BLOCK_BYTES = 16 << 20
 
 #: The NumPy engine's working memory per ray of a band besides its path lengths (rays, hits,
-#: the sweep's temporaries), for choosing its bands.
-NUMPY_RAY_BYTES = 2048
+#: the sweep's temporaries), for choosing its bands (:attr:`Projector.ray_bytes`).
+NUMPY_RAY_BYTES = ENGINES["numpy"].ray_bytes
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,7 +144,8 @@ class Radiograph:
                          images=False)
             w, h = self.scene.detector.shape
             out = np.empty((h, w, len(self.scene.bodies)))
-            _band_loop(self.scene, self.engine, n, per_body=out)
+            _band_loop(Projector(self.scene.bodies, self.engine), self.scene.acquisition, n,
+                       per_body=out)
             object.__setattr__(self, "_path_length", out)
         return self._path_length
 
@@ -151,28 +160,27 @@ class Radiograph:
         raise SceneError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
 
 
-def _band_rows(scene, engine, n) -> int:
+def _band_rows(projector, acquisition, n) -> int:
     """Image rows per band: ``rows x W x n^2`` rays of path lengths fill :data:`BAND_BYTES`
-    (with the NumPy engine's working memory per ray), at least one row."""
-    w = scene.detector.shape[0]
-    per_ray = 8 * max(1, len(scene.bodies)) + (NUMPY_RAY_BYTES if engine == "numpy" else 0)
+    (with the engine's working memory per ray), at least one row."""
+    w = acquisition.detector.shape[0]
+    per_ray = 8 * max(1, len(projector.bodies)) + projector.ray_bytes
     return max(1, BAND_BYTES // (w * n * n * per_ray))
 
 
-def _windows(scene, engine, n, keep_hits=False):
+def _windows(projector, acquisition, n, keep_hits=False):
     """``(r0, r1, L, hits)`` for consecutive windows of image rows covering the detector."""
-    h = scene.detector.shape[1]
-    rows = _band_rows(scene, engine, n)
+    h = acquisition.detector.shape[1]
+    rows = _band_rows(projector, acquisition, n)
     if keep_hits:                      # the hits of every ray, with global ray numbers
-        L, hits = ENGINES[engine](scene, supersample=n, keep_hits=True)
+        L, hits = projector.hits(acquisition, supersample=n)
         yield 0, h, L, hits
         return
-    bodies, acquisition = scene.bodies, scene.acquisition
-    if rows >= h and engine == "fast":
-        # It fits in one band: the whole frame, through the results the fast engine keeps.
-        yield 0, h, ENGINES["fast"].path_lengths(bodies, acquisition, supersample=n), None
+    if rows >= h and projector.keeps_results:
+        # It fits in one band: the whole frame, through the results the engine keeps.
+        yield 0, h, projector.path_lengths(acquisition, supersample=n), None
         return
-    for r0, r1, L in ENGINES[engine].windows(bodies, acquisition, supersample=n, rows=rows):
+    for r0, r1, L in projector.windows(acquisition, supersample=n, rows=rows):
         yield r0, r1, L, None
 
 
@@ -188,11 +196,11 @@ class _LogBlocks:
     The image is then the same bit for bit for any band size.
     """
 
-    def __init__(self, scene, n, log_t, log_v=None):
-        w, h = scene.detector.shape
-        self.scene, self.nn, self.w, self.h, self.out = scene, n * n, w, h, log_t
+    def __init__(self, beam, n, log_t, log_v=None):
+        w, h = beam.shape
+        self.beam, self.nn, self.w, self.h, self.out = beam, n * n, w, h, log_t
         self.n, self.out_v = n, log_v
-        nb = max(1, len(scene.bodies))
+        nb = max(1, beam.mu.shape[1])
         self.rows = max(1, min(h, LOG_BLOCK_BYTES // (w * self.nn * nb * 8)))
         self.per_row = w * self.nn
         self.carry = None               # rows [c0, c0 + filled) of the block starting at c0
@@ -200,12 +208,10 @@ class _LogBlocks:
 
     def _block(self, r0, L):
         """Write the log-transmission image rows of the block starting at row ``r0``."""
-        from xray_viz.physics.imaging import _pixel_log_transmission
-
         r1 = r0 + len(L) // self.per_row
-        _pixel_log_transmission(L, self.scene, supersample=self.n, rows=(r0, r1),
-                                variance=self.out_v is not None, out_t=self.out[r0:r1],
-                                out_v=None if self.out_v is None else self.out_v[r0:r1])
+        self.beam.pixel_log_transmission(
+            L, supersample=self.n, rows=(r0, r1), variance=self.out_v is not None,
+            out_t=self.out[r0:r1], out_v=None if self.out_v is None else self.out_v[r0:r1])
 
     def add(self, r0, r1, L):
         """The path lengths ``L`` of image rows ``r0 .. r1 - 1`` (bands come in row order)."""
@@ -231,9 +237,10 @@ class _LogBlocks:
             r = take
 
 
-def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body=None,
-               keep_hits=False, progress=None):
-    """Trace the scene band by band into the (H, W) images given (any may be None).
+def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, total=None,
+               per_body=None, keep_hits=False, progress=None):
+    """Trace the projector's bodies at the acquisition band by band into the (H, W) images
+    given (any may be None; ``log_t`` and ``log_v`` need the ``beam`` at the acquisition).
 
     ``progress(rows_done, rows)`` is called after each band (default:
     :func:`xray_viz.progress.rows`, the command line's progress bar; a no-op elsewhere).
@@ -241,14 +248,14 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
     """
     if progress is None:
         from xray_viz.progress import rows as progress
-    w = scene.detector.shape[0]
-    nb = len(scene.bodies)
+    w, h = acquisition.detector.shape
+    nb = len(projector.bodies)
     nn = n * n
     t_trace = t_image = 0.0
     hits = None
-    blocks = _LogBlocks(scene, n, log_t, log_v) if log_t is not None else None
+    blocks = _LogBlocks(beam, n, log_t, log_v) if log_t is not None else None
     t0 = time.perf_counter()
-    for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
+    for r0, r1, L, band_hits in _windows(projector, acquisition, n, keep_hits):
         t1 = time.perf_counter()
         t_trace += t1 - t0
         sums = None
@@ -256,7 +263,7 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
             # each ray's total, which also tells whether its path lengths are finite
             sums = _row_sums(L, out=total[r0:r1].reshape(-1))
         if not _valid(L, sums):
-            L = _checked(L, scene, engine, r0)      # raises, or reads rounding negatives as 0
+            L = _checked(L, projector, acquisition, r0)   # raises, or reads rounding -0 as 0
             if sums is not None:
                 _row_sums(L, out=sums)
         hits = band_hits if band_hits is not None else hits
@@ -273,7 +280,7 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
                 per_body[r0:r1] = mean.reshape(r1 - r0, w, nb)
             del mean
         del L
-        progress(r1, scene.detector.shape[1])
+        progress(r1, h)
         t0 = time.perf_counter()
         t_image += t0 - t1
     return t_trace, t_image, hits
@@ -307,7 +314,7 @@ def _valid(L, sums=None) -> bool:
     return bool(np.isfinite(float((L if sums is None else sums).max())))
 
 
-def _checked(L, scene, engine, r0):
+def _checked(L, projector, acquisition, r0):
     """The band's path lengths, after checking the invariants every engine must keep: finite
     and non-negative (a negative one would give I > I0). Rounding-level negatives are read as
     0; anything else raises :class:`~xray_viz.errors.EngineError` instead of writing a wrong
@@ -316,23 +323,23 @@ def _checked(L, scene, engine, r0):
         return L
     from xray_viz.errors import EngineError
 
-    sid = float(np.linalg.norm(scene.source.position - scene.detector.center))
+    sid = float(np.linalg.norm(acquisition.source.position - acquisition.detector.center))
     bad = ~np.isfinite(L) | (L < -NEGATIVE_TOLERANCE * sid)
     if bad.any():
         ray, body = np.argwhere(bad)[0]
-        w = scene.detector.shape[0]
+        w = acquisition.detector.shape[0]
         raise EngineError(
-            f"internal error: engine {engine!r} gave path length {L[ray, body]!r} mm for body "
-            f"{scene.bodies[int(body)].name!r} on image row {r0 + int(ray) // w}; the image is "
-            "not written. Please report it with the scene; engine "
-            f"{'numpy' if engine != 'numpy' else 'fast'!r} may trace it meanwhile")
+            f"internal error: engine {projector.name!r} gave path length {L[ray, body]!r} mm "
+            f"for body {projector.bodies[int(body)].name!r} on image row "
+            f"{r0 + int(ray) // w}; the image is not written. Please report it with the scene; "
+            f"engine {projector.fallback!r} may trace it meanwhile")
     if not L.flags.writeable:
         L = L.copy()
     np.maximum(L, 0.0, out=L)
     return L
 
 
-def _check_transmission(log_t, scene):
+def _check_transmission(log_t):
     """No pixel may transmit more than the open beam (I <= I0): mu >= 0 and L >= 0 make every
     energy bin's ``exp(-sum mu L) <= 1``."""
     if not log_t.size:
@@ -382,15 +389,15 @@ def _image_bytes_per_pixel(scene) -> int:
     and its copy, or a 16-bit PNG's scaling, at most 24) is made after the log-transmission
     image and the temporaries are freed, so it fits under that peak.
     """
-    from xray_viz.physics.imaging import _blur_sigmas
+    from xray_viz.physics.detector_model import DetectorModel
 
-    det = scene.detector
+    model = DetectorModel.of(scene.detector)
     per = 48
-    if _blur_sigmas(scene) is not None:
+    if model.blur_sigmas(scene.acquisition, scene.bodies) is not None:
         per += 40
-    if getattr(det, "falloff", False) and scene.source.kind != "parallel":
+    if model.falloff and scene.source.kind != "parallel":
         per += 80
-    if getattr(det, "noise", False):
+    if model.noise:
         per += 40
     return per
 
@@ -430,8 +437,9 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
     w, h = scene.detector.shape
     pixels = w * h
     nb = len(scene.bodies)
-    rows = h if keep_hits else min(h, _band_rows(scene, engine, n))
-    per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if engine == "numpy" or keep_hits else 0)
+    projector = Projector(scene.bodies, engine)
+    rows = h if keep_hits else min(h, _band_rows(projector, scene.acquisition, n))
+    per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if keep_hits else projector.ray_bytes)
     need = {
         "images": pixels * _image_bytes_per_pixel(scene) if images else 0,
         "path_lengths": pixels * nb * 8 if path_lengths else 0,
@@ -543,35 +551,21 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     >>> round(float(image.total_path_length.max()), 1)      # the diameter, 80 mm
     80.0
     """
-    if not isinstance(engine, str) or engine not in ENGINES:
-        raise SceneError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
-    from xray_viz.physics.imaging import _blur_sigmas, _detect_log, _needs_variance
-
+    projector = Projector(scene.bodies, engine)          # an unknown engine is refused here
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
     lod = None
     if max_error is not None:
         from xray_viz.lod import level_of_detail
 
         scene, lod = level_of_detail(scene, max_error, supersample=n)
-    _blur_sigmas(scene)                # a focal spot wider than the detector: refused now
+        projector = Projector(scene.bodies, engine)
+    beam, model = stages(scene)
+    model.blur_sigmas(scene.acquisition, scene.bodies)   # a focal spot wider than the detector
     check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths,
                  keep_hits=keep_hits)
-    w, h = scene.detector.shape
-    t0 = time.perf_counter()
-    log_t = np.empty((h, w))
-    # the variance's sum of an energy-integrating detector's noise (see detect_log)
-    log_v = np.empty((h, w)) if _needs_variance(scene) else None
-    total = np.empty((h, w))
-    per_body = np.empty((h, w, len(scene.bodies))) if path_lengths else None
-    t_trace, t_bands, hits = _band_loop(scene, engine, n, log_t=log_t, log_v=log_v, total=total,
-                                        per_body=per_body, keep_hits=keep_hits)
-    t1 = time.perf_counter()
-    _check_transmission(log_t, scene)
-    # log_t is not used again: the line integral is written over it
-    intensity, line_integral = _detect_log(log_t, scene, log_variance=log_v, overwrite=True)
-    del log_t, log_v
-    t2 = time.perf_counter()
-    timing = {"trace": t_trace, "image": t_bands + (t2 - t1), "total": t2 - t0}
+    intensity, line_integral, total, per_body, hits, timing = _image(
+        projector, beam, model, scene.acquisition, n, seed=scene.detector.seed,
+        path_lengths=path_lengths, keep_hits=keep_hits)
     return Radiograph(
         intensity=intensity,
         line_integral=line_integral,
@@ -585,3 +579,83 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         _path_length=per_body,
         lod=lod,
     )
+
+
+def stages(scene):
+    """The physics stages of a scene, built once: ``(beam, detector_model)``.
+
+    The :class:`~xray_viz.physics.beam.Beam` of the scene's source through its bodies as its
+    detector weighs them (not yet at a pose: :meth:`~xray_viz.physics.beam.Beam.at`), and the
+    :class:`~xray_viz.physics.detector_model.DetectorModel` of its detector. With a
+    :class:`~xray_viz.tracing.engines.Projector` of the bodies they make any acquisition's
+    image (:func:`image`), as :func:`render` and :func:`xray_viz.scan` do.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> beam, model = stages(xray_viz.load_scene("sphere"))
+    >>> beam.spectrum.description, model.i0
+    ('monochromatic 60 keV', 1.0)
+    """
+    from xray_viz.physics.beam import Beam
+    from xray_viz.physics.detector_model import DetectorModel
+
+    return (Beam.of(scene.source, scene.bodies, scene.detector),
+            DetectorModel.of(scene.detector))
+
+
+def image(projector, beam, model, acquisition, *, supersample: int = 1, seed=None):
+    """The detected image of one acquisition: ``(intensity, line_integral)``, ``(H, W)``.
+
+    ``model.read(beam.log_transmission(projector.path_lengths(acquisition)), seed=seed)``,
+    band by band as :func:`render` (the same numbers bit for bit), for a caller that keeps the
+    stages (:func:`stages`) over many acquisitions, e.g. a scan's projections.
+
+    Parameters
+    ----------
+    projector : Projector
+    beam : Beam
+    model : DetectorModel
+    acquisition : Acquisition
+    supersample : int
+    seed : int, optional
+        The noise's seed.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> from xray_viz.tracing.engines import Projector
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> intensity, li = image(Projector(scene.bodies), *stages(scene), scene.acquisition)
+    >>> bool((intensity == xray_viz.render(scene).intensity).all())
+    True
+    """
+    n = check_supersample(supersample)
+    intensity, line_integral, *_ = _image(projector, beam, model, acquisition, n, seed=seed)
+    return intensity, line_integral
+
+
+def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
+           keep_hits=False):
+    """:func:`image`, with the total and per-body path lengths, the hits and the timing."""
+    beam = beam.at(acquisition)
+    w, h = acquisition.detector.shape
+    t0 = time.perf_counter()
+    log_t = np.empty((h, w))
+    # the variance's sum of an energy-integrating detector's noise (see detect_log)
+    log_v = np.empty((h, w)) if model.needs_variance(beam) else None
+    total = np.empty((h, w))
+    per_body = np.empty((h, w, len(projector.bodies))) if path_lengths else None
+    t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
+                                        log_v=log_v, total=total, per_body=per_body,
+                                        keep_hits=keep_hits)
+    t1 = time.perf_counter()
+    _check_transmission(log_t)
+    # log_t is not used again: the line integral is written over it
+    intensity, line_integral = model.read(log_t, beam=beam, acquisition=acquisition,
+                                          bodies=projector.bodies, seed=seed,
+                                          log_variance=log_v, overwrite=True)
+    del log_t, log_v
+    t2 = time.perf_counter()
+    timing = {"trace": t_trace, "image": t_bands + (t2 - t1), "total": t2 - t0}
+    return intensity, line_integral, total, per_body, hits, timing

@@ -98,35 +98,41 @@ def pixel_directions(scene, pixels=None):
     -------
     tx, ty : (n,) float
     """
+    return _pixel_directions(scene.acquisition, pixels)
+
+
+def _pixel_directions(acquisition, pixels=None):
+    """:func:`pixel_directions` of an :class:`~xray_viz.geometry.Acquisition`."""
     from xray_viz.geometry import viewport
 
-    det = scene.detector
+
+    det = acquisition.detector
     w, h = det.shape
     idx = np.arange(w * h) if pixels is None else np.asarray(pixels, dtype=np.int64)
     row, col = np.divmod(idx, w)
-    vp = viewport(scene.source.position, det)
+    vp = viewport(acquisition.source.position, det)
     fl = float(np.linalg.norm(vp.FL))
     width, height = det.size
     # u = col / (W - 1), v = (H - 1 - row) / (H - 1): offsets from the centre along HO and VE
     du = (col / (w - 1) - 0.5) * width if w > 1 else np.zeros(len(idx))
     dv = ((h - 1 - row) / (h - 1) - 0.5) * height if h > 1 else np.zeros(len(idx))
-    if not scene.acquisition.frame.plain:   # tilted or offset: the rays' own directions,
+    if not acquisition.frame.plain:   # tilted or offset: the rays' own directions,
         from xray_viz.geometry import detector_axes       # in the tube's (beam axis) frame
 
         forward, ho, ve = detector_axes(vp.r0, vp.r0 - vp.FL, det.up)
-        d = scene.acquisition.rays().directions[idx]
+        d = acquisition.rays().directions[idx]
         du, dv = fl * (d @ ho) / (d @ forward), fl * (d @ ve) / (d @ forward)
-    side = heel_side(scene.source.heel)
+    side = heel_side(acquisition.source.heel)
     along, across = {"top": (-dv, du), "bottom": (dv, du), "left": (du, dv),
                      "right": (-du, dv)}[side]
     return along / fl, across / fl
 
 
-def _extent(scene):
+def _extent(acquisition):
     """Extreme ``x / z`` and ``y / z`` over the pixel centres (at the detector's edges)."""
-    w, h = scene.detector.shape
+    w, h = acquisition.detector.shape
     corners = np.array([0, w - 1, (h - 1) * w, h * w - 1])
-    tx, ty = pixel_directions(scene, corners)
+    tx, ty = _pixel_directions(acquisition, corners)
     return (float(tx.min()), float(tx.max())), (float(ty.min()), float(ty.max()))
 
 
@@ -145,7 +151,7 @@ def check_heel(scene) -> None:
         raise SceneError("[source] heel = true needs a point source (kind = \"point\"): a "
                          "parallel beam has no off-axis directions")
     params = _tube_parameters(scene.source)
-    (tx_lo, _), _ = _extent(scene)
+    (tx_lo, _), _ = _extent(scene.acquisition)
     take_off = params["anode_angle"] + math.degrees(math.atan(tx_lo))
     if not take_off > 0:
         raise SceneError(
@@ -228,13 +234,18 @@ def heel_grid(scene):
         The fluence per solid angle in each of the scene spectrum's bins, relative to the
         central axis.
     """
+    return _heel_grid(scene.acquisition)
+
+
+def _heel_grid(acquisition):
+    """:func:`heel_grid` of an :class:`~xray_viz.geometry.Acquisition`."""
     from xray_viz.physics.spectra import source_spectrum
 
-    params = _tube_parameters(scene.source)
+    params = _tube_parameters(acquisition.source)
     key = (params["kvp"], params["anode_angle"], tuple(params["filters"].items()), params["bin"],
            params["anode"])
-    x_range, y_range = _extent(scene)
-    energies = tuple(source_spectrum(scene.source).energies.tolist())
+    x_range, y_range = _extent(acquisition)
+    energies = tuple(source_spectrum(acquisition.source).energies.tolist())
     return _grid_cached(key, x_range, y_range, GRID, energies)
 
 
@@ -261,16 +272,16 @@ class HeelInterpolation:
         The grid's spectra (relative to the central axis), flattened.
     """
 
-    def __init__(self, scene):
-        a_nodes, y_nodes, ratio = heel_grid(scene)
-        self._scene = scene
+    def __init__(self, acquisition):
+        a_nodes, y_nodes, ratio = _heel_grid(acquisition)
+        self._acquisition = acquisition
         self._a, self._y = a_nodes, y_nodes
-        self._anode_angle = _tube_parameters(scene.source)["anode_angle"]
+        self._anode_angle = _tube_parameters(acquisition.source)["anode_angle"]
         self.ratio = ratio.reshape(-1, ratio.shape[-1])
 
     def corners(self, pixels):
         """``(corners, coef)``: (n, 4) int rows of :attr:`ratio` and their (n, 4) weights."""
-        tx, ty = pixel_directions(self._scene, pixels)
+        tx, ty = _pixel_directions(self._acquisition, pixels)
         i, ta = _linear(self._a, _coordinate(tx, self._anode_angle))
         j, tb = _linear(self._y, ty)
         nb = len(self._y)
@@ -288,7 +299,7 @@ class HeelInterpolation:
 
 def heel_interpolator(scene) -> HeelInterpolation:
     """The :class:`HeelInterpolation` of a scene with the heel effect on (the grid is cached)."""
-    return HeelInterpolation(scene)
+    return HeelInterpolation(scene.acquisition)
 
 
 def heel_ratio(scene, pixels=None) -> np.ndarray:

@@ -27,24 +27,34 @@ proportional to path length (beam hardening).
 
 from __future__ import annotations
 
-import math
+import dataclasses
 
 import numpy as np
 
-from xray_viz.errors import SceneError
+from xray_viz.physics import detector_model as _dm
+from xray_viz.physics.beam import (  # noqa: F401  (re-exported; _line_integrals and _inside too)
+    CHUNK_BYTES, MM_PER_CM, Beam, _inside, _line_integrals, body_mu as _body_mu,
+    detector_weights, pixel_log_mean)
+from xray_viz.physics.detector_model import (  # noqa: F401  (re-exported)
+    DetectorModel, _convolve, _exp, _log_convolve, _poisson, gaussian_kernel)
+
+
+def _beam_of(scene) -> Beam:
+    """The scene's :class:`~xray_viz.physics.beam.Beam` at its acquisition."""
+    return Beam.of(scene.source, scene.bodies, scene.detector).at(scene.acquisition)
+
+
+def _model(scene, i0=None) -> DetectorModel:
+    """The scene's :class:`~xray_viz.physics.detector_model.DetectorModel` (``i0``: another
+    I0)."""
+    model = DetectorModel.of(scene.detector)
+    return model if i0 is None else dataclasses.replace(model, i0=float(i0))
 
 __all__ = ["body_mu", "log_transmission", "log_variance_transmission", "transmission",
            "pixel_log_mean", "pixel_log_transmission", "ray_weights", "detect", "detect_log",
            "flat_field", "detector_weights", "falloff_factor",
            "source_object_distance", "source_detector_distance", "magnification",
            "focal_spot_blur_mm", "gaussian_kernel", "MM_PER_CM"]
-
-MM_PER_CM = 10.0
-
-#: Bytes of the (rays x energy bins) work array of one chunk in :func:`transmission`: small
-#: enough to stay in the CPU's L2 cache between the product, the exp and the weighted sum
-#: (1 MiB: ~870 rays at 150 bins; 32 MiB chunks were 2-3 times slower).
-CHUNK_BYTES = 2**20
 
 
 def body_mu(scene, energies_kev) -> np.ndarray:
@@ -63,45 +73,7 @@ def body_mu(scene, energies_kev) -> np.ndarray:
     >>> body_mu(xray_viz.load_scene("sphere"), [40.0, 60.0]).tolist()
     [[0.2], [0.2]]
     """
-    energies = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
-    mu = np.empty((len(energies), len(scene.bodies)))
-    for b, body in enumerate(scene.bodies):
-        if body.mu is not None:
-            mu[:, b] = body.mu
-        else:
-            from xray_viz.physics.materials import linear_attenuation
-
-            mu[:, b] = linear_attenuation(body.material, energies, density=body.density)
-    return mu
-
-
-def _response(scene) -> str:
-    return getattr(scene.detector, "response", "energy")
-
-
-def detector_weights(spectrum, response: str = "energy") -> np.ndarray:
-    """Weight of each energy bin in the detector signal, summing to 1.
-
-    ``"counting"``: the photon fluence ``phi_k``; ``"energy"``: ``phi_k E_k / sum phi E``;
-    ``"kerma"``: air kerma, ``phi_k E_k (mu_en/rho)_air(E_k)`` (:mod:`~xray_viz.physics.dosimetry`).
-
-    Examples
-    --------
-    >>> from xray_viz.physics.spectra import Spectrum
-    >>> detector_weights(Spectrum([20.0, 60.0], [1.0, 1.0]), "energy").tolist()
-    [0.25, 0.75]
-    """
-    w = np.asarray(spectrum.weights, dtype=np.float64)
-    if response == "energy":
-        w = w * spectrum.energies
-    elif response == "kerma":
-        from xray_viz.physics._air import air_mass_energy_absorption
-
-        w = w * spectrum.energies * air_mass_energy_absorption(spectrum.energies)
-    elif response != "counting":
-        raise SceneError(f"detector response must be 'energy', 'counting' or 'kerma', got "
-                         f"{response!r}")
-    return w / w.sum()
+    return _body_mu(scene.bodies, energies_kev)
 
 
 def _beam(scene):
@@ -123,153 +95,8 @@ def _beam(scene):
         Bins with a non-zero weight.
     u1, u2 : (n,) float
     """
-    from xray_viz.physics.detector import absorption_efficiency
-    from xray_viz.physics.spectra import source_spectrum
-
-    spectrum = source_spectrum(scene.source)
-    dw = detector_weights(spectrum, _response(scene))
-    eta = absorption_efficiency(getattr(scene.detector, "scintillator", None), spectrum.energies)
-    keep = dw > 0
-    u1 = dw * eta
-    if not _counts_photons(scene):
-        u2 = np.zeros_like(u1)
-        u2[keep] = dw[keep] ** 2 / spectrum.weights[keep] * eta[keep]
-    else:
-        u2 = u1.copy()                     # q = 1: the variance is the mean
-    return spectrum, keep, u1, u2
-
-
-def _counts_photons(scene) -> bool:
-    """Whether every detected photon scores the same (a counting detector or one energy), so
-    that the signal is a plain photon count: its variance is its mean."""
-    from xray_viz.physics.spectra import source_spectrum
-
-    return _response(scene) == "counting" or len(source_spectrum(scene.source)) == 1
-
-
-def _heel(scene, keep):
-    """The heel effect's interpolation and its grid spectra over the bins ``keep`` as
-    ``(interpolation, ratio (N, K))``, or None (``[source] heel`` off)."""
-    from xray_viz.physics.heel import heel_interpolator, heel_side
-
-    if heel_side(getattr(scene.source, "heel", None)) is None:
-        return None
-    interpolation = heel_interpolator(scene)
-    return interpolation, np.ascontiguousarray(interpolation.ratio[:, keep])
-
-
-def _row_range(scene, rows) -> tuple[int, int]:
-    """``(start, stop)`` of a block of image rows (None: all of them)."""
-    from xray_viz.geometry import row_range
-
-    return row_range(rows, scene.detector.shape[1])
-
-
-def _rays_per_pixel(scene, rows, n_rays) -> tuple[int, int]:
-    """``(first pixel index, rays per pixel)`` of the rays of a block of rows."""
-    start, stop = _row_range(scene, rows)
-    w = scene.detector.shape[0]
-    n_pixels = (stop - start) * w
-    if n_rays % n_pixels:
-        raise SceneError(f"{n_rays} rays do not cover image rows {start}:{stop} ({n_pixels} "
-                         "pixels) in detector_rays order")
-    return start * w, n_rays // n_pixels
-
-
-def _log_sums(path_length, scene, *, rows=None, variance=False, out=None) -> list[np.ndarray]:
-    """``ln(sum_k w_k T_k / sum_k w_k)`` per ray for the signal weights (and the variance's).
-
-    One product ``L @ -mu`` per chunk of rays serves both sums; with the heel effect the
-    weights of each chunk's rays are interpolated from SpekPy's grid. The products are
-    :func:`numpy.einsum`'s own loops, not BLAS: each ray's sum is then the same whatever the
-    number of rays of a call (a band, a chunk), and a skinny product (a few bodies) does not
-    wait for BLAS threads, which on a loaded machine made them 10-15 times slower. ``out``
-    (``(n_rays,)`` float) receives the signal's sum, the first array returned.
-    """
-    L = np.asarray(path_length, dtype=np.float64)
-    spectrum, keep, u1, u2 = _beam(scene)
-    mu = body_mu(scene, spectrum.energies[keep]) / MM_PER_CM          # (K, B) 1/mm
-    moments = [u1[keep]] + ([u2[keep]] if variance else [])
-    heel = _heel(scene, keep)
-    if rows is not None or heel is not None:
-        first_pixel, per_pixel = _rays_per_pixel(scene, rows, len(L))
-    if out is None:
-        out = np.empty(len(L))
-    if len(mu) == 1 and heel is None:
-        line = _line_integrals(L, mu[0], out=out)
-        return [line] + ([line.copy()] if variance else [])
-    # a bin's weight can underflow to 0 (u2 ~ phi^2 of a bin the filters all but remove): its
-    # log is -inf, and exp(-inf) = 0 is exactly its share of the sums below
-    with np.errstate(divide="ignore"):
-        log_w = [np.log(u) - np.log(u.sum()) for u in moments]
-    minus_mu_t = np.ascontiguousarray(-mu.T)                           # (B, K)
-    out.fill(0.0)
-    outs = [out] + [np.zeros(len(L)) for _ in moments[1:]]
-    # a ray through no body transmits everything (its weights sum to 1): ln T = 0
-    inside = _inside(L)
-    if heel is not None:
-        # a pixel's weights are u_k times a bilinear combination of the grid's spectra, so
-        # its sum is the same combination of the grid spectra's sums (one small product)
-        interpolation, ratio = heel
-        levels = [ratio @ u for u in moments]                         # (N,) per grid spectrum
-        # every inside ray's grid corners at once (elementwise: the same as chunk by chunk)
-        all_corners, all_coef = interpolation.corners(first_pixel + inside // per_pixel)
-    K = len(mu)
-    chunk = max(16, CHUNK_BYTES // (8 * K))
-    base_buf, work_buf = np.empty((chunk, K)), np.empty((chunk, K))
-    for start in range(0, len(inside), chunk):
-        idx = inside[start:start + chunk]
-        part = L[idx]
-        # bodies none of these rays crosses add exact zeros to every sum: left out
-        crossed = np.flatnonzero(part.any(axis=0))
-        factors = minus_mu_t
-        if len(crossed) < part.shape[1]:
-            part, factors = part[:, crossed], minus_mu_t[crossed]
-        base = np.einsum("ij,jk->ik", part, factors, out=base_buf[:len(idx)])
-        if heel is not None:
-            corners = all_corners[start:start + chunk]
-            coef = all_coef[start:start + chunk]
-            # each ray's own spectrum ratio: its four grid spectra combined (rays, K)
-            mix = np.einsum("nc,nck->nk", coef, ratio[corners])
-        for m, dest in enumerate(outs):
-            work = np.add(base, log_w[m], out=work_buf[:len(idx)])
-            if heel is None:
-                dest[idx] = _logsumexp_rows(work)
-                continue
-            top = work.max(axis=1)
-            work -= top[:, None]
-            np.exp(work, out=work)
-            total = np.einsum("ik,ik->i", work, mix)
-            level = (levels[m][corners] * coef).sum(axis=1) / moments[m].sum()
-            dest[idx] = top + np.log(total / level)
-    return outs
-
-
-def _line_integrals(L, mu, *, out) -> np.ndarray:
-    """``-sum_b mu_b L[:, b]`` per ray into ``out`` (one product for one body)."""
-    if L.shape[1] == 1:
-        return np.multiply(L[:, 0], -mu[0], out=out)
-    if L.shape[1] == 0:
-        out.fill(0.0)
-        return out
-    return np.einsum("ij,j->i", L, -mu, out=out)
-
-
-def _inside(L) -> np.ndarray:
-    """Indices of the rays with a non-zero path length in some body."""
-    if not L.shape[1] or not len(L):
-        return np.zeros(0, np.int64)
-    if L.min() >= 0:                # a sum of non-negative numbers is 0 only if all are
-        return np.flatnonzero(np.einsum("ij->i", L))
-    return np.flatnonzero(np.any(L != 0, axis=1))
-
-
-def _logsumexp_rows(work: np.ndarray) -> np.ndarray:
-    """``ln sum_k exp(work[:, k])`` per row, the largest term factored out (overwrites work)."""
-    top = work.max(axis=1)
-    work -= top[:, None]
-    np.exp(work, out=work)
-    return top + np.log(work.sum(axis=1))
+    beam = _beam_of(scene)
+    return beam.spectrum, beam.keep, beam.u1, beam.u2
 
 
 def log_transmission(path_length, scene, *, rows=None) -> np.ndarray:
@@ -308,7 +135,7 @@ def log_transmission(path_length, scene, *, rows=None) -> np.ndarray:
     >>> log_transmission(np.array([[50.0], [1e5]]), scene).tolist()   # 1e5 mm: exp underflows
     [-1.0, -2000.0]
     """
-    return _log_sums(path_length, scene, rows=rows)[0]
+    return _beam_of(scene).log_transmission(path_length, rows=rows)
 
 
 def log_variance_transmission(path_length, scene, *, rows=None) -> np.ndarray:
@@ -338,13 +165,13 @@ def log_variance_transmission(path_length, scene, *, rows=None) -> np.ndarray:
     >>> log_variance_transmission(np.array([[50.0]]), xray_viz.load_scene("sphere")).tolist()
     [-1.0]
     """
-    return _log_sums(path_length, scene, rows=rows, variance=True)[1]
+    return _beam_of(scene).log_sums(path_length, rows=rows, variance=True)[1]
 
 
 def _needs_variance(scene) -> bool:
     """Whether the noise needs the variance sum: noise on, an energy-weighted polychromatic
     signal (for counting detectors and single energies the variance is the mean)."""
-    return bool(getattr(scene.detector, "noise", False)) and not _counts_photons(scene)
+    return _model(scene).needs_variance(_beam_of(scene))
 
 
 def pixel_log_transmission(path_length, scene, *, supersample: int = 1, rows=None,
@@ -382,33 +209,20 @@ def pixel_log_transmission(path_length, scene, *, supersample: int = 1, rows=Non
     >>> log_t.shape, bool(log_t.max() == 0), log_v is None
     ((256, 256), True, True)
     """
+    beam = _beam_of(scene)
     if variance is None:
-        variance = _needs_variance(scene)
-    return _pixel_log_transmission(path_length, scene, supersample=int(supersample), rows=rows,
-                                   variance=variance)
+        variance = _model(scene).needs_variance(beam)
+    return beam.pixel_log_transmission(path_length, supersample=int(supersample), rows=rows,
+                                       variance=variance)
 
 
 def _pixel_log_transmission(path_length, scene, *, supersample, rows, variance, out_t=None,
                             out_v=None):
     """:func:`pixel_log_transmission`, written into ``out_t`` (and ``out_v``), ``(n_rows, W)``
     C-contiguous arrays, when given: one ray per pixel then needs no other image-sized array."""
-    nn = supersample * supersample
-    w = scene.detector.shape[0]
-    direct = nn == 1 and out_t is not None and out_t.flags.c_contiguous
-    sums = _log_sums(path_length, scene, rows=rows, variance=variance,
-                     out=out_t.reshape(-1) if direct else None)
-    if direct:
-        if variance:
-            np.copyto(out_v, sums[1].reshape(-1, w))
-        return out_t, out_v
-    log_t = pixel_log_mean(sums[0], nn).reshape(-1, w)
-    log_v = pixel_log_mean(sums[1], nn).reshape(-1, w) if variance else None
-    if out_t is None:
-        return log_t, log_v
-    np.copyto(out_t, log_t)
-    if variance:
-        np.copyto(out_v, log_v)
-    return out_t, out_v
+    return _beam_of(scene).pixel_log_transmission(path_length, supersample=supersample,
+                                                  rows=rows, variance=variance, out_t=out_t,
+                                                  out_v=out_v)
 
 
 def ray_weights(scene, rows=None, *, supersample: int = 1, variance: bool = False) -> np.ndarray:
@@ -439,38 +253,7 @@ def ray_weights(scene, rows=None, *, supersample: int = 1, variance: bool = Fals
     >>> ray_weights(xray_viz.load_scene("sphere"), rows=(0, 1)).shape      # 256 rays, 1 bin
     (256, 1)
     """
-    start, stop = _row_range(scene, rows)
-    w = scene.detector.shape[0]
-    pixels = np.arange(start * w, stop * w)
-    _, keep, u1, u2 = _beam(scene)
-    u = (u2 if variance else u1)[keep]
-    heel = _heel(scene, keep)
-    if heel is None:
-        out = np.broadcast_to(u / u.sum(), (len(pixels), len(u)))
-    else:
-        out = u * heel[0](pixels)[:, keep]
-        out /= out.sum(axis=1, keepdims=True)
-    return np.repeat(out, int(supersample) ** 2, axis=0)
-
-
-def _levels(scene):
-    """The unattenuated signal and variance per incident photon at each pixel, relative to
-    an ideal detector at the centre: ``A = sum_k u1_k``, ``B = sum_k u2_k`` (heel included).
-
-    Returns
-    -------
-    A, B : float or (H, W) float
-    """
-    _, keep, u1, u2 = _beam(scene)
-    heel = _heel(scene, keep)
-    if heel is None:
-        return float(u1.sum()), float(u2.sum())
-    interpolation, ratio = heel
-    w, h = scene.detector.shape
-    corners, coef = interpolation.corners(np.arange(w * h))
-    A = ((ratio @ u1[keep])[corners] * coef).sum(axis=1)
-    B = ((ratio @ u2[keep])[corners] * coef).sum(axis=1)
-    return A.reshape(h, w), B.reshape(h, w)
+    return _beam_of(scene).ray_weights(rows, supersample=supersample, variance=variance)
 
 
 def transmission(path_length, scene, *, rows=None) -> np.ndarray:
@@ -502,50 +285,6 @@ def transmission(path_length, scene, *, rows=None) -> np.ndarray:
     return np.exp(log_transmission(path_length, scene, rows=rows))
 
 
-def pixel_log_mean(log_values, n_per_pixel: int) -> np.ndarray:
-    """``ln`` of the mean of ``exp(log_values)`` over consecutive groups of ``n_per_pixel``.
-
-    Averages the transmissions of each pixel's ``n x n`` supersampled rays in the log domain
-    (log-sum-exp), so that the mean of underflowing transmissions is still exact.
-
-    Parameters
-    ----------
-    log_values : (n_pixels * n_per_pixel,) float
-    n_per_pixel : int
-
-    Returns
-    -------
-    (n_pixels,) float
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> pixel_log_mean(np.log([1.0, 3.0, 2000.0, 2000.0]), 2).round(6).tolist()
-    [0.693147, 7.600902]
-    >>> float(pixel_log_mean(np.array([-2000.0, -2001.0]), 2)[0])     # no underflow
-    -2000.3798854930417
-    """
-    a = np.asarray(log_values, dtype=np.float64)
-    if n_per_pixel == 1:
-        return a
-    # one sub-ray per row, every pixel along the rows: NumPy's reductions along a short axis
-    # (a pixel's 4-16 rays) are 3-5 times slower than these vectorised passes
-    work = np.ascontiguousarray(a.reshape(-1, n_per_pixel).T)
-    top = np.maximum.reduce(work, axis=0)
-    with np.errstate(invalid="ignore"):                 # -inf - -inf: a pixel at -inf
-        np.subtract(work, top, out=work)
-    np.exp(work, out=work)
-    rest = np.add.reduce(work, axis=0)
-    del work
-    rest /= n_per_pixel
-    np.log(rest, out=rest)
-    rest += top
-    odd = ~np.isfinite(top)
-    if odd.any():
-        rest[odd] = top[odd]
-    return rest
-
-
 # --------------------------------------------------------------------------------------------
 # geometry of the source and detector
 
@@ -570,23 +309,12 @@ def source_object_distance(scene) -> float:
     >>> source_object_distance(xray_viz.load_scene("sphere"))      # ball at the origin
     1000.0
     """
-    from xray_viz.geometry import beam_direction
-
-    r0 = np.asarray(scene.source.position, dtype=np.float64)
-    sid = source_detector_distance(scene)
-    if not scene.bodies:
-        return sid
-    tris = scene.triangles.reshape(-1, 3)
-    centre = (tris.min(axis=0) + tris.max(axis=0)) / 2
-    sod = float((centre - r0) @ beam_direction(r0, scene.detector.center))
-    return sod if 0 < sod else sid
+    return _dm.source_object_distance(scene.acquisition, scene.bodies)
 
 
 def magnification(scene) -> float:
     """Geometric magnification ``SID / SOD`` of the object plane (1 for a parallel beam)."""
-    if scene.source.kind == "parallel":
-        return 1.0
-    return source_detector_distance(scene) / source_object_distance(scene)
+    return _dm.magnification(scene.acquisition, scene.bodies)
 
 
 def focal_spot_blur_mm(scene) -> float:
@@ -595,10 +323,7 @@ def focal_spot_blur_mm(scene) -> float:
     ``focal_spot * (SID - SOD) / SOD = focal_spot * (M - 1)``, the geometric unsharpness of an
     edge in the object plane; 0 for a parallel beam or no focal spot.
     """
-    f = float(getattr(scene.detector, "focal_spot", 0.0) or 0.0)
-    if f <= 0 or scene.source.kind == "parallel":
-        return 0.0
-    return f * abs(magnification(scene) - 1.0)
+    return _model(scene).focal_spot_blur_mm(scene.acquisition, scene.bodies)
 
 
 def falloff_factor(scene) -> np.ndarray:
@@ -621,58 +346,14 @@ def falloff_factor(scene) -> np.ndarray:
     >>> float(f.max()) <= 1.0
     True
     """
-    w, h = scene.detector.shape
-    if scene.source.kind == "parallel":
-        return np.ones((h, w))
-    acq = scene.acquisition
-    frame = acq.frame
-    r = acq.pixel_distances           # kept by the acquisition
-    q = np.divide(frame.sid, r)
-    if not frame.plain:               # tilted or offset: the pixels' own distances and angles
-        q *= q
-        q *= np.divide(frame.distance, r)
-        return q
-    cube = np.multiply(q, q)
-    cube *= q
-    return cube
+    return _dm.falloff_factor(scene.acquisition)
 
 
 def _apply_falloff(image, scene) -> None:
     """``image *= falloff_factor(scene)`` in place, without another image-sized array (a
     fresh one costs more in page faults than the arithmetic): divided by the pixels'
     distances (kept by the acquisition) and multiplied by the constants."""
-    if scene.source.kind == "parallel":
-        return
-    frame = scene.acquisition.frame
-    r = scene.acquisition.pixel_distances
-    image /= r
-    image /= r
-    image /= r
-    image *= frame.sid ** 2 * (frame.distance if not frame.plain else frame.sid)
-
-
-def gaussian_kernel(sigma: float) -> np.ndarray:
-    """The discrete Gaussian kernel of variance ``sigma**2`` (pixels), summing to 1.
-
-    ``T(n) = exp(-t) I_n(t)`` with ``t = sigma**2`` and ``I_n`` the modified Bessel function
-    (Lindeberg's discrete analogue of the Gaussian): its variance is exactly ``sigma**2`` for any
-    ``sigma``, also far below a pixel, where a sampled Gaussian is only ``[1]`` (a blur of 0.05
-    pixel would do nothing) or has far too small a variance. For ``sigma`` of a few pixels it
-    equals the sampled Gaussian. Truncated at ``4 sigma + 2`` pixels and
-    renormalised.
-
-    Examples
-    --------
-    >>> k = gaussian_kernel(0.1)
-    >>> len(k), round(float(k.sum()), 12), round(float(k @ (np.arange(7) - 3.0) ** 2), 6)
-    (7, 1.0, 0.01)
-    """
-    from scipy.special import ive
-
-    t = float(sigma) ** 2
-    radius = int(math.ceil(4.0 * float(sigma))) + 2
-    k = ive(np.arange(-radius, radius + 1), t)
-    return k / k.sum()
+    _dm._apply_falloff(image, scene.acquisition)
 
 
 def _blur_sigmas(scene) -> tuple[float, float] | None:
@@ -684,75 +365,13 @@ def _blur_sigmas(scene) -> tuple[float, float] | None:
         If the blur is wider than the detector itself (a focal spot given in the wrong unit):
         it would make a uniform grey image and a kernel larger than the image.
     """
-    fwhm = focal_spot_blur_mm(scene)
-    if fwhm <= 0:
-        return None
-    sigma_mm = fwhm / (2.0 * math.sqrt(2.0 * math.log(2.0)))
-    px, py = scene.detector.pitch
-    w, h = scene.detector.shape
-    extent = max(w * px, h * py)
-    if not fwhm <= extent:
-        from xray_viz.errors import SceneError
-
-        raise SceneError(
-            f"[detector] focal_spot = {scene.detector.focal_spot:g} mm blurs the image by "
-            f"{fwhm:.3g} mm (FWHM at the detector), more than the detector's {extent:.3g} mm: "
-            "a real focal spot is 0.1-2 mm across; give focal_spot in mm, or 0 for an ideal point")
-    return sigma_mm / py, sigma_mm / px
-
-
-def _focal_kernels(scene):
-    sigmas = _blur_sigmas(scene)
-    return None if sigmas is None else tuple(gaussian_kernel(s) for s in sigmas)
+    return _model(scene).blur_sigmas(scene.acquisition, scene.bodies)
 
 
 def _mtf_kernels(scene):
     """The detector blur's kernels along the rows and columns (:func:`~xray_viz.physics.
     detector.mtf_kernel`), or None without ``[detector] mtf``."""
-    mtf = getattr(scene.detector, "mtf", None)
-    if mtf is None:
-        return None
-    from xray_viz.physics.detector import mtf_kernel
-
-    px, py = scene.detector.pitch
-    return mtf_kernel(mtf, py)[0], mtf_kernel(mtf, px)[0]
-
-
-def _convolve(image, kernels) -> np.ndarray:
-    """Separable convolution, ``kernels[axis]`` along each axis, mirrored (half-sample
-    symmetric) past the border, which keeps the total signal exactly."""
-    from scipy.ndimage import convolve1d
-
-    out = np.asarray(image, dtype=np.float64)
-    for axis, k in enumerate(kernels):
-        out = convolve1d(out, k, axis=axis, mode="reflect")
-    return out
-
-
-def _log_convolve(log_image, kernels) -> np.ndarray:
-    """``ln`` of :func:`_convolve` of ``exp(log_image)`` (non-negative kernels), without
-    underflow: each output pixel's sum is taken relative to the largest value under its
-    kernel (log-sum-exp). Blurs directly when ``exp`` of every value is a normal float."""
-    g = np.asarray(log_image, dtype=np.float64)
-    if np.all(g > -700.0):
-        return np.log(_convolve(np.exp(g), kernels))
-    from scipy.ndimage import maximum_filter1d
-
-    for axis, k in enumerate(kernels):
-        r = len(k) // 2
-        top = maximum_filter1d(g, size=len(k), axis=axis, mode="reflect")
-        pad = [(0, 0), (0, 0)]
-        pad[axis] = (r, r)
-        padded = np.pad(g, pad, mode="symmetric")
-        acc = np.zeros_like(g)
-        n = g.shape[axis]
-        for j, weight in enumerate(k[::-1]):
-            if weight == 0:
-                continue
-            window = padded[j:j + n] if axis == 0 else padded[:, j:j + n]
-            acc += weight * np.exp(window - top)
-        g = top + np.log(acc)
-    return g
+    return _model(scene).mtf_kernels
 
 
 def _blur(image, scene) -> np.ndarray:
@@ -761,7 +380,7 @@ def _blur(image, scene) -> np.ndarray:
     The image is extended past its border by mirroring (half-sample symmetric), which keeps
     the total signal exactly, whatever the image.
     """
-    kernels = _focal_kernels(scene)
+    kernels = _model(scene).focal_kernels(scene.acquisition, scene.bodies)
     return image if kernels is None else _convolve(image, kernels)
 
 
@@ -772,23 +391,8 @@ def _log_blur(log_image, scene) -> np.ndarray:
     (log-sum-exp), so an image of transmissions far below float64's smallest number (a line
     integral of thousands) is blurred exactly. Same kernel and border rule as :func:`_blur`.
     """
-    kernels = _focal_kernels(scene)
-    g = np.asarray(log_image, dtype=np.float64)
-    return g if kernels is None else _log_convolve(g, kernels)
-
-
-def _poisson(rng, lam) -> np.ndarray:
-    """Poisson samples of means ``lam``; above 1e12 photons the normal limit
-    ``N(lam, lam)`` (numpy's Poisson sampler refuses means beyond ~9e18; the normal limit's
-    relative skewness there is below 1e-6)."""
-    lam = np.asarray(lam, dtype=np.float64)
-    big = lam > 1e12
-    if not big.any():
-        return rng.poisson(lam).astype(np.float64)
-    out = np.empty_like(lam)
-    out[~big] = rng.poisson(lam[~big])
-    out[big] = np.maximum(np.round(rng.normal(lam[big], np.sqrt(lam[big]))), 0.0)
-    return out
+    return _dm._log_blurred(log_image, _model(scene).focal_kernels(scene.acquisition,
+                                                                    scene.bodies))
 
 
 def detect(transmitted, scene, *, i0: float | None = None, rng=None):
@@ -837,12 +441,8 @@ def flat_field(scene, *, i0: float | None = None) -> np.ndarray:
     >>> float(flat_field(xray_viz.load_scene("sphere")).max())
     1.0
     """
-    det = scene.detector
-    w, h = det.shape
-    i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
-    A, _ = _levels(scene)
-    fall = falloff_factor(scene) if getattr(det, "falloff", False) else 1.0
-    return float(getattr(det, "gain", 1.0)) * i0 * fall * np.broadcast_to(A, (h, w))
+    model = _model(scene, i0)
+    return model.flat_field(beam=_beam_of(scene), acquisition=scene.acquisition)
 
 
 def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
@@ -905,77 +505,11 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
     return _detect_log(log_transmitted, scene, i0=i0, rng=rng, log_variance=log_variance)
 
 
-#: Fewest values whose ``exp`` is shared out over threads (:func:`_exp`).
-_PARALLEL_VALUES = 1 << 16
-
-
-def _exp(x):
-    """``np.exp(x)`` into a new array, the rows of a big image in one piece per thread
-    (:mod:`xray_viz._threads`; NumPy's loop releases the GIL): the same numbers, 0.86 instead
-    of 1.43 ms at 512 x 512 on two cores (scalar libm ``exp`` on an AVX2 processor)."""
-    x = np.asarray(x)
-    if x.ndim == 0 or x.size < _PARALLEL_VALUES or x.dtype != np.float64:
-        return np.exp(x)
-    from xray_viz import _threads
-
-    k = min(_threads.count(), len(x))
-    if k <= 1:
-        return np.exp(x)
-    out = np.empty_like(x)
-    cut = [len(x) * j // k for j in range(k + 1)]
-    _threads.run_pieces(lambda j: np.exp(x[cut[j]:cut[j + 1]], out=out[cut[j]:cut[j + 1]]), k)
-    return out
-
-
 def _detect_log(log_transmitted, scene, *, i0=None, rng=None, log_variance=None,
                 overwrite=False):
     """:func:`detect_log`; with ``overwrite`` (a float64 array the caller no longer needs) a
     noise-free, unblurred line integral is written over ``log_transmitted``."""
-    det = scene.detector
-    log_t = np.asarray(log_transmitted, dtype=np.float64)
-    i0 = float(getattr(det, "i0", 1.0) if i0 is None else i0)
-    gain = float(getattr(det, "gain", 1.0))
-    A, B = _levels(scene)
-    mtf = _mtf_kernels(scene)
-    noise = bool(getattr(det, "noise", False))
-    falloff = bool(getattr(det, "falloff", False))
-    if not noise and mtf is None and _blur_sigmas(scene) is None:
-        # the common case, in place: 16 bytes per pixel besides log_t (big detectors); a
-        # factor of exactly 1 is skipped (the same numbers, one pass less)
-        signal = _exp(log_t)
-        if gain * i0 != 1.0:
-            signal *= gain * i0
-        if falloff:
-            _apply_falloff(signal, scene)
-        if not (np.ndim(A) == 0 and A == 1.0):
-            signal *= A
-        if overwrite and log_t is log_transmitted:
-            return signal, np.negative(log_t, out=log_t)
-        return signal, -log_t
-    incident = i0 * falloff_factor(scene) if falloff else np.full(log_t.shape, i0)
-    flat = incident * A
-    log_flat = np.log(flat)
-    log_signal = _log_blur(log_flat + log_t, scene)
-    if not noise:
-        if mtf is not None:
-            log_signal = _log_convolve(log_signal, mtf)
-        return gain * np.exp(log_signal), log_flat - log_signal
-    if rng is None:
-        rng = np.random.default_rng(getattr(det, "seed", None))
-    if _counts_photons(scene):
-        # photon counts: variance = mean, c = 1 (the same numbers as c * Poisson(M / c))
-        c = 1.0
-        signal = _poisson(rng, np.exp(log_signal))
-    else:
-        log_v = log_t if log_variance is None else np.asarray(log_variance, dtype=np.float64)
-        log_var = _log_blur(np.log(incident * B) + log_v, scene)
-        log_c = log_var - log_signal                   # variance / mean, per pixel
-        c = np.exp(log_c)
-        signal = c * _poisson(rng, np.exp(log_signal - log_c))
-    if mtf is not None:
-        signal = _convolve(signal, mtf)
-    sigma_e = float(getattr(det, "electronic_noise", 0.0) or 0.0)
-    if sigma_e > 0:
-        signal = signal + rng.normal(0.0, sigma_e, signal.shape)
-    line_integral = log_flat - np.log(np.maximum(signal, 0.5 * c))
-    return gain * signal, line_integral
+    return _model(scene, i0).read(log_transmitted, beam=_beam_of(scene),
+                                  acquisition=scene.acquisition, bodies=scene.bodies,
+                                  seed=scene.detector.seed, rng=rng, log_variance=log_variance,
+                                  overwrite=overwrite)

@@ -16,6 +16,12 @@ Two engines are registered in :data:`ENGINES`:
 Both keep what they derive from the meshes on the bodies (:meth:`xray_viz.bodies.Bodies.cached`),
 so a new acquisition of the same bodies pays no per-mesh set-up again.
 
+A :class:`Projector` is the first stage of the pipeline (``ARCHITECTURE.md``): bodies and an
+engine, built once, asked for the path lengths of any acquisition
+(``projector.path_lengths(acquisition)``); the engine's capabilities (hits, kept results,
+compiled kernels, working memory) are its attributes, so nothing outside this module tests an
+engine's name.
+
 Examples
 --------
 >>> import xray_viz
@@ -26,6 +32,9 @@ Examples
 ((65536, 1), 80.0)
 >>> bool(abs(ENGINES["fast"].path_lengths(scene.bodies, scene.acquisition) - L).max() < 1e-9)
 True
+>>> projector = Projector(scene.bodies, engine="numpy")
+>>> bool((projector.path_lengths(scene.acquisition) == L).all()), projector.returns_hits
+(True, True)
 """
 
 from __future__ import annotations
@@ -37,7 +46,7 @@ import numpy as np
 from xray_viz.geometry import check_supersample
 from xray_viz.tracing.reference import numpy_path_lengths, numpy_rows
 
-__all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES"]
+__all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES", "Projector"]
 
 
 class _Imaged(NamedTuple):
@@ -64,10 +73,24 @@ class Engine(Protocol):
         Its key in :data:`ENGINES` (``--engine`` on the command line).
     returns_hits : bool
         Whether :meth:`hits` can return every hit of every ray.
+    keeps_results : bool
+        Whether :meth:`path_lengths` of a whole frame keeps its result on the bodies (a frame
+        that fits in one band is then best traced whole).
+    compiled : bool
+        Whether its kernels are compiled (numba) on first use, and cached on disk.
+    ray_bytes : int
+        Working memory per ray of a window besides its path lengths (rays, hits, the sweep's
+        temporaries), for choosing the windows.
+    fallback : str
+        The other engine, which may trace a scene this one fails on.
     """
 
     name: str
     returns_hits: bool
+    keeps_results: bool
+    compiled: bool
+    ray_bytes: int
+    fallback: str
 
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """``(W * H * supersample**2, n_bodies)`` float: every detector ray's path lengths."""
@@ -86,6 +109,10 @@ class NumpyEngine:
 
     name = "numpy"
     returns_hits = True
+    keeps_results = False
+    compiled = False
+    ray_bytes = 2048
+    fallback = "fast"
 
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """Path lengths of every detector ray (see :class:`Engine`)."""
@@ -121,6 +148,10 @@ class FastEngine:
 
     name = "fast"
     returns_hits = False
+    keeps_results = True
+    compiled = True
+    ray_bytes = 0
+    fallback = "numpy"
 
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """Path lengths of every detector ray (see :class:`Engine`); read-only when kept."""
@@ -149,3 +180,68 @@ class FastEngine:
 #: lengths ``(W * H * supersample**2, n_bodies)`` of the rays of
 #: :func:`~xray_viz.geometry.detector_rays` ``(scene, supersample=supersample)``, in that order.
 ENGINES = {"fast": FastEngine(), "numpy": NumpyEngine()}
+
+
+class Projector:
+    """Bodies and an engine: the path lengths of the bodies at any acquisition.
+
+    Built once per bodies (a scan, a render loop or an optimiser reuses it for every pose);
+    what the engine derives from the meshes stays on the :class:`~xray_viz.bodies.Bodies`
+    (:meth:`~xray_viz.bodies.Bodies.cached`), so two projectors of the same bodies share it.
+
+    Parameters
+    ----------
+    bodies : Bodies
+    engine : str
+        A key of :data:`ENGINES`: ``"fast"`` (default) or ``"numpy"``.
+
+    Attributes
+    ----------
+    bodies : Bodies
+    engine : Engine
+    name, returns_hits, keeps_results, compiled, ray_bytes, fallback
+        The engine's (see :class:`Engine`).
+
+    Raises
+    ------
+    SceneError
+        For an unknown engine name.
+    """
+
+    def __init__(self, bodies, engine: str = "fast"):
+        if not isinstance(engine, str) or engine not in ENGINES:
+            from xray_viz.errors import SceneError
+
+            raise SceneError(f"unknown engine {engine!r}; choose one of {', '.join(ENGINES)}")
+        self.bodies = bodies
+        self.engine = ENGINES[engine]
+
+    name = property(lambda self: self.engine.name, doc="The engine's name.")
+    returns_hits = property(lambda self: self.engine.returns_hits,
+                            doc="Whether the engine itself gives every hit.")
+    keeps_results = property(lambda self: self.engine.keeps_results,
+                             doc="Whether whole frames are kept on the bodies.")
+    compiled = property(lambda self: self.engine.compiled,
+                        doc="Whether the engine's kernels are compiled on first use.")
+    ray_bytes = property(lambda self: self.engine.ray_bytes,
+                         doc="Working memory per ray of a window besides its path lengths.")
+    fallback = property(lambda self: self.engine.fallback,
+                        doc="The other engine, for a scene this one fails on.")
+
+    def path_lengths(self, acquisition, *, supersample: int = 1) -> np.ndarray:
+        """``(W * H * supersample**2, n_bodies)`` float: every detector ray's path lengths
+        (:func:`~xray_viz.geometry.detector_rays` order; read-only when kept)."""
+        return self.engine.path_lengths(self.bodies, acquisition, supersample=supersample)
+
+    def windows(self, acquisition, *, supersample: int = 1, rows: int | None = None):
+        """Yield ``(r0, r1, L)``: the path lengths of image rows ``r0 .. r1 - 1`` (windows of
+        about ``rows`` rows, from the top), bit for bit those of :meth:`path_lengths`."""
+        return self.engine.windows(self.bodies, acquisition, supersample=supersample, rows=rows)
+
+    def hits(self, acquisition, *, supersample: int = 1):
+        """``(L, hits)``: the path lengths and every hit of every ray, from the NumPy engine
+        whatever this projector's engine (the fast engine builds no hit list)."""
+        return ENGINES["numpy"].hits(self.bodies, acquisition, supersample=supersample)
+
+    def __repr__(self) -> str:
+        return f"Projector({len(self.bodies)} bodies, engine={self.name!r})"
