@@ -134,6 +134,12 @@ def _reaches(start: str) -> set[str]:
                          "xray_viz.tracing.fast", "xray_viz.viz")),
     ("xray_viz.physics.imaging", ("xray_viz.render", "xray_viz.scene", "xray_viz.tracing",
                                   "xray_viz.viz")),
+    # the stages' values know acquisitions and bodies, not scenes
+    ("xray_viz.physics.beam", ("xray_viz.render", "xray_viz.scene", "xray_viz.tracing",
+                               "xray_viz.viz", "xray_viz.physics.imaging")),
+    ("xray_viz.physics.detector_model", ("xray_viz.render", "xray_viz.scene",
+                                         "xray_viz.tracing", "xray_viz.viz",
+                                         "xray_viz.physics.imaging")),
     ("xray_viz.scene", ("xray_viz.render", "xray_viz.tracing.fast", "xray_viz.viz",
                         "xray_viz.output")),
     ("xray_viz.render", ("xray_viz.viz", "xray_viz.cli", "xray_viz.output")),
@@ -163,3 +169,38 @@ def test_no_module_level_caches_keyed_by_mesh_identity():
     for name, path in MODULES.items():
         text = path.read_text(encoding="utf-8")
         assert "id(mesh)" not in text and "id(b.mesh)" not in text, name
+
+
+def test_no_engine_name_is_tested_outside_the_engines():
+    """What an engine can do is a Projector's (or engine's) attribute (issue 37): no
+    comparison with ``"fast"`` or ``"numpy"`` outside ``tracing/engines.py``."""
+    bad = []
+    for name, path in MODULES.items():
+        if name == "xray_viz.tracing.engines":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Compare):
+                for side in [node.left, *node.comparators]:
+                    if isinstance(side, ast.Constant) and side.value in ("fast", "numpy"):
+                        bad.append(f"{name}:{node.lineno}")
+    assert bad == []
+
+
+@pytest.mark.parametrize("name", ["xray_viz.physics.imaging", "xray_viz.physics.beam",
+                                  "xray_viz.physics.detector_model", "xray_viz.render"])
+def test_no_getattr_default_restates_a_field(name):
+    """The detector's and source's fields are read as fields, not through ``getattr`` with a
+    default that restates the dataclass's (issue 37)."""
+    tree = ast.parse(MODULES[name].read_text(encoding="utf-8"))
+    calls = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
+             and getattr(n.func, "id", None) == "getattr" and len(n.args) == 3]
+    assert calls == []
+
+
+@pytest.mark.parametrize("name", ["xray_viz.physics.beam", "xray_viz.physics.detector_model"])
+def test_the_stage_values_take_no_scene(name):
+    """No function of the stages' modules takes a ``scene`` (issue 37)."""
+    tree = ast.parse(MODULES[name].read_text(encoding="utf-8"))
+    takes = [n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)
+             and any(a.arg == "scene" for a in n.args.args + n.args.kwonlyargs)]
+    assert takes == []

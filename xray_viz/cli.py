@@ -82,7 +82,7 @@ def _render_command(args) -> int:
     from xray_viz.output import check_target
 
     check_target(out)                 # a read-only target is refused before the render
-    if args.engine == "fast":         # kernels missing from numba's cache: compiled meanwhile
+    if ENGINES[args.engine].compiled:   # kernels missing from numba's cache: compiled meanwhile
         from xray_viz._kernel_hint import likely_paths
         from xray_viz.tracing._raster import prepare
 
@@ -112,7 +112,7 @@ def _render_command(args) -> int:
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
     print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
           f"engine {engine}, {total_ms:.0f} ms{dose})")
-    if args.engine == "fast":         # the compiled mesh checks, for the next runs
+    if ENGINES[args.engine].compiled:   # the compiled mesh checks, for the next runs
         from xray_viz.meshes import _check_kernels
 
         _check_kernels.prepare(nice=10)

@@ -116,7 +116,7 @@ class Radiograph:
     def air_kerma(self):
         """The exposure's incident air kerma (:class:`~xray_viz.physics.dosimetry.AirKerma`)
         when the scene's source gives ``mas``; None otherwise."""
-        if self.scene is None or getattr(self.scene.source, "mas", None) is None:
+        if self.scene is None or self.scene.source.mas is None:
             return None
         from xray_viz.physics.dosimetry import air_kerma
 

@@ -36,7 +36,8 @@ from xray_viz.errors import OutputError, SceneError
 from xray_viz.geometry import Acquisition
 from xray_viz.orbit import Orbit, orbit_from_dict
 
-__all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geometry",
+__all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "Projections",
+           "scan_geometry",
            "projection_seed", "open_store", "write_zarr", "read_zarr", "write_tiff_stack",
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
@@ -473,16 +474,55 @@ def projection(scene, orbit: Orbit, k: int, *, quantity: str = "line-integral",
                engine: str = "fast") -> np.ndarray:
     """Projection ``k`` of a scan, ``(H, W)`` float32, rendered with the scene's bodies.
 
-    The detector's noise seed becomes :func:`projection_seed` ``(seed, k)``.
+    The detector's noise seed becomes :func:`projection_seed` ``(seed, k)``. A loop over
+    projections builds one :class:`Projections` instead (its stages once for all of them).
     """
-    from xray_viz.render import render
+    return Projections(scene, orbit, quantity=quantity, engine=engine)(k)
 
-    acq = orbit.acquisition(scene.acquisition, k)
-    det = acq.detector
-    if det.seed is not None:
-        det = dataclasses.replace(det, seed=projection_seed(det.seed, k))
-    image = render(scene.replace(source=acq.source, detector=det), engine=engine)
-    return np.asarray(image.quantity(quantity), dtype=np.float32)
+
+class Projections:
+    """The projections of a scan: a loop over the orbit's acquisitions through one
+    :class:`~xray_viz.tracing.engines.Projector`, one :class:`~xray_viz.physics.beam.Beam` and
+    one :class:`~xray_viz.physics.detector_model.DetectorModel`, built here once.
+
+    ``Projections(scene, orbit)(k)`` is projection ``k``, ``(H, W)`` float32: the orbit's
+    acquisition ``k`` (no scene is built), the noise seeded with :func:`projection_seed`
+    ``(seed, k)``; bit for bit :func:`xray_viz.render` of the scene moved to that pose.
+
+    Examples
+    --------
+    >>> import dataclasses, xray_viz
+    >>> scene = xray_viz.load_scene("sphere")
+    >>> small = scene.replace(detector=dataclasses.replace(scene.detector, shape=(32, 24),
+    ...                                                    pitch=(8.0, 8.0)))
+    >>> project = Projections(small, Orbit(projections=4, axis=[0, 1, 0]))
+    >>> project(3).shape, round(float(project(0).max()), 2)        # 80 mm at 0.2 /cm
+    ((24, 32), 1.6)
+    """
+
+    def __init__(self, scene, orbit: Orbit, *, quantity: str = "line-integral",
+                 engine: str = "fast"):
+        from xray_viz.render import check_memory, stages
+        from xray_viz.tracing.engines import Projector
+
+        _check_quantity(quantity)
+        self.projector = Projector(scene.bodies, engine)
+        self.beam, self.model = stages(scene)
+        self.base, self.orbit, self.quantity = scene.acquisition, orbit, quantity
+        self.supersample = scene.detector.supersample
+        check_memory(scene, supersample=self.supersample, engine=engine)
+
+    def __call__(self, k: int) -> np.ndarray:
+        """Projection ``k``, ``(H, W)`` float32."""
+        from xray_viz.render import image
+
+        acq = self.orbit.acquisition(self.base, k)
+        seed = acq.detector.seed
+        intensity, line_integral = image(
+            self.projector, self.beam, self.model, acq, supersample=self.supersample,
+            seed=None if seed is None else projection_seed(seed, k))
+        return np.asarray(intensity if self.quantity == "intensity" else line_integral,
+                          dtype=np.float32)
 
 
 @dataclass(frozen=True, eq=False)
@@ -597,8 +637,9 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         w, h = scene.detector.shape
         out = np.empty((orbit.projections, h, w), np.float32)
         bar = _bar(orbit.projections, progress)
+        project = Projections(scene, orbit, quantity=quantity, engine=engine)
         for k in range(orbit.projections):
-            out[k] = projection(scene, orbit, k, quantity=quantity, engine=engine)
+            out[k] = project(k)
             bar.update(1)
         bar.close()
         flat, dark = flat_dark(scene, geometry, quantity)
@@ -619,9 +660,9 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
                    batch=batch, progress=progress)
     else:
         bar = _bar(len(todo), progress)
+        project = Projections(scene, orbit, quantity=quantity, engine=engine) if todo else None
         for i, k in enumerate(todo):
-            _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
-                                                   engine=engine))
+            _write_projection(group, k, project(k))
             bar.update(1)
             if (i + 1) % max(1, batch) == 0:
                 trim_memory()
@@ -1019,7 +1060,9 @@ def warm_kernels(engine: str = "fast") -> list:
     """Compile, or load from numba's cache (shared by every process of the machine), the
     fast engine's kernels now; their names. A worker calls it when it starts, so no task pays
     for it."""
-    if engine != "fast":
+    from xray_viz.tracing.engines import ENGINES
+
+    if not ENGINES[engine].compiled:
         return []
     from xray_viz.tracing import _raster
 
@@ -1104,13 +1147,13 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
     scene = _load_scene_text(scene_text, digest)
     group = zarr.open_group(store, mode="r+")
     wrote = []
+    project = Projections(scene, orbit, quantity=quantity, engine=engine)
     try:
         for k in indices:
             k = int(k)
             if bool(group["done"][k]):
                 continue
-            _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
-                                                   engine=engine))
+            _write_projection(group, k, project(k))
             wrote.append(k)
     finally:
         trim_memory()                   # the batch's scratch memory back to the system

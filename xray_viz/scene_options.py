@@ -27,7 +27,9 @@ def _compile_notice(engine: str):
     a warm cache prints nothing, wherever it is."""
     import contextlib
 
-    if engine != "fast":
+    from xray_viz.tracing.engines import ENGINES
+
+    if engine not in ENGINES or not ENGINES[engine].compiled:
         return contextlib.nullcontext()
     from xray_viz.tracing import _numba_cache
 
