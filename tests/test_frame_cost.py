@@ -65,7 +65,9 @@ def test_falloff_in_place_equals_the_factor(geometry):
     scene = _scene(**_unit_v(GEOMETRIES[geometry]))
     image = np.random.default_rng(1).uniform(0.5, 2.0, scene.detector.shape[::-1])
     expected = image * imaging.falloff_factor(scene)
-    imaging._apply_falloff(image, scene)
+    from xray_viz.physics.detector_model import _apply_falloff
+
+    _apply_falloff(image, scene.acquisition)
     np.testing.assert_allclose(image, expected, rtol=1e-13)
     if geometry == "plain":
         cos = scene.acquisition.rays().directions @ scene.acquisition.frame.forward
@@ -114,8 +116,10 @@ def test_polychromatic_log_sums_equal_the_explicit_sum_over_bins(heel):
     rng = np.random.default_rng(3)
     L = rng.uniform(0, 30, (24 * 20, 2)) * (rng.random((24 * 20, 2)) < 0.5)
     L[:100, 1] = 0.0                                    # whole chunks without body b
-    spectrum, keep, _, _ = imaging._beam(scene)
-    mu = imaging.body_mu(scene, spectrum.energies[keep]) / 10.0
+    from xray_viz.physics.beam import Beam
+
+    beam = Beam.of(scene.source, scene.bodies, scene.detector)
+    mu = imaging.body_mu(scene, beam.spectrum.energies[beam.keep]) / 10.0
     w = imaging.ray_weights(scene)
     expected = np.log((w * np.exp(-(L @ mu.T))).sum(axis=1))
     from xray_viz.physics import beam as beam_module
@@ -137,7 +141,12 @@ def test_detect_log_overwrite_gives_the_same_reading(detector):
     log_t = -np.random.default_rng(4).uniform(0, 5, scene.detector.shape[::-1])
     want_i, want_li = imaging.detect_log(log_t, scene)
     mine = log_t.copy()
-    got_i, got_li = imaging._detect_log(mine, scene, overwrite=True)
+    from xray_viz.render import stages
+
+    beam, model = stages(scene)
+    got_i, got_li = model.read(mine, beam=beam.at(scene.acquisition),
+                               acquisition=scene.acquisition, bodies=scene.bodies,
+                               seed=scene.detector.seed, overwrite=True)
     assert got_li is mine
     np.testing.assert_array_equal(got_i, want_i)
     np.testing.assert_array_equal(got_li, want_li)

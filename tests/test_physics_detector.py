@@ -15,6 +15,7 @@ from physics_scenes import box, load, parallel_detector, pixel_centres, write_sc
 from xray_viz.errors import SceneError, SceneFileNotFoundError
 from xray_viz.physics import imaging
 from xray_viz.physics.detector import absorption_efficiency, mtf_kernel
+from xray_viz.physics.detector_model import DetectorModel
 from xray_viz.physics.spectra import source_spectrum
 
 PARALLEL = {"position": [0.0, 0.0, 1000.0], "kind": "parallel"}
@@ -270,7 +271,7 @@ def test_mtf_blur_conserves_signal_and_is_shift_equivariant_in_the_log_domain(tm
     a, b = xray_viz.render(sharp).intensity, xray_viz.render(blurred).intensity
     assert np.abs(a - b).max() > 0.05
     assert b.sum() == pytest.approx(a.sum(), rel=1e-12)
-    kernels = imaging._mtf_kernels(blurred)
+    kernels = DetectorModel.of(blurred.detector).mtf_kernels
     g = np.log(a)
     np.testing.assert_allclose(imaging._log_convolve(g - 3000.0, kernels) + 3000.0,
                                np.log(imaging._convolve(a, kernels)), rtol=1e-12, atol=1e-11)
@@ -342,7 +343,7 @@ def test_order_quantum_noise_then_blur_then_electronic_noise(tmp_path):
                                             seed=8, response="counting", electronic_noise=sigma_e,
                                             mtf={"sigma": 0.1}))
     image = xray_viz.render(scene).intensity[8:-8, 8:-8]               # away from the mirror
-    k_rows, k_cols = imaging._mtf_kernels(scene)
+    k_rows, k_cols = DetectorModel.of(scene.detector).mtf_kernels
     var = i0 * (k_rows @ k_rows) * (k_cols @ k_cols) + sigma_e**2
     n = image.size
     assert abs(image.mean() - i0) < 5 * np.sqrt(var / n)

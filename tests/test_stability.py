@@ -100,10 +100,15 @@ def test_log_blur_is_the_blur_shifted():
     scene = _ball_scene(1.0, focal_spot=1.2, pitch=0.25)
     rng = np.random.default_rng(3)
     g = -rng.uniform(0, 20, size=(31, 33))
-    direct = np.log(imaging._blur(np.exp(g), scene))
-    shifted = imaging._log_blur(g - 2000.0, scene) + 2000.0
+    from xray_viz.physics.detector_model import DetectorModel
+
+    model = DetectorModel.of(scene.detector)
+    kernels = model.focal_kernels(scene.acquisition, scene.bodies)
+    direct = np.log(imaging._convolve(np.exp(g), kernels))
+    shifted = imaging._log_convolve(g - 2000.0, kernels) + 2000.0
     np.testing.assert_allclose(shifted, direct, rtol=0, atol=1e-11)
-    assert imaging._blur_sigmas(scene)[0] > 0.9             # the blur is not negligible
+    # the blur is not negligible
+    assert model.blur_sigmas(scene.acquisition, scene.bodies)[0] > 0.9
 
 
 def test_focal_spot_render_of_an_opaque_body_is_finite():

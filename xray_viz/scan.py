@@ -496,7 +496,7 @@ class Projections:
     >>> small = scene.replace(detector=dataclasses.replace(scene.detector, shape=(32, 24),
     ...                                                    pitch=(8.0, 8.0)))
     >>> project = Projections(small, Orbit(projections=4, axis=[0, 1, 0]))
-    >>> project(3).shape, round(float(project(0).max()), 2)        # 80 mm at 0.2 /cm
+    >>> project(3).shape, round(float(project(0).max()), 1)        # 80 mm at 0.2 /cm
     ((24, 32), 1.6)
     """
 

@@ -19,8 +19,8 @@ Examples
 >>> import numpy as np, xray_viz
 >>> scene = xray_viz.load_scene("sphere")                  # mu = 0.2 /cm, 60 keV
 >>> beam = Beam.of(scene.source, scene.bodies, scene.detector)
->>> beam.log_transmission(np.array([[50.0], [0.0]])).tolist()
-[-1.0, 0.0]
+>>> beam.log_transmission(np.array([[50.0], [100.0]])).tolist()
+[-1.0, -2.0]
 """
 
 from __future__ import annotations

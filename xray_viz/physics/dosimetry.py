@@ -364,10 +364,15 @@ def air_kerma(scene) -> AirKerma:
     entrance *surface* air kerma would be 1.2-1.5 times larger), no heel effect, no attenuation
     by air.
     """
+    return _air_kerma(scene.acquisition, scene.bodies)
+
+
+def _air_kerma(acquisition, bodies) -> AirKerma:
+    """:func:`air_kerma` of bodies at an acquisition."""
     from xray_viz.physics.spectra import source_spectrum
 
-    src = scene.source
-    mas = getattr(src, "mas", None)
+    src = acquisition.source
+    mas = src.mas
     if mas is None:
         raise SpectrumError("air kerma needs [source] mas (the tube current-time product, mAs)")
     if src.kind == "parallel":
@@ -375,10 +380,10 @@ def air_kerma(scene) -> AirKerma:
                             "to fall off from")
     spectrum = source_spectrum(src)
     per_1m = air_kerma_per_mas(spectrum)
-    sid = scene.acquisition.frame.sid
+    sid = acquisition.frame.sid
     entrance_d = None
-    if scene.bodies:
-        entrance_d = _closest_distance(src.position, scene.triangles)
+    if len(bodies):
+        entrance_d = _closest_distance(src.position, bodies.triangles)
     k = lambda d: per_1m * mas * (1000.0 / d) ** 2                      # noqa: E731
     return AirKerma(entrance_uGy=None if entrance_d is None else k(entrance_d),
                     detector_uGy=k(sid), entrance_distance_mm=entrance_d,

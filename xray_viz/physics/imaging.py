@@ -23,6 +23,11 @@ the unattenuated beam's detected fraction (:func:`flat_field`), blurred by the f
 the detector's MTF and, if asked, with quantum and electronic noise. The *line integral* is the
 flat-field corrected ``-ln(I / flat_field)``; for a polychromatic beam it is no longer
 proportional to path length (beam hardening).
+
+The functions here take a scene and are adapters of the pipeline's values, which hold the
+computations: :class:`~xray_viz.physics.beam.Beam` (spectrum, detector weights and attenuation,
+built once per source and bodies) and :class:`~xray_viz.physics.detector_model.DetectorModel`
+(built once per detector); a renderer or a scan builds those once and reuses them.
 """
 
 from __future__ import annotations
@@ -32,11 +37,17 @@ import dataclasses
 import numpy as np
 
 from xray_viz.physics import detector_model as _dm
-from xray_viz.physics.beam import (  # noqa: F401  (re-exported; _line_integrals and _inside too)
-    CHUNK_BYTES, MM_PER_CM, Beam, _inside, _line_integrals, body_mu as _body_mu,
-    detector_weights, pixel_log_mean)
-from xray_viz.physics.detector_model import (  # noqa: F401  (re-exported)
-    DetectorModel, _convolve, _exp, _log_convolve, _poisson, gaussian_kernel)
+from xray_viz.physics.beam import (  # noqa: F401  (the helpers re-exported for their tests)
+    MM_PER_CM, Beam, _inside, _line_integrals, body_mu as _body_mu, detector_weights,
+    pixel_log_mean)
+from xray_viz.physics.detector_model import (  # noqa: F401  (the helpers re-exported)
+    DetectorModel, _convolve, _log_convolve, gaussian_kernel)
+
+__all__ = ["body_mu", "log_transmission", "log_variance_transmission", "transmission",
+           "pixel_log_mean", "pixel_log_transmission", "ray_weights", "detect", "detect_log",
+           "flat_field", "detector_weights", "falloff_factor",
+           "source_object_distance", "source_detector_distance", "magnification",
+           "focal_spot_blur_mm", "gaussian_kernel", "MM_PER_CM"]
 
 
 def _beam_of(scene) -> Beam:
@@ -49,12 +60,6 @@ def _model(scene, i0=None) -> DetectorModel:
     I0)."""
     model = DetectorModel.of(scene.detector)
     return model if i0 is None else dataclasses.replace(model, i0=float(i0))
-
-__all__ = ["body_mu", "log_transmission", "log_variance_transmission", "transmission",
-           "pixel_log_mean", "pixel_log_transmission", "ray_weights", "detect", "detect_log",
-           "flat_field", "detector_weights", "falloff_factor",
-           "source_object_distance", "source_detector_distance", "magnification",
-           "focal_spot_blur_mm", "gaussian_kernel", "MM_PER_CM"]
 
 
 def body_mu(scene, energies_kev) -> np.ndarray:
@@ -74,29 +79,6 @@ def body_mu(scene, energies_kev) -> np.ndarray:
     [[0.2], [0.2]]
     """
     return _body_mu(scene.bodies, energies_kev)
-
-
-def _beam(scene):
-    """The detector's energy weights at the detector centre, for the signal and its variance.
-
-    Each bin's photons (fluence ``phi_k``, summing to 1) score ``q_k`` each in the detector
-    (``q = E / <E>`` energy-integrating, 1 counting; :func:`detector_weights` gives
-    ``phi_k q_k``, so that an ideal detector's flat field reads 1 per photon) and are absorbed
-    with probability ``eta_k`` (:func:`~xray_viz.physics.detector.absorption_efficiency`). The
-    signal is ``sum_k u1_k T_k`` per incident photon and, a compound Poisson sum, its variance
-    ``sum_k u2_k T_k``, with
-
-        u1_k = phi_k q_k eta_k,        u2_k = phi_k q_k^2 eta_k.
-
-    Returns
-    -------
-    spectrum : Spectrum
-    keep : (n,) bool
-        Bins with a non-zero weight.
-    u1, u2 : (n,) float
-    """
-    beam = _beam_of(scene)
-    return beam.spectrum, beam.keep, beam.u1, beam.u2
 
 
 def log_transmission(path_length, scene, *, rows=None) -> np.ndarray:
@@ -168,12 +150,6 @@ def log_variance_transmission(path_length, scene, *, rows=None) -> np.ndarray:
     return _beam_of(scene).log_sums(path_length, rows=rows, variance=True)[1]
 
 
-def _needs_variance(scene) -> bool:
-    """Whether the noise needs the variance sum: noise on, an energy-weighted polychromatic
-    signal (for counting detectors and single energies the variance is the mean)."""
-    return _model(scene).needs_variance(_beam_of(scene))
-
-
 def pixel_log_transmission(path_length, scene, *, supersample: int = 1, rows=None,
                            variance: bool | None = None):
     """Per-pixel ``ln(I / I0)`` (and the variance's) from the rays of a block of image rows.
@@ -214,15 +190,6 @@ def pixel_log_transmission(path_length, scene, *, supersample: int = 1, rows=Non
         variance = _model(scene).needs_variance(beam)
     return beam.pixel_log_transmission(path_length, supersample=int(supersample), rows=rows,
                                        variance=variance)
-
-
-def _pixel_log_transmission(path_length, scene, *, supersample, rows, variance, out_t=None,
-                            out_v=None):
-    """:func:`pixel_log_transmission`, written into ``out_t`` (and ``out_v``), ``(n_rows, W)``
-    C-contiguous arrays, when given: one ray per pixel then needs no other image-sized array."""
-    return _beam_of(scene).pixel_log_transmission(path_length, supersample=supersample,
-                                                  rows=rows, variance=variance, out_t=out_t,
-                                                  out_v=out_v)
 
 
 def ray_weights(scene, rows=None, *, supersample: int = 1, variance: bool = False) -> np.ndarray:
@@ -349,52 +316,6 @@ def falloff_factor(scene) -> np.ndarray:
     return _dm.falloff_factor(scene.acquisition)
 
 
-def _apply_falloff(image, scene) -> None:
-    """``image *= falloff_factor(scene)`` in place, without another image-sized array (a
-    fresh one costs more in page faults than the arithmetic): divided by the pixels'
-    distances (kept by the acquisition) and multiplied by the constants."""
-    _dm._apply_falloff(image, scene.acquisition)
-
-
-def _blur_sigmas(scene) -> tuple[float, float] | None:
-    """The focal-spot blur's standard deviations ``(rows, columns)`` in pixels, or None.
-
-    Raises
-    ------
-    SceneError
-        If the blur is wider than the detector itself (a focal spot given in the wrong unit):
-        it would make a uniform grey image and a kernel larger than the image.
-    """
-    return _model(scene).blur_sigmas(scene.acquisition, scene.bodies)
-
-
-def _mtf_kernels(scene):
-    """The detector blur's kernels along the rows and columns (:func:`~xray_viz.physics.
-    detector.mtf_kernel`), or None without ``[detector] mtf``."""
-    return _model(scene).mtf_kernels
-
-
-def _blur(image, scene) -> np.ndarray:
-    """Focal-spot blur: a separable discrete Gaussian of FWHM :func:`focal_spot_blur_mm`.
-
-    The image is extended past its border by mirroring (half-sample symmetric), which keeps
-    the total signal exactly, whatever the image.
-    """
-    kernels = _model(scene).focal_kernels(scene.acquisition, scene.bodies)
-    return image if kernels is None else _convolve(image, kernels)
-
-
-def _log_blur(log_image, scene) -> np.ndarray:
-    """``ln`` of :func:`_blur` of ``exp(log_image)``, without underflow.
-
-    Each output pixel's sum is taken relative to the largest value under its kernel
-    (log-sum-exp), so an image of transmissions far below float64's smallest number (a line
-    integral of thousands) is blurred exactly. Same kernel and border rule as :func:`_blur`.
-    """
-    return _dm._log_blurred(log_image, _model(scene).focal_kernels(scene.acquisition,
-                                                                    scene.bodies))
-
-
 def detect(transmitted, scene, *, i0: float | None = None, rng=None):
     """The detector's reading of the transmitted beam.
 
@@ -502,14 +423,8 @@ def detect_log(log_transmitted, scene, *, i0: float | None = None, rng=None,
     >>> li.tolist(), intensity.tolist()
     ([[2000.0, 2000.0], [2000.0, 2000.0]], [[0.0, 0.0], [0.0, 0.0]])
     """
-    return _detect_log(log_transmitted, scene, i0=i0, rng=rng, log_variance=log_variance)
-
-
-def _detect_log(log_transmitted, scene, *, i0=None, rng=None, log_variance=None,
-                overwrite=False):
-    """:func:`detect_log`; with ``overwrite`` (a float64 array the caller no longer needs) a
-    noise-free, unblurred line integral is written over ``log_transmitted``."""
     return _model(scene, i0).read(log_transmitted, beam=_beam_of(scene),
                                   acquisition=scene.acquisition, bodies=scene.bodies,
-                                  seed=scene.detector.seed, rng=rng, log_variance=log_variance,
-                                  overwrite=overwrite)
+                                  seed=scene.detector.seed, rng=rng, log_variance=log_variance)
+
+
