@@ -739,20 +739,19 @@ class Acquisition:
         import dataclasses
         import math
 
-        a = np.asarray(axis, np.float64).reshape(-1)
-        if a.shape != (3,) or not np.all(np.isfinite(a)) or not np.linalg.norm(a) > 0:
-            raise SceneError(f"rotation axis must be 3 finite numbers, not all 0; got {axis!r}")
+        from xray_viz._checks import vector3
+
+        a = vector3(axis, "rotation axis", direction=True)
         if isinstance(angle, bool) or not isinstance(angle, (int, float, np.number)) \
                 or not math.isfinite(float(angle)):
             raise SceneError(f"rotation angle must be a finite number of degrees, got {angle!r}")
+        from xray_viz.poses import rotation
+
         c = np.asarray(center, np.float64).reshape(3)
-        a = a / np.linalg.norm(a)
-        t = math.radians(float(angle))
-        k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-        rot = np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)     # Rodrigues
+        rot = rotation(a, float(angle))
         source = dataclasses.replace(self.source, position=c + rot @ (self.source.position - c))
         turned = {"u": rot @ self.detector.u, "v": rot @ self.detector.v} \
-            if getattr(self.detector, "u", None) is not None else {}
+            if self.detector.u is not None else {}
         detector = dataclasses.replace(self.detector, center=c + rot @ (self.detector.center - c),
                                        up=rot @ self.detector.up, **turned)
         return Acquisition(source=source, detector=detector)

@@ -29,8 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
+from xray_viz._checks import vector3
 from xray_viz.errors import SceneError
 from xray_viz.geometry import Acquisition, detector_axes, tilted_normal
+from xray_viz.poses import apply_rotations as _apply, rotations as _rotations
 
 __all__ = ["Orbit", "ORBITS", "SCAN_KEYS", "orbit_from_dict", "pose_acquisition", "check_pose",
            "read_poses", "RandomPoses", "RANDOM_KEYS"]
@@ -44,15 +46,7 @@ POSE_TOLERANCE = 1e-9
 
 
 def _vector(value, name, where) -> np.ndarray:
-    try:
-        out = np.array(value, dtype=np.float64).reshape(-1)
-        ok = out.shape == (3,) and bool(np.all(np.isfinite(out))) and \
-            not any(isinstance(x, bool) for x in value)
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise SceneError(f"{where}{name} must be 3 finite numbers, got {value!r}")
-    return out
+    return vector3(value, f"{where}{name}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -375,30 +369,6 @@ class RandomPoses:
         return Acquisition(
             source=dataclasses.replace(base.source, position=src),
             detector=dataclasses.replace(base.detector, center=det, up=up))
-
-
-def _rotations(axis, degrees) -> np.ndarray:
-    """``(n, 3, 3)``: Rodrigues' rotations by each of ``degrees`` about the one direction
-    ``axis`` (as :func:`_rotation`), element-wise."""
-    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    t = np.radians(np.asarray(degrees, np.float64))
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(t)[:, None, None] * k + (1 - np.cos(t))[:, None, None] * (k @ k)
-
-
-def _apply(rot, p) -> np.ndarray:
-    """``rot[i] @ p[i]`` for every ``i``, written out (no BLAS: the same bits in any batch)."""
-    return (rot[:, :, 0] * p[:, 0, None] + rot[:, :, 1] * p[:, 1, None]
-            + rot[:, :, 2] * p[:, 2, None])
-
-
-def _rotation(axis, degrees) -> np.ndarray:
-    """(3, 3): Rodrigues' rotation by ``degrees`` about the direction ``axis`` (as
-    :meth:`Acquisition.rotated`)."""
-    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    t = math.radians(degrees)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)
 
 
 def check_pose(pose, *, where: str = "") -> tuple:

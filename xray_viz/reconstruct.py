@@ -151,12 +151,9 @@ def _rtk():
 
 
 def _unit(v, what):
-    v = np.asarray(v, np.float64).reshape(-1)
-    n = np.linalg.norm(v) if v.shape == (3,) and np.all(np.isfinite(v)) else 0.0
-    if not n > 0:
-        raise ReconstructionError(f"geometry {what} must be 3 finite numbers, not all 0; got "
-                                  f"{np.asarray(v).tolist()!r}")
-    return v / n
+    from xray_viz._checks import vector3
+
+    return vector3(v, f"geometry {what}", unit=True, error=ReconstructionError)
 
 
 def rtk_frame(geometry) -> tuple[np.ndarray, np.ndarray]:
@@ -174,13 +171,10 @@ def rtk_frame(geometry) -> tuple[np.ndarray, np.ndarray]:
     [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]
     """
     ey = _unit(geometry.get("axis", (0.0, 0.0, 1.0)), "axis")
-    try:
-        center = np.asarray(geometry.get("center", (0.0, 0.0, 0.0)), np.float64).reshape(3)
-    except (TypeError, ValueError):
-        center = np.full(3, np.nan)
-    if not np.all(np.isfinite(center)):
-        raise ReconstructionError(f"geometry center must be 3 finite numbers (mm), got "
-                                  f"{geometry.get('center')!r}")
+    from xray_viz._checks import vector3
+
+    center = vector3(geometry.get("center", (0.0, 0.0, 0.0)), "geometry center", units=" (mm)",
+                     error=ReconstructionError)
     ref = np.eye(3)[int(np.argmin(np.abs(ey) + 1e-12 * np.arange(3)))]
     ez = ref - (ref @ ey) * ey
     ez /= np.linalg.norm(ez)

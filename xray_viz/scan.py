@@ -330,7 +330,7 @@ def tigre_geometry(geometry, *, axis=None, center=None, tolerance: float = 1e-9)
     >>> (t["angles"][:, 0].round(6)).tolist()
     [0.0, 1.570796, 3.141593, 4.712389]
     """
-    from xray_viz.orbit import _rotation
+    from xray_viz.poses import rotation as _rotation
 
     axis = geometry.get("axis") if axis is None else axis
     center = geometry.get("center") if center is None else center

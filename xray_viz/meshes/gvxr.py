@@ -71,6 +71,7 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import SceneError, SceneFileNotFoundError, excerpt
+from xray_viz.poses import rotation
 
 __all__ = ["gvxr_to_dict", "read_json", "not_toml", "to_toml", "GvxrWarning", "LENGTH_UNITS"]
 
@@ -240,14 +241,6 @@ def _material(ctx, sample, where) -> dict:
     ctx.fail(w, f"unknown material kind {excerpt(m[0])}; use Element, Mixture, Compound or mu")
 
 
-def _rotation(angle_deg, axis) -> np.ndarray:
-    a = np.asarray(axis, dtype=np.float64)
-    a = a / np.linalg.norm(a)
-    t = math.radians(angle_deg)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)
-
-
 def _transform(ctx, transforms, where) -> np.ndarray:
     """gVXR's node transforms, composed as its node matrix: each one right-multiplies."""
     m = np.eye(4)
@@ -262,7 +255,8 @@ def _transform(ctx, transforms, where) -> np.ndarray:
         kind = t[0].lower()
         step = np.eye(4)
         if kind == "rotation" and len(t) == 5:
-            step[:3, :3] = _rotation(_number(ctx, t[1], w), _vector(ctx, t[2:5], w))
+            angle = _number(ctx, t[1], w)
+            step[:3, :3] = rotation(_vector(ctx, t[2:5], w), angle)
         elif kind == "translation" and len(t) == 5:
             step[:3, 3] = _point(ctx, t[1:5], w)
         elif kind == "scaling" and len(t) == 4:

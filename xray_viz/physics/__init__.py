@@ -8,9 +8,16 @@
 * :mod:`~xray_viz.physics.dosimetry` - air kerma (NIST mu_en/rho of air), half-value layers
   (:func:`hvl`), photons per pixel from the tube current-time product, entrance air kerma
   (:func:`air_kerma`).
-* :mod:`~xray_viz.physics.imaging` - Beer-Lambert over the spectrum, detector response
-  (energy-integrating or counting), inverse-square/obliquity fall-off, focal-spot blur, quantum
-  and electronic noise, line integrals.
+* :mod:`~xray_viz.physics.beam` - :class:`~xray_viz.physics.beam.Beam`, built once per source
+  and bodies: the spectrum as the detector weighs it and every body's attenuation at its bins;
+  ``beam.log_transmission(L)``, Beer-Lambert over the spectrum in the log domain.
+* :mod:`~xray_viz.physics.detector_model` -
+  :class:`~xray_viz.physics.detector_model.DetectorModel`, built once per detector:
+  ``model.read(log_t, ...)`` with I0, gain, inverse-square/obliquity fall-off, focal-spot blur,
+  quantum and electronic noise, the MTF; line integrals.
+* :mod:`~xray_viz.physics.imaging` - the same on a scene (adapters of the two values):
+  Beer-Lambert over the spectrum, detector response (energy-integrating or counting), fall-off,
+  focal-spot blur, noise, line integrals.
 * :mod:`~xray_viz.physics.detector` - the scintillator's absorption efficiency, the detector
   blur (MTF), the order of noise and gain.
 * :mod:`~xray_viz.physics.heel` - the heel effect: SpekPy's off-axis spectra across the field.
@@ -116,5 +123,6 @@ What is NOT modelled
 
 from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED, air_kerma, hvl
 
-__all__ = ["detector", "dosimetry", "heel", "imaging", "materials", "spectra", "hvl",
+__all__ = ["beam", "detector", "detector_model", "dosimetry", "heel", "imaging", "materials",
+           "spectra", "hvl",
            "air_kerma", "SCATTER_NOT_MODELLED"]
