@@ -12,8 +12,10 @@ Photons only: photoelectric absorption, incoherent (Klein-Nishina x S) and coher
 
 Examples
 --------
->>> import xray_viz
->>> result = xray_viz.transport(xray_viz.load_scene("sphere"), 2000, seed=1)
+>>> import dataclasses, xray_viz
+>>> scene = xray_viz.load_scene("sphere")
+>>> water = [dataclasses.replace(b, mu=None, material="Water, Liquid") for b in scene.bodies]
+>>> result = xray_viz.transport(scene.replace(bodies=water), 2000, seed=1)
 >>> sorted(result.images), result.images["primary"].shape
 (['coherent', 'incoherent', 'multiple', 'primary'], (256, 256))
 >>> b = result.balance

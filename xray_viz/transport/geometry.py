@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
+
 __all__ = ["BVH", "build_bvh", "next_crossing", "region_of", "MAX_TIES"]
 
 #: Leaves hold at most this many triangles.

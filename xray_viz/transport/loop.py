@@ -17,6 +17,8 @@ import math
 import numba
 import numpy as np
 
+import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
+
 from xray_viz.transport.geometry import next_crossing, region_of
 from xray_viz.transport.physics import CUTOFF_KEV, mu_lookup, sample_coherent, sample_incoherent
 from xray_viz.transport.rng import uniform

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
+
 from xray_viz.errors import MaterialError
 from xray_viz.transport.rng import uniform
 
@@ -55,7 +57,7 @@ def composition(material) -> dict[int, float]:
     Examples
     --------
     >>> {z: round(w, 4) for z, w in composition("H2O").items()}
-    {1: 0.1119, 8: 0.8881}
+    {1: 0.1121, 8: 0.8879}
     """
     import xraylib
 
@@ -205,8 +207,8 @@ def tables(materials, *, e_max: float, e_min: float = CUTOFF_KEV) -> MaterialTab
 
 @numba.njit(cache=True, nogil=True)
 def mu_lookup(mu, ln_e0, d_ln_e, energy):
-    """The three coefficients ``mu[:, E]`` of one material, linear in ``ln E`` between grid
-    points (``mu``: (3, N) of :attr:`MaterialTables.mu`)."""
+    """The three coefficients ``(photo, incoherent, coherent)`` of one material at ``E``,
+    linear in ``ln E`` between grid points (``mu``: (3, N) of :attr:`MaterialTables.mu`)."""
     f = (math.log(energy) - ln_e0) / d_ln_e
     n = mu.shape[1]
     i = int(f)
@@ -217,10 +219,8 @@ def mu_lookup(mu, ln_e0, d_ln_e, energy):
         i = n - 2
         f = float(n - 1)
     w = f - i
-    out = np.empty(3)
-    for k in range(3):
-        out[k] = mu[k, i] + w * (mu[k, i + 1] - mu[k, i])
-    return out
+    return (mu[0, i] + w * (mu[0, i + 1] - mu[0, i]), mu[1, i] + w * (mu[1, i + 1] - mu[1, i]),
+            mu[2, i] + w * (mu[2, i + 1] - mu[2, i]))
 
 
 @numba.njit(cache=True, nogil=True)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
+
 __all__ = ["batch_states", "uniform"]
 
 

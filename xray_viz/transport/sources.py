@@ -15,9 +15,11 @@ import math
 import numba
 import numpy as np
 
+import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
+
 from xray_viz.transport.rng import uniform
 
-__all__ = ["field", "solid_angle", "sample_direction", "sample_energy", "FIELD_SIZE"]
+__all__ = ["field", "solid_angle", "rectangle_solid_angle", "sample_direction", "sample_energy", "FIELD_SIZE"]
 
 #: Entries of the array :func:`field` returns.
 FIELD_SIZE = 24
@@ -53,9 +55,31 @@ def field(acquisition) -> np.ndarray:
     return out
 
 
+def rectangle_solid_angle(point, middle, u, v, half_u, half_v) -> float:
+    """Solid angle (sr) of the rectangle ``middle +- half_u u +- half_v v`` seen from
+    ``point``: two triangles by Van Oosterom and Strackee's formula.
+
+    Examples
+    --------
+    >>> z = np.zeros(3); ex, ey = np.eye(3)[0], np.eye(3)[1]
+    >>> omega = rectangle_solid_angle(z, np.array([0, 0, 1.0]), ex, ey, 1.0, 1.0)
+    >>> bool(np.isclose(omega, 4 * np.pi / 6))          # a face of a cube from its centre
+    True
+    """
+    c = [middle + a * half_u * u + b * half_v * v - point
+         for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+
+    def tri(r1, r2, r3):
+        n1, n2, n3 = (np.linalg.norm(r) for r in (r1, r2, r3))
+        num = r1 @ np.cross(r2, r3)
+        den = n1 * n2 * n3 + (r1 @ r2) * n3 + (r1 @ r3) * n2 + (r2 @ r3) * n1
+        return 2.0 * math.atan2(abs(num), den)
+
+    return tri(c[0], c[1], c[2]) + tri(c[0], c[2], c[3])
+
+
 def solid_angle(acquisition) -> float:
-    """Solid angle (sr) of the field seen from a point source: the rectangle as two triangles
-    (Van Oosterom and Strackee's formula).
+    """Solid angle (sr) of the field seen from a point source (:func:`rectangle_solid_angle`).
 
     Examples
     --------
@@ -65,16 +89,7 @@ def solid_angle(acquisition) -> float:
     True
     """
     fa = field(acquisition)
-    src, middle, ho, ve, hu, hv = fa[0:3], fa[7:10], fa[10:13], fa[13:16], fa[19], fa[20]
-    c = [middle + a * hu * ho + b * hv * ve - src for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-
-    def tri(r1, r2, r3):
-        n1, n2, n3 = (np.linalg.norm(r) for r in (r1, r2, r3))
-        num = r1 @ np.cross(r2, r3)
-        den = n1 * n2 * n3 + (r1 @ r2) * n3 + (r1 @ r3) * n2 + (r2 @ r3) * n1
-        return 2.0 * math.atan2(abs(num), den)
-
-    return tri(c[0], c[1], c[2]) + tri(c[0], c[2], c[3])
+    return rectangle_solid_angle(fa[0:3], fa[7:10], fa[10:13], fa[13:16], fa[19], fa[20])
 
 
 @numba.njit(cache=True, nogil=True)
