@@ -86,3 +86,35 @@ def total_body(result) -> tuple[float, float]:
     e = sum(result.energy.values())
     err = float(np.sqrt(sum(v * v for v in result.energy_error.values())))
     return e, err
+
+
+def case1_kermas(label: str) -> dict:
+    """Case 1, narrow beam: air kerma (keV/g per history / 100, TG-195's unit) on the 5 mm disc
+    at 1 m behind each filter, from the transport's own tables (primary photons: the disc
+    sees the source through the filter and 1 m of air)."""
+    from xray_viz.transport import physics as P
+
+    case = cases()["1"]
+    al, rho_al = material("Aluminium")
+    air, rho_air = material("Air")
+    src = next(s for s in case["sources"] if s["label"] == label)
+    if "energy_keV" in src:
+        energies, weights = np.array([src["energy_keV"]]), np.array([1.0])
+        # scored in the 0.5 keV bin that holds it, just below the edge (29.75, 99.75 keV)
+        centres = np.ceil(energies / 0.5) * 0.5 - 0.25
+    else:
+        s = spectrum(label)
+        energies, weights, centres = s.energies, s.weights, s.energies
+    t = P.tables([("air", air, rho_air), ("al", al, rho_al)], e_max=float(energies.max()))
+
+    def mu(m):
+        return np.array([sum(P.mu_lookup(t.mu[m], t.ln_e0, t.d_ln_e, e)) for e in energies])
+
+    table = np.loadtxt(DATA / "air_mu_en_rho.csv", delimiter=",", skiprows=1)
+    mu_en = np.interp(centres, table[:, 0], table[:, 1])
+    disc_cm2 = np.pi * 0.5 ** 2
+    out = {}
+    for name, thick in case["filter_thickness_t_mm"][label].items():
+        transmitted = np.exp(-mu(1) * thick - mu(0) * (1000.0 - thick))
+        out[name] = float((weights * centres * mu_en * transmitted).sum() / disc_cm2 / 100.0)
+    return out
