@@ -93,7 +93,7 @@ def _region_masses(scene, densities) -> np.ndarray:
     return region * 1e-3 * np.asarray(densities) * 1e-3                  # cm3 * g/cm3 -> kg
 
 
-def prepare(scene, histories, *, seed: int = 0) -> dict:
+def prepare(scene, histories, *, seed: int = 0, batch: int | None = None) -> dict:
     """Everything the kernels need, as plain arrays (what a Dask worker receives).
 
     Raises
@@ -110,7 +110,12 @@ def prepare(scene, histories, *, seed: int = 0) -> dict:
     from xray_viz.transport.physics import CUTOFF_KEV, tables
     from xray_viz.transport.sources import field
 
+    from xray_viz.transport.tallies import BATCH
+
     n = _check_histories(histories)
+    batch = BATCH if batch is None else int(batch)
+    if batch < 1:
+        raise SceneError(f"batch must be >= 1 history, got {batch}")
     if getattr(scene, "detector", None) is None:
         raise SceneError("the scene has no detector: the transport emits into the field "
                          "the detector covers; add a [detector] table")
@@ -146,7 +151,7 @@ def prepare(scene, histories, *, seed: int = 0) -> dict:
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     pad = 0.05 * float(np.linalg.norm(hi - lo)) + 1.0
     rank = np.asarray(scene.precedence) if len(scene.bodies) else np.zeros(0, int)
-    return {"histories": n, "seed": seed, "field": fa, "energies": energies, "cdf": cdf,
+    return {"histories": n, "seed": seed, "batch": batch, "field": fa, "energies": energies, "cdf": cdf,
             "world_lo": lo - pad, "world_hi": hi + pad, "bvh": bvh, "tables": tab,
             "rank_order": np.argsort(-rank, kind="stable").astype(np.int64),
             "n_regions": len(mats) + 1, "shape": (w, h),
@@ -154,7 +159,8 @@ def prepare(scene, histories, *, seed: int = 0) -> dict:
             "spectrum": spectrum}
 
 
-def transport(scene, histories, *, seed=0, client=None, progress=None):
+def transport(scene, histories, *, seed=0, client=None, progress=None, interruptible=False,
+              batch=None):
     """Transport ``histories`` photons from the scene's source through its bodies.
 
     Parameters
@@ -168,6 +174,13 @@ def transport(scene, histories, *, seed=0, client=None, progress=None):
         Run the groups of batches as Dask tasks (tallies added in group order on the client).
     progress : callable, optional
         ``progress(done, total)`` after each group, histories.
+    interruptible : bool
+        On Ctrl-C (KeyboardInterrupt) return the groups finished so far (their ``histories``,
+        ``extra["interrupted"]`` true) instead of raising.
+    batch : int, optional
+        Histories per batch (one random stream each; default
+        :data:`~xray_viz.transport.tallies.BATCH`): the numbers depend on it and on the seed,
+        never on the threads or workers.
 
     Returns
     -------
@@ -175,32 +188,35 @@ def transport(scene, histories, *, seed=0, client=None, progress=None):
         :class:`~xray_viz.transport.tallies.Transport`.
     """
     from xray_viz import _threads
-    from xray_viz.transport.tallies import BATCH, GROUP, Tallies, n_groups, result, run_group
+    from xray_viz.transport.tallies import GROUP, Tallies, n_groups, result, run_group
 
-    p = prepare(scene, histories, seed=seed)
+    p = prepare(scene, histories, seed=seed, batch=batch)
     n = p["histories"]
     total = Tallies.zeros(p["n_regions"], p["shape"])
-    groups = n_groups(n)
+    groups = n_groups(n, p["batch"])
     done = 0
-    if client is None:
-        threads = max(1, _threads.count())
-        for g in range(groups):
-            total.add(run_group(p, g, threads=threads))
-            done = min(n, (g + 1) * BATCH * GROUP)
+    futures = []
+    interrupted = False
+    try:
+        if client is None:
+            threads = max(1, _threads.count())
+            parts = (run_group(p, g, threads=threads) for g in range(groups))
+        else:
+            [shared] = client.scatter([p], broadcast=True)
+            futures = [client.submit(run_group, shared, g, pure=False) for g in range(groups)]
+            parts = (fut.result() for fut in futures)
+        for g, part in enumerate(parts):
+            total.add(part)                       # in group order: the same bits anywhere
+            done = min(n, (g + 1) * p["batch"] * GROUP)
             if progress is not None:
                 progress(done, n)
-    else:
-        [shared] = client.scatter([p], broadcast=True)
-        futures = [client.submit(run_group, shared, g, pure=False) for g in range(groups)]
-        try:
-            for g, fut in enumerate(futures):
-                total.add(fut.result())
-                done = min(n, (g + 1) * BATCH * GROUP)
-                if progress is not None:
-                    progress(done, n)
-        finally:
-            for fut in futures:
-                fut.cancel()
+    except KeyboardInterrupt:
+        if not interruptible or done == 0:
+            raise
+        interrupted = True
+    finally:
+        for fut in futures:
+            fut.cancel()
     masses = photons = None
     spectrum = p["spectrum"]
     mas = getattr(scene.source, "mas", None)
@@ -210,5 +226,8 @@ def transport(scene, histories, *, seed=0, client=None, progress=None):
         masses = _region_masses(scene, p["densities"])
         # photons/mm2 at 1 m per mAs -> photons per sr: x (1000 mm)^2
         photons = spectrum.fluence_per_mas * 1e6 * solid_angle(scene.acquisition) * mas
-    return result(total, histories=n, names=p["names"], seed=p["seed"], masses=masses,
-                  photons=photons)
+    out = result(total, histories=done, names=p["names"], seed=p["seed"], masses=masses,
+                 photons=photons)
+    out.extra["interrupted"] = interrupted
+    out.extra["requested"] = n
+    return out

@@ -49,9 +49,9 @@ class Tallies:
         self.totals += other.totals
 
 
-def n_groups(histories: int) -> int:
+def n_groups(histories: int, batch: int = BATCH) -> int:
     """Groups of batches that ``histories`` make."""
-    return -(-int(histories) // (BATCH * GROUP))
+    return -(-int(histories) // (batch * GROUP))
 
 
 def _batch(problem: dict, index: int, n_hist: int) -> Tallies:
@@ -76,9 +76,10 @@ def run_group(problem: dict, group: int, *, threads: int = 1) -> Tallies:
     from xray_viz import _threads
 
     first = group * GROUP
-    n_batches = -(-problem["histories"] // BATCH)
+    size = problem["batch"]
+    n_batches = -(-problem["histories"] // size)
     batches = list(range(first, min(first + GROUP, n_batches)))
-    sizes = [min(BATCH, problem["histories"] - k * BATCH) for k in batches]
+    sizes = [min(size, problem["histories"] - k * size) for k in batches]
     out = Tallies.zeros(problem["n_regions"], problem["shape"])
     for lo in range(0, len(batches), max(threads, 1)):
         chunk = list(zip(batches[lo:lo + threads], sizes[lo:lo + threads]))
