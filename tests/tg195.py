@@ -118,3 +118,68 @@ def case1_kermas(label: str) -> dict:
         transmitted = np.exp(-mu(1) * thick - mu(0) * (1000.0 - thick))
         out[name] = float((weights * centres * mu_en * transmitted).sum() / disc_cm2 / 100.0)
     return out
+
+
+def half_cylinder(center, radius, length, *, segments: int = 512) -> trimesh.Trimesh:
+    """The half of a z-axis cylinder with x >= center x (TG-195 case 3's breast), closed by its
+    flat face; the arc as ``segments`` chords."""
+    a = np.linspace(-np.pi / 2, np.pi / 2, segments + 1)
+    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
+    ring[0, 0] = ring[-1, 0] = 0.0                 # exactly on the flat face
+    n = len(ring)
+    lo = np.column_stack([ring, np.full(n, -length / 2)])
+    hi = np.column_stack([ring, np.full(n, length / 2)])
+    v = np.vstack([lo, hi]) + np.asarray(center, float)
+    faces = []
+    for i in range(n - 1):                          # the curved side
+        faces += [[i, i + 1, n + i + 1], [i, n + i + 1, n + i]]
+    faces += [[n - 1, 0, n], [n - 1, n, 2 * n - 1]]  # the flat face
+    for i in range(1, n - 1):                       # the caps (convex: fans)
+        faces += [[0, i + 1, i], [n, n + i, n + i + 1]]
+    mesh = trimesh.Trimesh(v, np.array(faces), process=True)
+    trimesh.repair.fix_normals(mesh)
+    return mesh
+
+
+def case3_scene(source_label: str = "16.8 keV", *, pixels: tuple = (28, 52)):
+    """Case 3, radiography: the breast (20 % glandular) in its 2 mm skin, the seven VOIs as
+    nested bodies of the breast's material, the PMMA paddle and support, the water chest-wall
+    block, air around; the detector covering the 140 x 260 mm half field at z = -40 mm, the
+    central ray down the chest-wall plane x = 0."""
+    from xray_viz.scene import Body, Detector, Scene, Source
+
+    case = cases()["3"]
+    objects = {o["name"]: o for o in case["objects"]}
+    air, rho_air = material("Air")
+    bodies = []
+    for name, o in objects.items():
+        if "receptor" in name:
+            continue
+        mat, rho = material(o["material"])
+        mesh = (box(o["center"], o["size"]) if o["shape"] == "box"
+                else half_cylinder(o["center"], o["radius"], o["length"]))
+        bodies.append(Body(name=name, mesh=mesh, material=mat, density=rho))
+    mat, rho = material("Breast 20% glandular (case 3)")
+    for voi in case["vois"][1:]:
+        bodies.append(Body(name=voi["name"], mesh=box(voi["center"], voi["size"]),
+                           material=mat, density=rho))
+    src = next(s for s in case["sources"] if s["label"] == source_label)
+    position = case["modes"]["radiography"]["position"]
+    if "energy_keV" in src:
+        source = Source(position=position, energy=src["energy_keV"])
+    else:
+        source = Source(position=position, energy=None, spectrum=spectrum(source_label))
+    w, h = pixels
+    probe = Detector(center=[0, 0, -40], up=[0, 1, 0], shape=(w, h), pitch=(140 / w, 260 / h))
+    ho = Scene(source=source, detector=probe).acquisition.frame.ho
+    detector = Detector(center=[0, 0, -40], up=[0, 1, 0], shape=(w, h),
+                        pitch=(140 / w, 260 / h), offset=(70.0 * float(np.sign(ho[0])), 0.0))
+    return Scene(source=source, detector=detector, bodies=tuple(bodies),
+                 world={"material": air, "density": rho_air})
+
+
+def case3_total_body(result) -> tuple[float, float]:
+    """The breast tissue inside the skin with its VOIs (eV/history, error)."""
+    names = ["breast tissue"] + [f"VOI {k}" for k in range(1, 8)]
+    e = sum(result.energy[n] for n in names)
+    return e, float(np.sqrt(sum(result.energy_error[n] ** 2 for n in names)))
