@@ -134,8 +134,18 @@ def half_cylinder(center, radius, length, *, segments: int = 512) -> trimesh.Tri
     for i in range(n - 1):                          # the curved side
         faces += [[i, i + 1, n + i + 1], [i, n + i + 1, n + i]]
     faces += [[n - 1, 0, n], [n - 1, n, 2 * n - 1]]  # the flat face
-    for i in range(1, n - 1):                       # the caps (convex: fans)
-        faces += [[0, i + 1, i], [n, n + i, n + i + 1]]
+    # the caps in strips across y (vertex i and n - 1 - i are mirror images): thin boxes for
+    # the BVH, where fans from one vertex would all overlap
+    for i in range((n - 1) // 2):
+        j, k = n - 1 - i, n - 2 - i
+        quads = [[i, i + 1, k, j]] if i + 1 != k else [[i, i + 1, j]]
+        for q in quads:
+            tris = [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] if len(q) == 4 else [q]
+            for t in tris:
+                a, b, c = (ring[t[0]], ring[t[1]], ring[t[2]])
+                if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) > 0:
+                    t = [t[0], t[2], t[1]]            # the bottom faces -z
+                faces += [t, [n + t[0], n + t[2], n + t[1]]]
     mesh = trimesh.Trimesh(v, np.array(faces), process=True)
     trimesh.repair.fix_normals(mesh)
     return mesh
