@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 def per_core(scene, histories: int, repeats: int = 3) -> float:
     """Histories per CPU second of one thread (median of ``repeats``)."""
     from xray_viz.transport import prepare
-    from xray_viz.transport.tallies import run_group
+    from xray_viz.montecarlo.tallies import run_group
 
     p = prepare(scene, histories, seed=1, batch=max(1, histories // 16))
     run_group(p, 0, threads=1)                       # compile / load the kernels

@@ -13,9 +13,9 @@ from scipy import stats
 
 import xray_viz
 from xray_viz.scene import Body, Detector, Scene, Source
-from xray_viz.transport import geometry as G
-from xray_viz.transport import physics as P
-from xray_viz.transport.rng import batch_states
+from xray_viz.montecarlo import geometry as G
+from xray_viz.montecarlo import physics as P
+from xray_viz.montecarlo.rng import batch_states
 
 
 # --- physics ------------------------------------------------------------------------------
@@ -191,7 +191,7 @@ def test_energy_balance_and_same_seed_same_bits():
     assert other.energy != a.energy
     # one thread or three: the same bits (batches added in batch order whatever ran them)
     from xray_viz.transport import prepare
-    from xray_viz.transport.tallies import run_group
+    from xray_viz.montecarlo.tallies import run_group
     p = prepare(scene, 40_000, seed=5)
     one, three = run_group(p, 0, threads=1), run_group(p, 0, threads=3)
     assert (one.dep == three.dep).all() and (one.img == three.img).all()
@@ -204,7 +204,7 @@ def test_primary_image_is_beer_lambert():
     result = xray_viz.transport(scene, n, seed=2)
     li = xray_viz.render(scene).line_integral          # the primary engines, same energy
     # each pixel's share of the field's solid angle
-    from xray_viz.transport.sources import rectangle_solid_angle, solid_angle
+    from xray_viz.montecarlo.sources import rectangle_solid_angle, solid_angle
     f = scene.acquisition.frame
     whole = solid_angle(scene.acquisition)
     (w, h), (pu, pv) = f.shape, f.pitch

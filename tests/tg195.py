@@ -92,7 +92,7 @@ def case1_kermas(label: str) -> dict:
     """Case 1, narrow beam: air kerma (keV/g per history / 100, TG-195's unit) on the 5 mm disc
     at 1 m behind each filter, from the transport's own tables (primary photons: the disc
     sees the source through the filter and 1 m of air)."""
-    from xray_viz.transport import physics as P
+    from xray_viz.montecarlo import physics as P
 
     case = cases()["1"]
     al, rho_al = material("Aluminium")

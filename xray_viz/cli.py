@@ -308,7 +308,7 @@ def _add_other_commands(sub) -> None:
 
     add_reconstruct_parser(sub)
     # the photon transport (issue 38): energy and dose per body
-    from xray_viz.transport.command import add_dose_parser
+    from xray_viz.montecarlo.command import add_dose_parser
 
     add_dose_parser(sub)
 

@@ -2,7 +2,7 @@
 meeting in one kernel (numba, without the GIL, one batch per thread).
 
 Per flight: the distance to the next interaction (``-ln(1 - r) / mu_total`` of the region's
-material), the next surface crossing (:func:`~xray_viz.transport.geometry.next_crossing`),
+material), the next surface crossing (:func:`~xray_viz.montecarlo.geometry.next_crossing`),
 the detector plane and the world's box; the nearest decides. A crossing updates the photon's
 entries minus exits per body (its region is then the winner of the precedence); the detector
 absorbs the photon and scores its energy in one of four images by its history; leaving the
@@ -19,10 +19,10 @@ import numpy as np
 
 import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
 
-from xray_viz.transport.geometry import next_crossing, region_of
-from xray_viz.transport.physics import CUTOFF_KEV, mu_lookup, sample_coherent, sample_incoherent
-from xray_viz.transport.rng import uniform
-from xray_viz.transport.sources import sample_direction, sample_energy
+from xray_viz.montecarlo.geometry import next_crossing, region_of
+from xray_viz.montecarlo.physics import CUTOFF_KEV, mu_lookup, sample_coherent, sample_incoherent
+from xray_viz.montecarlo.rng import uniform
+from xray_viz.montecarlo.sources import sample_direction, sample_energy
 
 __all__ = ["run_batch", "TOTALS"]
 

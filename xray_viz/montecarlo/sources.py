@@ -17,7 +17,7 @@ import numpy as np
 
 import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
 
-from xray_viz.transport.rng import uniform
+from xray_viz.montecarlo.rng import uniform
 
 __all__ = ["field", "solid_angle", "rectangle_solid_angle", "sample_direction", "sample_energy", "FIELD_SIZE"]
 

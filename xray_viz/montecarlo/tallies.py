@@ -2,7 +2,7 @@
 threads, processes or Dask workers.
 
 Histories run in batches of :data:`BATCH` (each its own random stream,
-:func:`~xray_viz.transport.rng.batch_states`), batches in groups of :data:`GROUP`; a group's
+:func:`~xray_viz.montecarlo.rng.batch_states`), batches in groups of :data:`GROUP`; a group's
 tallies are its batches' added in batch order, and the transport's are the groups' added in
 group order. Which thread or worker ran a batch changes nothing.
 
@@ -27,7 +27,7 @@ GROUP = 16
 @dataclass
 class Tallies:
     """Sums over histories, in keV: ``dep`` (2, R) per region (0: the world) and its squares,
-    ``img``/``img_sq`` (4, H, W), ``totals`` (:data:`xray_viz.transport.loop.TOTALS`)."""
+    ``img``/``img_sq`` (4, H, W), ``totals`` (:data:`xray_viz.montecarlo.loop.TOTALS`)."""
 
     dep: np.ndarray
     img: np.ndarray
@@ -55,8 +55,8 @@ def n_groups(histories: int, batch: int = BATCH) -> int:
 
 
 def _batch(problem: dict, index: int, n_hist: int) -> Tallies:
-    from xray_viz.transport.loop import run_batch
-    from xray_viz.transport.rng import batch_states
+    from xray_viz.montecarlo.loop import run_batch
+    from xray_viz.montecarlo.rng import batch_states
 
     p = problem
     t = Tallies.zeros(p["n_regions"], p["shape"])

@@ -29,7 +29,7 @@ import numpy as np
 import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
 
 from xray_viz.errors import MaterialError
-from xray_viz.transport.rng import uniform
+from xray_viz.montecarlo.rng import uniform
 
 __all__ = ["MaterialTables", "composition", "tables", "CUTOFF_KEV", "HC_KEV_ANGSTROM",
            "ELECTRON_REST_KEV", "sample_incoherent", "sample_coherent", "mu_lookup"]
@@ -237,7 +237,7 @@ def _interp_uniform(table, dx, x):
 def sample_incoherent(energy, sf, dx, state):
     """``(cos theta, E')``: Klein-Nishina (Butcher and Messel's sampling, as Geant4's
     ``G4KleinNishinaCompton``) times ``S(x) / Z`` by rejection (``state``: the
-    random stream, :func:`~xray_viz.transport.rng.uniform`)."""
+    random stream, :func:`~xray_viz.montecarlo.rng.uniform`)."""
     k = energy / ELECTRON_REST_KEV
     eps0 = 1.0 / (1.0 + 2.0 * k)
     eps0sq = eps0 * eps0

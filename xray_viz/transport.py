@@ -1,11 +1,11 @@
 """Photon Monte Carlo on the scene's own meshes: energy deposited per body, dose, and the
 detector image split into primary and scattered photons.
 
-Four parts meet in one short loop (:mod:`~xray_viz.transport.loop`): the physics (xraylib's
-cross sections and form factors, the samplers: :mod:`~xray_viz.transport.physics`), the
+Four parts meet in one short loop (:mod:`~xray_viz.montecarlo.loop`): the physics (xraylib's
+cross sections and form factors, the samplers: :mod:`~xray_viz.montecarlo.physics`), the
 geometry (a BVH and the primary engines' watertight crossings, the precedence of nested and
-overlapping bodies: :mod:`~xray_viz.transport.geometry`), the source
-(:mod:`~xray_viz.transport.sources`) and the tallies (:mod:`~xray_viz.transport.tallies`).
+overlapping bodies: :mod:`~xray_viz.montecarlo.geometry`), the source
+(:mod:`~xray_viz.montecarlo.sources`) and the tallies (:mod:`~xray_viz.montecarlo.tallies`).
 Photons only: photoelectric absorption, incoherent (Klein-Nishina x S) and coherent
 (Thomson x F^2) scattering; electrons and fluorescence deposit their energy on the spot
 (valid to ~150 keV, as AAPM TG-195's photon codes assume); cut-off 1 keV.
@@ -28,20 +28,9 @@ from __future__ import annotations
 import numpy as np
 
 from xray_viz.errors import SceneError
+from xray_viz.montecarlo.tallies import Transport
 
 __all__ = ["transport", "Transport", "prepare"]
-
-
-def _transport_class():
-    from xray_viz.transport.tallies import Transport
-
-    return Transport
-
-
-def __getattr__(name):
-    if name == "Transport":
-        return _transport_class()
-    raise AttributeError(name)
 
 
 def _world(scene):
@@ -106,11 +95,11 @@ def prepare(scene, histories, *, seed: int = 0, batch: int | None = None) -> dic
     """
     from xray_viz.physics.materials import check_material
     from xray_viz.physics.spectra import source_spectrum
-    from xray_viz.transport.geometry import build_bvh
-    from xray_viz.transport.physics import CUTOFF_KEV, tables
-    from xray_viz.transport.sources import field
+    from xray_viz.montecarlo.geometry import build_bvh
+    from xray_viz.montecarlo.physics import CUTOFF_KEV, tables
+    from xray_viz.montecarlo.sources import field
 
-    from xray_viz.transport.tallies import BATCH
+    from xray_viz.montecarlo.tallies import BATCH
 
     n = _check_histories(histories)
     batch = BATCH if batch is None else int(batch)
@@ -179,16 +168,16 @@ def transport(scene, histories, *, seed=0, client=None, progress=None, interrupt
         ``extra["interrupted"]`` true) instead of raising.
     batch : int, optional
         Histories per batch (one random stream each; default
-        :data:`~xray_viz.transport.tallies.BATCH`): the numbers depend on it and on the seed,
+        :data:`~xray_viz.montecarlo.tallies.BATCH`): the numbers depend on it and on the seed,
         never on the threads or workers.
 
     Returns
     -------
     Transport
-        :class:`~xray_viz.transport.tallies.Transport`.
+        :class:`~xray_viz.montecarlo.tallies.Transport`.
     """
     from xray_viz import _threads
-    from xray_viz.transport.tallies import GROUP, Tallies, n_groups, result, run_group
+    from xray_viz.montecarlo.tallies import GROUP, Tallies, n_groups, result, run_group
 
     p = prepare(scene, histories, seed=seed, batch=batch)
     n = p["histories"]
@@ -221,7 +210,7 @@ def transport(scene, histories, *, seed=0, client=None, progress=None, interrupt
     spectrum = p["spectrum"]
     mas = getattr(scene.source, "mas", None)
     if mas is not None and spectrum.fluence_per_mas is not None and len(p["names"]):
-        from xray_viz.transport.sources import solid_angle
+        from xray_viz.montecarlo.sources import solid_angle
 
         masses = _region_masses(scene, p["densities"])
         # photons/mm2 at 1 m per mAs -> photons per sr: x (1000 mm)^2
