@@ -245,6 +245,27 @@ def _triangle(o, d, v0, v1, v2, kx, ky, kz, sx, sy, sz):
     return t, su > 0
 
 
+@numba.njit(inline="always")
+def _slab(lo, hi, node, o, inv0, inv1, inv2, t_min, best):
+    """Entry ``t`` of the ray into a node's (padded, so conservative) box; inf if it misses
+    the box or meets it only outside ``(t_min, best]``."""
+    t0 = (lo[node, 0] - o[0]) * inv0
+    t1 = (hi[node, 0] - o[0]) * inv0
+    tn = min(t0, t1)
+    tf = max(t0, t1)
+    t0 = (lo[node, 1] - o[1]) * inv1
+    t1 = (hi[node, 1] - o[1]) * inv1
+    tn = max(tn, min(t0, t1))
+    tf = min(tf, max(t0, t1))
+    t0 = (lo[node, 2] - o[2]) * inv2
+    t1 = (hi[node, 2] - o[2]) * inv2
+    tn = max(tn, min(t0, t1))
+    tf = min(tf, max(t0, t1))
+    if tn > tf or tf < t_min or tn > best:
+        return np.inf
+    return tn
+
+
 @numba.njit(cache=True, nogil=True)
 def next_crossing(o, d, t_min, t_max, lo, hi, child, start, count, v0, v1, v2, tri_body,
                   stack, tie_body, tie_enter):
@@ -264,31 +285,32 @@ def next_crossing(o, d, t_min, t_max, lo, hi, child, start, count, v0, v1, v2, t
     top = 0
     if lo.shape[0] == 0 or count.shape[0] == 0:
         return found, 0
+    if _slab(lo, hi, 0, o, inv0, inv1, inv2, t_min, best) == np.inf:
+        return found, 0
     stack[0] = 0
     top = 1
     while top > 0:
         top -= 1
         node = stack[top]
-        # slab test (conservative: the boxes are padded)
-        t0 = (lo[node, 0] - o[0]) * inv0
-        t1 = (hi[node, 0] - o[0]) * inv0
-        tn = min(t0, t1)
-        tf = max(t0, t1)
-        t0 = (lo[node, 1] - o[1]) * inv1
-        t1 = (hi[node, 1] - o[1]) * inv1
-        tn = max(tn, min(t0, t1))
-        tf = min(tf, max(t0, t1))
-        t0 = (lo[node, 2] - o[2]) * inv2
-        t1 = (hi[node, 2] - o[2]) * inv2
-        tn = max(tn, min(t0, t1))
-        tf = min(tf, max(t0, t1))
-        if tn > tf or tf < t_min or tn > best:
-            continue
         c = child[node, 0]
         if c >= 0:
-            stack[top] = c
-            stack[top + 1] = child[node, 1]
-            top += 2
+            # nearer child last on the stack (visited first): the first hits shrink `best`
+            c1 = child[node, 1]
+            t0 = _slab(lo, hi, c, o, inv0, inv1, inv2, t_min, best)
+            t1 = _slab(lo, hi, c1, o, inv0, inv1, inv2, t_min, best)
+            if t0 <= t1:
+                if t1 < np.inf:
+                    stack[top] = c1
+                    top += 1
+                if t0 < np.inf:
+                    stack[top] = c
+                    top += 1
+            else:
+                if t0 < np.inf:
+                    stack[top] = c
+                    top += 1
+                stack[top] = c1
+                top += 1
             continue
         s = start[node]
         for k in range(s, s + count[node]):
