@@ -25,12 +25,13 @@ True
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from xray_viz.errors import SceneError
-from xray_viz.montecarlo.tallies import Transport
 
-__all__ = ["transport", "Transport", "prepare"]
+__all__ = ["transport", "Transport", "prepare", "IMAGE_KEYS"]
 
 
 def _world(scene):
@@ -174,10 +175,10 @@ def transport(scene, histories, *, seed=0, client=None, progress=None, interrupt
     Returns
     -------
     Transport
-        :class:`~xray_viz.montecarlo.tallies.Transport`.
+        :class:`Transport`.
     """
     from xray_viz import _threads
-    from xray_viz.montecarlo.tallies import GROUP, Tallies, n_groups, result, run_group
+    from xray_viz.montecarlo.tallies import GROUP, Tallies, n_groups, run_group
 
     p = prepare(scene, histories, seed=seed, batch=batch)
     n = p["histories"]
@@ -215,8 +216,89 @@ def transport(scene, histories, *, seed=0, client=None, progress=None, interrupt
         masses = _region_masses(scene, p["densities"])
         # photons/mm2 at 1 m per mAs -> photons per sr: x (1000 mm)^2
         photons = spectrum.fluence_per_mas * 1e6 * solid_angle(scene.acquisition) * mas
-    out = result(total, histories=done, names=p["names"], seed=p["seed"], masses=masses,
+    out = _result(total, histories=done, names=p["names"], seed=p["seed"], masses=masses,
                  photons=photons)
     out.extra["interrupted"] = interrupted
     out.extra["requested"] = n
     return out
+
+
+def _mean_error(total, total_sq, n):
+    mean = total / n
+    var = np.maximum(total_sq / n - mean * mean, 0.0)
+    return mean, np.sqrt(var / max(n - 1, 1))
+
+
+@dataclass
+class Transport:
+    """The result of :func:`xray_viz.transport`: energies in eV per history, with standard
+    errors.
+
+    Attributes
+    ----------
+    histories : int
+        Photons emitted into the field.
+    energy, energy_error : dict of str to float
+        Energy deposited in each body's region (where it wins the precedence), eV per history.
+    images, image_errors : dict of str to (H, W) float
+        ``"primary"``, ``"incoherent"`` (one incoherent scattering), ``"coherent"`` (one
+        coherent scattering), ``"multiple"``: the energy of the photons reaching each pixel,
+        eV per history.
+    balance : dict of str to float
+        eV per history: ``emitted``, ``deposited`` (bodies), ``world`` (the world medium),
+        ``escaped``, ``detector``; ``emitted`` = the others' sum, to rounding.
+    dose, dose_error : dict of str to float or None
+        Gy per body with ``[source] mas`` (its region's mass from volume and density).
+    seed : int
+    """
+
+    histories: int
+    energy: dict
+    energy_error: dict
+    images: dict
+    image_errors: dict
+    balance: dict
+    dose: dict | None = None
+    dose_error: dict | None = None
+    seed: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def table(self) -> list[dict]:
+        """One row per body: name, eV per history, its standard error, Gy and its error."""
+        rows = []
+        for name in self.energy:
+            rows.append({"body": name, "energy_eV_per_history": self.energy[name],
+                         "energy_error": self.energy_error[name],
+                         "dose_Gy": None if self.dose is None else self.dose[name],
+                         "dose_error": None if self.dose is None else self.dose_error[name]})
+        return rows
+
+
+#: The detector images of a :class:`Transport`, in the tallies' order.
+IMAGE_KEYS = ("primary", "incoherent", "coherent", "multiple")
+
+
+def _result(tallies, *, histories: int, names, seed: int, masses=None,
+            photons=None) -> Transport:
+    """A :class:`Transport` from summed tallies (keV) of ``histories`` histories
+    (:class:`~xray_viz.montecarlo.tallies.Tallies`)."""
+    n = int(histories)
+    ev = 1000.0
+    mean, err = _mean_error(tallies.dep[0], tallies.dep[1], n)
+    energy = {name: float(mean[1 + k] * ev) for k, name in enumerate(names)}
+    energy_error = {name: float(err[1 + k] * ev) for k, name in enumerate(names)}
+    im, ie = _mean_error(tallies.img, tallies.img_sq, n)
+    images = {key: im[k] * ev for k, key in enumerate(IMAGE_KEYS)}
+    image_errors = {key: ie[k] * ev for k, key in enumerate(IMAGE_KEYS)}
+    tot = tallies.totals
+    balance = {"emitted": tot[0] / n * ev, "deposited": float(tallies.dep[0, 1:].sum()) / n * ev,
+               "world": tallies.dep[0, 0] / n * ev, "escaped": tot[3] / n * ev,
+               "detector": tot[1] / n * ev}
+    dose = dose_error = None
+    if masses is not None and photons is not None:
+        joule = 1.602176634e-19 * photons
+        dose = {nm: energy[nm] * joule / masses[k] for k, nm in enumerate(names)}
+        dose_error = {nm: energy_error[nm] * joule / masses[k] for k, nm in enumerate(names)}
+    return Transport(histories=n, energy=energy, energy_error=energy_error, images=images,
+                     image_errors=image_errors, balance={k: float(v) for k, v in balance.items()},
+                     dose=dose, dose_error=dose_error, seed=seed)

@@ -23,7 +23,7 @@ import numpy as np
 
 import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
 
-__all__ = ["BVH", "build_bvh", "next_crossing", "region_of", "MAX_TIES"]
+__all__ = ["BVH", "build_bvh", "MAX_TIES", "LEAF_SIZE"]     # and the numba kernels below
 
 #: Leaves hold at most this many triangles.
 LEAF_SIZE = 4
@@ -68,7 +68,7 @@ def build_bvh(triangles, triangle_body) -> BVH:
     Parameters
     ----------
     triangles : (T, 3, 3) float
-        Every triangle of every body (:attr:`xray_viz.scene.Scene.triangles`).
+        Every triangle of every body (``Scene.triangles``).
     triangle_body : (T,) int
 
     Examples
@@ -178,7 +178,7 @@ def exact_sign(a, b, c, d):
 @numba.njit(inline="always")
 def _edge_sign(a, b, c, d, approx, ex, ey):
     """Sign of ``a b - c d`` (rounded ``approx``), exact near zero; a zero resolved by the
-    tie rule of :func:`xray_viz.tracing.intersect._tie_sign` (edge vector ``ex, ey``)."""
+    tie rule of ``xray_viz.tracing.intersect._tie_sign`` (edge vector ``ex, ey``)."""
     s = 0
     if abs(approx) > _ERRBOUND * (abs(a * b) + abs(c * d)):
         s = 1 if approx > 0 else -1
@@ -273,7 +273,7 @@ def next_crossing(o, d, t_min, t_max, lo, hi, child, start, count, v0, v1, v2, t
 
     Returns ``(t, n)``: the crossings' ``t`` (inf if none) and how many there are at that
     very ``t`` (their bodies and directions in ``tie_body[:n]``, ``tie_enter[:n]``; at most
-    :data:`MAX_TIES`). ``stack``: scratch, (64,) int64.
+    ``MAX_TIES``). ``stack``: scratch, (64,) int64.
     """
     kx, ky, kz, sx, sy, sz = ray_frame(d)
     inv0 = 1.0 / d[0] if d[0] != 0.0 else 1e300

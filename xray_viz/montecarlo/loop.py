@@ -2,7 +2,7 @@
 meeting in one kernel (numba, without the GIL, one batch per thread).
 
 Per flight: the distance to the next interaction (``-ln(1 - r) / mu_total`` of the region's
-material), the next surface crossing (:func:`~xray_viz.montecarlo.geometry.next_crossing`),
+material), the next surface crossing (``geometry.next_crossing``),
 the detector plane and the world's box; the nearest decides. A crossing updates the photon's
 entries minus exits per body (its region is then the winner of the precedence); the detector
 absorbs the photon and scores its energy in one of four images by its history; leaving the
@@ -24,7 +24,7 @@ from xray_viz.montecarlo.physics import CUTOFF_KEV, mu_lookup, sample_coherent, 
 from xray_viz.montecarlo.rng import uniform
 from xray_viz.montecarlo.sources import sample_direction, sample_energy
 
-__all__ = ["run_batch", "TOTALS"]
+__all__ = ["TOTALS"]                  # and the kernel ``run_batch``
 
 #: Entries of a batch's ``totals`` (keV summed over its histories; ``*_sq`` of the per-history
 #: values).
@@ -73,7 +73,7 @@ def run_batch(n_hist, state, fa, energies, cdf, world_lo, world_hi,
 
     ``dep`` (2, R): energy per region (0: the world, 1 + b: body b) summed over histories and
     its per-history squares; ``img``, ``img_sq`` (4, H, W): primary, single incoherent,
-    single coherent, multiple; ``totals`` (:data:`TOTALS`). Energies in keV.
+    single coherent, multiple; ``totals`` (``TOTALS``). Energies in keV.
     """
     n_bodies = rank_order.shape[0]
     n_reg = n_bodies + 1

@@ -15,7 +15,7 @@ attenuation coefficients (1/mm) of
 A compound's coefficient is the mass-fraction sum over its elements (what xraylib's
 ``CS_*_CP`` and the project's :func:`xray_viz.physics.materials.mass_attenuation` do), so the
 three add up to the attenuation the primary engines use. ``x = sin(theta / 2) / lambda`` in
-1/Angstrom, xraylib's momentum transfer (:data:`HC_KEV_ANGSTROM`).
+1/Angstrom, xraylib's momentum transfer (``HC_KEV_ANGSTROM``).
 """
 
 from __future__ import annotations
@@ -31,8 +31,10 @@ import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache
 from xray_viz.errors import MaterialError
 from xray_viz.montecarlo.rng import uniform
 
+# The numba kernels (``mu_lookup``, ``sample_incoherent``, ``sample_coherent``) are documented
+# where they are defined; the API reference lists the Python side.
 __all__ = ["MaterialTables", "composition", "tables", "CUTOFF_KEV", "HC_KEV_ANGSTROM",
-           "ELECTRON_REST_KEV", "sample_incoherent", "sample_coherent", "mu_lookup"]
+           "ELECTRON_REST_KEV"]
 
 #: Photons below this energy (keV) are absorbed where they are.
 CUTOFF_KEV = 1.0
@@ -208,7 +210,7 @@ def tables(materials, *, e_max: float, e_min: float = CUTOFF_KEV) -> MaterialTab
 @numba.njit(cache=True, nogil=True)
 def mu_lookup(mu, ln_e0, d_ln_e, energy):
     """The three coefficients ``(photo, incoherent, coherent)`` of one material at ``E``,
-    linear in ``ln E`` between grid points (``mu``: (3, N) of :attr:`MaterialTables.mu`)."""
+    linear in ``ln E`` between grid points (``mu``: (3, N) of ``MaterialTables.mu``)."""
     f = (math.log(energy) - ln_e0) / d_ln_e
     n = mu.shape[1]
     i = int(f)
@@ -237,7 +239,7 @@ def _interp_uniform(table, dx, x):
 def sample_incoherent(energy, sf, dx, state):
     """``(cos theta, E')``: Klein-Nishina (Butcher and Messel's sampling, as Geant4's
     ``G4KleinNishinaCompton``) times ``S(x) / Z`` by rejection (``state``: the
-    random stream, :func:`~xray_viz.montecarlo.rng.uniform`)."""
+    random stream, ``rng.uniform``)."""
     k = energy / ELECTRON_REST_KEV
     eps0 = 1.0 / (1.0 + 2.0 * k)
     eps0sq = eps0 * eps0

@@ -12,7 +12,7 @@ import numpy as np
 
 import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
 
-__all__ = ["batch_states", "uniform"]
+__all__ = ["batch_states"]            # and the kernel ``uniform``
 
 
 def batch_states(seed: int, n_batches: int, *, first: int = 0) -> np.ndarray:

@@ -19,7 +19,7 @@ import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache
 
 from xray_viz.montecarlo.rng import uniform
 
-__all__ = ["field", "solid_angle", "rectangle_solid_angle", "sample_direction", "sample_energy", "FIELD_SIZE"]
+__all__ = ["field", "solid_angle", "rectangle_solid_angle", "FIELD_SIZE"]  # and two kernels
 
 #: Entries of the array :func:`field` returns.
 FIELD_SIZE = 24
