@@ -253,3 +253,66 @@ def test_world_round_trips_through_the_scene_file():
     doc["world"] = {"material": "H2O"}
     with pytest.raises(xray_viz.MaterialError, match=r"\[world\] material 'H2O' .*density"):
         scene_from_dict(doc)
+
+
+@pytest.mark.parametrize("detector", [
+    {"center": [0, 0, -400], "shape": (10, 6), "pitch": (9.0, 14.0), "offset": (25.0, -10.0)},
+    {"center": [30, 0, -400], "shape": (8, 8), "pitch": (10.0, 10.0),
+     "u": [np.cos(0.4), 0.0, np.sin(0.4)], "v": [0.0, 1.0, 0.0]},
+])
+def test_every_photon_reaches_an_offset_or_tilted_detectors_field_in_vacuum(detector):
+    scene = Scene(source=Source(position=[0, 0, 600], energy=40.0),
+                  detector=Detector(**detector), bodies=())
+    result = xray_viz.transport(scene, 20_000, seed=1)
+    assert result.balance["detector"] == pytest.approx(40_000.0, rel=1e-12)   # all of them
+    image = result.images["primary"]
+    assert image.sum() == pytest.approx(40_000.0, rel=1e-12)
+    assert (image > 0).all()                           # the field is the whole detector
+    # uniform per solid angle: each pixel's share is its solid angle's
+    from xray_viz.montecarlo.sources import rectangle_solid_angle, solid_angle
+    f = scene.acquisition.frame
+    (w, h), (pu, pv) = f.shape, f.pitch
+    share = np.array([[rectangle_solid_angle(
+        f.source, f.middle + ((c + 0.5) - w / 2) * pu * f.ho + (h / 2 - (r + 0.5)) * pv * f.ve,
+        f.ho, f.ve, pu / 2, pv / 2) for c in range(w)] for r in range(h)])
+    assert share.sum() == pytest.approx(solid_angle(scene.acquisition), rel=1e-9)
+    expected = 40_000.0 * share / share.sum()
+    z = (image - expected) / result.image_errors["primary"]
+    assert np.abs(z).max() < 5 and abs(z.mean()) * np.sqrt(z.size) < 4
+
+
+def test_parallel_beam_primary_is_beer_lambert():
+    slab = trimesh.creation.box(extents=[200, 200, 50])          # every ray crosses 50 mm
+    scene = Scene(source=Source(position=[0, 0, 600], kind="parallel", energy=60.0),
+                  detector=Detector(center=[0, 0, -400], shape=(4, 4), pitch=(20.0, 20.0)),
+                  bodies=(Body(name="water", mesh=slab, material="Water, Liquid"),))
+    result = xray_viz.transport(scene, 40_000, seed=8)
+    from xray_viz.physics.materials import linear_attenuation
+    transmitted = float(np.exp(-linear_attenuation("Water, Liquid", 60.0)[0] * 5.0))
+    got = result.images["primary"].sum() / 60_000.0
+    err = np.sqrt((result.image_errors["primary"] ** 2).sum()) / 60_000.0
+    assert abs(got - transmitted) < 4 * err
+    b = result.balance
+    assert b["deposited"] + b["escaped"] + b["detector"] == pytest.approx(b["emitted"], rel=1e-12)
+
+
+def test_an_interrupted_transport_keeps_its_finished_groups():
+    scene = _scene()
+    calls = []
+
+    def stop_after_first(done, total):
+        calls.append(done)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    # batches of 100: 5000 histories are 50 batches in 4 groups of 16
+    full = xray_viz.transport(scene, 5000, seed=4, batch=100)
+    part = xray_viz.transport(scene, 5000, seed=4, batch=100, progress=stop_after_first,
+                              interruptible=True)
+    assert part.extra["interrupted"] and part.histories == 3200 and calls == [1600, 3200]
+    first_two = xray_viz.transport(scene, 3200, seed=4, batch=100)
+    assert part.energy == first_two.energy                   # the finished groups, exactly
+    assert full.histories == 5000 and not full.extra["interrupted"]
+    calls.clear()
+    with pytest.raises(KeyboardInterrupt):                    # not asked to keep them
+        xray_viz.transport(scene, 5000, seed=4, batch=100, progress=stop_after_first)
