@@ -248,7 +248,11 @@ class Transport:
         eV per history: ``emitted``, ``deposited`` (bodies), ``world`` (the world medium),
         ``escaped``, ``detector``; ``emitted`` = the others' sum, to rounding.
     dose, dose_error : dict of str to float or None
-        Gy per body with ``[source] mas`` (its region's mass from volume and density).
+        Gy per body with ``[source] mas`` and a SpekPy tube spectrum (its output per mAs gives
+        the photons emitted into the field): the region's energy over its mass, from the
+        body's volume and density less the bodies nested in it that win there. Bodies that
+        only partly overlap are not carved out of each other (the earlier body's mass then
+        counts the overlap); None without ``mas`` or with a CSV or monochromatic spectrum.
     seed : int
     """
 
