@@ -40,6 +40,7 @@ _LAZY = {
     "reconstruct": "reconstruct", "Radiograph": "render", "render": "render", "Body": "scene",
     "Detector": "scene", "Scene": "scene", "Source": "scene", "load_scene": "scene",
     "scan": "scan", "Hits": "tracing", "trace_rays": "tracing",
+    "transport": "transport", "Transport": "transport",
 }
 
 def _is_submodule(name: str) -> bool:
@@ -63,6 +64,8 @@ def __getattr__(name):
         from xray_viz.scene import Body, Detector, Scene, Source, load_scene  # noqa: F401
     elif where == "scan":
         from xray_viz.scan import scan  # noqa: F401
+    elif where == "transport":
+        from xray_viz.transport import Transport, transport  # noqa: F401
     elif where == "tracing":
         from xray_viz.tracing import Hits, trace_rays  # noqa: F401
     elif name == "show":    # the viewer (VTK, and trame in a notebook) only when asked for
@@ -108,5 +111,5 @@ __all__ = [
     "Body", "Detector", "Hits", "MaterialError", "MeshError", "OutputError", "Radiograph",
     "Rays", "Scene", "SceneError", "SceneFileNotFoundError", "Source", "SpectrumError",
     "Viewport", "XrayVizError", "detector_rays", "load_image", "load_scene", "reconstruct",
-    "render", "save_image", "scan", "show", "trace_rays", "viewport",
+    "render", "save_image", "scan", "show", "trace_rays", "transport", "Transport", "viewport",
 ]

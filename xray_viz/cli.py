@@ -307,6 +307,10 @@ def _add_other_commands(sub) -> None:
     from xray_viz.reconstruct import add_reconstruct_parser
 
     add_reconstruct_parser(sub)
+    # the photon transport (issue 38): energy and dose per body
+    from xray_viz.montecarlo.command import add_dose_parser
+
+    add_dose_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "

@@ -731,6 +731,9 @@ class Scene:
     path: Path | None = None
     #: The scene file's ``[scan]`` orbit (:class:`xray_viz.orbit.Orbit`), if it has one.
     orbit: object = None
+    #: The medium around the bodies, ``{"material": ..., "density": ...}`` (the scene file's
+    #: ``[world]`` table; the photon transport, :func:`xray_viz.transport`); None: vacuum.
+    world: dict | None = None
 
     def __post_init__(self):
         from xray_viz.bodies import Bodies
@@ -741,6 +744,8 @@ class Scene:
         except SceneError as exc:
             raise SceneError(f"{self._where()}{exc}") from None
         object.__setattr__(self, "acquisition", acquisition)
+        if self.world is not None:
+            object.__setattr__(self, "world", _check_world(self.world, self._where()))
         if not isinstance(self.bodies, Bodies):
             object.__setattr__(self, "bodies", Bodies(self.bodies, where=self._where()))
         self.bodies.check_source_outside(acquisition, where=self._where())
@@ -892,6 +897,30 @@ class Scene:
         return self.bodies.precedence
 
 
+def _check_world(world, where: str = "") -> dict:
+    """The ``[world]`` medium: ``{"material": ..., "density": ...}`` checked (density from
+    the material when it has one)."""
+    from collections.abc import Mapping
+
+    from xray_viz.errors import MaterialError
+    from xray_viz.physics.materials import check_material
+
+    if not isinstance(world, Mapping) or "material" not in world \
+            or set(world) - {"material", "density"}:
+        raise SceneError(f"{where}[world] takes 'material' (and 'density' in g/cm3), e.g. "
+                         f"material = \"Air, Dry (near sea level)\"; got {_shown(world)}")
+    material, density = world["material"], world.get("density")
+    if not isinstance(material, (str, Mapping)):
+        raise SceneError(f"{where}[world] material must be a name or a table of mass "
+                         f"fractions, got {_shown(material)}")
+    density = _real(density, "[world] density (g/cm3)", optional=True)
+    try:
+        density = check_material(material, density=density)
+    except MaterialError as exc:
+        raise MaterialError(f"{where}[world] {exc}") from None
+    return {"material": material, "density": density}
+
+
 def _path_text(path, base: Path | None) -> str:
     import os
 
@@ -965,6 +994,9 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     doc = {"source": source, "detector": detector}
     if bodies:
         doc["body"] = bodies
+    if getattr(scene, "world", None) is not None:       # the transport's medium
+        doc["world"] = {"material": scene.world["material"],
+                        "density": float(scene.world["density"])}
     return doc
 
 
@@ -1358,7 +1390,8 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     """
     base_dir = Path(base_dir)
     top = _Table(doc, "scene", file)
-    top.expect(("source", "detector", "body", "labels", "ct", "scan"))  # labels, ct: volumes
+    top.expect(("source", "detector", "body", "labels", "ct", "scan", "world"))
+    world = top.raw("world")                           # the transport's medium; None: vacuum
     src = top.table("source", required=True)
     src.where = "[source]"
     src.expect(SOURCE_KEYS)
@@ -1489,7 +1522,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         bodies = Bodies(bodies, where=f"{file}: " if file else "",
                         reports=[r for _, r in parsed])
         scene = Scene(source=source, detector=detector, bodies=bodies, path=file,
-                      orbit=orbit)
+                      orbit=orbit, world=world)
     except SceneError as exc:
         msg = str(exc)
         if file and not msg.startswith(str(file)):

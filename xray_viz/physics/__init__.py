@@ -98,9 +98,20 @@ law, and the incident air kerma (free in air) at the nearest body surface and at
 (:func:`air_kerma`). One attenuation data set, xraylib's, serves the bodies, the tube filters and
 the half-value layers; only the anode's self-absorption is SpekPy's own.
 
+Photon transport (:func:`xray_viz.transport`, a separate Monte Carlo on the same meshes and
+xraylib data): photoelectric absorption, incoherent scattering (Klein-Nishina x the incoherent
+scattering function S, free-electron energies: no Doppler broadening) and coherent scattering
+(Thomson x F^2) in the bodies and the ``[world]`` medium, cut-off 1 keV; energy per body, dose
+with ``mas``, and the detector image split into primary, single incoherent, single coherent
+and multiple. Not in it: **fluorescence** (the photoelectric energy, K and L shells included,
+is deposited where the photon was absorbed), secondary electrons (deposited on the spot: valid
+to ~150 keV), polarisation, and the detector model (the images are the energy reaching the
+detector plane).
+
 What is NOT modelled
 --------------------
-* Scattered radiation (Compton and Rayleigh photons reaching the detector), anti-scatter grids.
+* Scattered radiation in the rendered images (Compton and Rayleigh photons reaching the
+  detector: the photon transport above computes it separately), anti-scatter grids.
   Scattered photons are removed from the beam (they are part of ``mu``) but never detected
   (:data:`SCATTER_NOT_MODELLED`; BENCHMARKS.md, "Scatter not modelled", estimates how much
   signal that is: at 80 kVp without a grid, 1-40 % of the primary for the bundled phantoms,
