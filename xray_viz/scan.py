@@ -41,7 +41,7 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geome
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
-           "pose_table", "done_flags", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
+           "pose_table", "done_flags", "damaged_projections", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
            "INLINE_POSES_MAX", "POSE_ROWS"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
@@ -605,7 +605,7 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
     _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
                    client=client, batch=batch, progress=progress)
-    return read_zarr(store, scene=scene, lazy=True)
+    return read_zarr(store, scene=scene, lazy=True, verify=False)   # verified as resumed
 
 
 def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, batch,
@@ -613,6 +613,7 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
     """Fill the missing projections of a Zarr store; ``(filled, total)``. Memory: one
     projection per worker (the stack is never held)."""
     group = open_store(store, scene=scene, quantity=quantity, geometry=geometry)
+    _repair_done(group, store)            # what a resume skips is verified, not trusted
     todo = [int(k) for k in np.flatnonzero(~done_flags(group))]
     if client is not None:
         _scan_dask(client, scene, orbit, store, todo, quantity=quantity, engine=engine,
@@ -746,8 +747,11 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
             try:
                 same = np.array_equal(group["poses"][:], poses) and \
                     np.array_equal(group["projection_matrices"][:], mats)
-            except (KeyError, ValueError):
+            except KeyError:
                 same = False
+            except Exception as exc:             # a damaged chunk: a codec's error
+                raise OutputError(f"{path}: its pose arrays cannot be read "
+                                  f"({_reason(exc)}); remove it and scan again") from None
         if not same:
             raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
                               "scene differ); remove it or choose another -o to keep both")
@@ -759,13 +763,13 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
     try:
         group = zarr.open_group(str(tmp), mode="w")
         group.create_array("projections", shape=(n, h, w), chunks=(1, h, w), dtype="float32",
-                           fill_value=np.nan)
+                           fill_value=np.nan, compressors=_checked_codecs())
         group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
         flat, dark = flat_dark(scene, geometry, quantity)
         for name, field in (("flat", flat), ("dark", dark)):
             if field is not None:
                 group.create_array(name, shape=(h, w), chunks=(h, w), dtype="float32",
-                                   fill_value=np.nan)[:] = field
+                                   fill_value=np.nan, compressors=_checked_codecs())[:] = field
         if pose_arrays:
             for name, table in zip(("poses", "projection_matrices"),
                                    _pose_arrays_of(geometry)):
@@ -812,6 +816,79 @@ def done_flags(group) -> np.ndarray:
     return out
 
 
+def _checked_codecs():
+    """Zstd, then a CRC-32C of the compressed bytes: a chunk cut short or with a flipped bit
+    fails to decode instead of giving wrong numbers (Zstd alone checks neither)."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return [ZstdCodec(), Crc32cCodec()]
+
+
+def _reason(exc) -> str:
+    from xray_viz.errors import one_line
+
+    return one_line(f"{type(exc).__name__}: {exc}", limit=120)
+
+
+#: Bytes of projections :func:`damaged_projections` reads at a time.
+VERIFY_BLOCK_BYTES = 32 << 20
+
+
+def damaged_projections(group, done=None) -> np.ndarray:
+    """The projections flagged ``done`` whose chunk is missing or does not decode (cut
+    short; a flipped bit where the store keeps a checksum, as :func:`open_store` makes it):
+    their indices, sorted.
+
+    Every flagged chunk is read and decoded, a block of :data:`VERIFY_BLOCK_BYTES` at a time
+    (memory stays bounded whatever the store's size); a chunk that is absent reads as the
+    fill value NaN in every pixel, which no rendered projection holds.
+    """
+    arr = group["projections"]
+    done = done_flags(group) if done is None else np.asarray(done, bool)
+    ks = np.flatnonzero(done)
+    h, w = arr.shape[1:]
+    block = max(1, VERIFY_BLOCK_BYTES // max(1, 4 * h * w))
+    bad = []
+
+    def one(k):
+        try:
+            return np.isnan(arr[int(k)]).all()
+        except Exception:                  # a codec's error: cut short, checksum mismatch
+            return True
+
+    for i in range(0, len(ks), block):
+        part = ks[i:i + block]
+        try:
+            data = arr.get_orthogonal_selection((part, slice(None), slice(None)))
+        except Exception:
+            bad.extend(int(k) for k in part if one(k))
+            continue
+        bad.extend(int(k) for k in part[np.isnan(data).all(axis=(1, 2))])
+    return np.asarray(bad, np.int64)
+
+
+def _damaged_message(path, bad) -> str:
+    many = f"{len(bad)} projections flagged done are" if len(bad) > 1 else \
+        "a projection flagged done is"
+    return (f"{path}: {many} damaged or missing (projection {bad[0]}"
+            f"{', ...' if len(bad) > 1 else ''}: its chunk is absent or does not decode)")
+
+
+def _repair_done(group, path) -> int:
+    """Unset the ``done`` flags of :func:`damaged_projections` (so that they are rendered
+    again), saying so on stderr; how many."""
+    done = done_flags(group)
+    if not done.any():
+        return 0
+    bad = damaged_projections(group, done)
+    for k in bad:
+        group["done"][int(k)] = False
+    if len(bad):
+        print(f"xray-viz: {_damaged_message(path, bad)}; rendering "
+              f"{'them' if len(bad) > 1 else 'it'} again", file=sys.stderr)
+    return len(bad)
+
+
 def _write_projection(group, k, image) -> None:
     """Chunk first, then the flag: a store never claims a projection it does not hold."""
     group["projections"][k] = image
@@ -826,21 +903,25 @@ def write_zarr(result: Scan, path) -> None:
         _write_projection(group, int(k), result.projections[k])
 
 
-def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = False) -> Scan:
+def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = False,
+              verify: bool = True) -> Scan:
     """The :class:`Scan` of a Zarr store.
 
     ``lazy``: ``projections`` is the store's read-only ``zarr.Array`` (read projection by
     projection as it is indexed) instead of the whole stack in memory.
 
     The one reader of the layout (CT-LAYOUT.md): :func:`xray_viz.reconstruct.reconstruct_file`
-    reads its stores through it.
+    reads its stores through it. A projection flagged ``done`` whose chunk is missing or
+    damaged is refused, never handed out as the fill value NaN (``verify``: with ``lazy``,
+    every flagged chunk is read once to check it, a block at a time; False skips that, for a
+    store just written and verified).
 
     Raises
     ------
     OutputError
         In one line: no such store, not a Zarr scan store (no ``xray_viz`` attributes with a
-        geometry, no ``projections``), or projections missing (their ``done`` flag unset) when
-        ``require_complete``.
+        geometry, no ``projections``), projections missing (their ``done`` flag unset) when
+        ``require_complete``, or projections flagged done but damaged or missing (always).
     """
     zarr = _zarr()
     path = Path(path)
@@ -869,19 +950,46 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
                           "missing from the store")
     if "projections" not in names:
         raise OutputError(f"{path}: has no 'projections' array")
-    if "done" in names:
-        done = done_flags(group)
+    again = "run the same scan again to render them again"
+    what = "its done flags"
+    try:
+        n = group["projections"].shape[0]
+        done = done_flags(group) if "done" in names else np.ones(n, bool)
         if require_complete and not done.all():
             missing = np.flatnonzero(~done)
             raise OutputError(f"{path}: {len(missing)} of {len(done)} projections are missing "
                               f"(first: {missing[0]}); run the same scan again to fill them")
 
-    def field(name):
-        return np.asarray(group[name][:], np.float64) if name in names else None
-    stack = group["projections"] if lazy else group["projections"][:]
-    return Scan(stack, _geometry_from_store(group, meta["geometry"]),
-                meta.get("quantity", "line-integral"),
-                meta.get("physics") or {}, scene, flat=field("flat"), dark=field("dark"))
+        def field(name):
+            return np.asarray(group[name][:], np.float64) if name in names else None
+
+        what = "its flat or dark field"
+        flat, dark = field("flat"), field("dark")
+        what = "its per-projection poses"
+        geometry = _geometry_from_store(group, meta["geometry"])
+        what = "its projections"
+        if lazy:
+            stack = group["projections"]
+            bad = damaged_projections(group, done) if verify else ()
+        else:
+            try:
+                stack = group["projections"][:]
+                bad = np.flatnonzero(done & np.isnan(stack).all(axis=(1, 2)))
+            except OutputError:
+                raise
+            except Exception:                   # which ones: read them one by one
+                stack, bad = None, damaged_projections(group, done)
+                if not len(bad):
+                    raise
+        if len(bad):
+            raise OutputError(f"{_damaged_message(path, bad)}; {again}")
+    except OutputError:
+        raise
+    except Exception as exc:                    # a codec's error on a damaged chunk
+        raise OutputError(f"{path}: {what} cannot be read ({_reason(exc)}); the store is "
+                          "damaged: remove it and scan again") from None
+    return Scan(stack, geometry, meta.get("quantity", "line-integral"),
+                meta.get("physics") or {}, scene, flat=flat, dark=dark)
 
 
 # ---------------------------------------------------------------------------------- TIFF, NeXus
@@ -1239,7 +1347,8 @@ def scan_command(args) -> int:
             filled, total = _scan_to_store(scene, orbit, out, geometry=geometry,
                                            quantity=args.quantity, engine=args.engine,
                                            client=client, batch=args.batch, progress=True)
-        read_zarr(out, scene=scene, lazy=True)       # complete, or one line saying what is not
+        # complete, or one line saying what is not (its chunks were verified as it resumed)
+        read_zarr(out, scene=scene, lazy=True, verify=False)
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
