@@ -128,8 +128,9 @@ def _projection_matrices(source, center, forward, ho, ve, sid, *, shape, pitch,
 def pose_table(scene, orbit: Orbit):
     """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
     detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
-    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`) for an untilted detector without
-    offset, other orbits and detectors pose by pose.
+    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`), as are circular and helical ones
+    (:meth:`~xray_viz.orbit.Orbit.pose_arrays`), for an untilted detector without offset;
+    explicit poses and other detectors pose by pose.
 
     Examples
     --------
@@ -141,14 +142,19 @@ def pose_table(scene, orbit: Orbit):
     ((5, 4, 3), (5, 3, 4))
     """
     base = scene.acquisition
-    if orbit.random is None or not getattr(base.frame, "plain", True):
-        # pose by pose (a tilted or offset detector: the general frame and matrix)
+    if (orbit.random is None and orbit.kind == "poses") or \
+            not getattr(base.frame, "plain", True):
+        # pose by pose (explicit poses; a tilted or offset detector: the general frame and
+        # matrix)
         acqs = list(orbit.acquisitions(base))
         poses = np.array([[_pose(a)[r] for r in POSE_ROWS] for a in acqs],
                          np.float64).reshape(-1, 4, 3)
         mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
         return poses, mats
-    src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
+    if orbit.random is not None:
+        src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
+    else:                                   # circular or helical: all angles at once
+        src, det, up = orbit.pose_arrays(base)
     forward, ho, ve, sid = _frames(src, det, up)
     mats = _projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
                                 pitch=scene.detector.pitch, parallel=base.parallel)
@@ -192,6 +198,14 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
     >>> g["sid_mm"], g["sod_mm"], g["angles_deg"]
     (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
     """
+    out = _geometry_head(scene, orbit)
+    out["poses"], out["projection_matrices"] = _per_projection_lists(*pose_table(scene, orbit))
+    return out
+
+
+def _geometry_head(scene, orbit: Orbit) -> dict:
+    """:func:`scan_geometry` with ``poses`` and ``projection_matrices`` left None (in their
+    places): nothing per projection but the angles."""
     base = scene.acquisition
     det = scene.detector
     angles = orbit.angles()
@@ -202,7 +216,6 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         axis, center = orbit.axis.tolist(), orbit.center.tolist()
         rel = first.source - orbit.center
         sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
-    poses, mats = _per_projection_lists(*pose_table(scene, orbit))
     out = {
         "orbit": orbit.kind,
         "beam": "parallel" if base.parallel else "cone",
@@ -214,8 +227,8 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "sod_mm": sod,
         "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
                      "offset_mm": list(getattr(det, "offset", (0.0, 0.0)))},
-        "poses": poses,
-        "projection_matrices": mats,
+        "poses": None,
+        "projection_matrices": None,
     }
     if orbit.random is not None:           # how the poses were drawn (axis, centre, ranges)
         out["random"] = {**orbit.random.to_dict(), "axis": orbit.axis.tolist(),
@@ -994,9 +1007,28 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
 
 # ---------------------------------------------------------------------------------- TIFF, NeXus
 
-def write_tiff_stack(result: Scan, folder) -> Path:
-    """One float32 TIFF per projection (``proj_00000.tif`` ...) and ``geometry.json`` in
-    ``folder`` (written whole into a temporary folder, then renamed; refused if it exists)."""
+def _units(quantity) -> str:
+    return "1" if quantity == "line-integral" else "photons"
+
+
+def _file_geometry(geometry, poses=None, mats=None):
+    """``(geometry for the file's JSON, per-projection tables or None)``: above
+    :data:`INLINE_POSES_MAX` projections the JSON names the tables (``per_projection_arrays``,
+    as a Zarr store's attributes do) instead of listing every pose."""
+    if geometry.get("poses") is not None and geometry["projections"] <= INLINE_POSES_MAX:
+        return geometry, None
+    if poses is None:
+        poses, mats = _pose_arrays_of(geometry)
+    return _geometry_attr(geometry), (np.asarray(poses, np.float64),
+                                      np.asarray(mats, np.float64))
+
+
+@contextlib.contextmanager
+def _tiff_writer(folder, *, n, quantity, physics, geometry, tables):
+    """Yield ``write(k, image)``: one float32 TIFF per projection as it comes, into a
+    temporary folder renamed to ``folder`` when the block ends without an error (removed
+    otherwise); ``geometry.json`` (and ``poses.npy``, ``projection_matrices.npy`` when
+    ``tables``) written first."""
     import tifffile
 
     folder = Path(folder)
@@ -1006,33 +1038,51 @@ def write_tiff_stack(result: Scan, folder) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        n = result.projections.shape[0]
-        digits = max(5, len(str(n - 1)))
-        for k in range(n):               # one at a time: a store's lazy stack stays on disk
-            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif",
-                             np.asarray(result.projections[k], np.float32))
-        meta = {"quantity": result.quantity, "units": result.units,
-                "geometry": result.geometry, "physics": result.physics}
+        meta = {"quantity": quantity, "units": _units(quantity), "geometry": geometry,
+                "physics": physics}
         (tmp / "geometry.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
+        if tables is not None:
+            np.save(tmp / "poses.npy", tables[0])
+            np.save(tmp / "projection_matrices.npy", tables[1])
+        digits = max(5, len(str(n - 1)))
+
+        def write(k, image):
+            tifffile.imwrite(tmp / f"proj_{int(k):0{digits}d}.tif",
+                             np.asarray(image, np.float32))
+
+        yield write
         os.replace(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return folder
 
 
-def write_nexus(result: Scan, path) -> Path:
-    """HDF5 in the NeXus NXtomo layout (``/entry/instrument/detector/data`` ``(n, H, W)``,
-    ``image_key``, ``/entry/sample/rotation_angle`` in degrees, ``/entry/data`` links), with
-    the geometry dict as JSON in ``/entry/xray_viz_geometry``. Written to a temporary file,
-    then renamed."""
+def write_tiff_stack(result: Scan, folder) -> Path:
+    """One float32 TIFF per projection (``proj_00000.tif`` ...) and ``geometry.json`` in
+    ``folder`` (written into a temporary folder, then renamed; refused if it exists). Above
+    :data:`INLINE_POSES_MAX` projections ``geometry.json`` names ``poses.npy`` and
+    ``projection_matrices.npy`` (``per_projection_arrays``) instead of listing every pose."""
+    n = result.projections.shape[0]
+    geometry, tables = _file_geometry(result.geometry)
+    with _tiff_writer(folder, n=n, quantity=result.quantity, physics=result.physics,
+                      geometry=geometry, tables=tables) as write:
+        for k in range(n):               # one at a time: a store's lazy stack stays on disk
+            write(k, result.projections[k])
+    return Path(folder)
+
+
+@contextlib.contextmanager
+def _nexus_writer(path, *, n, shape, quantity, physics, geometry, tables, flush_every=8):
+    """Yield ``write(k, image)``: projection ``k`` into the NXtomo file's ``data`` as it comes
+    (flushed every ``flush_every``), in a temporary file renamed to ``path`` when the block
+    ends without an error (removed otherwise)."""
     import h5py
 
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    g = result.geometry
-    n = result.projections.shape[0]
+    g = geometry
     angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
+    w, h = shape
     try:
         with h5py.File(tmp, "w") as f:
             entry = f.create_group("entry")
@@ -1046,12 +1096,9 @@ def write_nexus(result: Scan, path) -> Path:
             src["probe"] = "x-ray"
             det = inst.create_group("detector")
             det.attrs["NX_class"] = "NXdetector"
-            shape = tuple(result.projections.shape)
-            data = det.create_dataset("data", shape=shape, dtype="float32",
-                                      chunks=(1,) + shape[1:])
-            for k in range(n):           # one at a time: a store's lazy stack stays on disk
-                data[k] = np.asarray(result.projections[k], np.float32)
-            data.attrs["units"] = result.units
+            data = det.create_dataset("data", shape=(n, h, w), dtype="float32",
+                                      chunks=(1, h, w))
+            data.attrs["units"] = _units(quantity)
             det["image_key"] = np.zeros(n, np.int32)          # 0: a projection
             for name, value in (("x_pixel_size", g["detector"]["pitch_mm"][0]),
                                 ("y_pixel_size", g["detector"]["pitch_mm"][1]),
@@ -1069,14 +1116,69 @@ def write_nexus(result: Scan, path) -> Path:
             nxdata["data"] = data
             nxdata["rotation_angle"] = sample["rotation_angle"]
             nxdata["image_key"] = det["image_key"]
-            entry["xray_viz_geometry"] = json.dumps({"quantity": result.quantity,
-                                                     "geometry": g,
-                                                     "physics": result.physics})
+            entry["xray_viz_geometry"] = json.dumps({"quantity": quantity, "geometry": g,
+                                                     "physics": physics})
+            if tables is not None:          # named by the geometry's per_projection_arrays
+                entry["poses"] = tables[0]
+                entry["projection_matrices"] = tables[1]
+            f.flush()
+
+            def write(k, image):
+                data[int(k)] = np.asarray(image, np.float32)
+                if (int(k) + 1) % max(1, flush_every) == 0:
+                    f.flush()
+
+            yield write
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    return path
+
+
+def write_nexus(result: Scan, path) -> Path:
+    """HDF5 in the NeXus NXtomo layout (``/entry/instrument/detector/data`` ``(n, H, W)``,
+    ``image_key``, ``/entry/sample/rotation_angle`` in degrees, ``/entry/data`` links), with
+    the geometry dict as JSON in ``/entry/xray_viz_geometry`` (above
+    :data:`INLINE_POSES_MAX` projections it names the datasets ``/entry/poses`` and
+    ``/entry/projection_matrices``, ``per_projection_arrays``, instead of listing every
+    pose). Written to a temporary file, projection by projection, then renamed."""
+    n, h, w = result.projections.shape
+    geometry, tables = _file_geometry(result.geometry)
+    with _nexus_writer(path, n=n, shape=(w, h), quantity=result.quantity,
+                       physics=result.physics, geometry=geometry, tables=tables) as write:
+        for k in range(n):               # one at a time: a store's lazy stack stays on disk
+            write(k, result.projections[k])
+    return Path(path)
+
+
+def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress) -> int:
+    """Render a scan straight into a NeXus file or a TIFF folder (``kind``), projection by
+    projection as they come: memory is one projection, the geometry is built as arrays
+    (:func:`pose_table`, no per-projection dicts), the first projections are on disk while
+    the rest render. The number of projections."""
+    _check_quantity(quantity)
+    n = orbit.projections
+    poses, mats = pose_table(scene, orbit)
+    geometry, tables = _file_geometry({**_geometry_head(scene, orbit), "poses": None},
+                                      poses, mats)
+    if n <= INLINE_POSES_MAX:
+        geometry = _geometry_head(scene, orbit)
+        geometry["poses"], geometry["projection_matrices"] = _per_projection_lists(poses, mats)
+        tables = None
+    del poses, mats
+    opener = _nexus_writer if kind == "nexus" else _tiff_writer
+    extra = {"shape": tuple(scene.detector.shape), "flush_every": batch} \
+        if kind == "nexus" else {}
+    with opener(out, n=n, quantity=quantity, physics=_physics(scene), geometry=geometry,
+                tables=tables, **extra) as write:
+        bar = _bar(n, progress)
+        for k in range(n):
+            write(k, projection(scene, orbit, k, quantity=quantity, engine=engine))
+            bar.update(1)
+            if (k + 1) % max(1, batch) == 0:
+                trim_memory()
+        bar.close()
+    return n
 
 
 # ---------------------------------------------------------------------------------- Dask
@@ -1328,10 +1430,12 @@ def scan_command(args) -> int:
         raise SceneError("--workers/--scheduler write a Zarr store: give -o NAME.zarr")
     if kind == "zarr" and out.exists() and not (out / "zarr.json").exists():
         raise OutputError(f"{out} exists and is not a Zarr store; remove it or choose another -o")
+    if kind == "tiff" and out.exists():            # before any work, not after it
+        raise OutputError(f"{out} exists; remove it or choose another -o")
     scene = load_scene(args.scene)
     orbit = _cli_orbit(scene, args)
-    geometry = scan_geometry(scene, orbit)
     if kind == "zarr":
+        geometry = scan_geometry(scene, orbit)
         import contextlib
 
         with contextlib.ExitStack() as stack:
@@ -1352,8 +1456,8 @@ def scan_command(args) -> int:
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
-    result = scan(scene, orbit, quantity=args.quantity, engine=args.engine, progress=True)
-    (write_nexus if kind == "nexus" else write_tiff_stack)(result, out)
-    print(f"{out}: {len(result.projections)} projections, {args.quantity}")
+    n = _scan_to_file(scene, orbit, out, kind, quantity=args.quantity, engine=args.engine,
+                      batch=args.batch, progress=True)
+    print(f"{out}: {n} projections, {args.quantity}")
     return 0
 
