@@ -608,6 +608,8 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         raise SceneError("scan(client=...) writes a Zarr store: give store= (a path)")
     if store is None:
         w, h = scene.detector.shape
+        _check_stack(orbit.projections, h, w, "give store= (a .zarr path): a store keeps "
+                     "memory bounded by the batch")
         out = np.empty((orbit.projections, h, w), np.float32)
         bar = _bar(orbit.projections, progress)
         for k in range(orbit.projections):
@@ -641,6 +643,17 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
                 trim_memory()
         bar.close()
     return len(todo), orbit.projections
+
+
+def _check_stack(n, h, w, fix, *, where="") -> None:
+    """Refuse, in one line and before any work, a float32 stack of ``n`` projections of
+    ``w x h`` that cannot fit in the memory this process may still take
+    (:mod:`xray_viz._memory`: available memory, RLIMIT_AS, the cgroup's limit)."""
+    from xray_viz._memory import check_allocation
+
+    check_allocation(int(n) * int(h) * int(w) * 4,
+                     f"{where}a stack of {n} projections of {w} x {h} float32 pixels", fix,
+                     error=SceneError if not where else OutputError)
 
 
 def _bar(total, progress):
@@ -787,7 +800,8 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
             for name, table in zip(("poses", "projection_matrices"),
                                    _pose_arrays_of(geometry)):
                 group.create_array(name, shape=table.shape, dtype="float64", fill_value=np.nan,
-                                   chunks=(min(n, 1 << 16),) + table.shape[1:])[:] = table
+                                   chunks=(min(n, 1 << 16),) + table.shape[1:],
+                                   compressors=_checked_codecs())[:] = table
         group.attrs["xray_viz"] = attrs
         os.replace(tmp, path)
     except BaseException:
@@ -981,6 +995,9 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
         what = "its per-projection poses"
         geometry = _geometry_from_store(group, meta["geometry"])
         what = "its projections"
+        if not lazy:
+            _check_stack(*group["projections"].shape, "read it with lazy=True (projection by "
+                         "projection)", where=f"{path}: ")
         if lazy:
             stack = group["projections"]
             bad = damaged_projections(group, done) if verify else ()

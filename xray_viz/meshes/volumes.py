@@ -320,7 +320,8 @@ def read_volume(path, *, hu: bool = False) -> Volume:
         series (pydicom).
     hu : bool, optional
         Read a CT in Hounsfield units (float64; DICOM's rescale applied). Otherwise the
-        values must be whole numbers (a label map) and come back as int64.
+        values must be whole numbers (a label map): integer voxels keep their type (booleans
+        become uint8), whole floats come back as int64.
 
     Returns
     -------
@@ -331,7 +332,9 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     SceneFileNotFoundError
         The file does not exist.
     MeshError
-        Unknown format, unreadable, not 3D, or (a label map) values that are not integers.
+        Unknown format, unreadable, not 3D, (a label map) values that are not integers, or
+        a conversion (to float64 or int64) that cannot fit in the memory this process may
+        still take.
 
     Examples
     --------
@@ -366,6 +369,8 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     if not np.all(np.isfinite(affine)) or abs(np.linalg.det(affine[:3, :3])) < 1e-12:
         raise MeshError(f"{path}: its voxel-to-world affine is degenerate or not finite")
     if hu:
+        if data.dtype != np.float64:
+            _check_widening(path, data, "the CT's", np.float64)
         data = np.asarray(data, dtype=np.float64)
         if not np.all(np.isfinite(data)):
             raise MeshError(f"{path}: the CT holds NaN or infinite values")
@@ -374,10 +379,27 @@ def read_volume(path, *, hu: bool = False) -> Volume:
             if not np.all(np.isfinite(data)) or np.any(data != np.round(data)):
                 raise MeshError(f"{path}: not a label map: it holds values that are not whole "
                                 "numbers; for a CT in Hounsfield units use a [[ct]] table")
-        elif data.dtype.kind not in "iub":
+            _check_widening(path, data, "the label map's", np.int64)
+            data = np.asarray(data, dtype=np.int64)
+        elif data.dtype.kind == "b":
+            data = data.view(np.uint8)
+        elif data.dtype.kind not in "iu":
             raise MeshError(f"{path}: not a label map: voxels of type {data.dtype}")
-        data = np.asarray(data, dtype=np.int64)
+        # integer labels keep their own type: a uint8 map of 768^3 voxels stays 0.4 GiB
+        # (as int64 it would take 3.4 GiB)
     return Volume(data=data, affine=affine, path=path)
+
+
+def _check_widening(path, data, whose, dtype) -> None:
+    """Refuse in one line a conversion of ``data`` to ``dtype`` that cannot fit in the memory
+    this process may still take (:mod:`xray_viz._memory`)."""
+    from xray_viz._memory import check_allocation
+
+    shape = " x ".join(str(n) for n in data.shape)
+    check_allocation(data.size * np.dtype(dtype).itemsize,
+                     f"{path}: {whose} {shape} voxels as {np.dtype(dtype).name}",
+                     "crop or downsample the volume (or give the process more memory)",
+                     error=MeshError)
 
 
 # --------------------------------------------------------------------------------------------
