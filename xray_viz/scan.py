@@ -757,31 +757,59 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
         pose_arrays = n > INLINE_POSES_MAX
     if path.exists():
         try:
-            group = zarr.open_group(str(path), mode="r+")
-            old = dict(group.attrs).get("xray_viz")
-        except Exception as exc:               # zarr raises many kinds for a non-store
-            raise OutputError(f"{path} exists and is not a Zarr scan store ({exc}); remove it "
-                              "or choose another -o") from None
-        arrays = isinstance(old, dict) and isinstance(old.get("geometry"), dict) and \
-            "per_projection_arrays" in old["geometry"]
-        new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
-        same = isinstance(old, dict) and all(
-            _canonical(old.get(k)) == _canonical(new[k])
-            for k in ("version", "quantity", "geometry", "physics", "scene"))
-        if same and arrays:
-            poses, mats = _pose_arrays_of(geometry)
-            try:
-                same = np.array_equal(group["poses"][:], poses) and \
-                    np.array_equal(group["projection_matrices"][:], mats)
-            except KeyError:
-                same = False
-            except Exception as exc:             # a damaged chunk: a codec's error
-                raise OutputError(f"{path}: its pose arrays cannot be read "
-                                  f"({_reason(exc)}); remove it and scan again") from None
-        if not same:
-            raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
-                              "scene differ); remove it or choose another -o to keep both")
-        return group
+            return _open_existing(zarr, path, scene=scene, geometry=geometry,
+                                  quantity=quantity)
+        except OutputError:
+            raise
+        except Exception as exc:               # damaged metadata: any of zarr's errors
+            raise OutputError(f"{path}: cannot be read as a scan store ({_reason(exc)}); it "
+                              "is damaged or not a store: remove it or choose another -o") \
+                from None
+    return _create_store(zarr, path, scene=scene, geometry=geometry, quantity=quantity,
+                         pose_arrays=pose_arrays)
+
+
+def _open_existing(zarr, path, *, scene, geometry, quantity):
+    """The group of an existing store holding the same scan, its arrays checked."""
+    n = geometry["projections"]
+    try:
+        group = zarr.open_group(str(path), mode="r+")
+        old = dict(group.attrs).get("xray_viz")
+    except Exception as exc:               # zarr raises many kinds for a non-store
+        raise OutputError(f"{path} exists and is not a Zarr scan store ({exc}); remove it "
+                          "or choose another -o") from None
+    arrays = isinstance(old, dict) and isinstance(old.get("geometry"), dict) and \
+        "per_projection_arrays" in old["geometry"]
+    new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
+    same = isinstance(old, dict) and all(
+        _canonical(old.get(k)) == _canonical(new[k])
+        for k in ("version", "quantity", "geometry", "physics", "scene"))
+    if same and arrays:
+        poses, mats = _pose_arrays_of(geometry)
+        try:
+            same = np.array_equal(group["poses"][:], poses) and \
+                np.array_equal(group["projection_matrices"][:], mats)
+        except KeyError:
+            same = False
+        except Exception as exc:             # a damaged chunk: a codec's error
+            raise OutputError(f"{path}: its pose arrays cannot be read "
+                              f"({_reason(exc)}); remove it and scan again") from None
+    if not same:
+        raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
+                          "scene differ); remove it or choose another -o to keep both")
+    w, h = geometry["detector"]["shape"]
+    proj, done = group["projections"], group["done"]
+    if (proj.shape, proj.chunks, proj.dtype, done.shape, done.chunks, done.dtype) != \
+            ((n, h, w), (1, h, w), np.float32, (n,), (1,), np.bool_):
+        raise OutputError(f"{path}: its arrays' metadata do not match its scan (projections "
+                          f"{list(proj.shape)} {proj.dtype}, done {list(done.shape)} "
+                          f"{done.dtype}); it is damaged: remove it and scan again")
+    return group
+
+
+def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays):
+    """A new store at ``path``, made whole in a temporary folder and renamed."""
+    n = geometry["projections"]
     attrs = _attrs(scene, quantity, geometry, pose_arrays)
     w, h = geometry["detector"]["shape"]
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
@@ -833,7 +861,10 @@ def done_flags(group) -> np.ndarray:
     except (AttributeError, TypeError):
         fast = False
     if not fast:
-        return np.asarray(done[:], bool)
+        try:
+            return np.asarray(done[:], bool)
+        except Exception:                   # a damaged flag's chunk: read them one by one
+            return np.array([_flag(done, k) for k in range(n)], bool)
     out = np.zeros(n, bool)
     if root.is_dir():
         with os.scandir(root) as entries:
@@ -904,16 +935,29 @@ def _damaged_message(path, bad) -> str:
 def _repair_done(group, path) -> int:
     """Unset the ``done`` flags of :func:`damaged_projections` (so that they are rendered
     again), saying so on stderr; how many."""
-    done = done_flags(group)
-    if not done.any():
-        return 0
-    bad = damaged_projections(group, done)
+    try:
+        done = done_flags(group)
+        if not done.any():
+            return 0
+        bad = damaged_projections(group, done)
+    except Exception as exc:
+        raise OutputError(f"{path}: its projections cannot be checked ({_reason(exc)}); it is "
+                          "damaged: remove it and scan again") from None
     for k in bad:
         group["done"][int(k)] = False
     if len(bad):
         print(f"xray-viz: {_damaged_message(path, bad)}; rendering "
               f"{'them' if len(bad) > 1 else 'it'} again", file=sys.stderr)
     return len(bad)
+
+
+def _flag(done, k) -> bool:
+    """``done[k]``, False where its chunk does not read (the projection is then rendered
+    again)."""
+    try:
+        return bool(done[int(k)])
+    except Exception:
+        return False
 
 
 def _write_projection(group, k, image) -> None:
@@ -955,6 +999,18 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
     if not path.exists():
         raise OutputError(f"{path}: no such scan store; write one with `xray-viz scan SCENE -o "
                           "scan.zarr`")
+    try:
+        return _read_zarr(zarr, path, scene=scene, require_complete=require_complete,
+                          lazy=lazy, verify=verify)
+    except OutputError:
+        raise
+    except Exception as exc:        # damaged metadata: any of zarr's (or JSON's) errors
+        raise OutputError(f"{path}: cannot be read as a scan store ({_reason(exc)}); it is "
+                          "damaged: remove it and scan again") from None
+
+
+def _read_zarr(zarr, path, *, scene, require_complete, lazy, verify) -> Scan:
+    """:func:`read_zarr` of a store that exists."""
     try:
         group = zarr.open_group(str(path), mode="r")
         meta = dict(group.attrs).get("xray_viz")
@@ -1334,7 +1390,7 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
     try:
         for k in indices:
             k = int(k)
-            if bool(group["done"][k]):
+            if _flag(group["done"], k):
                 continue
             _write_projection(group, k, projection(scene, orbit, k, quantity=quantity,
                                                    engine=engine))
