@@ -603,13 +603,13 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
     """
     _check_quantity(quantity)
     orbit = _orbit_of(scene, orbit)
-    geometry = scan_geometry(scene, orbit)
     if client is not None and store is None:
         raise SceneError("scan(client=...) writes a Zarr store: give store= (a path)")
     if store is None:
         w, h = scene.detector.shape
         _check_stack(orbit.projections, h, w, "give store= (a .zarr path): a store keeps "
                      "memory bounded by the batch")
+        geometry = scan_geometry(scene, orbit)
         out = np.empty((orbit.projections, h, w), np.float32)
         bar = _bar(orbit.projections, progress)
         for k in range(orbit.projections):
@@ -618,16 +618,41 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         bar.close()
         flat, dark = flat_dark(scene, geometry, quantity)
         return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
-    _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
-                   client=client, batch=batch, progress=progress)
+    _scan_to_store(scene, orbit, store, quantity=quantity, engine=engine, client=client,
+                   batch=batch, progress=progress)
     return read_zarr(store, scene=scene, lazy=True, verify=False)   # verified as resumed
 
 
-def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, batch,
+def _store_geometry(scene, orbit) -> tuple:
+    """``(geometry, tables)`` for a store: above :data:`INLINE_POSES_MAX` projections the
+    geometry without its per-projection lists (None) and ``tables`` = :func:`pose_table`'s
+    arrays (no million small dicts made), else :func:`scan_geometry` and None."""
+    if orbit.projections <= INLINE_POSES_MAX:
+        return scan_geometry(scene, orbit), None
+    return _geometry_head(scene, orbit), pose_table(scene, orbit)
+
+
+def _with_lists(geometry, tables) -> dict:
+    """``geometry`` with its per-projection lists (made from ``tables`` where None)."""
+    if geometry.get("poses") is not None or tables is None:
+        return geometry
+    out = dict(geometry)
+    out["poses"], out["projection_matrices"] = _per_projection_lists(*tables)
+    return out
+
+
+def _pose_dict(row) -> dict:
+    return dict(zip(POSE_ROWS, np.asarray(row, np.float64).tolist()))
+
+
+def _scan_to_store(scene, orbit, store, *, quantity, engine, client, batch,
                    progress) -> tuple[int, int]:
     """Fill the missing projections of a Zarr store; ``(filled, total)``. Memory: one
-    projection per worker (the stack is never held)."""
-    group = open_store(store, scene=scene, quantity=quantity, geometry=geometry)
+    projection per worker (the stack is never held), the poses as arrays."""
+    geometry, tables = _store_geometry(scene, orbit)
+    group = open_store(store, scene=scene, quantity=quantity, geometry=geometry,
+                       _tables=tables)
+    del geometry, tables
     _repair_done(group, store)            # what a resume skips is verified, not trusted
     todo = [int(k) for k in np.flatnonzero(~done_flags(group))]
     if client is not None:
@@ -654,6 +679,16 @@ def _check_stack(n, h, w, fix, *, where="") -> None:
     check_allocation(int(n) * int(h) * int(w) * 4,
                      f"{where}a stack of {n} projections of {w} x {h} float32 pixels", fix,
                      error=SceneError if not where else OutputError)
+
+
+def _check_complete(path) -> None:
+    """Refuse in one line a store whose ``done`` flags are not all set (as :func:`read_zarr`
+    does, without reading its geometry back)."""
+    done = done_flags(_zarr().open_group(str(path), mode="r"))
+    if not done.all():
+        missing = np.flatnonzero(~done)
+        raise OutputError(f"{path}: {len(missing)} of {len(done)} projections are missing "
+                          f"(first: {missing[0]}); run the same scan again to fill them")
 
 
 def _bar(total, progress):
@@ -729,7 +764,8 @@ def _geometry_from_store(group, geometry) -> dict:
     return out
 
 
-def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=None):
+def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=None,
+               _tables=None):
     """The Zarr v3 group of a scan at ``path``: created (whole, or not at all) if missing,
     otherwise opened for resuming after checking that it holds the same scan.
 
@@ -758,7 +794,7 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
     if path.exists():
         try:
             return _open_existing(zarr, path, scene=scene, geometry=geometry,
-                                  quantity=quantity)
+                                  quantity=quantity, tables=_tables)
         except OutputError:
             raise
         except Exception as exc:               # damaged metadata: any of zarr's errors
@@ -766,11 +802,12 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
                               "is damaged or not a store: remove it or choose another -o") \
                 from None
     return _create_store(zarr, path, scene=scene, geometry=geometry, quantity=quantity,
-                         pose_arrays=pose_arrays)
+                         pose_arrays=pose_arrays, tables=_tables)
 
 
-def _open_existing(zarr, path, *, scene, geometry, quantity):
-    """The group of an existing store holding the same scan, its arrays checked."""
+def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
+    """The group of an existing store holding the same scan, its arrays checked
+    (``tables``: the per-projection arrays where ``geometry`` has no lists)."""
     n = geometry["projections"]
     try:
         group = zarr.open_group(str(path), mode="r+")
@@ -780,12 +817,14 @@ def _open_existing(zarr, path, *, scene, geometry, quantity):
                           "or choose another -o") from None
     arrays = isinstance(old, dict) and isinstance(old.get("geometry"), dict) and \
         "per_projection_arrays" in old["geometry"]
+    if not arrays:
+        geometry = _with_lists(geometry, tables)
     new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
     same = isinstance(old, dict) and all(
         _canonical(old.get(k)) == _canonical(new[k])
         for k in ("version", "quantity", "geometry", "physics", "scene"))
     if same and arrays:
-        poses, mats = _pose_arrays_of(geometry)
+        poses, mats = _pose_arrays_of(geometry) if tables is None else tables
         try:
             same = np.array_equal(group["poses"][:], poses) and \
                 np.array_equal(group["projection_matrices"][:], mats)
@@ -807,9 +846,11 @@ def _open_existing(zarr, path, *, scene, geometry, quantity):
     return group
 
 
-def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays):
+def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays, tables=None):
     """A new store at ``path``, made whole in a temporary folder and renamed."""
     n = geometry["projections"]
+    if not pose_arrays:
+        geometry = _with_lists(geometry, tables)
     attrs = _attrs(scene, quantity, geometry, pose_arrays)
     w, h = geometry["detector"]["shape"]
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
@@ -819,14 +860,16 @@ def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays):
         group.create_array("projections", shape=(n, h, w), chunks=(1, h, w), dtype="float32",
                            fill_value=np.nan, compressors=_checked_codecs())
         group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
-        flat, dark = flat_dark(scene, geometry, quantity)
+        first = geometry if geometry.get("poses") is not None else \
+            {"poses": [_pose_dict(tables[0][0])]}
+        flat, dark = flat_dark(scene, first, quantity)
         for name, field in (("flat", flat), ("dark", dark)):
             if field is not None:
                 group.create_array(name, shape=(h, w), chunks=(h, w), dtype="float32",
                                    fill_value=np.nan, compressors=_checked_codecs())[:] = field
         if pose_arrays:
             for name, table in zip(("poses", "projection_matrices"),
-                                   _pose_arrays_of(geometry)):
+                                   _pose_arrays_of(geometry) if tables is None else tables):
                 group.create_array(name, shape=table.shape, dtype="float64", fill_value=np.nan,
                                    chunks=(min(n, 1 << 16),) + table.shape[1:],
                                    compressors=_checked_codecs())[:] = table
@@ -1508,7 +1551,6 @@ def scan_command(args) -> int:
     scene = load_scene(args.scene)
     orbit = _cli_orbit(scene, args)
     if kind == "zarr":
-        geometry = scan_geometry(scene, orbit)
         import contextlib
 
         with contextlib.ExitStack() as stack:
@@ -1521,11 +1563,11 @@ def scan_command(args) -> int:
                 else:
                     cluster = stack.enter_context(local_cluster(args.workers))
                     client = stack.enter_context(Client(cluster))
-            filled, total = _scan_to_store(scene, orbit, out, geometry=geometry,
-                                           quantity=args.quantity, engine=args.engine,
-                                           client=client, batch=args.batch, progress=True)
+            filled, total = _scan_to_store(scene, orbit, out, quantity=args.quantity,
+                                           engine=args.engine, client=client,
+                                           batch=args.batch, progress=True)
         # complete, or one line saying what is not (its chunks were verified as it resumed)
-        read_zarr(out, scene=scene, lazy=True, verify=False)
+        _check_complete(out)
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
