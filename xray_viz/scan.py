@@ -53,6 +53,9 @@ LAYOUT_VERSION = 1
 ARRAYS_LAYOUT_VERSION = 2
 #: Above this many projections a store keeps its poses and projection matrices as arrays.
 INLINE_POSES_MAX = 1000
+#: From this many projections ``xray-viz scan`` says it is building the poses (random ones
+#: take about 30 us each) before its progress bar starts.
+POSES_NOTICE = 100_000
 #: What the rows of a store's ``poses`` array are.
 POSE_ROWS = ("source", "detector_center", "u", "v")
 PLUGIN_NAME = "xray_viz-scenes"
@@ -1550,6 +1553,9 @@ def scan_command(args) -> int:
         raise OutputError(f"{out} exists; remove it or choose another -o")
     scene = load_scene(args.scene)
     orbit = _cli_orbit(scene, args)
+    if orbit.projections >= POSES_NOTICE:         # the poses take a while: say so first
+        print(f"xray-viz: building the poses of {orbit.projections} projections ...",
+              file=sys.stderr, flush=True)
     if kind == "zarr":
         import contextlib
 
