@@ -599,3 +599,97 @@ def test_a_real_segmentation_pyvistas_frog(tmp_path):  # synthetic label maps co
         assert s.mesh.volume == pytest.approx(s.voxels * np.prod(np.diag(affine)[:3]),
                                               rel=0.05)
         assert s.mesh.volume == pytest.approx(shipped.volume, rel=0.05)
+
+
+# --------------------------------------------------------------------------------------------
+# the cache is keyed by every byte the meshing reads (issue 42: a header's data file changed)
+
+
+def _data_file(header: Path) -> Path:
+    """The data file a detached header (.mhd / .nhdr) names."""
+    for line in header.read_text(errors="replace").splitlines():
+        key, _, value = line.partition("=" if header.suffix == ".mhd" else ":")
+        if key.strip().lower() in ("elementdatafile", "data file", "datafile"):
+            return header.with_name(value.strip())
+    raise AssertionError(f"{header} names no data file")
+
+
+@pytest.mark.parametrize("suffix", [".mhd", ".nhdr"])
+@pytest.mark.parametrize("kind", ["labels", "ct"])
+def test_a_changed_data_file_of_a_detached_header_is_meshed_again(tmp_path, suffix, kind):
+    """Only the data file (.raw) of a .mhd / .nhdr changes, its header stays byte for byte:
+    the bodies and the render follow the new data, not the cached old bodies."""
+    if kind == "labels":
+        before = label_map(nested=True)
+        after = np.where(before == 2, 1, before).astype(np.uint8)
+        half = SHAPE[2] // 2
+        after[:, :, :half][before[:, :, :half] == 2] = 2      # half the marrow left
+        table = f"""
+[[labels]]
+file = "seg{suffix}"
+materials = {{ 1 = {{ mu = 0.1, name = "bone" }}, 2 = {{ mu = 0.5, name = "marrow" }} }}
+max_error = {MAX_ERROR}
+"""
+    else:
+        lab = label_map(nested=True)
+        before = np.choose(lab, [-1000.0, 40.0, 1200.0]).astype(np.float32)
+        after = np.choose(lab, [-1000.0, 40.0, 40.0]).astype(np.float32)  # no bone any more
+        table = f"""
+[[ct]]
+file = "seg{suffix}"
+max_error = {MAX_ERROR}
+min_voxels = 0
+"""
+    header = write_itk(tmp_path / f"seg{suffix}", before)
+    data_file = _data_file(header)
+    scene_path = write_scene(tmp_path, table, shape=(48, 48), pitch=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", V.LabelSkippedWarning)
+        first = xray_viz.load_scene(scene_path)
+        image_before = xray_viz.render(first, engine="numpy").quantity("line-integral")
+        (tmp_path / "other").mkdir()
+        other = write_itk(tmp_path / "other" / f"seg{suffix}", after)
+        header_bytes = header.read_bytes()
+        data_file.write_bytes(_data_file(other).read_bytes())
+        assert header.read_bytes() == header_bytes
+        second = xray_viz.load_scene(scene_path)
+        image_after = xray_viz.render(second, engine="numpy").quantity("line-integral")
+    assert [b.name for b in first.bodies] != [b.name for b in second.bodies] or not np.allclose(
+        image_before, image_after)
+    # the render of the changed file is the render of a fresh, uncached meshing of it
+    fresh = xray_viz.load_scene(write_scene(tmp_path / "other", table, shape=(48, 48),
+                                            pitch=1.0))
+    assert [b.name for b in second.bodies] == [b.name for b in fresh.bodies]
+    assert np.allclose(image_after, xray_viz.render(fresh, engine="numpy").quantity(
+        "line-integral"), atol=1e-12)
+
+
+def test_ct_volumes_of_equal_voxels_but_other_names_keep_their_own_names(tmp_path):
+    """The bodies' names come from the file name: two files with the same voxels do not share
+    a cache entry's names."""
+    hu = ct_volume().astype(np.float32)
+    write_nifti(tmp_path / "knee.nii.gz", hu)
+    write_nifti(tmp_path / "wrist.nii.gz", hu)
+    a = V.ct_surfaces(tmp_path / "knee.nii.gz", max_error=0.5)
+    b = V.ct_surfaces(tmp_path / "wrist.nii.gz", max_error=0.5)
+    assert [s.name for s in a.surfaces] == ["knee_soft_tissue", "knee_cortical_bone"]
+    assert [s.name for s in b.surfaces] == ["wrist_soft_tissue", "wrist_cortical_bone"]
+
+
+def test_a_changed_dicom_slice_is_meshed_again(tmp_path):
+    import pydicom
+
+    hu = np.clip(np.round(ct_volume()[:, :, :12]), -1024, None)
+    write_dicom_series(tmp_path / "series", hu, grid_affine())
+    a = V.ct_surfaces(tmp_path / "series", max_error=0.5)
+    for f in sorted((tmp_path / "series").iterdir())[:6]:   # soft tissue becomes adipose
+        ds = pydicom.dcmread(f)
+        px = ds.pixel_array.copy()
+        px[(px >= 1024 + 19) & (px < 1024 + 120)] = 1024 - 60
+        ds.PixelData = px.tobytes()
+        ds.save_as(f, enforce_file_format=True)
+    b = V.ct_surfaces(tmp_path / "series", max_error=0.5)
+    assert not b.cache_hit
+    assert "series_soft_tissue" in [s.name for s in a.surfaces]
+    assert "series_adipose" not in [s.name for s in a.surfaces]
+    assert "series_adipose" in [s.name for s in b.surfaces]

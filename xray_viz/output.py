@@ -493,6 +493,11 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
       ``/entry/xray_viz_metadata``.
     * ``.dcm``: DICOM DX with its own geometry fields (:func:`dicom_dataset`); needs ``scene``.
 
+    The JSON of ``.tiff``, ``.png``, NIfTI and HDF5 also holds ``sha256`` (:data:`SEAL_KEY`),
+    the SHA-256 of the stored pixels and of the rest of the JSON: :func:`load_image` refuses
+    a file whose pixels or metadata no longer match it (a flipped bit, a cut), or whose
+    xray_viz JSON no longer parses, in one line. ``.npy`` and ``.dcm`` hold no checksum.
+
     The file is written by :func:`atomic_write` and read back before it replaces a previous
     file: ``np.load`` for ``.npy`` (shape, dtype, values), tifffile for ``.tiff`` (values bit
     for bit, metadata), Pillow for ``.png`` (size, mode, pixels, metadata), nibabel and h5py
@@ -561,6 +566,7 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     if suffix in (".tif", ".tiff"):
         _need(path, "tifffile", "pip install tifffile")
         data = image.astype(np.float32)
+        _seal(meta, data)
         atomic_write(path, lambda tmp: _write_tiff(tmp, data, meta),
                      verify=lambda tmp: _check_tiff(tmp, data, meta))
     elif suffix == ".png":
@@ -569,20 +575,67 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
             warnings.warn(_nonfinite_message(bad, data.size, f"{path}: "), RuntimeWarning,
                           stacklevel=2)
         meta["window"] = _window_of(image, bright=bright)
+        _seal(meta, data)
         atomic_write(path, lambda tmp: _write_png(tmp, data, meta),
                      verify=lambda tmp: _check_png(tmp, data, meta))
     elif suffix in (".nii", ".nii.gz"):
         _need(path, "nibabel", "pip install 'xray_viz[volumes]'")
         data = image.astype(np.float64)
         affine = _detector_affine(scene, image.shape)
+        _seal(meta, data)
         atomic_write(path, lambda tmp: _write_nifti(tmp, data, affine, meta),
                      verify=lambda tmp: _check_nifti(tmp, data, affine, meta))
     else:                                    # .h5, .hdf5
         _need(path, "h5py", "pip install 'xray_viz[ct]'")
         data = image.astype(np.float64)
+        _seal(meta, data)
         atomic_write(path, lambda tmp: _write_hdf5(tmp, data, meta),
                      verify=lambda tmp: _check_hdf5(tmp, data, meta))
     return path
+
+
+#: The metadata key of the SHA-256 of the stored pixels and of the rest of the metadata.
+SEAL_KEY = "sha256"
+
+
+def _seal_of(meta: dict, data) -> str:
+    """Hex SHA-256 of the stored array (dtype little-endian, shape, bytes) and of the
+    metadata's canonical JSON without :data:`SEAL_KEY`."""
+    import hashlib
+
+    a = np.ascontiguousarray(data)
+    a = a.astype(a.dtype.newbyteorder("<"), copy=False)
+    h = hashlib.sha256(json.dumps({k: v for k, v in meta.items() if k != SEAL_KEY},
+                                  sort_keys=True).encode())
+    h.update(f"{a.dtype.str}{a.shape}".encode())
+    h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def _seal(meta: dict, data) -> None:
+    """Record :func:`_seal_of` in ``meta`` (the file then says what it holds, bit for bit)."""
+    meta.pop(SEAL_KEY, None)
+    meta[SEAL_KEY] = _seal_of(meta, data)
+
+
+def _check_seal(path, suffix, image, raw, text_found: bool) -> None:
+    """Refuse, in one line, a file whose pixels or metadata differ from the seal it records
+    (a flipped bit, a cut), or whose xray_viz metadata no longer parse."""
+    if raw is None or "xray_viz" not in raw:
+        if text_found:
+            raise OutputError(f"{path}: its xray_viz metadata are damaged (not JSON); the "
+                              f"{suffix} file cannot be trusted: write it again")
+        return
+    seal = raw.get(SEAL_KEY)
+    if seal is None:
+        return                          # written before seals were recorded
+    try:
+        ok = _seal_of(raw, image) == seal
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise OutputError(f"{path}: its pixels or metadata differ from the SHA-256 it records "
+                          f"(the {suffix} file is damaged); write it again")
 
 
 def _need(path, module: str, how: str) -> None:
@@ -702,6 +755,13 @@ def _read_tiff(path) -> tuple[np.ndarray, dict | None]:
                 if rx > 0 and ry > 0 and (x.value, y.value) != ((1, 1), (1, 1)):
                     meta["pitch_mm"] = [per_mm / rx, per_mm / ry]
     return data, meta
+
+
+def _looks_ours(text) -> bool:
+    """A text that was meant to be xray_viz's JSON metadata (it names xray_viz)."""
+    if isinstance(text, bytes):
+        text = text.decode("ascii", "replace")
+    return bool(text) and str(text).lstrip().startswith("{") and "xray_viz" in str(text)
 
 
 def _parse_json(text):
@@ -1285,6 +1345,8 @@ def _read_image(path: Path, suffix: str):
     elif suffix in (".tif", ".tiff"):
         _need(path, "tifffile", "pip install tifffile")
         image, raw = _read_tiff(path)
+        _check_seal(path, suffix, image, raw,
+                    "xray_viz" not in (raw or {}) and _text_of(path, suffix))
         meta = _metadata(suffix, raw)
     elif suffix == ".png":
         from PIL import Image
@@ -1293,15 +1355,50 @@ def _read_image(path: Path, suffix: str):
             image = np.asarray(im)
             raw = _parse_json(getattr(im, "text", {}).get("xray_viz"))
             dpi = im.info.get("dpi")
+            _check_seal(path, suffix, image, raw, "xray_viz" in getattr(im, "text", {}))
         if raw is None and dpi and all(d > 0 for d in dpi):
             raw = {"pitch_mm": [25.4 / d for d in dpi]}
         meta = _metadata(suffix, raw)
     elif suffix in (".nii", ".nii.gz"):
         _need(path, "nibabel", "pip install 'xray_viz[volumes]'")
         image, _, raw = _read_nifti(path)
+        _check_seal(path, suffix, image, raw, "xray_viz" not in raw and _text_of(path, suffix))
         meta = _metadata(suffix, raw)
     else:
         _need(path, "h5py", "pip install 'xray_viz[ct]'")
         image, raw = _read_hdf5(path)
+        _check_seal(path, suffix, image, raw, raw is None and _text_of(path, suffix))
         meta = _metadata(suffix, raw)
     return image, meta
+
+
+def _text_of(path, suffix) -> bool:
+    """Whether the file holds a text meant as xray_viz's metadata (for :func:`_check_seal`,
+    when it did not parse): read again only on that path."""
+    try:
+        if suffix in (".tif", ".tiff"):
+            import tifffile
+
+            with tifffile.TiffFile(path) as tif:           # written by xray_viz
+                page = tif.pages[0]
+                software = page.tags.get("Software")
+                return _looks_ours(page.description) or bool(
+                    software and str(software.value).startswith("xray_viz"))
+        if suffix == ".png":
+            from PIL import Image
+
+            with Image.open(path) as im:
+                return "xray_viz" in getattr(im, "text", {})
+        if suffix in (".nii", ".nii.gz"):
+            import nibabel as nib
+
+            header = nib.load(path).header
+            return bytes(header["descrip"]).startswith(b"xray_viz") or any(
+                ext.get_code() == 6 and _looks_ours(ext.get_content())
+                for ext in header.extensions)
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            return "entry/xray_viz_metadata" in f
+    except Exception:
+        return True                         # it was readable a moment ago: damaged

@@ -358,16 +358,12 @@ def _check_transmission(log_t):
 
 
 def available_memory() -> int | None:
-    """Bytes of memory available to a new job (``MemAvailable`` of ``/proc/meminfo``), or None
-    where that is not known (not Linux)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        return None
-    return None
+    """Bytes of memory this process may still take, or None where that is not known: the
+    least of the machine's ``MemAvailable``, the process's ``RLIMIT_AS`` / ``RLIMIT_DATA``
+    and its control group's limit (:func:`xray_viz._memory.available_memory`)."""
+    from xray_viz._memory import available_memory as limit
+
+    return limit()
 
 
 def _mesh_bytes(scene) -> int:
@@ -452,11 +448,9 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
 
 
 def _gib(nbytes: float) -> str:
-    for unit, size in (("TiB", 1 << 40), ("GiB", 1 << 30), ("MiB", 1 << 20)):
-        if nbytes >= size or unit == "MiB":
-            v = nbytes / size
-            return f"{v:.0f} {unit}" if v >= 10 else f"{v:.1f} {unit}"
-    raise AssertionError  # pragma: no cover
+    from xray_viz._memory import format_bytes
+
+    return format_bytes(nbytes)
 
 
 def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
@@ -464,8 +458,9 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
                  keep_hits: bool = False) -> None:
     """Refuse, in one line, a job whose output cannot fit in the memory available.
 
-    Compares :func:`memory_needed` with :func:`available_memory` (Linux's ``MemAvailable``;
-    no check elsewhere).
+    Compares :func:`memory_needed` with :func:`available_memory` (the machine's
+    ``MemAvailable``, the process's ``RLIMIT_AS`` and its cgroup's limit, the least of them;
+    no check where none is known).
 
     Raises
     ------
@@ -479,6 +474,8 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
                          path_lengths=path_lengths, images=images, keep_hits=keep_hits)
     if need["total"] <= available:
         return
+    from xray_viz._memory import describe
+
     w, h = scene.detector.shape
     nb = len(scene.bodies)
     what = [name for name, key in (("the output images", "images"),
@@ -490,7 +487,7 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
                 "Radiograph.total_path_length has their sum)")
     raise SceneError(
         f"[detector] shape {w} x {h} needs about {_gib(need['total'])} for "
-        f"{' and '.join(what) or 'the job'} (this machine has {_gib(available)} available): {fix}")
+        f"{' and '.join(what) or 'the job'} ({describe(available)}): {fix}")
 
 
 # ------------------------------------------------------------------------------------------

@@ -42,7 +42,7 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "Projection
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
-           "pose_table", "done_flags", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
+           "pose_table", "done_flags", "damaged_projections", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
            "INLINE_POSES_MAX", "POSE_ROWS"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
@@ -54,6 +54,9 @@ LAYOUT_VERSION = 1
 ARRAYS_LAYOUT_VERSION = 2
 #: Above this many projections a store keeps its poses and projection matrices as arrays.
 INLINE_POSES_MAX = 1000
+#: From this many projections ``xray-viz scan`` says it is building the poses (random ones
+#: take about 30 us each) before its progress bar starts.
+POSES_NOTICE = 100_000
 #: What the rows of a store's ``poses`` array are.
 POSE_ROWS = ("source", "detector_center", "u", "v")
 PLUGIN_NAME = "xray_viz-scenes"
@@ -129,8 +132,9 @@ def _projection_matrices(source, center, forward, ho, ve, sid, *, shape, pitch,
 def pose_table(scene, orbit: Orbit):
     """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
     detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
-    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`) for an untilted detector without
-    offset, other orbits and detectors pose by pose.
+    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`), as are circular and helical ones
+    (:meth:`~xray_viz.orbit.Orbit.pose_arrays`), for an untilted detector without offset;
+    explicit poses and other detectors pose by pose.
 
     Examples
     --------
@@ -142,14 +146,19 @@ def pose_table(scene, orbit: Orbit):
     ((5, 4, 3), (5, 3, 4))
     """
     base = scene.acquisition
-    if orbit.random is None or not getattr(base.frame, "plain", True):
-        # pose by pose (a tilted or offset detector: the general frame and matrix)
+    if (orbit.random is None and orbit.kind == "poses") or \
+            not getattr(base.frame, "plain", True):
+        # pose by pose (explicit poses; a tilted or offset detector: the general frame and
+        # matrix)
         acqs = list(orbit.acquisitions(base))
         poses = np.array([[_pose(a)[r] for r in POSE_ROWS] for a in acqs],
                          np.float64).reshape(-1, 4, 3)
         mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
         return poses, mats
-    src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
+    if orbit.random is not None:
+        src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
+    else:                                   # circular or helical: all angles at once
+        src, det, up = orbit.pose_arrays(base)
     forward, ho, ve, sid = _frames(src, det, up)
     mats = _projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
                                 pitch=scene.detector.pitch, parallel=base.parallel)
@@ -193,6 +202,14 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
     >>> g["sid_mm"], g["sod_mm"], g["angles_deg"]
     (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
     """
+    out = _geometry_head(scene, orbit)
+    out["poses"], out["projection_matrices"] = _per_projection_lists(*pose_table(scene, orbit))
+    return out
+
+
+def _geometry_head(scene, orbit: Orbit) -> dict:
+    """:func:`scan_geometry` with ``poses`` and ``projection_matrices`` left None (in their
+    places): nothing per projection but the angles."""
     base = scene.acquisition
     det = scene.detector
     angles = orbit.angles()
@@ -203,7 +220,6 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         axis, center = orbit.axis.tolist(), orbit.center.tolist()
         rel = first.source - orbit.center
         sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
-    poses, mats = _per_projection_lists(*pose_table(scene, orbit))
     out = {
         "orbit": orbit.kind,
         "beam": "parallel" if base.parallel else "cone",
@@ -215,8 +231,8 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
         "sod_mm": sod,
         "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
                      "offset_mm": list(getattr(det, "offset", (0.0, 0.0)))},
-        "poses": poses,
-        "projection_matrices": mats,
+        "poses": None,
+        "projection_matrices": None,
     }
     if orbit.random is not None:           # how the poses were drawn (axis, centre, ranges)
         out["random"] = {**orbit.random.to_dict(), "axis": orbit.axis.tolist(),
@@ -630,11 +646,13 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
     """
     _check_quantity(quantity)
     orbit = _orbit_of(scene, orbit)
-    geometry = scan_geometry(scene, orbit)
     if client is not None and store is None:
         raise SceneError("scan(client=...) writes a Zarr store: give store= (a path)")
     if store is None:
         w, h = scene.detector.shape
+        _check_stack(orbit.projections, h, w, "give store= (a .zarr path): a store keeps "
+                     "memory bounded by the batch")
+        geometry = scan_geometry(scene, orbit)
         out = np.empty((orbit.projections, h, w), np.float32)
         bar = _bar(orbit.projections, progress)
         project = Projections(scene, orbit, quantity=quantity, engine=engine)
@@ -644,16 +662,42 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         bar.close()
         flat, dark = flat_dark(scene, geometry, quantity)
         return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
-    _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
-                   client=client, batch=batch, progress=progress)
-    return read_zarr(store, scene=scene, lazy=True)
+    _scan_to_store(scene, orbit, store, quantity=quantity, engine=engine, client=client,
+                   batch=batch, progress=progress)
+    return read_zarr(store, scene=scene, lazy=True, verify=False)   # verified as resumed
 
 
-def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, batch,
+def _store_geometry(scene, orbit) -> tuple:
+    """``(geometry, tables)`` for a store: above :data:`INLINE_POSES_MAX` projections the
+    geometry without its per-projection lists (None) and ``tables`` = :func:`pose_table`'s
+    arrays (no million small dicts made), else :func:`scan_geometry` and None."""
+    if orbit.projections <= INLINE_POSES_MAX:
+        return scan_geometry(scene, orbit), None
+    return _geometry_head(scene, orbit), pose_table(scene, orbit)
+
+
+def _with_lists(geometry, tables) -> dict:
+    """``geometry`` with its per-projection lists (made from ``tables`` where None)."""
+    if geometry.get("poses") is not None or tables is None:
+        return geometry
+    out = dict(geometry)
+    out["poses"], out["projection_matrices"] = _per_projection_lists(*tables)
+    return out
+
+
+def _pose_dict(row) -> dict:
+    return dict(zip(POSE_ROWS, np.asarray(row, np.float64).tolist()))
+
+
+def _scan_to_store(scene, orbit, store, *, quantity, engine, client, batch,
                    progress) -> tuple[int, int]:
     """Fill the missing projections of a Zarr store; ``(filled, total)``. Memory: one
-    projection per worker (the stack is never held)."""
-    group = open_store(store, scene=scene, quantity=quantity, geometry=geometry)
+    projection per worker (the stack is never held), the poses as arrays."""
+    geometry, tables = _store_geometry(scene, orbit)
+    group = open_store(store, scene=scene, quantity=quantity, geometry=geometry,
+                       _tables=tables)
+    del geometry, tables
+    _repair_done(group, store)            # what a resume skips is verified, not trusted
     todo = [int(k) for k in np.flatnonzero(~done_flags(group))]
     if client is not None:
         _scan_dask(client, scene, orbit, store, todo, quantity=quantity, engine=engine,
@@ -668,6 +712,27 @@ def _scan_to_store(scene, orbit, store, *, geometry, quantity, engine, client, b
                 trim_memory()
         bar.close()
     return len(todo), orbit.projections
+
+
+def _check_stack(n, h, w, fix, *, where="") -> None:
+    """Refuse, in one line and before any work, a float32 stack of ``n`` projections of
+    ``w x h`` that cannot fit in the memory this process may still take
+    (:mod:`xray_viz._memory`: available memory, RLIMIT_AS, the cgroup's limit)."""
+    from xray_viz._memory import check_allocation
+
+    check_allocation(int(n) * int(h) * int(w) * 4,
+                     f"{where}a stack of {n} projections of {w} x {h} float32 pixels", fix,
+                     error=SceneError if not where else OutputError)
+
+
+def _check_complete(path) -> None:
+    """Refuse in one line a store whose ``done`` flags are not all set (as :func:`read_zarr`
+    does, without reading its geometry back)."""
+    done = done_flags(_zarr().open_group(str(path), mode="r"))
+    if not done.all():
+        missing = np.flatnonzero(~done)
+        raise OutputError(f"{path}: {len(missing)} of {len(done)} projections are missing "
+                          f"(first: {missing[0]}); run the same scan again to fill them")
 
 
 def _bar(total, progress):
@@ -743,7 +808,8 @@ def _geometry_from_store(group, geometry) -> dict:
     return out
 
 
-def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=None):
+def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=None,
+               _tables=None):
     """The Zarr v3 group of a scan at ``path``: created (whole, or not at all) if missing,
     otherwise opened for resuming after checking that it holds the same scan.
 
@@ -771,28 +837,64 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
         pose_arrays = n > INLINE_POSES_MAX
     if path.exists():
         try:
-            group = zarr.open_group(str(path), mode="r+")
-            old = dict(group.attrs).get("xray_viz")
-        except Exception as exc:               # zarr raises many kinds for a non-store
-            raise OutputError(f"{path} exists and is not a Zarr scan store ({exc}); remove it "
-                              "or choose another -o") from None
-        arrays = isinstance(old, dict) and isinstance(old.get("geometry"), dict) and \
-            "per_projection_arrays" in old["geometry"]
-        new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
-        same = isinstance(old, dict) and all(
-            _canonical(old.get(k)) == _canonical(new[k])
-            for k in ("version", "quantity", "geometry", "physics", "scene"))
-        if same and arrays:
-            poses, mats = _pose_arrays_of(geometry)
-            try:
-                same = np.array_equal(group["poses"][:], poses) and \
-                    np.array_equal(group["projection_matrices"][:], mats)
-            except (KeyError, ValueError):
-                same = False
-        if not same:
-            raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
-                              "scene differ); remove it or choose another -o to keep both")
-        return group
+            return _open_existing(zarr, path, scene=scene, geometry=geometry,
+                                  quantity=quantity, tables=_tables)
+        except OutputError:
+            raise
+        except Exception as exc:               # damaged metadata: any of zarr's errors
+            raise OutputError(f"{path}: cannot be read as a scan store ({_reason(exc)}); it "
+                              "is damaged or not a store: remove it or choose another -o") \
+                from None
+    return _create_store(zarr, path, scene=scene, geometry=geometry, quantity=quantity,
+                         pose_arrays=pose_arrays, tables=_tables)
+
+
+def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
+    """The group of an existing store holding the same scan, its arrays checked
+    (``tables``: the per-projection arrays where ``geometry`` has no lists)."""
+    n = geometry["projections"]
+    try:
+        group = zarr.open_group(str(path), mode="r+")
+        old = dict(group.attrs).get("xray_viz")
+    except Exception as exc:               # zarr raises many kinds for a non-store
+        raise OutputError(f"{path} exists and is not a Zarr scan store ({exc}); remove it "
+                          "or choose another -o") from None
+    arrays = isinstance(old, dict) and isinstance(old.get("geometry"), dict) and \
+        "per_projection_arrays" in old["geometry"]
+    if not arrays:
+        geometry = _with_lists(geometry, tables)
+    new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
+    same = isinstance(old, dict) and all(
+        _canonical(old.get(k)) == _canonical(new[k])
+        for k in ("version", "quantity", "geometry", "physics", "scene"))
+    if same and arrays:
+        poses, mats = _pose_arrays_of(geometry) if tables is None else tables
+        try:
+            same = np.array_equal(group["poses"][:], poses) and \
+                np.array_equal(group["projection_matrices"][:], mats)
+        except KeyError:
+            same = False
+        except Exception as exc:             # a damaged chunk: a codec's error
+            raise OutputError(f"{path}: its pose arrays cannot be read "
+                              f"({_reason(exc)}); remove it and scan again") from None
+    if not same:
+        raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
+                          "scene differ); remove it or choose another -o to keep both")
+    w, h = geometry["detector"]["shape"]
+    proj, done = group["projections"], group["done"]
+    if (proj.shape, proj.chunks, proj.dtype, done.shape, done.chunks, done.dtype) != \
+            ((n, h, w), (1, h, w), np.float32, (n,), (1,), np.bool_):
+        raise OutputError(f"{path}: its arrays' metadata do not match its scan (projections "
+                          f"{list(proj.shape)} {proj.dtype}, done {list(done.shape)} "
+                          f"{done.dtype}); it is damaged: remove it and scan again")
+    return group
+
+
+def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays, tables=None):
+    """A new store at ``path``, made whole in a temporary folder and renamed."""
+    n = geometry["projections"]
+    if not pose_arrays:
+        geometry = _with_lists(geometry, tables)
     attrs = _attrs(scene, quantity, geometry, pose_arrays)
     w, h = geometry["detector"]["shape"]
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
@@ -800,18 +902,21 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
     try:
         group = zarr.open_group(str(tmp), mode="w")
         group.create_array("projections", shape=(n, h, w), chunks=(1, h, w), dtype="float32",
-                           fill_value=np.nan)
+                           fill_value=np.nan, compressors=_checked_codecs())
         group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
-        flat, dark = flat_dark(scene, geometry, quantity)
+        first = geometry if geometry.get("poses") is not None else \
+            {"poses": [_pose_dict(tables[0][0])]}
+        flat, dark = flat_dark(scene, first, quantity)
         for name, field in (("flat", flat), ("dark", dark)):
             if field is not None:
                 group.create_array(name, shape=(h, w), chunks=(h, w), dtype="float32",
-                                   fill_value=np.nan)[:] = field
+                                   fill_value=np.nan, compressors=_checked_codecs())[:] = field
         if pose_arrays:
             for name, table in zip(("poses", "projection_matrices"),
-                                   _pose_arrays_of(geometry)):
+                                   _pose_arrays_of(geometry) if tables is None else tables):
                 group.create_array(name, shape=table.shape, dtype="float64", fill_value=np.nan,
-                                   chunks=(min(n, 1 << 16),) + table.shape[1:])[:] = table
+                                   chunks=(min(n, 1 << 16),) + table.shape[1:],
+                                   compressors=_checked_codecs())[:] = table
         group.attrs["xray_viz"] = attrs
         os.replace(tmp, path)
     except BaseException:
@@ -843,7 +948,10 @@ def done_flags(group) -> np.ndarray:
     except (AttributeError, TypeError):
         fast = False
     if not fast:
-        return np.asarray(done[:], bool)
+        try:
+            return np.asarray(done[:], bool)
+        except Exception:                   # a damaged flag's chunk: read them one by one
+            return np.array([_flag(done, k) for k in range(n)], bool)
     out = np.zeros(n, bool)
     if root.is_dir():
         with os.scandir(root) as entries:
@@ -851,6 +959,92 @@ def done_flags(group) -> np.ndarray:
         ks = np.asarray(ks, np.int64)
         out[ks[ks < n]] = True
     return out
+
+
+def _checked_codecs():
+    """Zstd, then a CRC-32C of the compressed bytes: a chunk cut short or with a flipped bit
+    fails to decode instead of giving wrong numbers (Zstd alone checks neither)."""
+    from zarr.codecs import Crc32cCodec, ZstdCodec
+
+    return [ZstdCodec(), Crc32cCodec()]
+
+
+def _reason(exc) -> str:
+    from xray_viz.errors import one_line
+
+    return one_line(f"{type(exc).__name__}: {exc}", limit=120)
+
+
+#: Bytes of projections :func:`damaged_projections` reads at a time.
+VERIFY_BLOCK_BYTES = 32 << 20
+
+
+def damaged_projections(group, done=None) -> np.ndarray:
+    """The projections flagged ``done`` whose chunk is missing or does not decode (cut
+    short; a flipped bit where the store keeps a checksum, as :func:`open_store` makes it):
+    their indices, sorted.
+
+    Every flagged chunk is read and decoded, a block of :data:`VERIFY_BLOCK_BYTES` at a time
+    (memory stays bounded whatever the store's size); a chunk that is absent reads as the
+    fill value NaN in every pixel, which no rendered projection holds.
+    """
+    arr = group["projections"]
+    done = done_flags(group) if done is None else np.asarray(done, bool)
+    ks = np.flatnonzero(done)
+    h, w = arr.shape[1:]
+    block = max(1, VERIFY_BLOCK_BYTES // max(1, 4 * h * w))
+    bad = []
+
+    def one(k):
+        try:
+            return np.isnan(arr[int(k)]).all()
+        except Exception:                  # a codec's error: cut short, checksum mismatch
+            return True
+
+    for i in range(0, len(ks), block):
+        part = ks[i:i + block]
+        try:
+            data = arr.get_orthogonal_selection((part, slice(None), slice(None)))
+        except Exception:
+            bad.extend(int(k) for k in part if one(k))
+            continue
+        bad.extend(int(k) for k in part[np.isnan(data).all(axis=(1, 2))])
+    return np.asarray(bad, np.int64)
+
+
+def _damaged_message(path, bad) -> str:
+    many = f"{len(bad)} projections flagged done are" if len(bad) > 1 else \
+        "a projection flagged done is"
+    return (f"{path}: {many} damaged or missing (projection {bad[0]}"
+            f"{', ...' if len(bad) > 1 else ''}: its chunk is absent or does not decode)")
+
+
+def _repair_done(group, path) -> int:
+    """Unset the ``done`` flags of :func:`damaged_projections` (so that they are rendered
+    again), saying so on stderr; how many."""
+    try:
+        done = done_flags(group)
+        if not done.any():
+            return 0
+        bad = damaged_projections(group, done)
+    except Exception as exc:
+        raise OutputError(f"{path}: its projections cannot be checked ({_reason(exc)}); it is "
+                          "damaged: remove it and scan again") from None
+    for k in bad:
+        group["done"][int(k)] = False
+    if len(bad):
+        print(f"xray-viz: {_damaged_message(path, bad)}; rendering "
+              f"{'them' if len(bad) > 1 else 'it'} again", file=sys.stderr)
+    return len(bad)
+
+
+def _flag(done, k) -> bool:
+    """``done[k]``, False where its chunk does not read (the projection is then rendered
+    again)."""
+    try:
+        return bool(done[int(k)])
+    except Exception:
+        return False
 
 
 def _write_projection(group, k, image) -> None:
@@ -867,27 +1061,43 @@ def write_zarr(result: Scan, path) -> None:
         _write_projection(group, int(k), result.projections[k])
 
 
-def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = False) -> Scan:
+def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = False,
+              verify: bool = True) -> Scan:
     """The :class:`Scan` of a Zarr store.
 
     ``lazy``: ``projections`` is the store's read-only ``zarr.Array`` (read projection by
     projection as it is indexed) instead of the whole stack in memory.
 
     The one reader of the layout (CT-LAYOUT.md): :func:`xray_viz.reconstruct.reconstruct_file`
-    reads its stores through it.
+    reads its stores through it. A projection flagged ``done`` whose chunk is missing or
+    damaged is refused, never handed out as the fill value NaN (``verify``: with ``lazy``,
+    every flagged chunk is read once to check it, a block at a time; False skips that, for a
+    store just written and verified).
 
     Raises
     ------
     OutputError
         In one line: no such store, not a Zarr scan store (no ``xray_viz`` attributes with a
-        geometry, no ``projections``), or projections missing (their ``done`` flag unset) when
-        ``require_complete``.
+        geometry, no ``projections``), projections missing (their ``done`` flag unset) when
+        ``require_complete``, or projections flagged done but damaged or missing (always).
     """
     zarr = _zarr()
     path = Path(path)
     if not path.exists():
         raise OutputError(f"{path}: no such scan store; write one with `xray-viz scan SCENE -o "
                           "scan.zarr`")
+    try:
+        return _read_zarr(zarr, path, scene=scene, require_complete=require_complete,
+                          lazy=lazy, verify=verify)
+    except OutputError:
+        raise
+    except Exception as exc:        # damaged metadata: any of zarr's (or JSON's) errors
+        raise OutputError(f"{path}: cannot be read as a scan store ({_reason(exc)}); it is "
+                          "damaged: remove it and scan again") from None
+
+
+def _read_zarr(zarr, path, *, scene, require_complete, lazy, verify) -> Scan:
+    """:func:`read_zarr` of a store that exists."""
     try:
         group = zarr.open_group(str(path), mode="r")
         meta = dict(group.attrs).get("xray_viz")
@@ -910,26 +1120,75 @@ def read_zarr(path, *, scene=None, require_complete: bool = True, lazy: bool = F
                           "missing from the store")
     if "projections" not in names:
         raise OutputError(f"{path}: has no 'projections' array")
-    if "done" in names:
-        done = done_flags(group)
+    again = "run the same scan again to render them again"
+    what = "its done flags"
+    try:
+        n = group["projections"].shape[0]
+        done = done_flags(group) if "done" in names else np.ones(n, bool)
         if require_complete and not done.all():
             missing = np.flatnonzero(~done)
             raise OutputError(f"{path}: {len(missing)} of {len(done)} projections are missing "
                               f"(first: {missing[0]}); run the same scan again to fill them")
 
-    def field(name):
-        return np.asarray(group[name][:], np.float64) if name in names else None
-    stack = group["projections"] if lazy else group["projections"][:]
-    return Scan(stack, _geometry_from_store(group, meta["geometry"]),
-                meta.get("quantity", "line-integral"),
-                meta.get("physics") or {}, scene, flat=field("flat"), dark=field("dark"))
+        def field(name):
+            return np.asarray(group[name][:], np.float64) if name in names else None
+
+        what = "its flat or dark field"
+        flat, dark = field("flat"), field("dark")
+        what = "its per-projection poses"
+        geometry = _geometry_from_store(group, meta["geometry"])
+        what = "its projections"
+        if not lazy:
+            _check_stack(*group["projections"].shape, "read it with lazy=True (projection by "
+                         "projection)", where=f"{path}: ")
+        if lazy:
+            stack = group["projections"]
+            bad = damaged_projections(group, done) if verify else ()
+        else:
+            try:
+                stack = group["projections"][:]
+                bad = np.flatnonzero(done & np.isnan(stack).all(axis=(1, 2)))
+            except OutputError:
+                raise
+            except Exception:                   # which ones: read them one by one
+                stack, bad = None, damaged_projections(group, done)
+                if not len(bad):
+                    raise
+        if len(bad):
+            raise OutputError(f"{_damaged_message(path, bad)}; {again}")
+    except OutputError:
+        raise
+    except Exception as exc:                    # a codec's error on a damaged chunk
+        raise OutputError(f"{path}: {what} cannot be read ({_reason(exc)}); the store is "
+                          "damaged: remove it and scan again") from None
+    return Scan(stack, geometry, meta.get("quantity", "line-integral"),
+                meta.get("physics") or {}, scene, flat=flat, dark=dark)
 
 
 # ---------------------------------------------------------------------------------- TIFF, NeXus
 
-def write_tiff_stack(result: Scan, folder) -> Path:
-    """One float32 TIFF per projection (``proj_00000.tif`` ...) and ``geometry.json`` in
-    ``folder`` (written whole into a temporary folder, then renamed; refused if it exists)."""
+def _units(quantity) -> str:
+    return "1" if quantity == "line-integral" else "photons"
+
+
+def _file_geometry(geometry, poses=None, mats=None):
+    """``(geometry for the file's JSON, per-projection tables or None)``: above
+    :data:`INLINE_POSES_MAX` projections the JSON names the tables (``per_projection_arrays``,
+    as a Zarr store's attributes do) instead of listing every pose."""
+    if geometry.get("poses") is not None and geometry["projections"] <= INLINE_POSES_MAX:
+        return geometry, None
+    if poses is None:
+        poses, mats = _pose_arrays_of(geometry)
+    return _geometry_attr(geometry), (np.asarray(poses, np.float64),
+                                      np.asarray(mats, np.float64))
+
+
+@contextlib.contextmanager
+def _tiff_writer(folder, *, n, quantity, physics, geometry, tables):
+    """Yield ``write(k, image)``: one float32 TIFF per projection as it comes, into a
+    temporary folder renamed to ``folder`` when the block ends without an error (removed
+    otherwise); ``geometry.json`` (and ``poses.npy``, ``projection_matrices.npy`` when
+    ``tables``) written first."""
     import tifffile
 
     folder = Path(folder)
@@ -939,33 +1198,51 @@ def write_tiff_stack(result: Scan, folder) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     try:
-        n = result.projections.shape[0]
-        digits = max(5, len(str(n - 1)))
-        for k in range(n):               # one at a time: a store's lazy stack stays on disk
-            tifffile.imwrite(tmp / f"proj_{k:0{digits}d}.tif",
-                             np.asarray(result.projections[k], np.float32))
-        meta = {"quantity": result.quantity, "units": result.units,
-                "geometry": result.geometry, "physics": result.physics}
+        meta = {"quantity": quantity, "units": _units(quantity), "geometry": geometry,
+                "physics": physics}
         (tmp / "geometry.json").write_text(json.dumps(meta, indent=1), encoding="utf-8")
+        if tables is not None:
+            np.save(tmp / "poses.npy", tables[0])
+            np.save(tmp / "projection_matrices.npy", tables[1])
+        digits = max(5, len(str(n - 1)))
+
+        def write(k, image):
+            tifffile.imwrite(tmp / f"proj_{int(k):0{digits}d}.tif",
+                             np.asarray(image, np.float32))
+
+        yield write
         os.replace(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return folder
 
 
-def write_nexus(result: Scan, path) -> Path:
-    """HDF5 in the NeXus NXtomo layout (``/entry/instrument/detector/data`` ``(n, H, W)``,
-    ``image_key``, ``/entry/sample/rotation_angle`` in degrees, ``/entry/data`` links), with
-    the geometry dict as JSON in ``/entry/xray_viz_geometry``. Written to a temporary file,
-    then renamed."""
+def write_tiff_stack(result: Scan, folder) -> Path:
+    """One float32 TIFF per projection (``proj_00000.tif`` ...) and ``geometry.json`` in
+    ``folder`` (written into a temporary folder, then renamed; refused if it exists). Above
+    :data:`INLINE_POSES_MAX` projections ``geometry.json`` names ``poses.npy`` and
+    ``projection_matrices.npy`` (``per_projection_arrays``) instead of listing every pose."""
+    n = result.projections.shape[0]
+    geometry, tables = _file_geometry(result.geometry)
+    with _tiff_writer(folder, n=n, quantity=result.quantity, physics=result.physics,
+                      geometry=geometry, tables=tables) as write:
+        for k in range(n):               # one at a time: a store's lazy stack stays on disk
+            write(k, result.projections[k])
+    return Path(folder)
+
+
+@contextlib.contextmanager
+def _nexus_writer(path, *, n, shape, quantity, physics, geometry, tables, flush_every=8):
+    """Yield ``write(k, image)``: projection ``k`` into the NXtomo file's ``data`` as it comes
+    (flushed every ``flush_every``), in a temporary file renamed to ``path`` when the block
+    ends without an error (removed otherwise)."""
     import h5py
 
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
-    g = result.geometry
-    n = result.projections.shape[0]
+    g = geometry
     angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
+    w, h = shape
     try:
         with h5py.File(tmp, "w") as f:
             entry = f.create_group("entry")
@@ -979,12 +1256,9 @@ def write_nexus(result: Scan, path) -> Path:
             src["probe"] = "x-ray"
             det = inst.create_group("detector")
             det.attrs["NX_class"] = "NXdetector"
-            shape = tuple(result.projections.shape)
-            data = det.create_dataset("data", shape=shape, dtype="float32",
-                                      chunks=(1,) + shape[1:])
-            for k in range(n):           # one at a time: a store's lazy stack stays on disk
-                data[k] = np.asarray(result.projections[k], np.float32)
-            data.attrs["units"] = result.units
+            data = det.create_dataset("data", shape=(n, h, w), dtype="float32",
+                                      chunks=(1, h, w))
+            data.attrs["units"] = _units(quantity)
             det["image_key"] = np.zeros(n, np.int32)          # 0: a projection
             for name, value in (("x_pixel_size", g["detector"]["pitch_mm"][0]),
                                 ("y_pixel_size", g["detector"]["pitch_mm"][1]),
@@ -1002,14 +1276,69 @@ def write_nexus(result: Scan, path) -> Path:
             nxdata["data"] = data
             nxdata["rotation_angle"] = sample["rotation_angle"]
             nxdata["image_key"] = det["image_key"]
-            entry["xray_viz_geometry"] = json.dumps({"quantity": result.quantity,
-                                                     "geometry": g,
-                                                     "physics": result.physics})
+            entry["xray_viz_geometry"] = json.dumps({"quantity": quantity, "geometry": g,
+                                                     "physics": physics})
+            if tables is not None:          # named by the geometry's per_projection_arrays
+                entry["poses"] = tables[0]
+                entry["projection_matrices"] = tables[1]
+            f.flush()
+
+            def write(k, image):
+                data[int(k)] = np.asarray(image, np.float32)
+                if (int(k) + 1) % max(1, flush_every) == 0:
+                    f.flush()
+
+            yield write
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    return path
+
+
+def write_nexus(result: Scan, path) -> Path:
+    """HDF5 in the NeXus NXtomo layout (``/entry/instrument/detector/data`` ``(n, H, W)``,
+    ``image_key``, ``/entry/sample/rotation_angle`` in degrees, ``/entry/data`` links), with
+    the geometry dict as JSON in ``/entry/xray_viz_geometry`` (above
+    :data:`INLINE_POSES_MAX` projections it names the datasets ``/entry/poses`` and
+    ``/entry/projection_matrices``, ``per_projection_arrays``, instead of listing every
+    pose). Written to a temporary file, projection by projection, then renamed."""
+    n, h, w = result.projections.shape
+    geometry, tables = _file_geometry(result.geometry)
+    with _nexus_writer(path, n=n, shape=(w, h), quantity=result.quantity,
+                       physics=result.physics, geometry=geometry, tables=tables) as write:
+        for k in range(n):               # one at a time: a store's lazy stack stays on disk
+            write(k, result.projections[k])
+    return Path(path)
+
+
+def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress) -> int:
+    """Render a scan straight into a NeXus file or a TIFF folder (``kind``), projection by
+    projection as they come: memory is one projection, the geometry is built as arrays
+    (:func:`pose_table`, no per-projection dicts), the first projections are on disk while
+    the rest render. The number of projections."""
+    _check_quantity(quantity)
+    n = orbit.projections
+    poses, mats = pose_table(scene, orbit)
+    geometry, tables = _file_geometry({**_geometry_head(scene, orbit), "poses": None},
+                                      poses, mats)
+    if n <= INLINE_POSES_MAX:
+        geometry = _geometry_head(scene, orbit)
+        geometry["poses"], geometry["projection_matrices"] = _per_projection_lists(poses, mats)
+        tables = None
+    del poses, mats
+    opener = _nexus_writer if kind == "nexus" else _tiff_writer
+    extra = {"shape": tuple(scene.detector.shape), "flush_every": batch} \
+        if kind == "nexus" else {}
+    with opener(out, n=n, quantity=quantity, physics=_physics(scene), geometry=geometry,
+                tables=tables, **extra) as write:
+        bar = _bar(n, progress)
+        for k in range(n):
+            write(k, projection(scene, orbit, k, quantity=quantity, engine=engine))
+            bar.update(1)
+            if (k + 1) % max(1, batch) == 0:
+                trim_memory()
+        bar.close()
+    return n
 
 
 # ---------------------------------------------------------------------------------- Dask
@@ -1151,7 +1480,7 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
     try:
         for k in indices:
             k = int(k)
-            if bool(group["done"][k]):
+            if _flag(group["done"], k):
                 continue
             _write_projection(group, k, project(k))
             wrote.append(k)
@@ -1263,9 +1592,13 @@ def scan_command(args) -> int:
         raise SceneError("--workers/--scheduler write a Zarr store: give -o NAME.zarr")
     if kind == "zarr" and out.exists() and not (out / "zarr.json").exists():
         raise OutputError(f"{out} exists and is not a Zarr store; remove it or choose another -o")
+    if kind == "tiff" and out.exists():            # before any work, not after it
+        raise OutputError(f"{out} exists; remove it or choose another -o")
     scene = load_scene(args.scene)
     orbit = _cli_orbit(scene, args)
-    geometry = scan_geometry(scene, orbit)
+    if orbit.projections >= POSES_NOTICE:         # the poses take a while: say so first
+        print(f"xray-viz: building the poses of {orbit.projections} projections ...",
+              file=sys.stderr, flush=True)
     if kind == "zarr":
         import contextlib
 
@@ -1279,15 +1612,16 @@ def scan_command(args) -> int:
                 else:
                     cluster = stack.enter_context(local_cluster(args.workers))
                     client = stack.enter_context(Client(cluster))
-            filled, total = _scan_to_store(scene, orbit, out, geometry=geometry,
-                                           quantity=args.quantity, engine=args.engine,
-                                           client=client, batch=args.batch, progress=True)
-        read_zarr(out, scene=scene, lazy=True)       # complete, or one line saying what is not
+            filled, total = _scan_to_store(scene, orbit, out, quantity=args.quantity,
+                                           engine=args.engine, client=client,
+                                           batch=args.batch, progress=True)
+        # complete, or one line saying what is not (its chunks were verified as it resumed)
+        _check_complete(out)
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
-    result = scan(scene, orbit, quantity=args.quantity, engine=args.engine, progress=True)
-    (write_nexus if kind == "nexus" else write_tiff_stack)(result, out)
-    print(f"{out}: {len(result.projections)} projections, {args.quantity}")
+    n = _scan_to_file(scene, orbit, out, kind, quantity=args.quantity, engine=args.engine,
+                      batch=args.batch, progress=True)
+    print(f"{out}: {n} projections, {args.quantity}")
     return 0
 

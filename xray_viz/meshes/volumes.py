@@ -52,7 +52,9 @@ Nesting
 
 Cache
     Meshing takes seconds to minutes; the result is cached on disk under the SHA-256 of the
-    volume file's bytes and of every parameter: a second load reads it instead. The cache
+    voxels as read (every file of a multi-file format counts: the data file of a ``.mhd`` or
+    detached ``.nhdr``, every slice of a DICOM series), the affine and every parameter: a
+    second load reads it instead. The cache
     folder is ``$XRAY_VIZ_CACHE_DIR/volumes`` if that variable is set (``off`` turns the
     cache off), else the user cache folder
     (``platformdirs.user_cache_dir("xray_viz")``: ``$XDG_CACHE_HOME/xray_viz`` or
@@ -114,7 +116,7 @@ PASS_BANDS = (0.01, 0.03, 0.1, 0.3)
 #: Windowed-sinc iterations.
 SMOOTHING_ITERATIONS = 20
 #: Bumped whenever the meshing changes what it makes: old cache entries are then not used.
-CACHE_VERSION = "volumes-2"
+CACHE_VERSION = "volumes-3"
 
 #: Default HU -> material table: a coarse grouping of the HU segments of Schneider, Bortfeld and
 #: Schlegel, "Correlation between CT numbers and tissue parameters needed for Monte Carlo
@@ -318,7 +320,8 @@ def read_volume(path, *, hu: bool = False) -> Volume:
         series (pydicom).
     hu : bool, optional
         Read a CT in Hounsfield units (float64; DICOM's rescale applied). Otherwise the
-        values must be whole numbers (a label map) and come back as int64.
+        values must be whole numbers (a label map): integer voxels keep their type (booleans
+        become uint8), whole floats come back as int64.
 
     Returns
     -------
@@ -329,7 +332,9 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     SceneFileNotFoundError
         The file does not exist.
     MeshError
-        Unknown format, unreadable, not 3D, or (a label map) values that are not integers.
+        Unknown format, unreadable, not 3D, (a label map) values that are not integers, or
+        a conversion (to float64 or int64) that cannot fit in the memory this process may
+        still take.
 
     Examples
     --------
@@ -364,6 +369,8 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     if not np.all(np.isfinite(affine)) or abs(np.linalg.det(affine[:3, :3])) < 1e-12:
         raise MeshError(f"{path}: its voxel-to-world affine is degenerate or not finite")
     if hu:
+        if data.dtype != np.float64:
+            _check_widening(path, data, "the CT's", np.float64)
         data = np.asarray(data, dtype=np.float64)
         if not np.all(np.isfinite(data)):
             raise MeshError(f"{path}: the CT holds NaN or infinite values")
@@ -372,10 +379,27 @@ def read_volume(path, *, hu: bool = False) -> Volume:
             if not np.all(np.isfinite(data)) or np.any(data != np.round(data)):
                 raise MeshError(f"{path}: not a label map: it holds values that are not whole "
                                 "numbers; for a CT in Hounsfield units use a [[ct]] table")
-        elif data.dtype.kind not in "iub":
+            _check_widening(path, data, "the label map's", np.int64)
+            data = np.asarray(data, dtype=np.int64)
+        elif data.dtype.kind == "b":
+            data = data.view(np.uint8)
+        elif data.dtype.kind not in "iu":
             raise MeshError(f"{path}: not a label map: voxels of type {data.dtype}")
-        data = np.asarray(data, dtype=np.int64)
+        # integer labels keep their own type: a uint8 map of 768^3 voxels stays 0.4 GiB
+        # (as int64 it would take 3.4 GiB)
     return Volume(data=data, affine=affine, path=path)
+
+
+def _check_widening(path, data, whose, dtype) -> None:
+    """Refuse in one line a conversion of ``data`` to ``dtype`` that cannot fit in the memory
+    this process may still take (:mod:`xray_viz._memory`)."""
+    from xray_viz._memory import check_allocation
+
+    shape = " x ".join(str(n) for n in data.shape)
+    check_allocation(data.size * np.dtype(dtype).itemsize,
+                     f"{path}: {whose} {shape} voxels as {np.dtype(dtype).name}",
+                     "crop or downsample the volume (or give the process more memory)",
+                     error=MeshError)
 
 
 # --------------------------------------------------------------------------------------------
@@ -716,16 +740,19 @@ def _warn_cache(message: str) -> None:
     warnings.warn(message, VolumeCacheWarning, stacklevel=4)
 
 
-def _cache_key(path: Path, params: dict) -> str:
+def _cache_key(vol: Volume, params: dict) -> str:
+    """SHA-256 of what the meshing reads: the decoded voxels (their dtype, shape and bytes), the
+    affine and ``params``. Keyed by the data, not by the file named: a header whose data file
+    (``.mhd`` -> ``ElementDataFile``, a detached ``.nhdr`` -> ``data file``, however many
+    files), one slice of a DICOM series, or any other part of a multi-file format that changes
+    changes the key."""
     h = hashlib.sha256()
     h.update(CACHE_VERSION.encode())
     h.update(json.dumps(params, sort_keys=True, default=str).encode())
-    files = sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]
-    for f in files:
-        h.update(f.name.encode() if path.is_dir() else b"")
-        with open(f, "rb") as fh:
-            for chunk in iter(lambda: fh.read(1 << 20), b""):
-                h.update(chunk)
+    for a in (vol.data, vol.affine):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(memoryview(a).cast("B"))
     return h.hexdigest()
 
 
@@ -764,12 +791,12 @@ def _cache_write(file: Path, surfaces, skipped) -> None:
         _warn_cache(f"{file}: cannot write the mesh cache ({exc.strerror}); not cached")
 
 
-def _cached(path: Path, params: dict, cache: bool, compute):
-    """``compute()`` -> (surfaces, skipped), through the cache."""
+def _cached(vol: Volume, params: dict, cache: bool, compute):
+    """``compute()`` -> (surfaces, skipped), through the cache (keyed by :func:`_cache_key`)."""
     folder = cache_dir() if cache else None
     file = None
     if folder is not None:
-        file = folder / f"{_cache_key(path, params)}.npz"
+        file = folder / f"{_cache_key(vol, params)}.npz"
         if file.is_file():
             got = _cache_read(file)
             if got is not None:
@@ -837,7 +864,7 @@ def label_surfaces(path, labels=None, *, names=None, max_error: float | None = N
     skipped = tuple(v for v in present if v not in wanted)
     params = dict(kind="labels", labels=wanted, names=names, max_error=max_error)
     surfaces, skipped, file, hit = _cached(
-        path, params, cache,
+        vol, params, cache,
         lambda: (_mesh_labels(vol.data, vol.affine, wanted, names, max_error), skipped))
     return VolumeMeshes(surfaces=tuple(surfaces), skipped=tuple(skipped), cache_file=file,
                         cache_hit=hit, max_error=max_error, spacing=tuple(vol.spacing))
@@ -922,7 +949,7 @@ def ct_surfaces(path, ranges=SCHNEIDER_2000, *, max_error: float | None = None,
     max_error = _default_max_error(vol.spacing) if max_error is None else float(max_error)
     table = [tuple(r[:3]) for r in ranges]
     params = dict(kind="ct", ranges=table, max_error=max_error, median=median,
-                  min_voxels=min_voxels)
+                  min_voxels=min_voxels, stem=stem)   # the bodies' names come from the stem
 
     def compute():
         classes = classify_hu(vol.data, ranges, median=median, min_voxels=min_voxels)
@@ -930,7 +957,7 @@ def ct_surfaces(path, ranges=SCHNEIDER_2000, *, max_error: float | None = None,
         names = {k: f"{stem}_{ranges[k - 1][0]}" for k in present}
         return _mesh_labels(classes, vol.affine, present, names, max_error), ()
 
-    surfaces, skipped, file, hit = _cached(path, params, cache, compute)
+    surfaces, skipped, file, hit = _cached(vol, params, cache, compute)
     return VolumeMeshes(surfaces=tuple(surfaces), skipped=(), cache_file=file, cache_hit=hit,
                         max_error=max_error, spacing=tuple(vol.spacing))
 
