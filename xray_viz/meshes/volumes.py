@@ -89,6 +89,13 @@ import numpy as np
 
 from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFoundError, \
     XrayVizError, one_line
+from xray_viz.meshes._volume_files import (  # noqa: F401 (re-exported)
+    DICOM_SEG_SUFFIXES,
+    ITK_SUFFIXES,
+    NIFTI_SUFFIXES,
+    VOLUME_SUFFIXES,
+    is_volume_path,
+)
 
 __all__ = [
     "Volume", "LabelSurface", "VolumeMeshes", "read_volume", "voxel_surface", "mesh_mask",
@@ -98,13 +105,6 @@ __all__ = [
     "SCHNEIDER_2000", "VOLUME_SUFFIXES", "LabelSkippedWarning", "VolumeCacheWarning",
     "LPS_TO_RAS",
 ]
-
-#: File suffixes read as volumes (a folder is read as a DICOM series).
-NIFTI_SUFFIXES = (".nii", ".nii.gz")
-ITK_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd")
-#: A single DICOM file is a DICOM-SEG label map (:mod:`xray_viz.meshes.dicom_seg`).
-DICOM_SEG_SUFFIXES = (".dcm",)
-VOLUME_SUFFIXES = NIFTI_SUFFIXES + ITK_SUFFIXES + DICOM_SEG_SUFFIXES
 
 #: ITK's and DICOM's world coordinates (LPS+) to the scene's (RAS+): x and y negated.
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -177,19 +177,6 @@ class Volume:
     def spacing(self) -> np.ndarray:
         """Voxel size along i, j, k (mm): the lengths of the affine's columns."""
         return np.linalg.norm(np.asarray(self.affine)[:3, :3], axis=0)
-
-
-def is_volume_path(path) -> bool:
-    """True for a file name that :func:`read_volume` reads, or a folder (a DICOM series).
-
-    Examples
-    --------
-    >>> is_volume_path("seg.nii.gz"), is_volume_path("a.MHA"), is_volume_path("ball.stl")
-    (True, True, False)
-    """
-    p = Path(path)
-    name = p.name.lower()
-    return p.is_dir() or any(name.endswith(s) for s in VOLUME_SUFFIXES)
 
 
 def _stem(path: Path) -> str:
