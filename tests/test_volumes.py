@@ -367,6 +367,7 @@ def test_ct_is_segmented_by_the_schneider_table(tmp_path):
     scene = xray_viz.load_scene(write_scene(tmp_path, """
 [[ct]]
 file = "ct.nii.gz"
+trace = "meshes"
 max_error = 0.2
 """))
     names = [b.name for b in scene.bodies]
@@ -382,6 +383,7 @@ def test_ct_ranges_override_the_default(tmp_path):
     scene = xray_viz.load_scene(write_scene(tmp_path, """
 [[ct]]
 file = "ct.nii.gz"
+trace = "meshes"
 max_error = 0.5
 ranges = [
   { hu = [-200, 300], mu = 0.2, name = "soft" },
@@ -639,6 +641,7 @@ material = "Ti"
 density = 4.5
 [[ct]]
 file = "ct.nii.gz"
+trace = "meshes"
 max_error = 0.3
 """)
     scene = xray_viz.load_scene(tmp_path / "scene.toml")

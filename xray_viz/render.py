@@ -135,7 +135,7 @@ class Radiograph:
             check_memory(self.scene, supersample=n, engine=self.engine, path_lengths=True,
                          images=False)
             w, h = self.scene.detector.shape
-            out = np.empty((h, w, len(self.scene.bodies)))
+            out = np.empty((h, w, len(self.body_names)))
             _band_loop(self.scene, self.engine, n, per_body=out)
             object.__setattr__(self, "_path_length", out)
         return self._path_length
@@ -242,13 +242,21 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
     if progress is None:
         from xray_viz.progress import rows as progress
     w = scene.detector.shape[0]
+    # volumes traced as voxels (issue 40): their classes are columns after the bodies'
+    volumes, scene_in = bool(getattr(scene, "volumes", ())), scene
+    if volumes:
+        from xray_viz.volume import volume_path_lengths, with_volume_materials
+
+        scene = with_volume_materials(scene)
     nb = len(scene.bodies)
     nn = n * n
     t_trace = t_image = 0.0
     hits = None
     blocks = _LogBlocks(scene, n, log_t, log_v) if log_t is not None else None
     t0 = time.perf_counter()
-    for r0, r1, L, band_hits in _windows(scene, engine, n, keep_hits):
+    for r0, r1, L, band_hits in _windows(scene_in, engine, n, keep_hits):
+        if volumes:          # the voxels' columns, the meshes' stretches left out of them
+            L = np.hstack([L, volume_path_lengths(scene_in, supersample=n, rows=(r0, r1))])
         t1 = time.perf_counter()
         t_trace += t1 - t0
         sums = None
@@ -277,6 +285,11 @@ def _band_loop(scene, engine, n, *, log_t=None, log_v=None, total=None, per_body
         t0 = time.perf_counter()
         t_image += t0 - t1
     return t_trace, t_image, hits
+
+
+def _names(scene) -> list:
+    """The names of the path lengths' columns: the bodies', then the voxel volumes' classes."""
+    return list(scene.body_names) + [n for v in getattr(scene, "volumes", ()) for n in v.names]
 
 
 def _row_sums(L, *, out) -> np.ndarray:
@@ -562,7 +575,8 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     # the variance's sum of an energy-integrating detector's noise (see detect_log)
     log_v = np.empty((h, w)) if _needs_variance(scene) else None
     total = np.empty((h, w))
-    per_body = np.empty((h, w, len(scene.bodies))) if path_lengths else None
+    names = _names(scene)
+    per_body = np.empty((h, w, len(names))) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(scene, engine, n, log_t=log_t, log_v=log_v, total=total,
                                         per_body=per_body, keep_hits=keep_hits)
     t1 = time.perf_counter()
@@ -576,7 +590,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         intensity=intensity,
         line_integral=line_integral,
         total_path_length=total,
-        body_names=scene.body_names,
+        body_names=names,
         timing=timing,
         engine=engine,
         scene=scene,
