@@ -424,3 +424,53 @@ def test_names_of_bodies_and_classes_must_be_unique():
     ball = dataclasses.replace(ball, mesh=ball.mesh.apply_translation([0, 0, 100]))
     with pytest.raises(SceneError, match="repeated: \\['ct_lung'\\]"):
         _scene(bodies=[ball], volumes=(vol,))
+
+
+# --------------------------------------------------------------------------------------------
+# against RTK's forward projector
+
+
+@pytest.mark.parametrize("kind", ["point", "parallel"])
+def test_the_projection_agrees_with_rtk_joseph_within_its_interpolation(kind):
+    """RTK's CPU Joseph projector on the same grid (rotated 20 degrees, anisotropic voxels,
+    an off-centre Gaussian blob) and geometry. Joseph interpolates the voxel values bilinearly
+    between planes of voxel centres; the exact traversal integrates them as constant cubes.
+    Measured here: the two images' centroids agree to 0.02 pixel (0.01 mm), their sums to
+    0.13 %, pixel by pixel to 1.2 % RMS and 7 % at most of the peak (the blob's variation
+    across a voxel): the tolerances below are those, rounded up."""
+    pytest.importorskip("itk")
+    from scipy.spatial.transform import Rotation
+
+    from xray_viz.orbit import Orbit
+    from xray_viz.reconstruct import rtk_forward_project
+    from xray_viz.scan import scan_geometry
+
+    n = (40, 36, 30)
+    affine = np.eye(4)
+    affine[:3, :3] = Rotation.from_euler("z", 20, degrees=True).as_matrix() * [1.1, 1.2, 1.3]
+    affine[:3, 3] = -affine[:3, :3] @ ((np.array(n) - 1) / 2)
+    pts = np.einsum("ij,jklm->iklm", affine[:3, :3], np.indices(n).astype(float)) \
+        + affine[:3, 3][:, None, None, None]
+    centre, sigma = np.array([2.0, -3.0, 1.0]), np.array([7.0, 6.0, 5.0])
+    values = 0.02 * np.exp(-((((pts.T - centre) / sigma) ** 2).sum(-1).T) / 2)
+    scene = Scene(source=Source(position=[0, -300, 0], kind=kind, energy=60.0),
+                  detector=Detector(center=[0, 200, 0], up=[0, 0, 1], shape=(120, 100),
+                                    pitch=(0.5, 0.5)))
+    geometry = scan_geometry(scene, Orbit(projections=1, axis=[0, 0, 1], center=[0, 0, 0]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)    # ITK's SWIG modules
+        theirs = rtk_forward_project(values, affine, geometry)[0].astype(float)
+    rays = detector_rays(scene)
+    ours = voxel_sums(rays.origins, rays.directions, rays.t_max, affine,
+                      np.ones(n, np.uint8), values, n_classes=1)[:, 0].reshape(100, 120)
+    yy, xx = np.indices(ours.shape)
+
+    def centroid(im):
+        return np.array([(im * yy).sum(), (im * xx).sum()]) / im.sum()
+
+    peak = ours.max()
+    assert abs(theirs.max() / peak - 1) < 0.01
+    np.testing.assert_allclose(centroid(theirs), centroid(ours), atol=0.05)
+    assert abs(theirs.sum() / ours.sum() - 1) < 3e-3
+    assert np.sqrt(((theirs - ours) ** 2).mean()) < 0.02 * peak
+    assert np.abs(theirs - ours).max() < 0.1 * peak

@@ -533,7 +533,12 @@ def default_orbit(scene, **changes) -> Orbit:
     ([0.0, 1.0, 0.0], 4)
     """
     box = scene.bodies.bounds
-    centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2 if len(scene.bodies) \
+    lows = [box[:, 0].min(axis=0)] if len(scene.bodies) else []
+    highs = [box[:, 1].max(axis=0)] if len(scene.bodies) else []
+    for v in getattr(scene, "volumes", ()):          # voxel volumes (issue 40)
+        lows.append(v.bounds[0])
+        highs.append(v.bounds[1])
+    centre = (np.min(lows, axis=0) + np.max(highs, axis=0)) / 2 if lows \
         else np.asarray(scene.detector.center, float)
     return Orbit(**{"projections": 360, "axis": np.asarray(scene.detector.up, float),
                     "center": centre, **changes})

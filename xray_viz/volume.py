@@ -141,6 +141,7 @@ class VoxelVolume:
             raise SceneError(f"{where}: weights must be float32 or float64, shaped as classes")
         if not np.all(np.isfinite(w)) or (w.size and float(w.min()) < 0):
             raise SceneError(f"{where}: voxel weights must be finite and >= 0")
+        object.__setattr__(self, "_warned", set())     # bodies already warned about
         if c.size and int(c.max()) > len(self.materials):
             raise SceneError(f"{where}: a voxel's class {int(c.max())} has no material "
                              f"({len(self.materials)} given)")
@@ -313,7 +314,8 @@ def displacers(volume: VoxelVolume, bodies, *, warn: bool = True) -> list:
         if np.all(lo <= corners.min(axis=0)) and np.all(hi >= corners.max(axis=0)):
             continue                                       # around the whole volume
         out.append(k)
-        if warn and not np.all(volume.contains(v)):
+        if warn and body.name not in volume._warned and not np.all(volume.contains(v)):
+            volume._warned.add(body.name)
             warnings.warn(f"body {body.name!r} reaches out of volume {volume.name!r}'s box "
                           f"({volume.source_file or 'its grid'}): it replaces the voxels only "
                           "inside the box", VolumeOverlapWarning, stacklevel=3)
