@@ -90,99 +90,128 @@ def inverse_affine(affine) -> np.ndarray:
 @njit(cache=True, nogil=True, error_model="numpy")
 def _trace(lo, hi, origins, directions, t_max, inv, classes, weights, n_classes,
            iv_start, iv_t0, iv_t1, out):
-    """Rays ``lo .. hi - 1``: ``out[r, c - 1] += weight x chord`` over their voxels."""
-    ni, nj, nk = classes.shape
-    n_dims = np.empty(3, np.int64)
-    n_dims[0], n_dims[1], n_dims[2] = ni, nj, nk
+    """Rays ``lo .. hi - 1``: ``out[r, c - 1] += weight x chord`` over their voxels.
+
+    ``classes`` and ``weights`` are flat (C order of the (I, J, K) grid, ``out``'s last two
+    arguments' shape in ``inv``'s companion ``dims``): the walk steps a flat index by the
+    axis' stride. Each ray sums into a small local array (class 0 included, dropped)."""
+    ni = np.int64(inv[0, 4])
+    nj = np.int64(inv[1, 4])
+    nk = np.int64(inv[2, 4])
     one_origin = origins.shape[0] == 1
     one_dir = directions.shape[0] == 1
-    p = np.empty(3)
-    d = np.empty(3)
-    idx = np.empty(3, np.int64)
-    step = np.empty(3, np.int64)
-    t_next = np.empty(3)
-    inv_d = np.empty(3)
+    acc = np.zeros(n_classes + 1)
     for r in range(lo, hi):
         ro = 0 if one_origin else r
         rd = 0 if one_dir else r
-        for a in range(3):
-            p[a] = inv[a, 0] * origins[ro, 0] + inv[a, 1] * origins[ro, 1] \
-                + inv[a, 2] * origins[ro, 2] + inv[a, 3]
-            d[a] = inv[a, 0] * directions[rd, 0] + inv[a, 1] * directions[rd, 1] \
-                + inv[a, 2] * directions[rd, 2]
+        ox, oy, oz = origins[ro, 0], origins[ro, 1], origins[ro, 2]
+        dx, dy, dz = directions[rd, 0], directions[rd, 1], directions[rd, 2]
+        px = inv[0, 0] * ox + inv[0, 1] * oy + inv[0, 2] * oz + inv[0, 3]
+        py = inv[1, 0] * ox + inv[1, 1] * oy + inv[1, 2] * oz + inv[1, 3]
+        pz = inv[2, 0] * ox + inv[2, 1] * oy + inv[2, 2] * oz + inv[2, 3]
+        ex = inv[0, 0] * dx + inv[0, 1] * dy + inv[0, 2] * dz
+        ey = inv[1, 0] * dx + inv[1, 1] * dy + inv[1, 2] * dz
+        ez = inv[2, 0] * dx + inv[2, 1] * dy + inv[2, 2] * dz
         # the grid's box [-1/2, n - 1/2] in index space, by slabs
         t0 = 0.0
         t1 = t_max[r]
-        for a in range(3):
-            lo_a = -0.5
-            hi_a = n_dims[a] - 0.5
-            if d[a] == 0.0:
-                if p[a] < lo_a or p[a] > hi_a:
-                    t1 = -1.0
-                continue
-            inv_d[a] = 1.0 / d[a]
-            ta = (lo_a - p[a]) * inv_d[a]
-            tb = (hi_a - p[a]) * inv_d[a]
-            if ta > tb:
-                ta, tb = tb, ta
-            if ta > t0:
-                t0 = ta
-            if tb < t1:
-                t1 = tb
+        ix = iy = iz = 0.0
+        if ex != 0.0:
+            ix = 1.0 / ex
+            ta = (-0.5 - px) * ix
+            tb = (ni - 0.5 - px) * ix
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+        elif px < -0.5 or px > ni - 0.5:
+            continue
+        if ey != 0.0:
+            iy = 1.0 / ey
+            ta = (-0.5 - py) * iy
+            tb = (nj - 0.5 - py) * iy
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+        elif py < -0.5 or py > nj - 0.5:
+            continue
+        if ez != 0.0:
+            iz = 1.0 / ez
+            ta = (-0.5 - pz) * iz
+            tb = (nk - 0.5 - pz) * iz
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+        elif pz < -0.5 or pz > nk - 0.5:
+            continue
         if not t0 < t1:
             continue
-        # the first voxel: where the ray is half-way into its first stretch... found from the
-        # entry point, each index clamped into the grid (the entry lies on its face)
-        for a in range(3):
-            x = p[a] + t0 * d[a]
-            m = np.int64(np.floor(x + 0.5))
-            if m < 0:
-                m = 0
-            if m > n_dims[a] - 1:
-                m = n_dims[a] - 1
-            idx[a] = m
-            if d[a] > 0.0:
-                step[a] = 1
-                t_next[a] = (m + 0.5 - p[a]) * inv_d[a]
-            elif d[a] < 0.0:
-                step[a] = -1
-                t_next[a] = (m - 0.5 - p[a]) * inv_d[a]
-            else:
-                step[a] = 0
-                t_next[a] = np.inf
-        # this ray's intervals to leave out
-        j = iv_start[r]
-        j_end = iv_start[r + 1]
+        # the first voxel: the entry point's, each index clamped into the grid (the entry
+        # lies on a face of the grid); a ray in a plane between voxels takes the + side
+        i = min(max(np.int64(np.floor(px + t0 * ex + 0.5)), 0), ni - 1)
+        j = min(max(np.int64(np.floor(py + t0 * ey + 0.5)), 0), nj - 1)
+        k = min(max(np.int64(np.floor(pz + t0 * ez + 0.5)), 0), nk - 1)
+        si = 1 if ex > 0.0 else -1
+        sj = 1 if ey > 0.0 else -1
+        sk = 1 if ez > 0.0 else -1
+        tx = (i + 0.5 * si - px) * ix if ex != 0.0 else np.inf
+        ty = (j + 0.5 * sj - py) * iy if ey != 0.0 else np.inf
+        tz = (k + 0.5 * sk - pz) * iz if ez != 0.0 else np.inf
+        flat = (i * nj + j) * nk + k
+        di = si * nj * nk
+        dj = sj * nk
+        dk = sk
+        for c in range(n_classes + 1):
+            acc[c] = 0.0
+        q = iv_start[r]
+        q_end = iv_start[r + 1]
         t = t0
-        while t < t1:
-            a = 0
-            if t_next[1] < t_next[a]:
-                a = 1
-            if t_next[2] < t_next[a]:
-                a = 2
-            tn = t_next[a]
-            if tn > t1:
+        while True:
+            if tx <= ty and tx <= tz:
+                tn = tx
+                axis = 0
+            elif ty <= tz:
+                tn = ty
+                axis = 1
+            else:
+                tn = tz
+                axis = 2
+            end = tn >= t1
+            if end:
                 tn = t1
-            if tn > t:
-                c = classes[idx[0], idx[1], idx[2]]
-                if c != 0:
-                    chord = tn - t
-                    while j < j_end and iv_t1[j] <= t:
-                        j += 1
-                    jj = j
-                    while jj < j_end and iv_t0[jj] < tn:
-                        s0 = iv_t0[jj] if iv_t0[jj] > t else t
-                        s1 = iv_t1[jj] if iv_t1[jj] < tn else tn
-                        if s1 > s0:
-                            chord -= s1 - s0
-                        jj += 1
-                    if chord > 0.0:
-                        out[r, c - 1] += weights[idx[0], idx[1], idx[2]] * chord
-                t = tn
-            idx[a] += step[a]
-            if idx[a] < 0 or idx[a] >= n_dims[a]:
+            chord = tn - t
+            if q < q_end:                       # stretches inside meshes: left out
+                while q < q_end and iv_t1[q] <= t:
+                    q += 1
+                qq = q
+                while qq < q_end and iv_t0[qq] < tn:
+                    s0 = max(iv_t0[qq], t)
+                    s1 = min(iv_t1[qq], tn)
+                    if s1 > s0:
+                        chord -= s1 - s0
+                    qq += 1
+                if chord < 0.0:
+                    chord = 0.0
+            acc[classes[flat]] += weights[flat] * chord
+            if end:
                 break
-            t_next[a] = (idx[a] + 0.5 * step[a] - p[a]) * inv_d[a]
+            t = tn
+            if axis == 0:
+                i += si
+                if i < 0 or i >= ni:
+                    break
+                flat += di
+                tx = (i + 0.5 * si - px) * ix
+            elif axis == 1:
+                j += sj
+                if j < 0 or j >= nj:
+                    break
+                flat += dj
+                ty = (j + 0.5 * sj - py) * iy
+            else:
+                k += sk
+                if k < 0 or k >= nk:
+                    break
+                flat += dk
+                tz = (k + 0.5 * sk - pz) * iz
+        for c in range(n_classes):
+            out[r, c] += acc[c + 1]
     return 0
 
 
@@ -245,9 +274,14 @@ def voxel_sums(origins, directions, t_max, affine, classes, weights, *, n_classe
     k = max(1, min(_threads.count() if threads is None else int(threads), n // 256 or 1))
     bounds = np.linspace(0, n, k + 1).astype(np.int64)
 
+    # the inverse affine with the grid's dimensions as a fifth column (one argument)
+    inv_dims = np.ascontiguousarray(np.c_[inv, np.asarray(classes.shape, np.float64)])
+    flat_classes = np.ascontiguousarray(classes).reshape(-1)
+    flat_weights = np.ascontiguousarray(weights).reshape(-1)
+
     def piece(q):
-        return _trace(bounds[q], bounds[q + 1], origins, directions, t_max, inv, classes,
-                      weights, int(n_classes), start, iv0, iv1, out)
+        return _trace(bounds[q], bounds[q + 1], origins, directions, t_max, inv_dims,
+                      flat_classes, flat_weights, int(n_classes), start, iv0, iv1, out)
 
     _threads.run_pieces(piece, k)
     return out
