@@ -46,7 +46,7 @@ from numba import njit
 from xray_viz.errors import SceneError
 from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
 
-__all__ = ["voxel_sums", "grid_chords", "inverse_affine", "check_affine"]
+__all__ = ["voxel_sums", "grid_chords", "inverse_affine", "check_affine", "classify"]
 
 
 def check_affine(affine, *, where: str = "volume") -> np.ndarray:
@@ -213,6 +213,77 @@ def _trace(lo, hi, origins, directions, t_max, inv, classes, weights, n_classes,
         for c in range(n_classes):
             out[r, c] += acc[c + 1]
     return 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _classify(values, lo, hi, a, b, classes, weights, low_rho):
+    """One pass: each value's class (the first range ``lo <= v < hi``, 1-based; 0 none) and
+    weight ``a + b v`` of its class; ``low_rho[c]`` the smallest weight of class c."""
+    n_ranges = lo.shape[0]
+    for q in range(values.shape[0]):
+        v = values[q]
+        c = 0
+        for m in range(n_ranges):
+            if v >= lo[m] and v < hi[m]:
+                c = m + 1
+                break
+        classes[q] = c
+        if c:
+            w = a[c - 1] + b[c - 1] * v
+            weights[q] = w
+            if w < low_rho[c - 1]:
+                low_rho[c - 1] = w
+        else:
+            weights[q] = 0.0
+    return 0
+
+
+def classify(values, ranges, *, dtype=np.float32):
+    """Class and weight of every voxel, in one pass (numba, the library's threads).
+
+    Parameters
+    ----------
+    values : C-contiguous array
+        Any shape (a CT in HU).
+    ranges : sequence of (low, high, a, b)
+        Class k (1-based) is the first range with ``low <= value < high``; its weight is
+        ``a + b x value`` (``b = 0``: a constant).
+    dtype : float32 or float64
+        Of the weights.
+
+    Returns
+    -------
+    classes : uint8 array, weights : array, lowest : (n_ranges,) float
+        ``lowest[k - 1]``: the smallest weight of class k (inf if it has no voxel).
+
+    Examples
+    --------
+    >>> c, w, low = classify(np.array([-1000.0, 40.0, 1200.0]),
+    ...                      [(-950, 120, 1.0, 1e-3), (120, np.inf, 1.017, 0.592e-3)])
+    >>> c.tolist(), np.round(w.astype(float), 4).tolist(), np.round(low, 4).tolist()
+    ([0, 1, 2], [0.0, 1.04, 1.7274], [1.04, 1.7274])
+    """
+    from xray_viz import _threads
+
+    values = np.asarray(values)
+    flat = values.reshape(-1)
+    if flat.dtype not in (np.float32, np.float64):
+        flat = flat.astype(np.float64)
+    r = np.asarray(ranges, dtype=np.float64).reshape(-1, 4)
+    lo, hi, a, b = (np.ascontiguousarray(r[:, m]) for m in range(4))
+    classes = np.empty(flat.shape, np.uint8)
+    weights = np.empty(flat.shape, dtype)
+    n = len(flat)
+    k = max(1, min(_threads.count(), n // (1 << 20) or 1))
+    bounds = np.linspace(0, n, k + 1).astype(np.int64)
+    lows = np.full((k, len(r)), np.inf)
+
+    def piece(q):
+        s0, s1 = bounds[q], bounds[q + 1]
+        return _classify(flat[s0:s1], lo, hi, a, b, classes[s0:s1], weights[s0:s1], lows[q])
+
+    _threads.run_pieces(piece, k)
+    return classes.reshape(values.shape), weights.reshape(values.shape), lows.min(axis=0)
 
 
 def voxel_sums(origins, directions, t_max, affine, classes, weights, *, n_classes: int,
