@@ -532,14 +532,11 @@ def default_orbit(scene, **changes) -> Orbit:
     >>> o.axis.tolist(), o.projections
     ([0.0, 1.0, 0.0], 4)
     """
-    box = scene.bodies.bounds
-    lows = [box[:, 0].min(axis=0)] if len(scene.bodies) else []
-    highs = [box[:, 1].max(axis=0)] if len(scene.bodies) else []
-    for v in getattr(scene, "volumes", ()):          # voxel volumes (issue 40)
-        lows.append(v.bounds[0])
-        highs.append(v.bounds[1])
-    centre = (np.min(lows, axis=0) + np.max(highs, axis=0)) / 2 if lows \
-        else np.asarray(scene.detector.center, float)
+    from xray_viz.volume import imaged_centre
+
+    centre = imaged_centre(scene)          # the bodies' and the voxel volumes' box
+    if centre is None:
+        centre = np.asarray(scene.detector.center, float)
     return Orbit(**{"projections": 360, "axis": np.asarray(scene.detector.up, float),
                     "center": centre, **changes})
 

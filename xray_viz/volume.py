@@ -60,7 +60,7 @@ from xray_viz.tracing.voxels import check_affine, classify, voxel_sums
 
 __all__ = ["VoxelVolume", "VoxelMaterial", "ct_volume", "label_volume", "HU_DENSITY",
            "volume_path_lengths", "with_volume_materials", "mesh_intervals",
-           "VolumeOverlapWarning", "TRACE_MODES"]
+           "VolumeOverlapWarning", "TRACE_MODES", "imaged_centre"]
 
 #: The values of ``trace`` in a ``[[ct]]`` or ``[[labels]]`` table.
 TRACE_MODES = ("voxels", "meshes")
@@ -445,6 +445,22 @@ def volume_path_lengths(scene, *, supersample: int = 1, rows=None) -> np.ndarray
     if not cols:
         return np.zeros((len(rays), 0))
     return np.hstack(cols) if len(cols) > 1 else cols[0]
+
+
+def imaged_centre(scene):
+    """The centre of the box around every body and voxel volume of a scene, or None when it
+    has neither (what ``--angle`` and a scan's default orbit turn about)."""
+    lows, highs = [], []
+    if len(scene.bodies):
+        box = scene.bodies.bounds
+        lows.append(box[:, 0].min(axis=0))
+        highs.append(box[:, 1].max(axis=0))
+    for v in getattr(scene, "volumes", ()):
+        lows.append(v.bounds[0])
+        highs.append(v.bounds[1])
+    if not lows:
+        return None
+    return (np.min(lows, axis=0) + np.max(highs, axis=0)) / 2
 
 
 class _WithVolumes:
