@@ -490,3 +490,61 @@ def test_the_projection_agrees_with_rtk_joseph_within_its_interpolation(kind):
     assert abs(theirs.sum() / ours.sum() - 1) < 3e-3
     assert np.sqrt(((theirs - ours) ** 2).mean()) < 0.02 * peak
     assert np.abs(theirs - ours).max() < 0.1 * peak
+
+
+# --------------------------------------------------------------------------------------------
+# scans and label maps
+
+
+def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks():
+    from xray_viz.orbit import Orbit
+
+    affine = grid_affine()
+    classes, _ = block_volume(affine)
+    vol = VoxelVolume(name="blocks", affine=affine, classes=classes,
+                      weights=(classes > 0).astype(np.float64),
+                      materials=tuple(xray_viz.volume.VoxelMaterial(f"v{c}", mu=0.1 * c)
+                                      for c in (1, 2, 3)))
+    orbit = Orbit("helical", projections=4, axis=[0, 1, 0], center=[1.0, -2.0, 0.5],
+                  pitch=20.0)
+    voxels = xray_viz.scan(_scene(volumes=(vol,)), orbit).projections
+    meshes = xray_viz.scan(_scene(bodies=block_meshes(affine)), orbit).projections
+    assert voxels.shape == (4, 32, 40) and float(voxels.max()) > 0.4
+    np.testing.assert_allclose(voxels, meshes, rtol=1e-6, atol=1e-6)    # float32 stacks
+
+
+def test_a_label_map_traced_as_voxels(tmp_path):
+    import nibabel as nib
+
+    labels = np.zeros(SHAPE, np.int16)
+    for c, (i0, i1), (j0, j1), (k0, k1), _ in BLOCKS:
+        labels[i0:i1, j0:j1, k0:k1] = c
+    labels[0, 0, 0] = 9                                   # not listed: skipped, warned
+    affine = grid_affine()
+    nib.save(nib.Nifti1Image(labels, affine), str(tmp_path / "seg.nii.gz"))
+    (tmp_path / "s.toml").write_text("""
+[source]
+position = [3.0, -2.0, 400.0]
+energy = 60.0
+[detector]
+center = [0.0, 0.0, -150.0]
+up = [0.0, 1.0, 0.0]
+shape = [40, 32]
+pitch = 1.5
+[[labels]]
+file = "seg.nii.gz"
+trace = "voxels"
+materials = { 1 = { mu = 0.1 }, 2 = { mu = 0.2, name = "two" }, 3 = { mu = 0.3 } }
+""")
+    from xray_viz.meshes.volumes import LabelSkippedWarning
+
+    with pytest.warns(LabelSkippedWarning, match="label 9"):
+        scene = xray_viz.load_scene(tmp_path / "s.toml")
+    assert [m.name for m in scene.volumes[0].materials] == ["seg_1", "two", "seg_3"]
+    rays = detector_rays(scene)
+    stored = nib.load(str(tmp_path / "seg.nii.gz")).affine    # NIfTI keeps float32
+    want = analytic(rays.origins, rays.directions, rays.t_max, stored)
+    want = want / np.array([1.0, 1.7, 0.4])                # labels weigh 1
+    image = xray_viz.render(scene)
+    np.testing.assert_allclose(image.line_integral.ravel(), want @ [0.01, 0.02, 0.03],
+                               rtol=1e-9, atol=1e-12)
