@@ -6,7 +6,10 @@ the highest *precedence* among those it is inside:
 
 * **nested bodies: innermost wins** - a body inside another replaces the outer material there
   (marrow inside bone inside soft tissue);
-* **partial overlaps: the later-listed body wins** in the overlap.
+* **partial overlaps: the later-listed body wins** in the overlap;
+* **a volume's bodies (a meshed ``[[ct]]`` or ``[[labels]]``) rank below the scene's own
+  meshes** that they do not lie inside (:func:`below_meshes`): an implant in a CT replaces the
+  tissue *and the bone* it displaces, whatever it touches, as in a voxel trace.
 
 The *effective path length* ``L[ray, body]`` is the length of ray (in mm) whose material is that
 body; the line integral of Beer-Lambert's law is then ``sum_b mu_b * L[:, b]`` (Eq. in
@@ -18,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["path_lengths", "stretch_materials", "body_precedence", "rank_by_nesting"]
+__all__ = ["path_lengths", "stretch_materials", "body_precedence", "rank_by_nesting",
+           "below_meshes"]
 
 
 def stretch_materials(ray, body, entering, *, precedence) -> np.ndarray:
@@ -157,9 +161,54 @@ def body_precedence(scene) -> np.ndarray:
 
 def _body_precedence(bodies) -> np.ndarray:
     """:func:`body_precedence` computed afresh for a sequence of bodies (nothing kept)."""
+    from xray_viz.meshes._volume_files import is_volume_path
     from xray_viz.meshes.repair import containers
 
-    return rank_by_nesting(containers([b.mesh for b in bodies]))
+    inside = containers([b.mesh for b in bodies])
+    meshed = [getattr(b, "source_file", None) is not None and is_volume_path(b.source_file)
+              for b in bodies]
+    return rank_by_nesting(below_meshes(inside, meshed))
+
+
+def below_meshes(containers, from_volume):
+    """Nesting with a volume's bodies placed under the scene's own meshes.
+
+    A body meshed from a volume (a CT's tissue classes, a label map's labels) is a piece of
+    one material field: a ``[[body]]`` mesh in it displaces that field wherever it is, as it
+    would in the voxels. So each ``[[body]]`` mesh ranks above every volume body, unless that
+    volume body lies wholly inside it (a CT inside a water tank: the CT wins there, innermost
+    wins). Without this rule an implant touching the CT's bone only *overlaps* the bone, and
+    the bone, listed after the ``[[body]]`` tables, would erase it there.
+
+    Parameters
+    ----------
+    containers : list of list of int
+        ``containers[a]``: the bodies that body ``a`` lies wholly inside.
+    from_volume : sequence of bool
+        Which bodies were meshed from a volume.
+
+    Returns
+    -------
+    list of list of int
+        ``containers`` with, for each mesh ``a`` and volume body ``v`` not inside ``a``,
+        ``v`` added to ``containers[a]`` (so that :func:`rank_by_nesting` ranks ``a`` above).
+
+    Examples
+    --------
+    >>> below_meshes([[1], [], []], [False, True, True])   # 0 is in 1; 2 overlaps 0
+    [[1, 2], [], []]
+    >>> rank_by_nesting(below_meshes([[1], [], []], [False, True, True])).tolist()
+    [2, 0, 1]
+    """
+    out = [list(c) for c in containers]
+    volume = [k for k, v in enumerate(from_volume) if v]
+    for a, v_a in enumerate(from_volume):
+        if v_a:
+            continue
+        for v in volume:
+            if a not in containers[v] and v not in out[a]:
+                out[a].append(v)
+    return out
 
 
 def rank_by_nesting(containers) -> np.ndarray:

@@ -302,16 +302,22 @@ class Bodies(Sequence):
     def precedence(self) -> np.ndarray:
         """(n,) int rank: where bodies overlap, the highest rank gives the material.
 
-        A body wholly inside another wins there (innermost wins); every other overlap goes to
-        the later-listed body. See :func:`xray_viz.attenuation.body_precedence`.
+        A body wholly inside another wins there (innermost wins); a body meshed from a volume
+        (``source_file`` a NIfTI, NRRD, MHA, DICOM file or folder) ranks below every other
+        body it does not lie inside (:func:`xray_viz.attenuation.below_meshes`); every other
+        overlap goes to the later-listed body. See :func:`xray_viz.attenuation.body_precedence`.
         """
         def build():
-            from xray_viz.attenuation import rank_by_nesting
+            from xray_viz.attenuation import below_meshes, rank_by_nesting
+            from xray_viz.meshes._volume_files import is_volume_path
             from xray_viz.meshes.repair import containers
 
-            return rank_by_nesting(containers(
+            inside = containers(
                 [b.mesh for b in self._bodies], bounds=[(lo, hi) for lo, hi in self.bounds],
-                reports=self.reports))
+                reports=self.reports)
+            meshed = [getattr(b, "source_file", None) is not None
+                      and is_volume_path(b.source_file) for b in self._bodies]
+            return rank_by_nesting(below_meshes(inside, meshed))
         return self._value("precedence", build)
 
     def cached(self, key, build, *, limit: int = 8, nbytes=None, on_evict=None):

@@ -110,7 +110,9 @@ def _render_command(args) -> int:
         k = air_kerma(scene)
         dose = (f", {k.mas:g} mAs: air kerma " + (f"{k.entrance_uGy:.4g} uGy at entrance, "
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
-    print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
+    nv = len(getattr(scene, "volumes", ()))
+    vols = f", {nv} voxel volume{'s' * (nv > 1)}" if nv else ""
+    print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}{vols}, "
           f"engine {engine}, {total_ms:.0f} ms{dose})")
     if ENGINES[args.engine].compiled:   # the compiled mesh checks, for the next runs
         from xray_viz.meshes import _check_kernels

@@ -43,7 +43,7 @@ from xray_viz.geometry import check_supersample
 from xray_viz.tracing.engines import ENGINES, Projector
 from xray_viz.tracing.hits import Hits
 
-__all__ = ["Radiograph", "render", "stages", "image", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
+__all__ = ["Radiograph", "render", "stages", "scene_projector", "image", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
            "check_memory", "available_memory"]
 
 #: Names accepted by ``--quantity`` and :meth:`Radiograph.quantity`.
@@ -143,8 +143,8 @@ class Radiograph:
             check_memory(self.scene, supersample=n, engine=self.engine, path_lengths=True,
                          images=False)
             w, h = self.scene.detector.shape
-            out = np.empty((h, w, len(self.scene.bodies)))
-            _band_loop(Projector(self.scene.bodies, self.engine), self.scene.acquisition, n,
+            out = np.empty((h, w, len(self.body_names)))
+            _band_loop(scene_projector(self.scene, self.engine), self.scene.acquisition, n,
                        per_body=out)
             object.__setattr__(self, "_path_length", out)
         return self._path_length
@@ -164,7 +164,7 @@ def _band_rows(projector, acquisition, n) -> int:
     """Image rows per band: ``rows x W x n^2`` rays of path lengths fill :data:`BAND_BYTES`
     (with the engine's working memory per ray), at least one row."""
     w = acquisition.detector.shape[0]
-    per_ray = 8 * max(1, len(projector.bodies)) + projector.ray_bytes
+    per_ray = 8 * max(1, projector.columns) + projector.ray_bytes
     return max(1, BAND_BYTES // (w * n * n * per_ray))
 
 
@@ -249,7 +249,7 @@ def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, 
     if progress is None:
         from xray_viz.progress import rows as progress
     w, h = acquisition.detector.shape
-    nb = len(projector.bodies)
+    nb = projector.columns
     nn = n * n
     t_trace = t_image = 0.0
     hits = None
@@ -548,14 +548,14 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     >>> round(float(image.total_path_length.max()), 1)      # the diameter, 80 mm
     80.0
     """
-    projector = Projector(scene.bodies, engine)          # an unknown engine is refused here
+    projector = scene_projector(scene, engine)           # an unknown engine is refused here
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
     lod = None
     if max_error is not None:
         from xray_viz.lod import level_of_detail
 
         scene, lod = level_of_detail(scene, max_error, supersample=n)
-        projector = Projector(scene.bodies, engine)
+        projector = scene_projector(scene, engine)
     beam, model = stages(scene)
     model.blur_sigmas(scene.acquisition, scene.bodies)   # a focal spot wider than the detector
     check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths,
@@ -567,7 +567,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         intensity=intensity,
         line_integral=line_integral,
         total_path_length=total,
-        body_names=scene.body_names,
+        body_names=_names(scene),
         timing=timing,
         engine=engine,
         scene=scene,
@@ -576,6 +576,30 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         _path_length=per_body,
         lod=lod,
     )
+
+
+def scene_projector(scene, engine: str = "fast"):
+    """The :class:`~xray_viz.tracing.engines.Projector` of a scene's bodies, or with voxel
+    volumes (``scene.volumes``) a :class:`~xray_viz.volume.VolumeProjector`: the volumes'
+    classes as columns after the bodies' (:func:`_names`).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> scene_projector(xray_viz.load_scene("sphere"), "numpy")
+    Projector(1 bodies, engine='numpy')
+    """
+    projector = Projector(scene.bodies, engine)
+    if not scene.volumes:
+        return projector
+    from xray_viz.volume import VolumeProjector
+
+    return VolumeProjector(projector, scene.volumes)
+
+
+def _names(scene) -> list:
+    """The names of the path lengths' columns: the bodies', then the voxel volumes' classes."""
+    return list(scene.body_names) + [n for v in scene.volumes for n in v.names]
 
 
 def stages(scene):
@@ -597,7 +621,12 @@ def stages(scene):
     from xray_viz.physics.beam import Beam
     from xray_viz.physics.detector_model import DetectorModel
 
-    return (Beam.of(scene.source, scene.bodies, scene.detector),
+    bodies = scene.bodies
+    if scene.volumes:              # the voxel volumes' classes: columns after the bodies'
+        from xray_viz.volume import with_volume_materials
+
+        bodies = with_volume_materials(scene).bodies
+    return (Beam.of(scene.source, bodies, scene.detector),
             DetectorModel.of(scene.detector))
 
 
@@ -642,7 +671,7 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
     # the variance's sum of an energy-integrating detector's noise (see detect_log)
     log_v = np.empty((h, w)) if model.needs_variance(beam) else None
     total = np.empty((h, w))
-    per_body = np.empty((h, w, len(projector.bodies))) if path_lengths else None
+    per_body = np.empty((h, w, projector.columns)) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
                                         log_v=log_v, total=total, per_body=per_body,
                                         keep_hits=keep_hits)

@@ -518,11 +518,10 @@ class Projections:
 
     def __init__(self, scene, orbit: Orbit, *, quantity: str = "line-integral",
                  engine: str = "fast"):
-        from xray_viz.render import check_memory, stages
-        from xray_viz.tracing.engines import Projector
+        from xray_viz.render import check_memory, scene_projector, stages
 
         _check_quantity(quantity)
-        self.projector = Projector(scene.bodies, engine)
+        self.projector = scene_projector(scene, engine)
         self.beam, self.model = stages(scene)
         self.base, self.orbit, self.quantity = scene.acquisition, orbit, quantity
         self.supersample = scene.detector.supersample
@@ -588,9 +587,11 @@ def default_orbit(scene, **changes) -> Orbit:
     >>> o.axis.tolist(), o.projections
     ([0.0, 1.0, 0.0], 4)
     """
-    box = scene.bodies.bounds
-    centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2 if len(scene.bodies) \
-        else np.asarray(scene.detector.center, float)
+    from xray_viz.volume import imaged_centre
+
+    centre = imaged_centre(scene)          # the bodies' and the voxel volumes' box
+    if centre is None:
+        centre = np.asarray(scene.detector.center, float)
     return Orbit(**{"projections": 360, "axis": np.asarray(scene.detector.up, float),
                     "center": centre, **changes})
 

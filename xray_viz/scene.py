@@ -734,6 +734,9 @@ class Scene:
     #: The medium around the bodies, ``{"material": ..., "density": ...}`` (the scene file's
     #: ``[world]`` table; the photon transport, :func:`xray_viz.transport`); None: vacuum.
     world: dict | None = None
+    #: Volumes traced as voxels (:class:`xray_viz.volume.VoxelVolume`: a ``[[ct]]`` or
+    #: ``[[labels]]`` with ``trace = "voxels"``); the meshes in them replace their material.
+    volumes: tuple = ()
 
     def __post_init__(self):
         from xray_viz.bodies import Bodies
@@ -749,6 +752,8 @@ class Scene:
         if not isinstance(self.bodies, Bodies):
             object.__setattr__(self, "bodies", Bodies(self.bodies, where=self._where()))
         self.bodies.check_source_outside(acquisition, where=self._where())
+        if self.volumes:
+            _check_volumes(self)
         from xray_viz.physics.heel import check_heel
 
         check_heel(self)
@@ -919,6 +924,26 @@ def _check_world(world, where: str = "") -> dict:
     except MaterialError as exc:
         raise MaterialError(f"{where}[world] {exc}") from None
     return {"material": material, "density": density}
+
+
+def _check_volumes(scene) -> None:
+    """Volumes are :class:`~xray_viz.volume.VoxelVolume`; every name (bodies, classes) unique;
+    a mesh reaching out of a volume's box warned about once."""
+    from xray_viz.volume import VoxelVolume, displacers
+
+    volumes = tuple(scene.volumes)
+    bad = [type(v).__name__ for v in volumes if not isinstance(v, VoxelVolume)]
+    if bad:
+        raise SceneError(f"{scene._where()}volumes must be VoxelVolume (xray_viz.volume), got "
+                         f"{bad[0]}")
+    object.__setattr__(scene, "volumes", volumes)
+    names = list(scene.bodies.names) + [n for v in volumes for n in v.names]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise SceneError(f"{scene._where()}body and volume class names must be unique, "
+                         f"repeated: {dup}")
+    for v in volumes:
+        displacers(v, scene.bodies)
 
 
 def _path_text(path, base: Path | None) -> str:
@@ -1512,8 +1537,13 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
     if any(v is not None for v in volumes.values()):  # label maps and CTs: bodies after [[body]]
         from xray_viz.meshes.volumes import volume_bodies
 
-        parsed.extend((b, None) for b in volume_bodies(volumes, base_dir=base_dir, file=file,
-                                                        body=Body))
+        from xray_viz.volume import VoxelVolume
+
+        made = volume_bodies(volumes, base_dir=base_dir, file=file, body=Body)
+        voxels = tuple(b for b in made if isinstance(b, VoxelVolume))   # trace = "voxels"
+        parsed.extend((b, None) for b in made if not isinstance(b, VoxelVolume))
+    else:
+        voxels = ()
     bodies = [b for b, _ in parsed]
     _check_material_energies(src, energy, spectrum, bodies)
     from xray_viz.bodies import Bodies
@@ -1522,7 +1552,7 @@ def scene_from_dict(doc: dict, *, base_dir: str | Path = ".", file: Path | None 
         bodies = Bodies(bodies, where=f"{file}: " if file else "",
                         reports=[r for _, r in parsed])
         scene = Scene(source=source, detector=detector, bodies=bodies, path=file,
-                      orbit=orbit, world=world)
+                      orbit=orbit, world=world, volumes=voxels)
     except SceneError as exc:
         msg = str(exc)
         if file and not msg.startswith(str(file)):

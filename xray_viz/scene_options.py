@@ -215,9 +215,11 @@ def turn_acquisition(scene, angle):
 
     if not math.isfinite(angle):
         raise XrayVizError(f"--angle {angle}: give a finite number of degrees")
-    box = scene.bodies.bounds
-    centre = (box[:, 0].min(axis=0) + box[:, 1].max(axis=0)) / 2 if len(scene.bodies) \
-        else np.asarray(scene.detector.center)
+    from xray_viz.volume import imaged_centre
+
+    centre = imaged_centre(scene)          # the bodies' and the voxel volumes' box
+    if centre is None:
+        centre = np.asarray(scene.detector.center)
     return scene.replace(acquisition=scene.acquisition.rotated(
         angle, axis=scene.detector.up, center=centre))
 

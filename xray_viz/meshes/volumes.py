@@ -91,6 +91,13 @@ import numpy as np
 
 from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFoundError, \
     XrayVizError, one_line
+from xray_viz.meshes._volume_files import (  # noqa: F401 (re-exported)
+    DICOM_SEG_SUFFIXES,
+    ITK_SUFFIXES,
+    NIFTI_SUFFIXES,
+    VOLUME_SUFFIXES,
+    is_volume_path,
+)
 
 __all__ = [
     "Volume", "LabelSurface", "VolumeMeshes", "read_volume", "voxel_surface", "mesh_mask",
@@ -100,13 +107,6 @@ __all__ = [
     "SCHNEIDER_2000", "VOLUME_SUFFIXES", "LabelSkippedWarning", "VolumeCacheWarning",
     "LPS_TO_RAS",
 ]
-
-#: File suffixes read as volumes (a folder is read as a DICOM series).
-NIFTI_SUFFIXES = (".nii", ".nii.gz")
-ITK_SUFFIXES = (".nrrd", ".nhdr", ".mha", ".mhd")
-#: A single DICOM file is a DICOM-SEG label map (:mod:`xray_viz.meshes.dicom_seg`).
-DICOM_SEG_SUFFIXES = (".dcm",)
-VOLUME_SUFFIXES = NIFTI_SUFFIXES + ITK_SUFFIXES + DICOM_SEG_SUFFIXES
 
 #: ITK's and DICOM's world coordinates (LPS+) to the scene's (RAS+): x and y negated.
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -138,9 +138,9 @@ SCHNEIDER_2000 = (
 
 #: Keys of a ``[[labels]]`` table, of one of its ``materials`` entries, of a ``[[ct]]`` table
 #: and of one of its ``ranges``.
-LABELS_KEYS = ("file", "materials", "max_error")
+LABELS_KEYS = ("file", "materials", "max_error", "trace")
 MATERIAL_KEYS = ("mu", "material", "density", "name")
-CT_KEYS = ("file", "ranges", "max_error", "median", "min_voxels")
+CT_KEYS = ("file", "ranges", "max_error", "median", "min_voxels", "trace")
 RANGE_KEYS = ("hu", "mu", "material", "density", "name")
 
 
@@ -179,19 +179,6 @@ class Volume:
     def spacing(self) -> np.ndarray:
         """Voxel size along i, j, k (mm): the lengths of the affine's columns."""
         return np.linalg.norm(np.asarray(self.affine)[:3, :3], axis=0)
-
-
-def is_volume_path(path) -> bool:
-    """True for a file name that :func:`read_volume` reads, or a folder (a DICOM series).
-
-    Examples
-    --------
-    >>> is_volume_path("seg.nii.gz"), is_volume_path("a.MHA"), is_volume_path("ball.stl")
-    (True, True, False)
-    """
-    p = Path(path)
-    name = p.name.lower()
-    return p.is_dir() or any(name.endswith(s) for s in VOLUME_SUFFIXES)
 
 
 def _stem(path: Path) -> str:
@@ -1042,6 +1029,39 @@ def _volume_file(raw, where, base_dir: Path) -> Path:
     return p
 
 
+#: ``trace`` by default: a CT is traced as voxels (what users of DRR tools expect: every
+#: voxel's own density), a label map is meshed (a segmentation is a surface model: smooth
+#: organ surfaces, shown as bodies by the viewer).
+DEFAULT_TRACE = {"ct": "voxels", "labels": "meshes"}
+
+#: Keys that only meshing uses.
+MESHING_KEYS = ("max_error", "median", "min_voxels")
+
+
+def _trace_mode(raw, where, table):
+    from xray_viz.volume import TRACE_MODES
+
+    mode = raw.get("trace", DEFAULT_TRACE[table])
+    if mode not in TRACE_MODES:
+        _fail(where, f"trace must be \"voxels\" (exact voxel traversal) or \"meshes\" (meshed "
+                     f"into bodies), got {mode!r}")
+    if mode == "voxels":
+        extra = [k for k in MESHING_KEYS if k in raw]
+        if extra:
+            _fail(where, f"{', '.join(repr(k) for k in extra)} only appl"
+                         f"{'y' if len(extra) > 1 else 'ies'} to trace = \"meshes\" (the "
+                         "default for [[ct]] is \"voxels\"); remove "
+                         f"{'them' if len(extra) > 1 else 'it'} or set trace = \"meshes\"")
+    return mode
+
+
+def _read_for_voxels(path, where, *, hu):
+    try:
+        return read_volume(path, hu=hu)
+    except XrayVizError as exc:
+        raise type(exc)(f"{where}: {exc}") from None
+
+
 def _make_bodies(meshes: VolumeMeshes, entries: dict, path: Path, where: str, Body):
     bodies = []
     for s in meshes.surfaces:
@@ -1072,6 +1092,22 @@ def _labels_bodies(raw, k, base_dir, file, cache, body):
             _fail(where, f"materials: {key!r} is not a label; keys are the label values, "
                          "whole numbers other than 0 (the background)")
         entries[label] = _material_entry(value, f"{where} materials.{key}")
+    if _trace_mode(raw, where, "labels") == "voxels":
+        from xray_viz.volume import label_volume
+
+        vol = _read_for_voxels(path, where, hu=False)
+        present = {int(v) for v in np.unique(vol.data) if v != 0}
+        missing = sorted(set(entries) - present)
+        if missing:
+            _fail(where, f"label{'s' * (len(missing) > 1)} {', '.join(map(str, missing))} "
+                         f"of 'materials' ha{'ve' if len(missing) > 1 else 's'} no voxels")
+        skipped = sorted(present - set(entries))
+        if skipped:
+            warnings.warn(f"{where}: {path.name}: label{'s' * (len(skipped) > 1)} "
+                          f"{', '.join(map(str, skipped))} not in 'materials': skipped (empty)",
+                          LabelSkippedWarning, stacklevel=4)
+        return [label_volume(vol.data, vol.affine, entries, name=_stem(path), source_file=path,
+                             names={v: e["name"] for v, e in entries.items() if "name" in e})]
     max_error = _max_error(raw, where)
     try:
         meshes = label_surfaces(path, sorted(entries), max_error=max_error, cache=cache,
@@ -1118,6 +1154,24 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
         for j, (name, lo, hi, material, density) in enumerate(SCHNEIDER_2000, start=1):
             ranges.append((name, lo, hi))
             entries[j] = {"material": material, **({"density": density} if density else {})}
+    if _trace_mode(raw, where, "ct") == "voxels":
+        from xray_viz.volume import HU_DENSITY, ct_volume
+
+        vol = _read_for_voxels(path, where, hu=True)
+        if "ranges" in raw:
+            table = []
+            for (name, lo, hi), j in zip(ranges, sorted(entries)):
+                e = dict(entries[j])
+                if "mu" not in e and e.get("density") is None:   # the density line
+                    e["line"] = HU_DENSITY[0][4] if lo < 120.0 else HU_DENSITY[3][4]
+                table.append((name, lo, hi, e))
+        else:
+            table = None
+        try:
+            return [ct_volume(vol.data, vol.affine, name=_stem(path), ranges=table,
+                              source_file=path)]
+        except SceneError as exc:
+            _fail(where, str(exc))
     median = raw.get("median", 1)
     min_voxels = raw.get("min_voxels", 27)
     for key, v in (("median", median), ("min_voxels", min_voxels)):
@@ -1151,8 +1205,9 @@ def volume_bodies(tables: Mapping, *, base_dir=".", file=None, cache: bool = Tru
 
     Returns
     -------
-    list of Body
-        In the order of the tables, and of the labels (ascending) within each.
+    list of Body or VoxelVolume
+        In the order of the tables, and of the labels (ascending) within each; a table with
+        ``trace = "voxels"`` gives one :class:`xray_viz.volume.VoxelVolume`.
 
     Raises
     ------

@@ -227,6 +227,8 @@ class Projector:
                          doc="Working memory per ray of a window besides its path lengths.")
     fallback = property(lambda self: self.engine.fallback,
                         doc="The other engine, for a scene this one fails on.")
+    columns = property(lambda self: len(self.bodies),
+                       doc="The path lengths' columns per ray: one per body.")
 
     def path_lengths(self, acquisition, *, supersample: int = 1) -> np.ndarray:
         """``(W * H * supersample**2, n_bodies)`` float: every detector ray's path lengths
