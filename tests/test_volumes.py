@@ -639,6 +639,7 @@ max_error = {MAX_ERROR}
         table = f"""
 [[ct]]
 file = "seg{suffix}"
+trace = "meshes"
 max_error = {MAX_ERROR}
 min_voxels = 0
 """
