@@ -217,9 +217,65 @@ def _per_ray_slopes(L, scene, supersample):
     return ell, p @ mu
 
 
+def _apart(scene, idx) -> bool:
+    """Whether the bounding boxes of the bodies ``idx`` meet no other body's box."""
+    box = scene.bodies.bounds                                   # (n, 2, 3)
+    for b in idx:
+        for o in range(len(box)):
+            if o != b and np.all(box[b, 0] <= box[o, 1]) and np.all(box[o, 0] <= box[b, 1]):
+                return False
+    return True
+
+
+def _fast_gradient(scene, idx, centers, acquisition, center):
+    """:func:`line_integral_gradient` by the numba kernel (one ray per pixel, bodies apart):
+    the fast engine's path lengths give each ray's slopes, the kernel the hits' terms."""
+    from xray_viz._gradient_kernels import body_pose_gradient, project_to_grid
+    from xray_viz.tracing.engines import ENGINES
+
+    acq = scene.acquisition
+    w, h = scene.detector.shape
+    rays = acq.rays(supersample=1)
+    L = ENGINES["fast"].path_lengths(scene.bodies, acq, supersample=1)
+    ell, g = _per_ray_slopes(np.asarray(L, dtype=np.float64), scene, 1)
+    ends = rays.ends
+    if acq.parallel:
+        origins = np.ascontiguousarray(rays.origins)
+        project = {"direction": rays.directions[0]}
+    else:
+        origins = np.ascontiguousarray(rays.origins[:1])
+        project = {"source": rays.origins[0]}
+    directions = np.ascontiguousarray(rays.directions)
+    t_max = np.ascontiguousarray(rays.t_max, dtype=np.float64)
+
+    def one(b, c):
+        body = scene.bodies[b]
+        v = np.ascontiguousarray(body.vertices)
+        cr, front = project_to_grid(v, ends, w, **project)
+        out = np.zeros((6, w * h))
+        body_pose_gradient(v, np.ascontiguousarray(body.faces), np.ascontiguousarray(cr),
+                           front, origins, directions, t_max,
+                           np.ascontiguousarray(g[:, b], dtype=np.float64),
+                           np.asarray(c, dtype=np.float64), w, h, out)
+        return out
+    pose = np.zeros((len(idx), 6, w * h))
+    for k, b in enumerate(idx):
+        pose[k] = one(b, centers[k])
+    acq_grad = None
+    if acquisition:
+        acq_grad = np.zeros((6, w * h))
+        for b in range(len(scene.bodies)):
+            acq_grad -= one(b, center)
+    return GradientResult(
+        line_integral=ell.reshape(h, w), pose=pose.reshape(len(idx), 6, h, w),
+        acquisition=None if acq_grad is None else acq_grad.reshape(6, h, w),
+        names=[scene.body_names[b] for b in idx], centers=centers)
+
+
 def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
                            center=(0.0, 0.0, 0.0), centers=None,
-                           supersample: int | None = None) -> GradientResult:
+                           supersample: int | None = None,
+                           engine: str = "fast") -> GradientResult:
     """The line-integral image and its exact pose derivatives, from one trace.
 
     Parameters
@@ -236,6 +292,12 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
         The centre of each moving body's rotations (default: :func:`centroid`).
     supersample : int, optional
         Rays per pixel along each axis (default: the detector's).
+    engine : {"fast", "numpy"}
+        ``"fast"``: the numba kernel of :mod:`xray_viz._gradient_kernels` over the fast
+        engine's path lengths where it applies (one ray per pixel; the moving bodies, or
+        all of them for ``acquisition``, with bounding boxes apart from every other body's),
+        the reference otherwise; ``"numpy"``: the reference, every hit from
+        :func:`~xray_viz.tracing.hits.trace_rays` swept by precedence.
 
     Returns
     -------
@@ -245,10 +307,19 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
     from xray_viz.physics.imaging import pixel_log_mean
     from xray_viz.tracing.hits import trace_rays
 
+    if engine not in ("fast", "numpy"):
+        raise SceneError(f"unknown gradient engine {engine!r}; choose 'fast' or 'numpy'")
     idx = _body_indices(scene, bodies)
     n = int(supersample or getattr(scene.detector, "supersample", 1) or 1)
     nn = n * n
     w, h = scene.detector.shape
+    if centers is None:
+        centers = np.array([centroid(scene.bodies[b]) for b in idx]).reshape(-1, 3)
+    else:
+        centers = np.asarray(centers, dtype=np.float64).reshape(len(idx), 3)
+    if (engine == "fast" and nn == 1 and w > 1 and h > 1
+            and _apart(scene, range(len(scene.bodies)) if acquisition else idx)):
+        return _fast_gradient(scene, idx, centers, acquisition, center)
     acq = scene.acquisition
     rays = acq.rays(supersample=n)
     nb = len(scene.bodies)
@@ -266,10 +337,6 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
         share = (e / e.sum(axis=1, keepdims=True)).reshape(-1)
     else:
         share = np.ones(len(ell))
-    if centers is None:
-        centers = np.array([centroid(scene.bodies[b]) for b in idx]).reshape(-1, 3)
-    else:
-        centers = np.asarray(centers, dtype=np.float64).reshape(len(idx), 3)
     n_pixels = w * h
     pose = np.zeros((len(idx), 6, n_pixels))
     acq_grad = np.zeros((6, n_pixels)) if acquisition else None
@@ -318,7 +385,8 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
         names=[scene.body_names[b] for b in idx], centers=centers)
 
 
-def pose_gradient(scene, bodies=None, *, supersample: int | None = None) -> np.ndarray:
+def pose_gradient(scene, bodies=None, *, supersample: int | None = None,
+                  engine: str = "fast") -> np.ndarray:
     """d(line integral)/d(pose) of each moving body, in the image orientation of ``render``.
 
     The six parameters of a body's pose are a translation in mm along the world x, y and z
@@ -335,6 +403,9 @@ def pose_gradient(scene, bodies=None, *, supersample: int | None = None) -> np.n
         Names of the moving bodies (default: all of them, in scene order).
     supersample : int, optional
         Rays per pixel along each axis (default: the detector's).
+    engine : {"fast", "numpy"}
+        See :func:`line_integral_gradient`: the numba kernel where it applies, else the
+        NumPy reference (the same numbers to rounding).
 
     Returns
     -------
@@ -358,11 +429,11 @@ def pose_gradient(scene, bodies=None, *, supersample: int | None = None) -> np.n
     >>> bool(abs(g[0, 0].sum()) < 1e-9)     # a sphere on the axis: +x and -x cancel
     True
     """
-    return line_integral_gradient(scene, bodies, supersample=supersample).pose
+    return line_integral_gradient(scene, bodies, supersample=supersample, engine=engine).pose
 
 
-def acquisition_gradient(scene, *, center=(0.0, 0.0, 0.0),
-                         supersample: int | None = None) -> np.ndarray:
+def acquisition_gradient(scene, *, center=(0.0, 0.0, 0.0), supersample: int | None = None,
+                         engine: str = "fast") -> np.ndarray:
     """d(line integral)/d(pose of the source and detector moved together), ``(6, H, W)``.
 
     The C-arm's pose: a translation in mm along the world axes and a rotation in radians
@@ -375,10 +446,11 @@ def acquisition_gradient(scene, *, center=(0.0, 0.0, 0.0),
     scene : Scene
     center : (3,) float
     supersample : int, optional
+    engine : {"fast", "numpy"}
 
     Returns
     -------
     (6, H, W) float
     """
     return line_integral_gradient(scene, [], acquisition=True, center=center,
-                                  supersample=supersample).acquisition
+                                  supersample=supersample, engine=engine).acquisition
