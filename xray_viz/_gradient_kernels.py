@@ -18,7 +18,7 @@ from numba import njit
 
 from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
 
-__all__ = ["project_to_grid", "body_pose_gradient"]
+__all__ = ["project_to_grid", "body_pose_gradient", "volume_centroid"]
 
 
 def project_to_grid(points, ends, w, *, source=None, direction=None):
@@ -55,9 +55,8 @@ def project_to_grid(points, ends, w, *, source=None, direction=None):
         mu = ((p00 - x) @ normal) / (direction @ normal)
         q = x + mu[:, None] * direction
         front = np.ones(len(x), bool)
-    gram = np.array([[eu @ eu, eu @ ev], [eu @ ev, ev @ ev]])
-    rhs = np.stack([(q - p00) @ eu, (q - p00) @ ev])
-    cr = np.linalg.solve(gram, rhs).T
+    axes = np.stack([eu, ev], axis=1)                                   # (3, 2)
+    cr = ((q - p00) @ axes) @ np.linalg.inv(axes.T @ axes).T
     return cr, front & np.all(np.isfinite(cr), axis=1)
 
 
@@ -135,3 +134,27 @@ def body_pose_gradient(vertices, faces, cr, front, origins, directions, t_max, g
                 out[3, k] += coef * (qy * nz - qz * ny)
                 out[4, k] += coef * (qz * nx - qx * nz)
                 out[5, k] += coef * (qx * ny - qy * nx)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def volume_centroid(vertices, faces, ref):
+    """The volume centroid of a closed surface: signed tetrahedra from ``ref``; ``ref``
+    itself when the volume is 0."""
+    total = 0.0
+    sx = sy = sz = 0.0
+    for f in range(faces.shape[0]):
+        a = vertices[faces[f, 0]] - ref
+        b = vertices[faces[f, 1]] - ref
+        c = vertices[faces[f, 2]] - ref
+        vol = (a[0] * (b[1] * c[2] - b[2] * c[1]) + a[1] * (b[2] * c[0] - b[0] * c[2])
+               + a[2] * (b[0] * c[1] - b[1] * c[0]))
+        total += vol
+        sx += vol * (a[0] + b[0] + c[0])
+        sy += vol * (a[1] + b[1] + c[1])
+        sz += vol * (a[2] + b[2] + c[2])
+    out = ref.copy()
+    if total != 0.0:
+        out[0] += sx / (4.0 * total)
+        out[1] += sy / (4.0 * total)
+        out[2] += sz / (4.0 * total)
+    return out

@@ -67,17 +67,11 @@ def centroid(body) -> np.ndarray:
     >>> centroid(Body(name="box", mesh=box, mu=1.0)).round(9).tolist()
     [1.0, 2.0, 3.0]
     """
-    mesh = body.mesh
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    tri = v[np.asarray(mesh.faces)]
-    # the volume centroid of a closed surface: signed tetrahedra from the vertex mean
-    ref = v.mean(axis=0)
-    a, b, c = tri[:, 0] - ref, tri[:, 1] - ref, tri[:, 2] - ref
-    vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
-    total = vol.sum()
-    if not abs(total) > 0:
-        return ref
-    return ref + (vol[:, None] * (a + b + c)).sum(axis=0) / (4.0 * total)
+    from xray_viz._gradient_kernels import volume_centroid
+
+    v = np.ascontiguousarray(body.mesh.vertices, dtype=np.float64)
+    return volume_centroid(v, np.ascontiguousarray(body.mesh.faces, dtype=np.int64),
+                           v.mean(axis=0))
 
 
 def pose_matrix(params, center) -> np.ndarray:
@@ -130,6 +124,8 @@ def move_bodies(scene, transforms: dict):
     """
     import dataclasses
 
+    import trimesh
+
     from xray_viz.bodies import Bodies
     from xray_viz.scene import _compose_placement
 
@@ -144,8 +140,10 @@ def move_bodies(scene, transforms: dict):
             moved.append(body)
             continue
         m = np.asarray(m, dtype=np.float64)
-        mesh = body.mesh.copy()
-        mesh.apply_transform(m)
+        # a new mesh of the moved vertices (trimesh's copy and apply_transform also carry
+        # and transform every cached array: several times slower for a large mesh)
+        mesh = trimesh.Trimesh(vertices=body.vertices @ m[:3, :3].T + m[:3, 3],
+                               faces=body.faces, process=False)
         changes = {}
         if body.source_file is not None:
             placement = _compose_placement(body.placement, m)
