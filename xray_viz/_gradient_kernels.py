@@ -3,7 +3,9 @@
 Each triangle is projected onto the detector grid (through the source for a point source,
 along the beam for a parallel one), the pixel centres it covers are found by edge functions
 (pixel centres on an edge go to one side by a top-left rule), and for each covered pixel the
-hit's ``t`` on the triangle's plane along that pixel's own ray gives the hit's contribution
+hit's ``t`` on the triangle's plane along that pixel's own ray (made from the pixel's point
+on the detector, as :func:`xray_viz.geometry.detector_rays` makes it) gives the hit's
+contribution
 ``slope * [n, (p - c) x n] / (n . d)`` (see :mod:`xray_viz.gradients`) to the six pose
 derivatives of that pixel. The slope of an entry is ``-g`` and of an exit ``+g`` (``g``: the
 ray's ``d ell / d L`` of the body), which is the sweep's derivative when no other body's
@@ -18,46 +20,7 @@ from numba import njit
 
 from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
 
-__all__ = ["project_to_grid", "body_pose_gradient", "volume_centroid"]
-
-
-def project_to_grid(points, ends, w, *, source=None, direction=None):
-    """Image coordinates ``(col, row)`` (pixel centres at integers) of 3D points.
-
-    Parameters
-    ----------
-    points : (n, 3) float
-    ends : (W * H, 3) float
-        Where each ray meets the detector (:attr:`xray_viz.geometry.Rays.ends`), image order.
-    w : int
-        Image width.
-    source : (3,) float, optional
-        The point source (else ``direction``: a parallel beam).
-
-    Returns
-    -------
-    (n, 2) float, (n,) bool
-        The coordinates, and whether each point is in front of the source.
-    """
-    p00 = ends[0]
-    eu = ends[1] - p00
-    ev = ends[w] - p00
-    normal = np.cross(eu, ev)
-    x = np.asarray(points, dtype=np.float64)
-    if source is not None:
-        rel = x - source
-        den = rel @ normal
-        front = den > 0 if (p00 - source) @ normal > 0 else den < 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = ((p00 - source) @ normal) / den
-        q = source + lam[:, None] * rel
-    else:
-        mu = ((p00 - x) @ normal) / (direction @ normal)
-        q = x + mu[:, None] * direction
-        front = np.ones(len(x), bool)
-    axes = np.stack([eu, ev], axis=1)                                   # (3, 2)
-    cr = ((q - p00) @ axes) @ np.linalg.inv(axes.T @ axes).T
-    return cr, front & np.all(np.isfinite(cr), axis=1)
+__all__ = ["body_pose_gradient", "volume_centroid"]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -72,14 +35,52 @@ def _inside(e, dx, dy):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def body_pose_gradient(vertices, faces, cr, front, origins, directions, t_max, g, center, w, h,
-                       out):
+def _project(vertices, p00, inv, eu, ev, source, direction, parallel, cr, front):
+    """Each vertex's image coordinates ``(col, row)`` (``cr``) and whether it is in front of
+    the source (``front``): the line through it from the source (or along the beam) meets the
+    detector plane ``p00 + col eu + row ev``; ``inv`` is the inverse Gram matrix of eu, ev."""
+    nx = eu[1] * ev[2] - eu[2] * ev[1]
+    ny = eu[2] * ev[0] - eu[0] * ev[2]
+    nz = eu[0] * ev[1] - eu[1] * ev[0]
+    plane = nx * (p00[0] - source[0]) + ny * (p00[1] - source[1]) + nz * (p00[2] - source[2])
+    dn = nx * direction[0] + ny * direction[1] + nz * direction[2]
+    for i in range(vertices.shape[0]):
+        x0, x1, x2 = vertices[i, 0], vertices[i, 1], vertices[i, 2]
+        if parallel:
+            mu = (nx * (p00[0] - x0) + ny * (p00[1] - x1) + nz * (p00[2] - x2)) / dn
+            q0, q1, q2 = x0 + mu * direction[0], x1 + mu * direction[1], x2 + mu * direction[2]
+            front[i] = True
+        else:
+            r0, r1, r2 = x0 - source[0], x1 - source[1], x2 - source[2]
+            den = nx * r0 + ny * r1 + nz * r2
+            front[i] = den * plane > 0.0
+            if not front[i]:
+                continue
+            lam = plane / den
+            q0, q1, q2 = source[0] + lam * r0, source[1] + lam * r1, source[2] + lam * r2
+        q0 -= p00[0]
+        q1 -= p00[1]
+        q2 -= p00[2]
+        a = q0 * eu[0] + q1 * eu[1] + q2 * eu[2]
+        b = q0 * ev[0] + q1 * ev[1] + q2 * ev[2]
+        cr[i, 0] = inv[0, 0] * a + inv[0, 1] * b
+        cr[i, 1] = inv[1, 0] * a + inv[1, 1] * b
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def body_pose_gradient(vertices, faces, center, p00, eu, ev, inv, source, direction, depth,
+                       parallel, g, w, h, out):
     """Add each covered pixel's hits on the triangles ``faces`` to ``out`` (6, W * H).
 
-    ``origins`` is (1, 3) for a point source (all rays from it) or (W * H, 3); ``g`` is
-    (W * H,) ``d ell / d L`` of this body per ray.
+    Pixel ``(col, row)`` lies at ``p00 + col eu + row ev`` on the detector; its ray comes from
+    ``source`` (a point source) or runs along ``direction`` from ``depth`` mm before it (a
+    parallel beam), as :func:`xray_viz.geometry.detector_rays` makes them. ``g`` is (W * H,)
+    ``d ell / d L`` of this body per ray.
     """
-    one_origin = origins.shape[0] == 1
+    nv = vertices.shape[0]
+    cr = np.empty((nv, 2))
+    front = np.empty(nv, np.bool_)
+    _project(vertices, p00, inv, eu, ev, source, direction, parallel, cr, front)
     for f in range(faces.shape[0]):
         i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
         if not (front[i0] and front[i1] and front[i2]):
@@ -116,18 +117,29 @@ def body_pose_gradient(vertices, faces, cr, front, origins, directions, t_max, g
                 k = r * w + c
                 if g[k] == 0.0:
                     continue
-                o = origins[0] if one_origin else origins[k]
-                dx, dy, dz = directions[k, 0], directions[k, 1], directions[k, 2]
+                # the pixel's point on the detector, and its ray
+                e0 = p00[0] + c * eu[0] + r * ev[0]
+                e1_ = p00[1] + c * eu[1] + r * ev[1]
+                e2_ = p00[2] + c * eu[2] + r * ev[2]
+                if parallel:
+                    dx, dy, dz = direction[0], direction[1], direction[2]
+                    t_max = depth
+                    ox, oy, oz = e0 - depth * dx, e1_ - depth * dy, e2_ - depth * dz
+                else:
+                    ox, oy, oz = source[0], source[1], source[2]
+                    dx, dy, dz = e0 - ox, e1_ - oy, e2_ - oz
+                    t_max = np.sqrt(dx * dx + dy * dy + dz * dz)
+                    dx, dy, dz = dx / t_max, dy / t_max, dz / t_max
                 nd = nx * dx + ny * dy + nz * dz
                 if nd == 0.0:
                     continue
-                t = (nx * (v0[0] - o[0]) + ny * (v0[1] - o[1]) + nz * (v0[2] - o[2])) / nd
-                if t < 0.0 or t > t_max[k]:
+                t = (nx * (v0[0] - ox) + ny * (v0[1] - oy) + nz * (v0[2] - oz)) / nd
+                if t < 0.0 or t > t_max:
                     continue
                 coef = (g[k] if nd > 0.0 else -g[k]) / nd     # exits +g, entries -g
-                qx = o[0] + t * dx - center[0]
-                qy = o[1] + t * dy - center[1]
-                qz = o[2] + t * dz - center[2]
+                qx = ox + t * dx - center[0]
+                qy = oy + t * dy - center[1]
+                qz = oz + t * dz - center[2]
                 out[0, k] += coef * nx
                 out[1, k] += coef * ny
                 out[2, k] += coef * nz

@@ -228,33 +228,33 @@ def _apart(scene, idx) -> bool:
 def _fast_gradient(scene, idx, centers, acquisition, center):
     """:func:`line_integral_gradient` by the numba kernel (one ray per pixel, bodies apart):
     the fast engine's path lengths give each ray's slopes, the kernel the hits' terms."""
-    from xray_viz._gradient_kernels import body_pose_gradient, project_to_grid
+    from xray_viz._gradient_kernels import body_pose_gradient
     from xray_viz.tracing.engines import ENGINES
 
     acq = scene.acquisition
     w, h = scene.detector.shape
-    rays = acq.rays(supersample=1)
     L = ENGINES["fast"].path_lengths(scene.bodies, acq, supersample=1)
     ell, g = _per_ray_slopes(np.asarray(L, dtype=np.float64), scene, 1)
+    g = np.ascontiguousarray(np.asarray(g, dtype=np.float64).T)       # (bodies, rays)
+    # the detector grid from the rays of its first two rows: pixel (col, row) at
+    # p00 + col eu + row ev (tilted and offset detectors too)
+    rays = acq.rays(supersample=1, rows=(0, 2))
     ends = rays.ends
-    if acq.parallel:
-        origins = np.ascontiguousarray(rays.origins)
-        project = {"direction": rays.directions[0]}
-    else:
-        origins = np.ascontiguousarray(rays.origins[:1])
-        project = {"source": rays.origins[0]}
-    directions = np.ascontiguousarray(rays.directions)
-    t_max = np.ascontiguousarray(rays.t_max, dtype=np.float64)
+    p00, eu, ev = ends[0], ends[1] - ends[0], ends[w] - ends[0]
+    axes = np.stack([eu, ev], axis=1)
+    inv = np.ascontiguousarray(np.linalg.inv(axes.T @ axes))
+    parallel = bool(acq.parallel)
+    source = np.ascontiguousarray(rays.origins[0], dtype=np.float64)
+    direction = np.ascontiguousarray(rays.directions[0], dtype=np.float64)
+    depth = float(rays.t_max[0])
 
     def one(b, c):
         body = scene.bodies[b]
-        v = np.ascontiguousarray(body.vertices)
-        cr, front = project_to_grid(v, ends, w, **project)
         out = np.zeros((6, w * h))
-        body_pose_gradient(v, np.ascontiguousarray(body.faces), np.ascontiguousarray(cr),
-                           front, origins, directions, t_max,
-                           np.ascontiguousarray(g[:, b], dtype=np.float64),
-                           np.asarray(c, dtype=np.float64), w, h, out)
+        body_pose_gradient(np.ascontiguousarray(body.vertices),
+                           np.ascontiguousarray(body.faces), np.asarray(c, dtype=np.float64),
+                           p00, eu, ev, inv, source, direction, depth, parallel, g[b], w, h,
+                           out)
         return out
     pose = np.zeros((len(idx), 6, w * h))
     for k, b in enumerate(idx):
