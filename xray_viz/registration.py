@@ -534,8 +534,8 @@ def register_command(args, *, stdout=None) -> int:
         raise SceneError(str(exc).removeprefix("register: ")) from None
     for name in args.body:
         p = reg.poses[name]
-        print(f"{name}: translation {np.round(p[:3], 4).tolist()} mm, rotation "
-              f"{np.round(np.degrees(p[3:]), 4).tolist()} deg (about its centroid; "
+        print(f"{name}: translation {(np.round(p[:3], 4) + 0.0).tolist()} mm, rotation "
+              f"{(np.round(np.degrees(p[3:]), 4) + 0.0).tolist()} deg (about its centroid; "
               f"{np.degrees(np.linalg.norm(p[3:])):.4f} deg in all)", file=out_stream)
     label = {"ssd": "mean squared difference", "ncc": "1 - NCC", "gc": "1 - GC"}[args.similarity]
     print(f"{args.similarity}: {label} {reg.initial_loss:.6g} -> {reg.loss:.6g} in "
