@@ -231,3 +231,20 @@ def test_nested_bodies_take_the_reference_path_with_the_same_numbers():
     assert not G._apart(scene, [0])
     np.testing.assert_array_equal(G.pose_gradient(scene, engine="fast"),
                                   G.pose_gradient(scene, engine="numpy"))
+
+
+def test_heel_effect_spectra_per_pixel():
+    """With the heel effect each pixel has its own spectrum: the line integral is render's and
+    a translation's derivative matches finite differences."""
+    scene = _scene("point", shape=(24, 20), pitch=3.4, materials=True,
+                   spectrum={"kvp": 80.0, "filters": {"Al": 2.5}})
+    scene = scene.replace(source=dataclasses.replace(scene.source, heel="top"))
+    res = G.line_integral_gradient(scene, ["inner"])
+    np.testing.assert_allclose(res.line_integral, xray_viz.render(scene).line_integral,
+                               rtol=1e-12, atol=1e-12)
+    weights = np.random.default_rng(5).standard_normal(res.line_integral.shape)
+    scale = np.abs(weights * res.pose[0]).sum()
+    for j in (0, 4):
+        exact = float((weights * res.pose[0, j]).sum())
+        fd = _fd_pose(scene, "inner", res.centers[0], weights, j)
+        assert abs(fd - exact) <= 1e-4 * scale, (j, fd, exact)
