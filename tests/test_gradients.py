@@ -248,3 +248,8 @@ def test_heel_effect_spectra_per_pixel():
         exact = float((weights * res.pose[0, j]).sum())
         fd = _fd_pose(scene, "inner", res.centers[0], weights, j)
         assert abs(fd - exact) <= 1e-4 * scale, (j, fd, exact)
+
+
+def test_unknown_gradient_engine():
+    with pytest.raises(SceneError, match="unknown gradient engine 'gpu'"):
+        G.pose_gradient(_scene("point", shape=(8, 8), pitch=10.0), engine="gpu")

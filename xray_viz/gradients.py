@@ -202,9 +202,12 @@ def _body_indices(scene, bodies) -> list[int]:
 
 def _per_ray_slopes(L, scene, supersample):
     """Per ray: its line integral ``ell`` and ``g = d ell / d L_b`` (n_rays, n_bodies)."""
-    from xray_viz.physics.imaging import MM_PER_CM, _beam, body_mu, ray_weights
+    from xray_viz.physics.imaging import MM_PER_CM, body_mu, detector_weights, ray_weights
+    from xray_viz.physics.spectra import source_spectrum
 
-    spectrum, keep, _, _ = _beam(scene)
+    # the bins the detector weighs, as the log-transmission of render keeps them
+    spectrum = source_spectrum(scene.source)
+    keep = detector_weights(spectrum, scene.detector.response) > 0
     mu = body_mu(scene, spectrum.energies[keep]) / MM_PER_CM           # (K, B) 1/mm
     if len(mu) == 1 and getattr(scene.source, "heel", False) in (False, None):
         ell = L @ mu[0]
@@ -218,6 +221,10 @@ def _per_ray_slopes(L, scene, supersample):
     ell = -(top[:, 0] + np.log(s[:, 0]))
     p = e / s                                                          # share of each bin
     return ell, p @ mu
+
+
+#: Whether each gradient engine may use the numba kernel (``"numpy"``: the reference always).
+_KERNEL = {"fast": True, "numpy": False}
 
 
 def _apart(scene, idx) -> bool:
@@ -310,7 +317,8 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
     from xray_viz.physics.imaging import pixel_log_mean
     from xray_viz.tracing.hits import trace_rays
 
-    if engine not in ("fast", "numpy"):
+    kernel = _KERNEL.get(engine)
+    if kernel is None:
         raise SceneError(f"unknown gradient engine {engine!r}; choose 'fast' or 'numpy'")
     idx = _body_indices(scene, bodies)
     n = int(supersample or getattr(scene.detector, "supersample", 1) or 1)
@@ -320,7 +328,7 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
         centers = np.array([centroid(scene.bodies[b]) for b in idx]).reshape(-1, 3)
     else:
         centers = np.asarray(centers, dtype=np.float64).reshape(len(idx), 3)
-    if (engine == "fast" and nn == 1 and w > 1 and h > 1
+    if (kernel and nn == 1 and w > 1 and h > 1
             and _apart(scene, range(len(scene.bodies)) if acquisition else idx)):
         return _fast_gradient(scene, idx, centers, acquisition, center)
     acq = scene.acquisition
