@@ -209,7 +209,7 @@ def _per_ray_slopes(L, scene, supersample):
     spectrum = source_spectrum(scene.source)
     keep = detector_weights(spectrum, scene.detector.response) > 0
     mu = body_mu(scene, spectrum.energies[keep]) / MM_PER_CM           # (K, B) 1/mm
-    if len(mu) == 1 and getattr(scene.source, "heel", False) in (False, None):
+    if len(mu) == 1 and not scene.source.heel:
         ell = L @ mu[0]
         return ell, np.broadcast_to(mu[0], L.shape)
     w = ray_weights(scene, supersample=supersample)                    # (n_rays, K)
@@ -321,7 +321,7 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
     if kernel is None:
         raise SceneError(f"unknown gradient engine {engine!r}; choose 'fast' or 'numpy'")
     idx = _body_indices(scene, bodies)
-    n = int(supersample or getattr(scene.detector, "supersample", 1) or 1)
+    n = int(supersample or scene.detector.supersample)
     nn = n * n
     w, h = scene.detector.shape
     if centers is None:
