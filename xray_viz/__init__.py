@@ -41,6 +41,8 @@ _LAZY = {
     "Detector": "scene", "Scene": "scene", "Source": "scene", "load_scene": "scene",
     "scan": "scan", "Hits": "tracing", "trace_rays": "tracing",
     "transport": "transport", "Transport": "transport",
+    "pose_gradient": "gradients", "acquisition_gradient": "gradients",
+    "register": "registration", "Registration": "registration",
 }
 
 def _is_submodule(name: str) -> bool:
@@ -68,6 +70,10 @@ def __getattr__(name):
         from xray_viz.transport import Transport, transport  # noqa: F401
     elif where == "tracing":
         from xray_viz.tracing import Hits, trace_rays  # noqa: F401
+    elif where == "gradients":      # issue 41: exact pose gradients
+        from xray_viz.gradients import acquisition_gradient, pose_gradient  # noqa: F401
+    elif where == "registration":   # issue 41: 2D/3D registration
+        from xray_viz.registration import Registration, register  # noqa: F401
     elif name == "show":    # the viewer (VTK, and trame in a notebook) only when asked for
         from xray_viz.viz.notebook import show
 
@@ -112,4 +118,5 @@ __all__ = [
     "Rays", "Scene", "SceneError", "SceneFileNotFoundError", "Source", "SpectrumError",
     "Viewport", "XrayVizError", "detector_rays", "load_image", "load_scene", "reconstruct",
     "render", "save_image", "scan", "show", "trace_rays", "transport", "Transport", "viewport",
+    "pose_gradient", "acquisition_gradient", "register", "Registration",     # issue 41
 ]

@@ -48,6 +48,7 @@ examples:
   xray-viz convert gvxr.json -o scene.toml          a gVirtualXray JSON scene as a scene file
   xray-viz walkthrough --list                       the walkthroughs that rebuild the thesis
   xray-viz walkthrough 6                            Moller-Trumbore step by step, one ray
+  xray-viz register scene.toml li.tiff --body stem -o fitted.toml   a body's pose from its X-ray
   xray-viz --version --verbose                      versions of everything, for a bug report
 
 Options for every command: -v/--verbose (debug messages), -q/--quiet (no progress bars or
@@ -313,6 +314,9 @@ def _add_other_commands(sub) -> None:
     from xray_viz.montecarlo.command import add_dose_parser
 
     add_dose_parser(sub)
+    from xray_viz.registration import add_register_parser      # issue 41
+
+    add_register_parser(sub)
 
     p = sub.add_parser("phantoms", help="list the bundled phantoms",
                        description="List the bundled phantoms with their descriptions. Each name "
