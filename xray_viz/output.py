@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import OutputError, WriteInterrupted, one_line
+from xray_viz.errors import OutputError, WriteInterrupted, one_line, reader_reason
 
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
@@ -837,10 +837,53 @@ def _write_hdf5(tmp, data, meta) -> None:
         entry["xray_viz_metadata"] = _json(meta)
 
 
+def _refuse_hdf5_outside(path, f) -> None:
+    """Raise :class:`OutputError` when the open HDF5 file ``f`` reaches into another file: an
+    external link, a dataset with external raw storage or a virtual dataset (whose sources
+    are other files), anywhere in it. Soft links stay inside the file and are not followed
+    here (no cycles); hard links are walked once each.
+
+    A crafted ``.h5`` would otherwise hand out another file's bytes as its image.
+    """
+    import h5py
+
+    seen = set()
+
+    def walk(group, where):
+        for name in group:
+            link = group.get(name, getlink=True)
+            full = f"{where.rstrip('/')}/{name}"
+            if isinstance(link, h5py.ExternalLink):
+                what = "an external link"
+            elif isinstance(link, h5py.SoftLink):
+                continue
+            else:
+                obj = group.get(name)
+                if obj is None or hash(obj.id) in seen:
+                    continue
+                seen.add(hash(obj.id))
+                if isinstance(obj, h5py.Group):
+                    walk(obj, full)
+                    continue
+                if not isinstance(obj, h5py.Dataset):
+                    continue
+                if obj.external:
+                    what = "a dataset stored in another file (external raw storage)"
+                elif obj.is_virtual:
+                    what = "a virtual dataset (its data are in other files)"
+                else:
+                    continue
+            raise OutputError(f"{path}: {full} is {what}: refused, an image is read from its "
+                              "own file only (copy the data into the file, e.g. h5repack)")
+
+    walk(f, "/")
+
+
 def _read_hdf5(path) -> tuple[np.ndarray, dict | None]:
     import h5py
 
     with h5py.File(path, "r") as f:
+        _refuse_hdf5_outside(path, f)
         if "entry/instrument/detector/data" in f:
             data = f["entry/instrument/detector/data"][()]
         else:                             # an HDF5 file from elsewhere: its one 2-D dataset
@@ -1267,9 +1310,9 @@ def load_image(path, *, with_metadata=False):
     except FileNotFoundError:
         raise OutputError(f"{path}: no such file") from None
     except Exception as exc:      # each format's library has its own errors for a bad file
-        text = str(exc).strip().splitlines()
+        text = reader_reason(str(exc).strip().splitlines()[0]) if str(exc).strip() else ""
         raise OutputError(f"{path}: cannot read it as a {suffix} image ({type(exc).__name__}"
-                          f"{': ' + text[0] if text else ''})") from None
+                          f"{': ' + text if text else ''})") from None
     return (image, meta) if with_metadata else image
 
 

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line
+from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line, \
+    reader_reason
 
 __all__ = ["load_mesh", "MESH_SUFFIXES", "as_trimesh", "scene_nodes", "expand_nodes"]
 
@@ -67,20 +68,16 @@ def _quiet_vtk_read(pv, path: Path):
     return pv.wrap(output)
 
 
-#: A quoted stretch of a message: 'text', "text" or `text` (or unterminated, to the end).
-_QUOTED = re.compile(r"""'([^']*)(?:'|$)|"([^"]*)(?:"|$)|`([^`]*)(?:`|$)""")
+def _shorten_quotes(text: str) -> str:
+    """Replace every quoted stretch of ``text`` (a reader's message quoting a line of the file,
+    which may be any file a scene names) by ``'...'`` (:func:`~xray_viz.errors.reader_reason`).
 
-
-def _shorten_quotes(text: str, limit: int = 40) -> str:
-    """Cut every quoted stretch of ``text`` longer than ``limit`` characters (a reader's
-    message quoting a line of the file) to its first ``limit`` characters and ``...``."""
-    def cut(match):
-        inner = next(g for g in match.groups() if g is not None)
-        if len(inner) <= limit:
-            return match.group(0)
-        quote = match.group(0)[0]
-        return f"{quote}{inner[:limit]}{quote}..."
-    return _QUOTED.sub(cut, text)
+    Examples
+    --------
+    >>> _shorten_quotes("could not convert string to float: 'FAKESECRET-1'")
+    "could not convert string to float: '...'"
+    """
+    return reader_reason(text, limit=len(text) + 10)
 
 
 def _reason(exc: BaseException) -> str:
@@ -100,8 +97,8 @@ def _reason(exc: BaseException) -> str:
 #: VTK messages reworded: (a regular expression, what to say instead).
 _VTK_REWORDING = (
     (re.compile(r"^Unrecognized file type: (.*?)(?: for file: .*)?$", re.S),
-     lambda m: ("not a legacy VTK header ('# vtk DataFile Version x.y', a title, ASCII or "
-                f"BINARY): found '{one_line(m.group(1), limit=40)}'")),
+     lambda m: ("not a legacy VTK header: its first lines are not '# vtk DataFile Version "
+                "x.y', a title, ASCII or BINARY")),
     (re.compile(r"did not create output .*REQUEST_DATA_OBJECT", re.S),
      lambda m: "its header names no dataset type VTK can read (a line such as "
                "'DATASET POLYDATA')"),

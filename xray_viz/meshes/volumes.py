@@ -88,7 +88,7 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFoundError, \
-    XrayVizError, one_line
+    XrayVizError, reader_reason
 
 __all__ = [
     "Volume", "LabelSurface", "VolumeMeshes", "read_volume", "voxel_surface", "mesh_mask",
@@ -219,20 +219,64 @@ def _read_nifti(path: Path, *, hu: bool):
         data = np.asanyarray(img.dataobj)  # scaled by scl_slope/scl_inter when they are set
         affine = np.asarray(img.affine, dtype=np.float64)
     except Exception as exc:
-        raise MeshError(f"{path}: cannot read NIfTI: {one_line(exc, limit=160)}") from None
+        raise MeshError(f"{path}: cannot read NIfTI: {reader_reason(exc)}") from None
     return _as_3d(np.asarray(data), path), affine
+
+
+def _detached_data_names(path: Path) -> list[str]:
+    """The data files a MetaImage (``ElementDataFile``) or NRRD (``data file``) header names,
+    as written (``LOCAL``/attached data: none; ``LIST``: the names after it; a numbered
+    pattern such as ``slice%03d.raw 1 40 1``: the pattern)."""
+    import re
+
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16).decode("latin-1")
+    lines = head.splitlines()
+    mha = path.name.lower().endswith((".mha", ".mhd"))
+    key = re.compile(r"^\s*ElementDataFile\s*=\s*(.*)$" if mha
+                     else r"^\s*data ?file\s*:\s*(.*)$", re.IGNORECASE)
+    for k, line in enumerate(lines):
+        if not mha and not line.strip() and k > 0:
+            return []                                     # NRRD: the header ends here
+        m = key.match(line)
+        if not m:
+            continue
+        value = m.group(1).strip()
+        first = value.split()[0] if value.split() else ""
+        if first.upper() == "LOCAL" or not value:
+            return []
+        if first.upper() == "LIST":
+            return [t.strip() for t in lines[k + 1:] if t.strip()]
+        if "%" in first and len(value.split()) >= 3:      # a pattern, then min max step
+            return [first]
+        return [value]
+    return []
+
+
+def _refuse_detached_outside(path: Path) -> None:
+    """A header whose data file lies outside the header's own folder (an absolute path, or
+    ``..`` out of it) is refused: a crafted header would otherwise read any file as voxels."""
+    import posixpath
+
+    for name in _detached_data_names(path):
+        norm = posixpath.normpath(name.replace("\\", "/"))
+        if posixpath.isabs(norm) or norm.startswith("../") or norm == ".." \
+                or (len(norm) > 1 and norm[1] == ":"):
+            raise MeshError(f"{path}: its data file {name[:120]!r} is outside the header's "
+                            "folder: refused; put the data file beside the header (or in a "
+                            "folder under it) and name it relative to it")
 
 
 def _read_itk(path: Path, *, hu: bool):
     import SimpleITK as sitk
 
+    _refuse_detached_outside(path)
     try:
         img = sitk.ReadImage(str(path))
     except Exception as exc:
         text = str(exc).split("\n")
-        reason = next((t.strip() for t in text if "description" in t.lower()),
-                      one_line(exc, limit=160))
-        raise MeshError(f"{path}: cannot read image: {one_line(reason, limit=160)}") from None
+        reason = next((t.strip() for t in text if "description" in t.lower()), exc)
+        raise MeshError(f"{path}: cannot read image: {reader_reason(reason)}") from None
     if img.GetNumberOfComponentsPerPixel() != 1:
         raise MeshError(f"{path}: {img.GetNumberOfComponentsPerPixel()} components per voxel; "
                         "a label map or CT has one")
@@ -284,7 +328,7 @@ def _read_dicom_series(folder: Path, *, hu: bool):
             px = ds.pixel_array.astype(np.float64)
         except Exception as exc:
             raise MeshError(f"{folder}: cannot decode slice {f.name}: "
-                            f"{one_line(exc, limit=120)}") from None
+                            f"{reader_reason(exc, limit=120)}") from None
         slope = float(getattr(ds, "RescaleSlope", 1.0))
         intercept = float(getattr(ds, "RescaleIntercept", 0.0))
         images.append(px * slope + intercept if hu else px)
