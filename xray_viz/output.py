@@ -580,9 +580,57 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     else:                                    # .h5, .hdf5
         _need(path, "h5py", "pip install 'xray_viz[ct]'")
         data = image.astype(np.float64)
+        check_room(path, data.nbytes + (1 << 16), what="the HDF5 image")
         atomic_write(path, lambda tmp: _write_hdf5(tmp, data, meta),
                      verify=lambda tmp: _check_hdf5(tmp, data, meta))
     return path
+
+
+def check_room(path, nbytes: int, *, what: str = "the file") -> None:
+    """Refuse, before any work, to write about ``nbytes`` to ``path`` when the disk holding it
+    has less free space, or the process may not write a file that large (``ulimit -f``,
+    RLIMIT_FSIZE).
+
+    HDF5 in particular cannot fail gracefully there: a write that fails for want of room
+    leaves the library in a state where closing the file crashes the process (a segmentation
+    fault after the error). A margin of 5 % and 1 MiB is asked for (the container's own
+    structures).
+
+    Raises
+    ------
+    OutputError
+        One line: the file, what it needs, what there is, what to do.
+    """
+    import resource
+
+    path = Path(path)
+    need = int(nbytes * 1.05) + (1 << 20)
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if soft != resource.RLIM_INFINITY and need > soft:
+        raise OutputError(f"{path}: {what} needs about {_human(need)}, more than this process "
+                          f"may write to one file ({_human(soft)}, ulimit -f); raise the "
+                          "limit or write less")
+    folder = path.absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return
+    free = st.f_bavail * st.f_frsize
+    if need > free:
+        raise OutputError(f"{path}: {what} needs about {_human(need)}, only {_human(free)} "
+                          "free on that disk; free some space or write it elsewhere")
+
+
+def _human(nbytes: int) -> str:
+    """``1536`` -> ``"1.5 KiB"``."""
+    size = float(nbytes)
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB"):
+        if size < 1024 or unit == "TiB":
+            return f"{size:.0f} {unit}" if unit == "bytes" else f"{size:.3g} {unit}"
+        size /= 1024
+    return f"{size:.3g} TiB"
 
 
 def _need(path, module: str, how: str) -> None:

@@ -920,10 +920,13 @@ def write_nexus(result: Scan, path) -> Path:
     then renamed."""
     import h5py
 
+    from xray_viz.output import check_room
+
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     g = result.geometry
     n = result.projections.shape[0]
+    check_room(path, 4 * int(np.prod(result.projections.shape)), what="the NeXus file")
     angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
     try:
         with h5py.File(tmp, "w") as f:
@@ -1306,6 +1309,11 @@ def scan_command(args) -> int:
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
+    from xray_viz.output import check_room
+
+    h, w = scene.detector.shape[1], scene.detector.shape[0]
+    check_room(out if kind == "nexus" else out / "x.tiff", 4 * geometry["projections"] * h * w,
+               what=f"the stack of {geometry['projections']} projections")   # before any work
     result = scan(scene, orbit, quantity=args.quantity, engine=args.engine, progress=True)
     (write_nexus if kind == "nexus" else write_tiff_stack)(result, out)
     print(f"{out}: {len(result.projections)} projections, {args.quantity}")
