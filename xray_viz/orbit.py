@@ -460,6 +460,8 @@ def read_poses(path) -> tuple:
         raise SceneError(f"[scan] poses file {path} not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SceneError(f"[scan] poses file {path} is not readable JSON: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"[scan] poses file {path} is nested too deeply (arrays or tables thousands of levels inside each other)") from None
     if isinstance(doc, dict) and "poses" in doc:
         doc = doc["poses"]
     if not isinstance(doc, list) or not doc:

@@ -758,7 +758,7 @@ def _parse_json(text):
         return None
     try:
         meta = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
     return meta if isinstance(meta, dict) and "xray_viz" in meta else None
 
@@ -1252,7 +1252,12 @@ class ImageMetadata:
 
         from xray_viz.scene import scene_from_dict
 
-        return scene_from_dict(tomllib.loads(self.scene_toml))
+        try:
+            doc = tomllib.loads(self.scene_toml)
+        except (tomllib.TOMLDecodeError, RecursionError) as exc:
+            why = "nested too deeply (arrays or tables thousands of levels inside each other)" if isinstance(exc, RecursionError) else "not TOML"
+            raise OutputError(f"this {self.format} file's embedded scene is {why}") from None
+        return scene_from_dict(doc)
 
     def to_physical(self, image) -> np.ndarray:
         """The quantity a loaded image stands for: a PNG's 16-bit values mapped back through

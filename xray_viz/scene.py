@@ -1562,4 +1562,6 @@ def load_scene(path: str | Path) -> Scene:
         from xray_viz.meshes.gvxr import not_toml
 
         raise SceneError(not_toml(p, text) or f"{p}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{p}: nested too deeply (arrays or tables thousands of levels inside each other): not a scene file") from None
     return scene_from_dict(doc, base_dir=p.parent, file=p)

@@ -545,6 +545,8 @@ def read_json(path):
     except json.JSONDecodeError as exc:
         raise SceneError(f"{path}: malformed JSON: {exc.msg} (line {exc.lineno}, column "
                          f"{exc.colno})") from None
+    except RecursionError:
+        raise SceneError(f"{path}: nested too deeply (arrays or tables thousands of levels inside each other): not a gVXR scene") from None
 
 
 def not_toml(path, text: str) -> str | None:
@@ -562,7 +564,7 @@ def not_toml(path, text: str) -> str | None:
         return None
     try:
         doc = json.loads(stripped)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         return None
     what = "a gVirtualXray scene" if isinstance(doc, dict) and "Source" in doc else "JSON"
     return (f"{path}: is a JSON file ({what}), not TOML: rename it to .json to load it as a "

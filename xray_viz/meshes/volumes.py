@@ -109,6 +109,10 @@ VOLUME_SUFFIXES = NIFTI_SUFFIXES + ITK_SUFFIXES + DICOM_SEG_SUFFIXES
 #: ITK's and DICOM's world coordinates (LPS+) to the scene's (RAS+): x and y negated.
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
+#: Largest median filter size of a ``[[ct]]`` table (voxels): 3 removes speckle; beyond a few
+#: voxels the filter erases bodies and its cost grows with the cube of the size.
+MAX_MEDIAN = 9
+
 #: Windowed-sinc pass bands tried, strongest smoothing first (VTK: 0 < pass band < 2).
 PASS_BANDS = (0.01, 0.03, 0.1, 0.3)
 #: Windowed-sinc iterations.
@@ -919,6 +923,9 @@ def classify_hu(hu, ranges=SCHNEIDER_2000, *, median: int = 1, min_voxels: int =
 
     hu = np.asarray(hu, dtype=np.float64)
     if median and median > 1:
+        if int(median) > MAX_MEDIAN:
+            raise MeshError(f"median = {median} is too large: the median filter's size in "
+                            f"voxels is 0 or 1 (none) up to {MAX_MEDIAN} (3 removes speckle)")
         hu = ndimage.median_filter(hu, size=int(median), mode="nearest")
     classes = np.zeros(hu.shape, dtype=np.int64)
     for k, r in enumerate(ranges, start=1):
@@ -1140,6 +1147,9 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
     for key, v in (("median", median), ("min_voxels", min_voxels)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             _fail(where, f"{key} must be a whole number >= 0, got {v!r}")
+    if median > MAX_MEDIAN:
+        _fail(where, f"median = {median} is too large: the median filter's size in voxels is "
+                     f"0 or 1 (none) up to {MAX_MEDIAN} (3 removes speckle)")
     try:
         meshes = ct_surfaces(path, ranges, max_error=_max_error(raw, where), median=median,
                              min_voxels=min_voxels, cache=cache)
