@@ -946,9 +946,9 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
             raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
                              "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
                              "source_file= that file, to write the scene")
-        from xray_viz.meshes.io import MESH_SUFFIXES
+        from xray_viz.meshes.io import MESH_SUFFIXES, split_node
 
-        mesh_file = str(body.source_file).split("#")[0]          # model.glb#NODE: the file
+        mesh_file = str(split_node(body.source_file)[0])          # model.glb#NODE: the file
         if not mesh_file.lower().endswith(MESH_SUFFIXES):
             raise SceneError(f"body {body.name!r} was made from {Path(mesh_file).name}, not a "
                              "mesh file: write its meshes with `xray-viz mesh FILE -o FOLDER` "
@@ -1242,7 +1242,7 @@ def _integer(t: _Table, key: str, *, minimum: int, default=None):
 def _parse_body(t: _Table, base_dir: Path, index: int):
     """``(body, report)``: one ``[[body]]`` table's body, its mesh checked (and repaired if
     allowed), and the mesh's :class:`~xray_viz.meshes.repair.MeshReport`."""
-    from xray_viz.meshes.io import load_mesh
+    from xray_viz.meshes.io import load_mesh, split_node
 
     t.expect(BODY_KEYS)
     name = t.string("name", default=f"body{index}")
@@ -1285,7 +1285,10 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     if not isinstance(repair, bool):
         t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
-    path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
+    path = (base_dir / mesh_name) if not Path(mesh_name).is_absolute() else Path(mesh_name)
+    if not Path(mesh_name).is_absolute():        # model.glb#NODE: the node's name kept as is
+        mesh_file, node = split_node(path)
+        path = mesh_file.resolve() if node is None else Path(f"{mesh_file.resolve()}#{node}")
     where = f"{t.file}: " if t.file else ""
     try:
         mesh = load_mesh(path)

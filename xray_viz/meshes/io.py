@@ -202,10 +202,10 @@ def load_mesh(path: str | Path, *, process: bool = True):
     import trimesh
 
     path = Path(path)
-    if not path.exists() and "#" in path.name:
-        base, _, node = str(path).rpartition("#")
-        if Path(base).suffix.lower() in NODE_SUFFIXES and Path(base).exists():
-            return _node_mesh(Path(base), node, process=process)
+    if not path.exists():
+        base, node = split_node(path)
+        if node is not None:
+            return _node_mesh(base, node, process=process)
     if not path.exists():
         raise SceneFileNotFoundError(f"{path}: mesh file not found")
     if path.suffix.lower() not in MESH_SUFFIXES:
@@ -349,6 +349,33 @@ def scene_nodes(path) -> list[str]:
         return []
     scene = _load_scene(path)
     return sorted(scene.graph.nodes_geometry)
+
+
+def split_node(path) -> tuple[Path, str | None]:
+    """``FILE#NODE`` split on the first ``#`` after which the part before it is an existing
+    glTF/GLB file: ``(FILE, NODE)``; else ``(path, None)``. A node's name may hold ``/``
+    (``Armature/Bone``) and ``#``; so may the folders before the file.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp()) / "a#b"
+    >>> folder.mkdir()
+    >>> _ = (folder / "model.glb").write_bytes(b"")
+    >>> f, node = split_node(f"{folder}/model.glb#Armature/Bone#2")
+    >>> f == folder / "model.glb", node
+    (True, 'Armature/Bone#2')
+    >>> split_node(folder / "model.glb")[1] is None
+    True
+    """
+    text = str(path)
+    start = 0
+    while (k := text.find("#", start)) >= 0:
+        base = Path(text[:k])
+        if base.suffix.lower() in NODE_SUFFIXES and base.is_file():
+            return base, text[k + 1:]
+        start = k + 1
+    return Path(path), None
 
 
 def _load_scene(path: Path):
