@@ -453,7 +453,10 @@ def pose_acquisition(base: Acquisition, pose, *, where: str = "") -> Acquisition
 def read_poses(path) -> tuple:
     """The poses of a JSON file: a list of ``{"source", "detector_center", "u", "v"}`` or a
     scan's geometry document (a table with ``"poses"``)."""
+    from xray_viz._files import require_regular
+
     path = Path(path)
+    require_regular(path, SceneError, "poses file")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:

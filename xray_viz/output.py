@@ -554,7 +554,12 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         if scene is None:
             raise OutputError(f"{path}: DICOM output needs the scene for its geometry: "
                               "save_image(path, image, scene=scene)")
-        ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
+        with warnings.catch_warnings(record=True) as caught:   # said with the file's name
+            warnings.simplefilter("always")
+            ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
+        for w in caught:
+            warnings.warn(f"{path}: {str(w.message).removeprefix('DICOM: ')}", w.category,
+                          stacklevel=2)
         atomic_write(path, lambda tmp: _dcmwrite(tmp, ds), verify=lambda tmp: _check_dicom(tmp, ds))
         return path
     meta = image_metadata(scene, quantity=quantity)
@@ -833,22 +838,24 @@ def _write_nifti(tmp, data, affine, meta) -> None:
 
 
 def _read_nifti(path) -> tuple[np.ndarray, np.ndarray, dict | None]:
-    import nibabel as nib
+    from xray_viz._files import open_nifti
 
-    img = nib.load(path)
-    data = np.asarray(img.dataobj)
+    with open_nifti(path) as img:                  # image.Nii as image.nii
+        data = np.asarray(img.dataobj)
+        affine = img.affine
+        header = img.header
     if data.ndim == 3 and data.shape[2] == 1:
         data = data[:, :, 0]
     meta = None
-    for ext in img.header.extensions:
+    for ext in header.extensions:
         if ext.get_code() == 6:
             meta = _parse_json(ext.get_content().decode("ascii", "replace"))
             if meta is not None:
                 break
     if meta is None:
-        spacing = img.header.get_zooms()[:2]
+        spacing = header.get_zooms()[:2]
         meta = {"pitch_mm": [float(s) for s in spacing]}
-    return np.ascontiguousarray(data.T), img.affine, meta
+    return np.ascontiguousarray(data.T), affine, meta
 
 
 def _check_nifti(tmp, data, affine, meta) -> None:
@@ -982,7 +989,8 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     ``MeasurementUnitsCodeSequence`` its UCUM unit (``"1"``, no units, for intensities in photons
     per pixel and line integrals; ``"mm"`` for path lengths). It recovers the values to within
     half a quantisation step, ``(max - min) / 65535 / 2`` (:func:`load_image`). Infinite values
-    (a line integral through a body that stops every photon) are stored as the range's end.
+    (a line integral through a body that stops every photon) are stored as the range's end,
+    NaN as its low end; either is warned about (``RuntimeWarning``), as for a ``.png``.
     The window (``WindowCenter``/``WindowWidth``, in stored values) spans the whole range.
 
     Geometry written:
@@ -1032,6 +1040,10 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     if bright not in ("high", "low"):
         raise OutputError(f"bright must be 'high' or 'low', got {bright!r}")
     finite = np.isfinite(a)
+    bad = int(a.size - np.count_nonzero(finite))
+    if bad:                                   # as a PNG says it: the window's ends are not data
+        warnings.warn(_nonfinite_message(bad, a.size, "DICOM: "), RuntimeWarning,
+                      stacklevel=2)
     lo, hi = (float(a[finite].min()), float(a[finite].max())) if finite.any() else (0.0, 0.0)
     intercept = lo
     slope = (hi - lo) / 65535.0 if hi > lo else 1.0
@@ -1354,8 +1366,11 @@ def load_image(path, *, with_metadata=False):
     >>> bool(np.abs(meta.to_physical(stored) - image).max() <= meta.window["step"] / 2)
     True
     """
+    from xray_viz._files import require_regular
+
     path = Path(path)
     suffix = check_format(path)
+    require_regular(path, OutputError, "image file")
     try:
         image, meta = _read_image(path, suffix)
     except OutputError:

@@ -1548,6 +1548,10 @@ def load_scene(path: str | Path) -> Scene:
                 f"{path}: no such scene file, and no bundled phantom of that name "
                 f"(phantoms: {names})"
             )
+        else:                                   # a named pipe would block the read for ever
+            from xray_viz._files import require_regular
+
+            require_regular(p, SceneError, "scene file")
     if p.suffix.lower() == ".json":  # a gVirtualXray scene
         from xray_viz.meshes.gvxr import gvxr_to_dict, read_json
 

@@ -531,7 +531,10 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
 
 def read_json(path):
     """Parse a JSON file; a syntax error is one line naming the file, line and column."""
+    from xray_viz._files import require_regular
+
     path = Path(path)
+    require_regular(path, SceneError, "gVXR scene file")
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from xray_viz._files import require_regular
 from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line, \
     reader_reason
 
@@ -208,6 +209,7 @@ def load_mesh(path: str | Path, *, process: bool = True):
             return _node_mesh(base, node, process=process)
     if not path.exists():
         raise SceneFileNotFoundError(f"{path}: mesh file not found")
+    require_regular(path, MeshError, "mesh file")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} "
                         f"(use one of {', '.join(MESH_SUFFIXES)})")

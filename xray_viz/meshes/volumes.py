@@ -216,12 +216,12 @@ def _as_3d(data: np.ndarray, path: Path) -> np.ndarray:
 
 
 def _read_nifti(path: Path, *, hu: bool):
-    import nibabel as nib
+    from xray_viz._files import open_nifti
 
     try:
-        img = nib.load(str(path))
-        data = np.asanyarray(img.dataobj)  # scaled by scl_slope/scl_inter when they are set
-        affine = np.asarray(img.affine, dtype=np.float64)
+        with open_nifti(path) as img:      # CT.NII.GZ as ct.nii.gz
+            data = np.asanyarray(img.dataobj)  # scaled by scl_slope/scl_inter when set
+            affine = np.asarray(img.affine, dtype=np.float64)
     except Exception as exc:
         raise MeshError(f"{path}: cannot read NIfTI: {reader_reason(exc)}") from None
     return _as_3d(np.asarray(data), path), affine
@@ -274,9 +274,11 @@ def _refuse_detached_outside(path: Path) -> None:
 def _read_itk(path: Path, *, hu: bool):
     import SimpleITK as sitk
 
+    from xray_viz._files import itk_read
+
     _refuse_detached_outside(path)
     try:
-        img = sitk.ReadImage(str(path))
+        img = itk_read(path)                # labels.MHA as labels.mha
     except Exception as exc:
         text = str(exc).split("\n")
         reason = next((t.strip() for t in text if "description" in t.lower()), exc)
@@ -392,6 +394,9 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     path = Path(path)
     if not path.exists():
         raise SceneFileNotFoundError(f"{path}: volume file not found")
+    from xray_viz._files import require_regular
+
+    require_regular(path, MeshError, "volume file")
     name = path.name.lower()
     if path.is_dir():
         data, affine = _read_dicom_series(path, hu=hu)

@@ -566,6 +566,9 @@ def read_columns(path, *, error=SpectrumError, name="spectrum file",
     (n, 2) float
         ``n >= 0`` rows, in file order.
     """
+    from xray_viz._files import require_regular
+
+    require_regular(path, error, name)
     try:
         # utf-8-sig: a byte-order mark (as spreadsheet programs write) is not part of line 1
         with open(path, encoding="utf-8-sig") as fh:
