@@ -287,7 +287,7 @@ def test_mtf_blur_conserves_signal_and_is_shift_equivariant_in_the_log_domain(tm
     ({"file": "short.csv"}, "ends at 2 cycles/mm, below the detector's Nyquist frequency 5"),
     ({"file": "offset.csv"}, "must start at 0 cycles/mm"),
     ({"lsf": "coarse.csv"}, "not finer than the detector pitch"),
-    ({"file": "bad.csv"}, "line 2: 'x' is not a number"),
+    ({"file": "bad.csv"}, "line 2, field 2 of 2 is not a number"),
 ])
 def test_mtf_errors_are_one_line(tmp_path, mtf, message):
     (tmp_path / "short.csv").write_text("0, 1\n1, 0.8\n2, 0.5\n")

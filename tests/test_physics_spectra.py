@@ -141,22 +141,25 @@ def test_csv_byte_order_mark_keeps_the_first_row(tmp_path):
     np.testing.assert_allclose(read_spectrum_csv(p).weights, [0.25, 0.75])
 
 
-@pytest.mark.parametrize("text, line, value", [
-    ("30,abc\n50,2\n", 1, "abc"),                           # malformed first row, not a header
-    ("keV,fluence\n30,abc\n50,2\n", 2, "abc"),
-    ("x,30\n50,2\n", 1, "x"),                               # a header has no number at all
-    ("keV,fluence\nunits,relative\n30,1\n", 2, "units"),    # at most one header line
-    ("# c\n\nkeV,fluence\n# c\n30,1\nkeV,fluence\n", 6, "keV"),  # a header after the data
-    ("30;1\n50;\n", 2, ""),                                 # an empty field
+@pytest.mark.parametrize("text, line, value, field", [
+    ("30,abc\n50,2\n", 1, "abc", 2),                        # malformed first row, not a header
+    ("keV,fluence\n30,abc\n50,2\n", 2, "abc", 2),
+    ("x,30\n50,2\n", 1, "x", 1),                            # a header has no number at all
+    ("keV,fluence\nunits,relative\n30,1\n", 2, "units", 1),  # at most one header line
+    ("# c\n\nkeV,fluence\n# c\n30,1\nkeV,fluence\n", 6, "keV", 1),  # a header after the data
+    ("30;1\n50;\n", 2, "", 2),                              # an empty field
 ])
-def test_csv_malformed_rows_name_file_line_and_value(tmp_path, text, line, value):
+def test_csv_malformed_rows_name_file_line_and_field(tmp_path, text, line, value, field):
+    """The file, line and field are named; the file's text is never quoted (the file may be
+    any file a scene names: issue 42)."""
     p = tmp_path / "bad.csv"
     p.write_text(text)
     with pytest.raises(SpectrumError) as info:
         read_spectrum_csv(p)
     msg = str(info.value)
     assert "\n" not in msg and msg.startswith(str(p.resolve()))
-    assert f"line {line}: {value!r} is not a number" in msg
+    assert f"line {line}, field {field} of 2 is not a number" in msg
+    assert not value or repr(value) not in msg
 
 
 def test_csv_one_header_comments_and_separators(tmp_path):
@@ -186,7 +189,8 @@ def test_cli_malformed_csv_is_one_line_exit_2(tmp_path):
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in run.stderr
     assert lines[0].startswith(f"xray-viz: error: {scene}: [source] ")
-    assert "spec.csv: line 1: 'abc' is not a number" in lines[0]
+    assert "spec.csv: line 1, field 2 of 2 is not a number" in lines[0]
+    assert "abc" not in lines[0]
     assert not out.exists() and not list(tmp_path.glob("*.npy")) and not run.stdout
 
 

@@ -27,6 +27,6 @@ def likely_paths(scene: str) -> list | None:
         path = phantoms.scene_path(scene)
     try:
         n = len(tomllib.loads(path.read_text(encoding="utf-8")).get("body", []))
-    except (OSError, AttributeError, TypeError, ValueError):
+    except (OSError, AttributeError, TypeError, ValueError, RecursionError):
         return None
     return ["setup", "banded", "multi"] if n > 1 else ["setup", "direct"]

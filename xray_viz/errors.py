@@ -7,6 +7,8 @@ a user's bad input (printed as one line) from a bug (a traceback).
 
 from __future__ import annotations
 
+import re
+
 
 class XrayVizError(Exception):
     """Base class of every error that describes bad input rather than a bug."""
@@ -85,6 +87,25 @@ def excerpt(text, limit: int = 40) -> str:
         return repr(text)
     unit = "bytes" if isinstance(text, bytes) else "characters"
     return f"{text[:limit]!r}... ({len(text)} {unit})"
+
+
+#: A quoted stretch of a message: 'text', "text" or `text` (or unterminated, to the end).
+_QUOTED = re.compile(r"""'([^']*)(?:'|$)|"([^"]*)(?:"|$)|`([^`]*)(?:`|$)""")
+
+
+def reader_reason(exc, limit: int = 160) -> str:
+    r"""A file reader's error message as part of one line, with every quoted stretch replaced
+    by ``'...'``: readers quote the line they choked on, and the file may be any file a scene
+    names (someone's private file), so what a file holds is never echoed back.
+
+    Examples
+    --------
+    >>> reader_reason(ValueError("could not convert string to float: 'FAKESECRET-1'\n"))
+    "could not convert string to float: '...'"
+    """
+    text = one_line(exc, limit=4000)
+    text = _QUOTED.sub(lambda m: f"{m.group(0)[0]}...{m.group(0)[0]}", text)
+    return one_line(text, limit=limit)
 
 
 def one_line(text, limit: int = 200) -> str:

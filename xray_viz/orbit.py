@@ -454,13 +454,18 @@ def pose_acquisition(base: Acquisition, pose, *, where: str = "") -> Acquisition
 def read_poses(path) -> tuple:
     """The poses of a JSON file: a list of ``{"source", "detector_center", "u", "v"}`` or a
     scan's geometry document (a table with ``"poses"``)."""
+    from xray_viz._files import require_regular
+
     path = Path(path)
+    require_regular(path, SceneError, "poses file")
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise SceneError(f"[scan] poses file {path} not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise SceneError(f"[scan] poses file {path} is not readable JSON: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"[scan] poses file {path} is nested too deeply (arrays or tables thousands of levels inside each other)") from None
     if isinstance(doc, dict) and "poses" in doc:
         doc = doc["poses"]
     if not isinstance(doc, list) or not doc:

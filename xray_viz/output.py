@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import OutputError, WriteInterrupted, one_line
+from xray_viz.errors import OutputError, WriteInterrupted, one_line, reader_reason
 
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
@@ -559,7 +559,12 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         if scene is None:
             raise OutputError(f"{path}: DICOM output needs the scene for its geometry: "
                               "save_image(path, image, scene=scene)")
-        ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
+        with warnings.catch_warnings(record=True) as caught:   # said with the file's name
+            warnings.simplefilter("always")
+            ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
+        for w in caught:
+            warnings.warn(f"{path}: {str(w.message).removeprefix('DICOM: ')}", w.category,
+                          stacklevel=2)
         atomic_write(path, lambda tmp: _dcmwrite(tmp, ds), verify=lambda tmp: _check_dicom(tmp, ds))
         return path
     meta = image_metadata(scene, quantity=quantity)
@@ -589,6 +594,7 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         _need(path, "h5py", "pip install 'xray_viz[ct]'")
         data = image.astype(np.float64)
         _seal(meta, data)
+        check_room(path, data.nbytes + (1 << 16), what="the HDF5 image")
         atomic_write(path, lambda tmp: _write_hdf5(tmp, data, meta),
                      verify=lambda tmp: _check_hdf5(tmp, data, meta))
     return path
@@ -636,6 +642,53 @@ def _check_seal(path, suffix, image, raw, text_found: bool) -> None:
     if not ok:
         raise OutputError(f"{path}: its pixels or metadata differ from the SHA-256 it records "
                           f"(the {suffix} file is damaged); write it again")
+
+
+def check_room(path, nbytes: int, *, what: str = "the file") -> None:
+    """Refuse, before any work, to write about ``nbytes`` to ``path`` when the disk holding it
+    has less free space, or the process may not write a file that large (``ulimit -f``,
+    RLIMIT_FSIZE).
+
+    HDF5 in particular cannot fail gracefully there: a write that fails for want of room
+    leaves the library in a state where closing the file crashes the process (a segmentation
+    fault after the error). A margin of 5 % and 1 MiB is asked for (the container's own
+    structures).
+
+    Raises
+    ------
+    OutputError
+        One line: the file, what it needs, what there is, what to do.
+    """
+    import resource
+
+    path = Path(path)
+    need = int(nbytes * 1.05) + (1 << 20)
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if soft != resource.RLIM_INFINITY and need > soft:
+        raise OutputError(f"{path}: {what} needs about {_human(need)}, more than this process "
+                          f"may write to one file ({_human(soft)}, ulimit -f); raise the "
+                          "limit or write less")
+    folder = path.absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return
+    free = st.f_bavail * st.f_frsize
+    if need > free:
+        raise OutputError(f"{path}: {what} needs about {_human(need)}, only {_human(free)} "
+                          "free on that disk; free some space or write it elsewhere")
+
+
+def _human(nbytes: int) -> str:
+    """``1536`` -> ``"1.5 KiB"``."""
+    size = float(nbytes)
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB"):
+        if size < 1024 or unit == "TiB":
+            return f"{size:.0f} {unit}" if unit == "bytes" else f"{size:.3g} {unit}"
+        size /= 1024
+    return f"{size:.3g} TiB"
 
 
 def _need(path, module: str, how: str) -> None:
@@ -770,7 +823,7 @@ def _parse_json(text):
         return None
     try:
         meta = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
     return meta if isinstance(meta, dict) and "xray_viz" in meta else None
 
@@ -845,22 +898,24 @@ def _write_nifti(tmp, data, affine, meta) -> None:
 
 
 def _read_nifti(path) -> tuple[np.ndarray, np.ndarray, dict | None]:
-    import nibabel as nib
+    from xray_viz._files import open_nifti
 
-    img = nib.load(path)
-    data = np.asarray(img.dataobj)
+    with open_nifti(path) as img:                  # image.Nii as image.nii
+        data = np.asarray(img.dataobj)
+        affine = img.affine
+        header = img.header
     if data.ndim == 3 and data.shape[2] == 1:
         data = data[:, :, 0]
     meta = None
-    for ext in img.header.extensions:
+    for ext in header.extensions:
         if ext.get_code() == 6:
             meta = _parse_json(ext.get_content().decode("ascii", "replace"))
             if meta is not None:
                 break
     if meta is None:
-        spacing = img.header.get_zooms()[:2]
+        spacing = header.get_zooms()[:2]
         meta = {"pitch_mm": [float(s) for s in spacing]}
-    return np.ascontiguousarray(data.T), img.affine, meta
+    return np.ascontiguousarray(data.T), affine, meta
 
 
 def _check_nifti(tmp, data, affine, meta) -> None:
@@ -897,10 +952,53 @@ def _write_hdf5(tmp, data, meta) -> None:
         entry["xray_viz_metadata"] = _json(meta)
 
 
+def _refuse_hdf5_outside(path, f) -> None:
+    """Raise :class:`OutputError` when the open HDF5 file ``f`` reaches into another file: an
+    external link, a dataset with external raw storage or a virtual dataset (whose sources
+    are other files), anywhere in it. Soft links stay inside the file and are not followed
+    here (no cycles); hard links are walked once each.
+
+    A crafted ``.h5`` would otherwise hand out another file's bytes as its image.
+    """
+    import h5py
+
+    seen = set()
+
+    def walk(group, where):
+        for name in group:
+            link = group.get(name, getlink=True)
+            full = f"{where.rstrip('/')}/{name}"
+            if isinstance(link, h5py.ExternalLink):
+                what = "an external link"
+            elif isinstance(link, h5py.SoftLink):
+                continue
+            else:
+                obj = group.get(name)
+                if obj is None or hash(obj.id) in seen:
+                    continue
+                seen.add(hash(obj.id))
+                if isinstance(obj, h5py.Group):
+                    walk(obj, full)
+                    continue
+                if not isinstance(obj, h5py.Dataset):
+                    continue
+                if obj.external:
+                    what = "a dataset stored in another file (external raw storage)"
+                elif obj.is_virtual:
+                    what = "a virtual dataset (its data are in other files)"
+                else:
+                    continue
+            raise OutputError(f"{path}: {full} is {what}: refused, an image is read from its "
+                              "own file only (copy the data into the file, e.g. h5repack)")
+
+    walk(f, "/")
+
+
 def _read_hdf5(path) -> tuple[np.ndarray, dict | None]:
     import h5py
 
     with h5py.File(path, "r") as f:
+        _refuse_hdf5_outside(path, f)
         if "entry/instrument/detector/data" in f:
             data = f["entry/instrument/detector/data"][()]
         else:                             # an HDF5 file from elsewhere: its one 2-D dataset
@@ -951,7 +1049,8 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     ``MeasurementUnitsCodeSequence`` its UCUM unit (``"1"``, no units, for intensities in photons
     per pixel and line integrals; ``"mm"`` for path lengths). It recovers the values to within
     half a quantisation step, ``(max - min) / 65535 / 2`` (:func:`load_image`). Infinite values
-    (a line integral through a body that stops every photon) are stored as the range's end.
+    (a line integral through a body that stops every photon) are stored as the range's end,
+    NaN as its low end; either is warned about (``RuntimeWarning``), as for a ``.png``.
     The window (``WindowCenter``/``WindowWidth``, in stored values) spans the whole range.
 
     Geometry written:
@@ -1001,6 +1100,10 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
     if bright not in ("high", "low"):
         raise OutputError(f"bright must be 'high' or 'low', got {bright!r}")
     finite = np.isfinite(a)
+    bad = int(a.size - np.count_nonzero(finite))
+    if bad:                                   # as a PNG says it: the window's ends are not data
+        warnings.warn(_nonfinite_message(bad, a.size, "DICOM: "), RuntimeWarning,
+                      stacklevel=2)
     lo, hi = (float(a[finite].min()), float(a[finite].max())) if finite.any() else (0.0, 0.0)
     intercept = lo
     slope = (hi - lo) / 65535.0 if hi > lo else 1.0
@@ -1221,7 +1324,12 @@ class ImageMetadata:
 
         from xray_viz.scene import scene_from_dict
 
-        return scene_from_dict(tomllib.loads(self.scene_toml))
+        try:
+            doc = tomllib.loads(self.scene_toml)
+        except (tomllib.TOMLDecodeError, RecursionError) as exc:
+            why = "nested too deeply (arrays or tables thousands of levels inside each other)" if isinstance(exc, RecursionError) else "not TOML"
+            raise OutputError(f"this {self.format} file's embedded scene is {why}") from None
+        return scene_from_dict(doc)
 
     def to_physical(self, image) -> np.ndarray:
         """The quantity a loaded image stands for: a PNG's 16-bit values mapped back through
@@ -1318,8 +1426,11 @@ def load_image(path, *, with_metadata=False):
     >>> bool(np.abs(meta.to_physical(stored) - image).max() <= meta.window["step"] / 2)
     True
     """
+    from xray_viz._files import require_regular
+
     path = Path(path)
     suffix = check_format(path)
+    require_regular(path, OutputError, "image file")
     try:
         image, meta = _read_image(path, suffix)
     except OutputError:
@@ -1327,9 +1438,9 @@ def load_image(path, *, with_metadata=False):
     except FileNotFoundError:
         raise OutputError(f"{path}: no such file") from None
     except Exception as exc:      # each format's library has its own errors for a bad file
-        text = str(exc).strip().splitlines()
+        text = reader_reason(str(exc).strip().splitlines()[0]) if str(exc).strip() else ""
         raise OutputError(f"{path}: cannot read it as a {suffix} image ({type(exc).__name__}"
-                          f"{': ' + text[0] if text else ''})") from None
+                          f"{': ' + text if text else ''})") from None
     return (image, meta) if with_metadata else image
 
 

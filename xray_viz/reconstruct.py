@@ -400,6 +400,38 @@ def write_rtk_projections(projections, geometry, path) -> Path:
     return Path(path)
 
 
+def _rows_across_axis(p, geometry):
+    """The stack and geometry with the detector's rows (``u``) across the rotation axis.
+
+    Any axis that crosses the beam can be scanned (README); RTK's FDK weighting (its offset
+    detector and short-scan filters) only knows a detector whose ``u`` runs across the axis and
+    ``v`` along it. When the scan's ``u`` lies along the axis (an orbit about the detector's
+    own x, e.g. ``--axis 1 0 0`` for a source on z), the same pixels are presented turned by
+    90 degrees in the detector plane: ``u' = v``, ``v' = -u`` (same normal), the stack
+    transposed accordingly - the same rays, described the way RTK expects. An axis along the
+    beam (every view the same) is refused here, in one line, before RTK.
+    """
+    axis = _unit(geometry.get("axis", (0.0, 0.0, 1.0)), "axis")
+    poses = _poses(geometry)
+    rays = [q["detector_center"] - q["source"] for q in poses]
+    if all(np.linalg.norm(r) > 0 and abs(r @ axis) > 0.999 * np.linalg.norm(r) for r in rays):
+        raise ReconstructionError(f"the orbit's axis {axis.round(6).tolist()} runs along the beam "
+                                  "(a source turning about the beam axis sees the same view "
+                                  "every time): the orbit's axis must cross the beam")
+    if not all(abs(q["u"] @ axis) > abs(q["v"] @ axis) for q in poses):
+        return p, geometry
+    (w, h), (pu, pv) = _detector(geometry)
+    turned = dict(geometry)
+    turned["poses"] = [{**pose, "u": np.asarray(q["v"]).tolist(),
+                        "v": (-np.asarray(q["u"])).tolist()}
+                       for pose, q in zip(geometry["poses"], poses)]
+    turned["detector"] = {**geometry["detector"], "shape": [h, w], "pitch_mm": [pv, pu]}
+    turned.pop("projection_matrices", None)
+    # stored row r of the old stack is RTK row H-1-r; the new RTK image is the old one
+    # transposed, then its rows flipped; stored again with the one flip of _projection_image
+    return np.ascontiguousarray(p[:, ::-1, :].transpose(0, 2, 1)), turned
+
+
 def _default_grid(geometry, voxel, shape):
     """Voxel size (mm) and shape (nx, ny, nz) of the volume, and its origin in world mm."""
     (w, h), (pu, pv) = _detector(geometry)
@@ -507,6 +539,7 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     if not np.all(np.isfinite(p)):
         raise ReconstructionError("projections hold non-finite values (NaN or inf); "
                                   "reconstruct line integrals of a finished scan")
+    p, geometry = _rows_across_axis(p, geometry)
     if method == "mbirjax":                  # no RTK needed
         voxel, shape, origin = _default_grid(geometry, voxel, shape)
         mu = _mbirjax(p, geometry, voxel, shape, origin, 15 if iterations is None else iterations)
@@ -530,7 +563,7 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
 
     if method in ITERATIVE:
         out = _iterative(method, vol.GetOutput(), image, rgeo, iterations=iterations,
-                         relaxation=relaxation)
+                         relaxation=relaxation, volume_shape=shape)
         mu = itk.array_from_image(out).astype(np.float32) * np.float32(10.0)    # 1/cm
         return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
 
@@ -550,7 +583,7 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     fdk.SetGeometry(rgeo)
     fdk.GetRampFilter().SetTruncationCorrection(0.0)
     fdk.GetRampFilter().SetHannCutFrequency(float(hann))
-    _update(fdk)
+    _update(fdk, shape)
     mu = itk.array_from_image(fdk.GetOutput()).astype(np.float32) * np.float32(10.0)  # 1/cm
     return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
 
@@ -673,18 +706,33 @@ def _mbirjax(p, geometry, voxel, shape, origin, iterations):
     return map_coordinates(recon, idx, order=1, mode="constant", cval=0.0)
 
 
-def _update(f, hint=": the orbit's axis must cross the beam (a source turning about the beam "
-                    "axis sees the same view every time)"):
-    """``f.Update()``; RTK's refusal of a geometry it cannot handle is one line."""
+def _update(f, volume_shape=None):
+    """``f.Update()``; RTK's refusal is one line, with a hint only where its cause is known:
+    an image it cannot allocate (the volume's size, given ``volume_shape``), a detector it
+    cannot weight (FDK: use an iterative method). An axis along the beam is refused before
+    RTK (:func:`_rows_across_axis`)."""
     try:
         f.Update()
     except RuntimeError as exc:
         said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
         text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
+        hint = ""
+        if "allocate" in text.lower():
+            if volume_shape is not None:
+                n = int(np.prod(np.asarray(volume_shape, dtype=np.float64)))
+                size = f"{n * 4 / 2**30:.3g} GiB" if n * 4 < 2**70 else "more than any memory"
+                hint = (f": the {' x '.join(str(int(x)) for x in volume_shape)} voxel volume "
+                        f"alone is {size} of float32; give a smaller --shape or a larger "
+                        "--voxel (default: the detector's field of view)")
+            else:
+                hint = ": not enough memory for RTK's images"
+        elif "detector rotation" in text.lower():
+            hint = (": FDK's weighting needs the detector's rows across the rotation axis; "
+                    "reconstruct this scan with method 'sart' or 'cg'")
         raise ReconstructionError(f"RTK cannot reconstruct this scan ({text}){hint}") from None
 
 
-def _iterative(method, volume, image, rgeo, *, iterations, relaxation):
+def _iterative(method, volume, image, rgeo, *, iterations, relaxation, volume_shape=None):
     """RTK's iterative reconstruction (Joseph forward and back projectors, CPU) of ``image``
     (RTK's projections) onto the grid of ``volume`` (a zero image): the output image, 1/mm."""
     itk, rtk = _rtk()
@@ -706,7 +754,7 @@ def _iterative(method, volume, image, rgeo, *, iterations, relaxation):
     f.SetInput(0, volume)
     f.SetInput(1, image)
     f.SetGeometry(rgeo)
-    _update(f)
+    _update(f, volume_shape)
     return f.GetOutput()
 
 

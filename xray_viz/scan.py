@@ -1239,9 +1239,12 @@ def _nexus_writer(path, *, n, shape, quantity, physics, geometry, tables, flush_
     ends without an error (removed otherwise)."""
     import h5py
 
+    from xray_viz.output import check_room
+
     path = Path(path)
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     g = geometry
+    check_room(path, 4 * n * int(np.prod(shape)), what="the NeXus file")
     angles = np.asarray(g["angles_deg"] if g["angles_deg"] is not None else np.zeros(n))
     w, h = shape
     try:
@@ -1577,6 +1580,66 @@ def _cli_orbit(scene, args) -> Orbit:
     return orbit_from_dict(table)
 
 
+#: Seconds to wait for a Dask scheduler at ``--scheduler`` to connect and greet.
+SCHEDULER_TIMEOUT = 10.0
+#: Largest first message a Dask scheduler's greeting (its handshake) may announce, bytes.
+_HANDSHAKE_MAX = 1 << 24
+
+
+def check_scheduler(address: str, *, timeout: float | None = None) -> str:
+    """Check that ``address`` (``--scheduler``) is ``tcp://HOST:PORT`` and that a Dask
+    scheduler answers there, before Dask is handed the address; the address, normalised.
+
+    A Dask scheduler greets every connection with its handshake, a message whose 8-byte
+    length is small; an SSH server's banner read as that length asks for exabytes, an HTTP
+    server says nothing until asked. Both are refused here in one line, within ``timeout``
+    seconds (:data:`SCHEDULER_TIMEOUT`), as are a malformed address and one where nothing
+    listens.
+
+    Raises
+    ------
+    SceneError
+        One line naming the address and what answered (or did not).
+    """
+    import re
+    import socket
+    import struct
+
+    timeout = SCHEDULER_TIMEOUT if timeout is None else float(timeout)
+    m = re.fullmatch(r"(?:tcp://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})", address.strip())
+    if m is None or not 0 < int(m.group(2)) < 65536:
+        raise SceneError(f"--scheduler {address!r}: not a Dask scheduler address; give "
+                         "tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786, the address `dask "
+                         "scheduler` prints)")
+    host, port = m.group(1).strip("[]"), int(m.group(2))
+    where = f"--scheduler tcp://{m.group(1)}:{port}"
+    try:
+        with socket.create_connection((host, port), timeout=timeout) as sock:
+            sock.settimeout(timeout)
+            head = b""
+            while len(head) < 8:
+                got = sock.recv(8 - len(head))
+                if not got:
+                    break
+                head += got
+    except socket.timeout:
+        raise SceneError(f"{where}: no answer within {timeout:g} s (a Dask scheduler greets "
+                         "at once: is this another kind of server, e.g. HTTP, or the "
+                         "dashboard's port instead of the scheduler's?)") from None
+    except OSError as exc:
+        raise SceneError(f"{where}: cannot connect: {exc.strerror or exc}; is the Dask "
+                         "scheduler running there?") from None
+    if len(head) < 8:
+        raise SceneError(f"{where}: the server closed the connection without a Dask "
+                         "scheduler's greeting; is it the scheduler's port?")
+    (length,) = struct.unpack("<Q", head)
+    if not 0 < length <= _HANDSHAKE_MAX:
+        kind = "an SSH server" if head.startswith(b"SSH-") else "not a Dask scheduler"
+        raise SceneError(f"{where}: the server there is {kind} (its first bytes are not a "
+                         "Dask handshake); give the scheduler's address (default port 8786)")
+    return f"tcp://{m.group(1)}:{port}"
+
+
 def scan_command(args) -> int:
     """``xray-viz scan``: see :func:`add_scan_parser`."""
     from xray_viz.scene import load_scene
@@ -1591,6 +1654,8 @@ def scan_command(args) -> int:
         raise SceneError(f"--workers must be >= 1, got {args.workers}")
     if kind != "zarr" and (args.workers > 1 or args.scheduler):
         raise SceneError("--workers/--scheduler write a Zarr store: give -o NAME.zarr")
+    if args.scheduler:
+        args.scheduler = check_scheduler(args.scheduler)
     if kind == "zarr" and out.exists() and not (out / "zarr.json").exists():
         raise OutputError(f"{out} exists and is not a Zarr store; remove it or choose another -o")
     if kind == "tiff" and out.exists():            # before any work, not after it
@@ -1609,7 +1674,8 @@ def scan_command(args) -> int:
                 from distributed import Client
 
                 if args.scheduler:
-                    client = stack.enter_context(Client(args.scheduler))
+                    client = stack.enter_context(Client(args.scheduler,
+                                                        timeout=SCHEDULER_TIMEOUT))
                 else:
                     cluster = stack.enter_context(local_cluster(args.workers))
                     client = stack.enter_context(Client(cluster))
@@ -1621,6 +1687,11 @@ def scan_command(args) -> int:
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
+    from xray_viz.output import check_room
+
+    h, w = scene.detector.shape[1], scene.detector.shape[0]
+    check_room(out if kind == "nexus" else out / "x.tiff", 4 * orbit.projections * h * w,
+               what=f"the stack of {orbit.projections} projections")   # before any work
     n = _scan_to_file(scene, orbit, out, kind, quantity=args.quantity, engine=args.engine,
                       batch=args.batch, progress=True)
     print(f"{out}: {n} projections, {args.quantity}")

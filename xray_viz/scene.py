@@ -1000,9 +1000,9 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
             raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
                              "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
                              "source_file= that file, to write the scene")
-        from xray_viz.meshes.io import MESH_SUFFIXES
+        from xray_viz.meshes.io import MESH_SUFFIXES, split_node
 
-        mesh_file = str(body.source_file).split("#")[0]          # model.glb#NODE: the file
+        mesh_file = str(split_node(body.source_file)[0])          # model.glb#NODE: the file
         if not mesh_file.lower().endswith(MESH_SUFFIXES):
             raise SceneError(f"body {body.name!r} was made from {Path(mesh_file).name}, not a "
                              "mesh file: write its meshes with `xray-viz mesh FILE -o FOLDER` "
@@ -1299,7 +1299,7 @@ def _integer(t: _Table, key: str, *, minimum: int, default=None):
 def _parse_body(t: _Table, base_dir: Path, index: int):
     """``(body, report)``: one ``[[body]]`` table's body, its mesh checked (and repaired if
     allowed), and the mesh's :class:`~xray_viz.meshes.repair.MeshReport`."""
-    from xray_viz.meshes.io import load_mesh
+    from xray_viz.meshes.io import load_mesh, split_node
 
     t.expect(BODY_KEYS)
     name = t.string("name", default=f"body{index}")
@@ -1342,7 +1342,10 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     if not isinstance(repair, bool):
         t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
-    path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
+    path = (base_dir / mesh_name) if not Path(mesh_name).is_absolute() else Path(mesh_name)
+    if not Path(mesh_name).is_absolute():        # model.glb#NODE: the node's name kept as is
+        mesh_file, node = split_node(path)
+        path = mesh_file.resolve() if node is None else Path(f"{mesh_file.resolve()}#{node}")
     where = f"{t.file}: " if t.file else ""
     try:
         mesh = load_mesh(path)
@@ -1608,6 +1611,10 @@ def load_scene(path: str | Path) -> Scene:
                 f"{path}: no such scene file, and no bundled phantom of that name "
                 f"(phantoms: {names})"
             )
+        else:                                   # a named pipe would block the read for ever
+            from xray_viz._files import require_regular
+
+            require_regular(p, SceneError, "scene file")
     if p.suffix.lower() == ".json":  # a gVirtualXray scene
         from xray_viz.meshes.gvxr import gvxr_to_dict, read_json
 
@@ -1625,4 +1632,6 @@ def load_scene(path: str | Path) -> Scene:
         from xray_viz.meshes.gvxr import not_toml
 
         raise SceneError(not_toml(p, text) or f"{p}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{p}: nested too deeply (arrays or tables thousands of levels inside each other): not a scene file") from None
     return scene_from_dict(doc, base_dir=p.parent, file=p)

@@ -264,7 +264,7 @@ def _load_with_file_overrides(args):
     path = _scene_file(args.scene)
     try:
         original = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
         return xray_viz.load_scene(path)           # raises its own one-line error
     doc = copy.deepcopy(original)
     for option, value in given:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import MeshError, one_line
+from xray_viz.errors import MeshError, reader_reason
 
 __all__ = ["read_dicom_seg", "SEGMENTATION_STORAGE"]
 
@@ -71,7 +71,7 @@ def read_dicom_seg(path) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
     try:
         ds = pydicom.dcmread(path)
     except Exception as exc:
-        raise MeshError(f"{path}: cannot read DICOM: {one_line(exc, limit=120)}") from None
+        raise MeshError(f"{path}: cannot read DICOM: {reader_reason(exc, limit=120)}") from None
     sop = str(ds.get("SOPClassUID", ""))
     if sop not in SEGMENTATION_STORAGE:
         raise MeshError(f"{path}: not a DICOM Segmentation (SOP class {sop or 'missing'}, "
@@ -93,7 +93,7 @@ def read_dicom_seg(path) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
     except MeshError:
         raise
     except Exception as exc:
-        text = one_line(exc, limit=160)
+        text = reader_reason(exc)
         if "overlap" in text.lower():
             raise MeshError(f"{path}: its segments overlap; a label map holds one label per "
                             "voxel: split the segmentation into one [[labels]] file per "

@@ -525,7 +525,10 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
 
 def read_json(path):
     """Parse a JSON file; a syntax error is one line naming the file, line and column."""
+    from xray_viz._files import require_regular
+
     path = Path(path)
+    require_regular(path, SceneError, "gVXR scene file")
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError:
@@ -539,6 +542,8 @@ def read_json(path):
     except json.JSONDecodeError as exc:
         raise SceneError(f"{path}: malformed JSON: {exc.msg} (line {exc.lineno}, column "
                          f"{exc.colno})") from None
+    except RecursionError:
+        raise SceneError(f"{path}: nested too deeply (arrays or tables thousands of levels inside each other): not a gVXR scene") from None
 
 
 def not_toml(path, text: str) -> str | None:
@@ -556,7 +561,7 @@ def not_toml(path, text: str) -> str | None:
         return None
     try:
         doc = json.loads(stripped)
-    except json.JSONDecodeError:
+    except (json.JSONDecodeError, RecursionError):
         return None
     what = "a gVirtualXray scene" if isinstance(doc, dict) and "Source" in doc else "JSON"
     return (f"{path}: is a JSON file ({what}), not TOML: rename it to .json to load it as a "

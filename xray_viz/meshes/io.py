@@ -7,7 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line
+from xray_viz._files import require_regular
+from xray_viz.errors import MeshError, SceneFileNotFoundError, excerpt, one_line, \
+    reader_reason
 
 __all__ = ["load_mesh", "MESH_SUFFIXES", "as_trimesh", "scene_nodes", "expand_nodes"]
 
@@ -67,20 +69,16 @@ def _quiet_vtk_read(pv, path: Path):
     return pv.wrap(output)
 
 
-#: A quoted stretch of a message: 'text', "text" or `text` (or unterminated, to the end).
-_QUOTED = re.compile(r"""'([^']*)(?:'|$)|"([^"]*)(?:"|$)|`([^`]*)(?:`|$)""")
+def _shorten_quotes(text: str) -> str:
+    """Replace every quoted stretch of ``text`` (a reader's message quoting a line of the file,
+    which may be any file a scene names) by ``'...'`` (:func:`~xray_viz.errors.reader_reason`).
 
-
-def _shorten_quotes(text: str, limit: int = 40) -> str:
-    """Cut every quoted stretch of ``text`` longer than ``limit`` characters (a reader's
-    message quoting a line of the file) to its first ``limit`` characters and ``...``."""
-    def cut(match):
-        inner = next(g for g in match.groups() if g is not None)
-        if len(inner) <= limit:
-            return match.group(0)
-        quote = match.group(0)[0]
-        return f"{quote}{inner[:limit]}{quote}..."
-    return _QUOTED.sub(cut, text)
+    Examples
+    --------
+    >>> _shorten_quotes("could not convert string to float: 'FAKESECRET-1'")
+    "could not convert string to float: '...'"
+    """
+    return reader_reason(text, limit=len(text) + 10)
 
 
 def _reason(exc: BaseException) -> str:
@@ -100,8 +98,8 @@ def _reason(exc: BaseException) -> str:
 #: VTK messages reworded: (a regular expression, what to say instead).
 _VTK_REWORDING = (
     (re.compile(r"^Unrecognized file type: (.*?)(?: for file: .*)?$", re.S),
-     lambda m: ("not a legacy VTK header ('# vtk DataFile Version x.y', a title, ASCII or "
-                f"BINARY): found '{one_line(m.group(1), limit=40)}'")),
+     lambda m: ("not a legacy VTK header: its first lines are not '# vtk DataFile Version "
+                "x.y', a title, ASCII or BINARY")),
     (re.compile(r"did not create output .*REQUEST_DATA_OBJECT", re.S),
      lambda m: "its header names no dataset type VTK can read (a line such as "
                "'DATASET POLYDATA')"),
@@ -205,12 +203,13 @@ def load_mesh(path: str | Path, *, process: bool = True):
     import trimesh
 
     path = Path(path)
-    if not path.exists() and "#" in path.name:
-        base, _, node = str(path).rpartition("#")
-        if Path(base).suffix.lower() in NODE_SUFFIXES and Path(base).exists():
-            return _node_mesh(Path(base), node, process=process)
+    if not path.exists():
+        base, node = split_node(path)
+        if node is not None:
+            return _node_mesh(base, node, process=process)
     if not path.exists():
         raise SceneFileNotFoundError(f"{path}: mesh file not found")
+    require_regular(path, MeshError, "mesh file")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r} "
                         f"(use one of {', '.join(MESH_SUFFIXES)})")
@@ -352,6 +351,33 @@ def scene_nodes(path) -> list[str]:
         return []
     scene = _load_scene(path)
     return sorted(scene.graph.nodes_geometry)
+
+
+def split_node(path) -> tuple[Path, str | None]:
+    """``FILE#NODE`` split on the first ``#`` after which the part before it is an existing
+    glTF/GLB file: ``(FILE, NODE)``; else ``(path, None)``. A node's name may hold ``/``
+    (``Armature/Bone``) and ``#``; so may the folders before the file.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> folder = pathlib.Path(tempfile.mkdtemp()) / "a#b"
+    >>> folder.mkdir()
+    >>> _ = (folder / "model.glb").write_bytes(b"")
+    >>> f, node = split_node(f"{folder}/model.glb#Armature/Bone#2")
+    >>> f == folder / "model.glb", node
+    (True, 'Armature/Bone#2')
+    >>> split_node(folder / "model.glb")[1] is None
+    True
+    """
+    text = str(path)
+    start = 0
+    while (k := text.find("#", start)) >= 0:
+        base = Path(text[:k])
+        if base.suffix.lower() in NODE_SUFFIXES and base.is_file():
+            return base, text[k + 1:]
+        start = k + 1
+    return Path(path), None
 
 
 def _load_scene(path: Path):

@@ -90,7 +90,7 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFoundError, \
-    XrayVizError, one_line
+    XrayVizError, one_line, reader_reason
 from xray_viz.meshes._volume_files import (  # noqa: F401 (re-exported)
     DICOM_SEG_SUFFIXES,
     ITK_SUFFIXES,
@@ -110,6 +110,10 @@ __all__ = [
 
 #: ITK's and DICOM's world coordinates (LPS+) to the scene's (RAS+): x and y negated.
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+#: Largest median filter size of a ``[[ct]]`` table (voxels): 3 removes speckle; beyond a few
+#: voxels the filter erases bodies and its cost grows with the cube of the size.
+MAX_MEDIAN = 9
 
 #: Windowed-sinc pass bands tried, strongest smoothing first (VTK: 0 < pass band < 2).
 PASS_BANDS = (0.01, 0.03, 0.1, 0.3)
@@ -201,27 +205,73 @@ def _as_3d(data: np.ndarray, path: Path) -> np.ndarray:
 
 
 def _read_nifti(path: Path, *, hu: bool):
-    import nibabel as nib
+    from xray_viz._files import open_nifti
 
     try:
-        img = nib.load(str(path))
-        data = np.asanyarray(img.dataobj)  # scaled by scl_slope/scl_inter when they are set
-        affine = np.asarray(img.affine, dtype=np.float64)
+        with open_nifti(path) as img:      # CT.NII.GZ as ct.nii.gz
+            data = np.asanyarray(img.dataobj)  # scaled by scl_slope/scl_inter when set
+            affine = np.asarray(img.affine, dtype=np.float64)
     except Exception as exc:
-        raise MeshError(f"{path}: cannot read NIfTI: {one_line(exc, limit=160)}") from None
+        raise MeshError(f"{path}: cannot read NIfTI: {reader_reason(exc)}") from None
     return _as_3d(np.asarray(data), path), affine
+
+
+def _detached_data_names(path: Path) -> list[str]:
+    """The data files a MetaImage (``ElementDataFile``) or NRRD (``data file``) header names,
+    as written (``LOCAL``/attached data: none; ``LIST``: the names after it; a numbered
+    pattern such as ``slice%03d.raw 1 40 1``: the pattern)."""
+    import re
+
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16).decode("latin-1")
+    lines = head.splitlines()
+    mha = path.name.lower().endswith((".mha", ".mhd"))
+    key = re.compile(r"^\s*ElementDataFile\s*=\s*(.*)$" if mha
+                     else r"^\s*data ?file\s*:\s*(.*)$", re.IGNORECASE)
+    for k, line in enumerate(lines):
+        if not mha and not line.strip() and k > 0:
+            return []                                     # NRRD: the header ends here
+        m = key.match(line)
+        if not m:
+            continue
+        value = m.group(1).strip()
+        first = value.split()[0] if value.split() else ""
+        if first.upper() == "LOCAL" or not value:
+            return []
+        if first.upper() == "LIST":
+            return [t.strip() for t in lines[k + 1:] if t.strip()]
+        if "%" in first and len(value.split()) >= 3:      # a pattern, then min max step
+            return [first]
+        return [value]
+    return []
+
+
+def _refuse_detached_outside(path: Path) -> None:
+    """A header whose data file lies outside the header's own folder (an absolute path, or
+    ``..`` out of it) is refused: a crafted header would otherwise read any file as voxels."""
+    import posixpath
+
+    for name in _detached_data_names(path):
+        norm = posixpath.normpath(name.replace("\\", "/"))
+        if posixpath.isabs(norm) or norm.startswith("../") or norm == ".." \
+                or (len(norm) > 1 and norm[1] == ":"):
+            raise MeshError(f"{path}: its data file {name[:120]!r} is outside the header's "
+                            "folder: refused; put the data file beside the header (or in a "
+                            "folder under it) and name it relative to it")
 
 
 def _read_itk(path: Path, *, hu: bool):
     import SimpleITK as sitk
 
+    from xray_viz._files import itk_read
+
+    _refuse_detached_outside(path)
     try:
-        img = sitk.ReadImage(str(path))
+        img = itk_read(path)                # labels.MHA as labels.mha
     except Exception as exc:
         text = str(exc).split("\n")
-        reason = next((t.strip() for t in text if "description" in t.lower()),
-                      one_line(exc, limit=160))
-        raise MeshError(f"{path}: cannot read image: {one_line(reason, limit=160)}") from None
+        reason = next((t.strip() for t in text if "description" in t.lower()), exc)
+        raise MeshError(f"{path}: cannot read image: {reader_reason(reason)}") from None
     if img.GetNumberOfComponentsPerPixel() != 1:
         raise MeshError(f"{path}: {img.GetNumberOfComponentsPerPixel()} components per voxel; "
                         "a label map or CT has one")
@@ -273,7 +323,7 @@ def _read_dicom_series(folder: Path, *, hu: bool):
             px = ds.pixel_array.astype(np.float64)
         except Exception as exc:
             raise MeshError(f"{folder}: cannot decode slice {f.name}: "
-                            f"{one_line(exc, limit=120)}") from None
+                            f"{reader_reason(exc, limit=120)}") from None
         slope = float(getattr(ds, "RescaleSlope", 1.0))
         intercept = float(getattr(ds, "RescaleIntercept", 0.0))
         images.append(px * slope + intercept if hu else px)
@@ -336,6 +386,9 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     path = Path(path)
     if not path.exists():
         raise SceneFileNotFoundError(f"{path}: volume file not found")
+    from xray_viz._files import require_regular
+
+    require_regular(path, MeshError, "volume file")
     name = path.name.lower()
     if path.is_dir():
         data, affine = _read_dicom_series(path, hu=hu)
@@ -889,6 +942,9 @@ def classify_hu(hu, ranges=SCHNEIDER_2000, *, median: int = 1, min_voxels: int =
 
     hu = np.asarray(hu, dtype=np.float64)
     if median and median > 1:
+        if int(median) > MAX_MEDIAN:
+            raise MeshError(f"median = {median} is too large: the median filter's size in "
+                            f"voxels is 0 or 1 (none) up to {MAX_MEDIAN} (3 removes speckle)")
         hu = ndimage.median_filter(hu, size=int(median), mode="nearest")
     classes = np.zeros(hu.shape, dtype=np.int64)
     for k, r in enumerate(ranges, start=1):
@@ -1177,6 +1233,9 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
     for key, v in (("median", median), ("min_voxels", min_voxels)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 0:
             _fail(where, f"{key} must be a whole number >= 0, got {v!r}")
+    if median > MAX_MEDIAN:
+        _fail(where, f"median = {median} is too large: the median filter's size in voxels is "
+                     f"0 or 1 (none) up to {MAX_MEDIAN} (3 removes speckle)")
     try:
         meshes = ct_surfaces(path, ranges, max_error=_max_error(raw, where), median=median,
                              min_voxels=min_voxels, cache=cache)

@@ -63,7 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import SceneFileNotFoundError, SpectrumError, excerpt
+from xray_viz.errors import SceneFileNotFoundError, SpectrumError
 
 #: Photon energy (keV) of a source that gives neither ``energy`` nor ``spectrum``, and the
 #: energy at which per-ray figures of a polychromatic source are shown when one is needed.
@@ -550,7 +550,8 @@ def read_columns(path, *, error=SpectrumError, name="spectrum file",
 
     Comma, semicolon or blank separated, UTF-8 (a byte-order mark allowed), ``#`` comments and
     blank lines anywhere, one header line before the data none of whose fields is a number.
-    Errors name the file and line and quote a short, escaped excerpt of the bad field.
+    Errors name the file, line and field, never quoting the file's text (it may be any
+    file a scene names).
 
     Parameters
     ----------
@@ -565,6 +566,9 @@ def read_columns(path, *, error=SpectrumError, name="spectrum file",
     (n, 2) float
         ``n >= 0`` rows, in file order.
     """
+    from xray_viz._files import require_regular
+
+    require_regular(path, error, name)
     try:
         # utf-8-sig: a byte-order mark (as spreadsheet programs write) is not part of line 1
         with open(path, encoding="utf-8-sig") as fh:
@@ -589,8 +593,11 @@ def read_columns(path, *, error=SpectrumError, name="spectrum file",
                 continue
             why = ("only one header line is allowed, before the data" if len(bad) == len(parts)
                    else f"expected two numbers: {columns}")
-            # the file may be anything a scene names: quote a short escaped excerpt only
-            raise error(f"{path}: line {lineno}: {excerpt(bad[0])} is not a number ({why})")
+            # the file may be anything a scene (or an image's embedded scene) names: say where,
+            # never what (a line of someone's private file is not quoted back)
+            field = parts.index(bad[0]) + 1
+            raise error(f"{path}: line {lineno}, field {field} of {len(parts)} is not a number "
+                        f"({why})")
         if len(parts) != 2:
             raise error(f"{path}: line {lineno}: expected two columns ({columns}), "
                         f"got {len(parts)}")

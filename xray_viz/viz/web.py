@@ -10,7 +10,15 @@ line integral) call the same :class:`~xray_viz.viz.viewer.Viewer` methods: there
 viewer model, whatever drives it.
 
 Everything the page loads comes from the installed trame packages on the server (no CDN, no
-VTK.wasm: trame-vtklocal is never imported). ``xray-viz show SCENE --web`` serves it
+VTK.wasm: trame-vtklocal is never imported).
+
+Another web page open in the same browser must not drive the viewer: every request whose
+``Host:`` header is not the name the server is bound to (a loopback name by default: this is
+what DNS rebinding changes) and every request - the websocket's included - whose ``Origin`` is
+another site is refused with 403 (:func:`_request_guard`); the websocket only authenticates
+with a random per-run secret (:attr:`WebViewer.secret`, carried by the printed URL's
+``?secret=``) instead of trame's public default. Binding another interface than loopback
+(``--host 0.0.0.0``) is said loudly on stderr, with the URL a remote browser would use. ``xray-viz show SCENE --web`` serves it
 (:func:`serve`); in a notebook :func:`xray_viz.show` displays it in the output cell
 (:mod:`xray_viz.viz.notebook`). Needs the ``jupyter`` extra (``pip install xray_viz[jupyter]``).
 """
@@ -18,8 +26,11 @@ VTK.wasm: trame-vtklocal is never imported). ``xray-viz show SCENE --web`` serve
 from __future__ import annotations
 
 import functools
+import ipaddress
 import itertools
 import os
+import secrets
+import socket
 import sys
 
 from xray_viz.errors import XrayVizError
@@ -30,6 +41,102 @@ __all__ = ["WebViewer", "serve", "require_trame", "DEFAULT_HOST"]
 DEFAULT_HOST = "127.0.0.1"
 
 _names = itertools.count()
+
+#: Host names of this machine's loopback interface.
+LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
+#: Bind addresses meaning "every interface".
+WILDCARD_HOSTS = frozenset({"", "0.0.0.0", "::"})
+
+
+def is_loopback(host: str) -> bool:
+    """True when ``host`` (a name or an address) is this machine's loopback interface only.
+
+    Examples
+    --------
+    >>> [is_loopback(h) for h in ("127.0.0.1", "localhost", "::1", "127.0.0.2", "0.0.0.0",
+    ...                           "192.0.2.7", "example.org")]
+    [True, True, True, True, False, False, False]
+    """
+    host = host.strip("[]").lower()
+    if host in ("localhost", "localhost."):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _bind_warning(host: str) -> str | None:
+    """The loud warning for a bind that other machines can reach, or None (loopback)."""
+    if is_loopback(host):
+        return None
+    where = ("every network interface" if host in WILDCARD_HOSTS
+             else f"the interface {host!r}")
+    return (f"WARNING: --host {host or repr(host)} serves the viewer on {where}: not only this machine "
+            "but anyone who can reach it may open the viewer with the URL below (its ?secret= "
+            "is the only lock, and the traffic is plain http, not encrypted); use the default "
+            "--host 127.0.0.1 unless that is what you want")
+
+
+def _warn(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _split_host(value: str) -> tuple[str, int | None]:
+    """``"name:port"``, ``"[::1]:port"`` or ``"name"`` -> (lower-case name, port or None)."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        name, _, rest = value[1:].partition("]")
+        port = rest[1:] if rest.startswith(":") else ""
+    elif value.count(":") == 1:
+        name, _, port = value.partition(":")
+    else:
+        name, port = value, ""
+    return name.rstrip("."), (int(port) if port.isdigit() else None)
+
+
+def _request_guard(bound_host: str):
+    """aiohttp middleware: refuse (403) a request whose ``Host:`` is not a name of the bound
+    interface (DNS rebinding), and one whose ``Origin`` is another site (a foreign page's
+    websocket or fetch). With a wildcard bind (``0.0.0.0``) any ``Host:`` is answered (remote
+    browsers use this machine's names) but the ``Origin`` must still be the page's own."""
+    from aiohttp import web as aiohttp_web
+
+    allowed = set(LOOPBACK_NAMES) if is_loopback(bound_host) else set()
+    if bound_host not in WILDCARD_HOSTS:
+        allowed.add(bound_host.strip("[]").lower().rstrip("."))
+
+    def refuse(why: str):
+        return aiohttp_web.Response(status=403, text=f"refused by the xray_viz viewer: {why}\n")
+
+    @aiohttp_web.middleware
+    async def guard(request, handler):
+        raw_host = request.headers.get("Host")
+        if raw_host is None:
+            return refuse("no Host header")
+        host, _ = _split_host(raw_host)
+        if allowed and host not in allowed:
+            return refuse(f"Host header {raw_host[:80]!r} is not the viewer's address "
+                          f"({', '.join(sorted(allowed))})")
+        origin = request.headers.get("Origin")
+        if origin is not None:
+            from urllib.parse import urlsplit
+
+            parts = urlsplit(origin.strip())
+            try:
+                port = parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+            except ValueError:
+                port = None
+            sockname = request.transport.get_extra_info("sockname") if request.transport \
+                else None
+            own_port = sockname[1] if sockname else None
+            name = (parts.hostname or "").rstrip(".")
+            same = name in allowed if allowed else name == host
+            if parts.scheme not in ("http", "https") or not same or port != own_port:
+                return refuse(f"Origin {origin[:80]!r} is another site than the viewer's page")
+        return await handler(request)
+
+    return guard
 
 
 def require_trame() -> None:
@@ -123,10 +230,14 @@ class WebViewer:
         self.viewer = Viewer(scene, off_screen=True, **viewer_options)
         self.height = int(height)
         self.server = get_server(f"xray_viz-{next(_names)}", client_type="vue3")
+        #: The websocket's per-run secret (trame's default, ``wslink-secret``, is public); the
+        #: page learns it from the URL (:meth:`url`), which trame's client then strips.
+        self.secret = secrets.token_urlsafe(32)
         # trame reads --host/--port/... from sys.argv (xray-viz's, or a kernel's): the options
         # given here are the only ones
         cli = self.server.cli
-        cli.parse_known_args = functools.partial(type(cli).parse_known_args, cli, [])
+        cli.parse_known_args = functools.partial(type(cli).parse_known_args, cli,
+                                                 ["--authKey", self.secret])
         self.state = self.server.state
         self._specs = _slider_specs(self.viewer)
         self._syncing = False
@@ -235,10 +346,11 @@ class WebViewer:
 
     # ------------------------------------------------------------------ running
     def url(self, host: str = DEFAULT_HOST) -> str:
-        """The page's address once the server listens."""
-        shown = "127.0.0.1" if host in ("", "0.0.0.0") else host
+        """The page's address once the server listens, with its ``?secret=``: for a wildcard
+        bind (``0.0.0.0``), this machine's host name (what a remote browser would use)."""
+        shown = socket.gethostname() if host in WILDCARD_HOSTS else host.strip("[]")
         shown = f"[{shown}]" if ":" in shown else shown
-        return f"http://{shown}:{self.server.port}/index.html"
+        return f"http://{shown}:{self.server.port}/index.html?secret={self.secret}"
 
     def start(self, *, host=DEFAULT_HOST, port=0, exec_mode="main", on_ready=None):
         """Start the trame server (``exec_mode="main"`` blocks until it stops; ``"task"``
@@ -246,6 +358,9 @@ class WebViewer:
 
         With ``"main"`` the server's own event loop drops the errors of messages to a page
         whose connection is closing (:func:`_drop_closing_connections`)."""
+        guard = _request_guard(host)
+        self.server.controller.on_server_bind.add(
+            lambda wslink_server: wslink_server.app.middlewares.append(guard))
         if exec_mode == "main":
             self.server.controller.on_server_ready.add(_own_loop_drops_closing_connections)
         if on_ready is not None:
@@ -284,7 +399,8 @@ def serve(scene, *, host=DEFAULT_HOST, port=0, announce=print, **viewer_options)
     scene : Scene or WebViewer
         A scene (its :class:`WebViewer` is made here) or a :class:`WebViewer` made already.
     host : str
-        Interface to bind: ``127.0.0.1`` (this machine only) unless another is given.
+        Interface to bind: ``127.0.0.1`` (this machine only) unless another is given; any
+        other (``0.0.0.0``: every interface) is warned about on stderr.
     port : int
         0: any free port. The URL is announced once the server listens.
     announce : callable
@@ -297,6 +413,9 @@ def serve(scene, *, host=DEFAULT_HOST, port=0, announce=print, **viewer_options)
     int
         0 once stopped (Ctrl-C).
     """
+    warning = _bind_warning(host)
+    if warning:
+        _warn(warning)
     web = scene if isinstance(scene, WebViewer) else WebViewer(scene, **viewer_options)
 
     def ready(w):
