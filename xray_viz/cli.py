@@ -36,6 +36,8 @@ A scene is a TOML file ([source], [detector], [[body]] tables) or the name of a 
 EPILOG = """\
 examples:
   xray-viz render default -o out/default.png       render the bundled default scene
+  xray-viz render part.stl -o part.png             a mesh alone, framed, aluminium (it says so)
+  xray-viz init --from part.stl -o scene.toml      that scene as a commented file to edit
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz render limb -o limb.png --energy 40     a scene file's value, changed for one run
@@ -110,8 +112,9 @@ def _render_command(args) -> int:
         k = air_kerma(scene)
         dose = (f", {k.mas:g} mAs: air kerma " + (f"{k.entrance_uGy:.4g} uGy at entrance, "
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
-    print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
-          f"engine {engine}, {total_ms:.0f} ms{dose})")
+    if not args.quiet:                # -q: nothing on success, as `cp` says nothing
+        print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}, "
+              f"engine {engine}, {total_ms:.0f} ms{dose})")
     if args.engine == "fast":         # the compiled mesh checks, for the next runs
         from xray_viz.meshes import _check_kernels
 
@@ -223,7 +226,8 @@ def _add_verbosity(parser, *, top: bool) -> None:
                    help="also print debug messages on stderr (with --version: the versions of "
                         "every dependency)" if top else "also print debug messages on stderr")
     g.add_argument("-q", "--quiet", action="count", default=default,
-                   help="no progress bars or notices on stderr (-qq: no warnings either)")
+                   help="no progress bars or notices on stderr, no 'wrote ...' line (-qq: no "
+                        "warnings either)")
 
 
 def build_parser(*, only: str | None = None) -> argparse.ArgumentParser:
@@ -291,9 +295,10 @@ def _add_other_commands(sub) -> None:
 
     add_show_parser(sub)
     add_mesh_parser(sub)
-    from xray_viz.convert import add_convert_parser
+    from xray_viz.convert import add_convert_parser, add_init_parser
 
     add_convert_parser(sub)
+    add_init_parser(sub)
     p = sub.add_parser(
         "bench", help="benchmark the engines: time vs error, peers, scaling (source checkout)",
         add_help=False, description="Runs benchmarks/suites.py of the source repository.")

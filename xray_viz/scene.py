@@ -1504,7 +1504,9 @@ def load_scene(path: str | Path) -> Scene:
     Parameters
     ----------
     path : str or Path
-        A ``.toml`` scene file, or the name of a bundled phantom (see ``xray-viz phantoms``).
+        A ``.toml`` scene file, or the name of a bundled phantom (see ``xray-viz phantoms``),
+        or a mesh file alone (STL, OBJ, PLY, ...: framed with a stated material, see
+        :mod:`xray_viz.starter`).
         An existing file is read; otherwise a bare name (no suffix, no folder) is a phantom's
         name, even when a folder of that name exists (``./frog`` names the folder).
 
@@ -1545,6 +1547,10 @@ def load_scene(path: str | Path) -> Scene:
                 f"{path}: no such scene file, and no bundled phantom of that name "
                 f"(phantoms: {names})"
             )
+    from xray_viz.starter import framed_document, is_mesh_file
+
+    if is_mesh_file(p):              # a mesh alone: framed, with a stated material (logged)
+        return scene_from_dict(framed_document(p), base_dir=p.parent, file=p)
     if p.suffix.lower() == ".json":  # a gVirtualXray scene
         from xray_viz.meshes.gvxr import gvxr_to_dict, read_json
 

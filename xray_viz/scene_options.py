@@ -258,8 +258,11 @@ def _load_with_file_overrides(args):
         _log_scene(scene)
         return scene
     path = _scene_file(args.scene)
+    from xray_viz.starter import framed_document, is_mesh_file
+
     try:
-        original = tomllib.loads(path.read_bytes().decode("utf-8"))
+        original = (framed_document(path) if is_mesh_file(path)    # a mesh alone, framed
+                    else tomllib.loads(path.read_bytes().decode("utf-8")))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return xray_viz.load_scene(path)           # raises its own one-line error
     doc = copy.deepcopy(original)
