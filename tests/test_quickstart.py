@@ -8,6 +8,7 @@ every install and apt step each target takes, in either order, in seconds.
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import stat
@@ -186,3 +187,38 @@ def test_render_quiet_prints_nothing_on_success(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert loud.stdout.startswith("wrote s.npy")             # the test can fail
     assert np.load(tmp_path / "s.npy").shape == (32, 32)
+
+
+# --------------------------------------------------------------------------------------------
+# Start-up: the version report imports no VTK or PyVista; the compile notice once per cache
+
+def test_version_report_imports_no_vtk_nor_the_other_commands():
+    code = ("import json, sys, contextlib, io\nfrom xray_viz import cli\n"
+            "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+            "    code = cli.main(['--version', '-v'])\n"
+            "print(json.dumps({'code': code, 'text': out.getvalue(), 'modules': sorted(sys.modules)}))")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                          timeout=300)
+    import json
+
+    result = json.loads(done.stdout.splitlines()[-1])
+    assert result["code"] == 0 and "Render Window : vtk" in result["text"], result["text"]
+    heavy = [m for m in result["modules"] if m.split(".")[0] in ("vtk", "vtkmodules", "pyvista")
+             or m in ("xray_viz.scan", "xray_viz.viz.command", "xray_viz.reconstruct")]
+    assert heavy == []
+
+
+def test_the_compile_notice_is_said_once_per_kernel_cache(tmp_path, caplog):
+    from xray_viz.scene_options import _say_compiling
+
+    caplog.set_level(logging.DEBUG, logger="xray_viz.compile")
+    where = tmp_path / "kernels"                      # numba makes it when it first saves
+    for _ in range(3):                                # three kinds of scene, one cache
+        _say_compiling(str(where))
+    _say_compiling(None)                              # nowhere to cache: every process
+    _say_compiling(None)
+    levels = [(r.levelno, "not cached" in r.getMessage()) for r in caplog.records]
+    assert levels == [(logging.INFO, False), (logging.DEBUG, False), (logging.DEBUG, False),
+                      (logging.INFO, True), (logging.INFO, True)]
+    assert str(where) in caplog.records[0].getMessage()
