@@ -851,8 +851,23 @@ class Scene:
         """
         return _scene_document(self, base=None if base is None else Path(base))
 
-    def to_toml(self, *, base: str | Path | None = None) -> str:
+    def to_toml(self, path: str | Path | None = None, *, base: str | Path | None = None) -> str:
         """The scene as the text of a scene file (:meth:`to_dict` written by tomlkit).
+
+        Parameters
+        ----------
+        path : path-like, optional
+            Also write the text to this file (through a temporary file beside it, renamed into
+            place: never half-written), with mesh and table paths relative to its folder, so
+            that the file and its meshes can be moved together.
+        base : path-like, optional
+            Folder the paths are written relative to (default: ``path``'s folder with a
+            ``path``, else absolute paths: the text then loads from anywhere on this machine,
+            as the scene embedded in an image's metadata must).
+
+        Returns
+        -------
+        str
 
         Examples
         --------
@@ -864,7 +879,26 @@ class Scene:
         """
         from xray_viz._toml import dumps
 
-        return dumps(self.to_dict(base=base))
+        if path is None:
+            return dumps(self.to_dict(base=base))
+        import os
+        import tempfile
+
+        path = Path(path)
+        folder = path.parent if str(path.parent) else Path(".")
+        text = dumps(self.to_dict(base=folder if base is None else base))
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+        return text
 
     @property
     def triangles(self) -> np.ndarray:
@@ -896,7 +930,12 @@ def _path_text(path, base: Path | None) -> str:
     import os
 
     path = Path(path).resolve()
-    return str(path) if base is None else os.path.relpath(path, Path(base).resolve())
+    if base is None:
+        return str(path)
+    try:
+        return Path(os.path.relpath(path, Path(base).resolve())).as_posix()
+    except ValueError:         # another drive: no relative path
+        return str(path)
 
 
 def _with_paths(table: dict, base: Path | None) -> dict:

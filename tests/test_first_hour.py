@@ -1,0 +1,80 @@
+"""Smaller items of issue 43: a radiograph in a notebook (``plot``, ``_repr_png_``), scene files
+written with relative mesh paths (``Scene.to_toml(path)``), walkthrough 8's words about its
+own picture."""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import xray_viz
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return xray_viz.render(xray_viz.load_scene("sphere"))
+
+
+def test_repr_png_is_the_radiograph_attenuation_bright(sphere):
+    from PIL import Image
+
+    shown = np.asarray(Image.open(io.BytesIO(sphere._repr_png_())))
+    assert shown.shape == sphere.intensity.shape and shown.dtype == np.uint8
+    # the ball (radius 40 mm, magnified 1.5: 120 px at 0.5 mm) white in the middle, the open
+    # beam black; brighter where the chord is longer
+    assert shown[128, 128] == 255 and shown[0, 0] == 0 and shown[5, 128] == 0
+    assert shown[128, 128] > shown[128, 128 + 100] > shown[128, 128 + 125] == 0
+    expected = np.round(255 * (sphere.intensity.max() - sphere.intensity)
+                        / np.ptp(sphere.intensity))
+    assert np.abs(shown - expected).max() <= 1
+
+
+def test_plot_draws_the_quantity_in_mm(sphere):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    try:
+        image = sphere.plot(ax=ax)
+        assert np.array_equal(np.asarray(image.get_array()), sphere.intensity)
+        assert image.get_cmap().name == "gray_r"            # attenuation bright
+        assert image.get_extent() == pytest.approx([-64.0, 64.0, -64.0, 64.0])   # 256 x 0.5 mm
+        li = sphere.plot("line-integral", ax=ax, colorbar=False)
+        assert np.array_equal(np.asarray(li.get_array()), sphere.line_integral)
+    finally:
+        plt.close(fig)
+
+
+def test_to_toml_with_a_path_writes_mesh_paths_relative_to_it(tmp_path):
+    scene = xray_viz.load_scene("nested_spheres")
+    out = tmp_path / "copy" / "scene.toml"
+    out.parent.mkdir()
+    text = scene.to_toml(out)
+    assert out.read_text(encoding="utf-8") == text
+    meshes = [line.split("=", 1)[1].strip().strip('"') for line in text.splitlines()
+              if line.startswith("mesh")]
+    assert len(meshes) == 3 and not any(os.path.isabs(m) for m in meshes), meshes
+    assert all((out.parent / m).resolve().is_file() for m in meshes)
+    again = xray_viz.load_scene(out)
+    assert np.array_equal(xray_viz.render(again).intensity, xray_viz.render(scene).intensity)
+    assert [p for p in out.parent.iterdir()] == [out]        # no temporary left
+
+
+def test_walkthrough_8_says_what_its_picture_shows():
+    """The radiograph is drawn attenuation bright: the air bubble lets more through than the
+    bone around it, so it is a darker disc there, and the text says so."""
+    image = xray_viz.render(xray_viz.load_scene("nested_spheres"))
+    shown = image.display()
+    # bubble r = 10 mm, bone r = 25 mm, magnification 1.5, pitch 0.5 mm: 30 px and 75 px
+    bubble, bone = shown[128, 128], shown[128, 128 + 50]
+    assert bubble < bone
+    text = (ROOT / "apps" / "walkthroughs" / "08_radiograph.py").read_text(encoding="utf-8")
+    assert "*darker* disc" in text and "brighter* disc" not in text
