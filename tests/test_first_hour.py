@@ -121,3 +121,37 @@ def test_mesh_of_one_piece_reports_as_before(tmp_path):
         assert main(["mesh", str(tmp_path / "one.stl"), "-o", str(tmp_path / "f.stl")]) == 0
     text = out.getvalue()
     assert "overlap" not in text and "8000" in text
+
+
+def test_a_metal_implant_does_not_take_the_png_window(tmp_path):
+    """The limb with a steel rod (4 mm across, 60 mm long) beside the radius: the line-integral
+    PNG's window spans the forearm's values, the rod's pixels are drawn saturated at its top
+    (counted in the window as ``clipped``), and the forearm's values read back within half a
+    quantisation step; without the rod, the window is the image's whole range as before."""
+    import trimesh
+
+    limb = xray_viz.load_scene("limb")
+    rod = trimesh.creation.cylinder(radius=2.0, height=60.0, sections=48)
+    rod.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    rod.apply_translation([-12.0, 0.0, 0.0])
+    rod.export(tmp_path / "rod.stl")
+    text = limb.to_toml() + ('\n[[body]]\nname = "rod"\nmesh = "rod.stl"\nmaterial = "Fe"\n'
+                             'density = 7.87\n')
+    (tmp_path / "implant.toml").write_text(text)
+    with_rod = xray_viz.load_scene(tmp_path / "implant.toml")
+    li = xray_viz.render(with_rod).line_integral
+    body = xray_viz.render(limb).line_integral
+    out = xray_viz.save_image(tmp_path / "li.png", li, quantity="line-integral")
+    stored, meta = xray_viz.load_image(out, with_metadata=True)
+    window = meta.window
+    rod_pixels = li > body.max() * 1.25
+    assert 50 < rod_pixels.sum() < 0.01 * li.size
+    assert body.max() <= window["high"] < li[rod_pixels].min() < li.max()
+    assert window["clipped"] == int((li > window["high"]).sum())
+    assert (stored[rod_pixels] == 65535).all()
+    kept = li <= window["high"]
+    assert np.abs(meta.to_physical(stored)[kept] - li[kept]).max() <= window["step"] / 2 * 1.001
+    plain = xray_viz.load_image(xray_viz.save_image(tmp_path / "body.png", body,
+                                                    quantity="line-integral"),
+                                with_metadata=True)[1].window
+    assert (plain["low"], plain["high"]) == (body.min(), body.max()) and "clipped" not in plain
