@@ -161,7 +161,11 @@ def test_code_block_runs(path, block, tmp_path, monkeypatch):
         tomllib.loads(block["text"])
     elif block["lang"] == "python":
         code = compile(block["text"], where, "exec")
-        exec(code, {"__name__": "__snippet__"})
+        try:
+            exec(code, {"__name__": "__snippet__"})
+        finally:
+            if "matplotlib.pyplot" in sys.modules:       # figures a block drew (plot())
+                sys.modules["matplotlib.pyplot"].close("all")
     else:
         for argv in commands(block["text"]):
             run_command(argv, where)
