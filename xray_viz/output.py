@@ -27,7 +27,7 @@ from xray_viz.errors import OutputError, WriteInterrupted, one_line
 
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
-           "format_of", "FORMATS", "UNITS"]
+           "format_of", "FORMATS", "UNITS", "window_range", "OUTLIER_FRACTION"]
 
 #: Output suffixes and what they hold.
 FORMATS = {

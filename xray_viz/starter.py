@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["MATERIAL", "DENSITY", "ENERGY", "is_mesh_file", "framing", "framed_document",
-           "scene_text", "describe"]
+__all__ = ["MATERIAL", "DENSITY", "ENERGY", "SHAPE", "FILL", "is_mesh_file", "framing",
+           "framed_document", "scene_text", "describe"]
 
 log = logging.getLogger("xray_viz.starter")
 

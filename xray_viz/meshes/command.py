@@ -27,7 +27,7 @@ import numpy as np
 from xray_viz.errors import MeshError, SceneFileNotFoundError
 
 __all__ = ["mesh_command", "volume_mesh_command", "add_mesh_parser", "WRITE_SUFFIXES",
-           "VOLUME_TOLERANCE"]
+           "VOLUME_TOLERANCE", "union_volume", "overlapping_pieces", "UNION_RAYS"]
 
 #: Output formats written by ``xray-viz mesh`` (binary STL, binary PLY, OBJ, OFF).
 WRITE_SUFFIXES = (".stl", ".ply", ".obj", ".off")
