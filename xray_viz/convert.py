@@ -131,7 +131,7 @@ def init_command(args, *, stdout=None) -> int:
         washer = trimesh.creation.annulus(r_min=10.0, r_max=25.0, height=12.0, sections=96)
         washer.apply_transform(trimesh.transformations.rotation_matrix(1.0471975511965976, [1, 0, 0]))   # 60 deg
         atomic_write(mesh, lambda tmp: washer.export(tmp))
-    text = scene_text(mesh, relative_to=folder)
+    text = scene_text(mesh, relative_to=folder, name=dst.name)
     doc = tomllib.loads(text)
     scene_from_dict(doc, base_dir=folder, file=dst)        # every mesh and value checked
 

@@ -132,7 +132,7 @@ def _toml(value) -> str:
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
-def scene_text(mesh_path, *, relative_to=None) -> str:
+def scene_text(mesh_path, *, relative_to=None, name: str = "scene.toml") -> str:
     """A commented scene file framed around ``mesh_path`` (see the module), to edit.
 
     Parameters
@@ -142,6 +142,8 @@ def scene_text(mesh_path, *, relative_to=None) -> str:
     relative_to : path-like, optional
         The folder the scene file will be in: the mesh path is written relative to it where
         possible (absolute on another drive); default: absolute.
+    name : str
+        The scene file's name, in the comment that says how to render it.
 
     Returns
     -------
@@ -160,7 +162,7 @@ def scene_text(mesh_path, *, relative_to=None) -> str:
     s, d, b = doc["source"], doc["detector"], doc["body"][0]
     rows = [
         f"# A scene framed around {p.name} by `xray-viz init`. Edit it, then:",
-        "#   xray-viz render THIS.toml -o image.png      (xray-viz show THIS.toml: the 3D view)",
+        f"#   xray-viz render {name} -o image.png      (xray-viz show {name}: the 3D view)",
         "# Geometry in mm, mu in 1/cm, energies in keV; every key is in the README, \"Scene files\".",
         "", "[source]",
         (f"position = {_toml(s['position'])}", f"mm: {f['sod']:g} mm above the mesh's centre (+z)"),
