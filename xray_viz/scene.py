@@ -658,6 +658,7 @@ class Body:
     density: float | None = None
     source_file: Path | None = None
     placement: dict | None = None
+    shape: dict | None = None           # a primitive's table (xray_viz.meshes.primitives)
 
     def __post_init__(self):
         from xray_viz.meshes.io import as_trimesh
@@ -981,6 +982,17 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     detector.update(electronic_noise=det.electronic_noise, gain=det.gain)
     bodies = []
     for body in scene.bodies:
+        if getattr(body, "shape", None) is not None:        # a primitive: its table
+            entry = {"name": body.name, "shape": _plain(dict(body.shape))}
+            if body.mu is not None:
+                entry["mu"] = body.mu
+            else:
+                entry["material"] = _plain(body.material)
+                if body.density is not None:
+                    entry["density"] = body.density
+            entry.update(_plain(dict(body.placement or {})))
+            bodies.append(entry)
+            continue
         if body.source_file is None:
             raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
                              "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
@@ -1035,8 +1047,8 @@ SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas", "heel")
 DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
                  "falloff", "supersample", "focal_spot", "scintillator", "mtf",
                  "electronic_noise", "gain", "offset", "u", "v")
-BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
-             "units", "repair")
+BODY_KEYS = ("name", "mesh", "shape", "mu", "material", "density", "position", "rotation",
+             "scale", "units", "repair")
 
 
 class _Table:
@@ -1290,9 +1302,21 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     except SceneError as exc:
         t.fail(f"name: {exc}")
     label = f"(name {name!r})"
-    mesh_name = t.string("mesh", required=True)
-    if not mesh_name.strip():
-        t.fail(f"{label} mesh must name a mesh file, got {mesh_name!r}")
+    shape = None
+    if t.has("shape"):                   # a primitive instead of a mesh file
+        from xray_viz.meshes.primitives import check_shape
+
+        if t.has("mesh"):
+            t.fail(f"{label} gives both 'mesh' and 'shape'; use one")
+        try:
+            shape = check_shape(t.raw("shape"))
+        except SceneError as exc:
+            t.fail(f"{label} {exc}")
+        mesh_name = None
+    else:
+        mesh_name = t.string("mesh", required=True)
+        if not mesh_name.strip():
+            t.fail(f"{label} mesh must name a mesh file, got {mesh_name!r}")
     mu = t.number("mu")                                  # types here, values in Body's rules
     material = t.raw("material")
     density = t.number("density")
@@ -1324,12 +1348,19 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     if not isinstance(repair, bool):
         t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
-    path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() else Path(mesh_name)
     where = f"{t.file}: " if t.file else ""
-    try:
-        mesh = load_mesh(path)
-    except XrayVizError as exc:
-        raise type(exc)(f"{where}body {name!r}: {exc}") from None
+    if shape is not None:
+        from xray_viz.meshes.primitives import shape_mesh
+
+        path = None
+        mesh = shape_mesh(shape)
+    else:
+        path = (base_dir / mesh_name).resolve() if not Path(mesh_name).is_absolute() \
+            else Path(mesh_name)
+        try:
+            mesh = load_mesh(path)
+        except XrayVizError as exc:
+            raise type(exc)(f"{where}body {name!r}: {exc}") from None
     try:
         transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
     except SceneError as exc:
@@ -1342,16 +1373,16 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
         mesh, changes, report = ensure_traceable(mesh, name=name, repair=repair,
                                                  return_report=True)
     except XrayVizError as exc:
-        raise type(exc)(f"{where}{path.name}: {exc}") from None
+        raise type(exc)(f"{where}{path.name if path else shape['kind']}: {exc}") from None
     if changes:
         import warnings
 
-        warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
-                      MeshRepairWarning, stacklevel=2)
+        warnings.warn(f"{where}body {name!r} ({path.name if path else shape['kind']}): mesh "
+                      f"repaired: {'; '.join(changes)}", MeshRepairWarning, stacklevel=2)
     placement = {k: t.data[k] for k in ("position", "rotation", "scale", "units", "repair")
                  if k in t.data}
     return Body(name=name, mesh=mesh, mu=mu, material=material, density=density,
-                source_file=path, placement=placement), report
+                source_file=path, placement=placement, shape=shape), report
 
 
 def _check_material_energies(src: _Table, energy, spectrum, bodies) -> None:
