@@ -137,8 +137,9 @@ def test_focal_spot_and_scan_warn(tmp_path):
 
 
 @pytest.mark.parametrize("change, expect", [
-    (dict(Samples=[{"Label": "c", "Cube": [10, "mm"], "Material": ["Element", "Fe"]}]),
-     r"Samples #1 \('c'\): the primitive 'Cube' has no equivalent"),
+    (dict(Samples=[{"Label": "c", "Cylinder": [32, 10, 2, "mm"],
+                    "Material": ["Element", "Fe"]}]),
+     r"Samples #1 \('c'\): the primitive 'Cylinder' has no equivalent"),
     (dict(Samples=[{"Label": "b", "Path": "meshes/ball.stl", "Material": ["HU", 400]}]),
      r"a Hounsfield value has no equivalent"),
     (dict(Source__Beam=[{"Energy": 40, "Unit": "keV", "PhotonCount": 1},
@@ -344,3 +345,19 @@ def test_a_gvxr_scan_about_another_centre_is_ignored_with_a_warning(tmp_path):
 def test_a_bad_gvxr_scan_is_one_line(scan, expect):
     with pytest.raises(SceneError, match=expect):
         G.gvxr_to_dict(gvxr_doc(Scan=scan))
+
+
+def test_a_gvxr_cube_is_a_box_body(tmp_path):
+    """gvxr.makeCube(label, size, unit) is a cube of that edge centred on the origin, placed by
+    the sample's Transform: a box shape, traced with its exact chord."""
+    doc = gvxr_doc(Samples=[{"Label": "c", "Cube": [2, "cm"], "Material": ["mu", 0.5],
+                             "Transform": [["Translation", 0, 0, 5, "mm"]]}])
+    d = G.gvxr_to_dict(doc)
+    assert d["body"] == [{"name": "c", "shape": {"kind": "box", "size": [20.0, 20.0, 20.0]},
+                          "mu": 0.5, "position": [0.0, 0.0, 5.0]}]
+    p = write_json(tmp_path, doc)
+    li = xray_viz.render(xray_viz.load_scene(p)).line_integral
+    np.testing.assert_allclose(li[23:25, 31:33], 0.5 * 2.0, rtol=1e-6)   # 20 mm of mu 0.5/cm
+    out = tmp_path / "cube.toml"
+    assert cli.main(["convert", str(p), "-o", str(out)]) == 0
+    assert tomllib.loads(out.read_text())["body"][0]["shape"]["kind"] == "box"

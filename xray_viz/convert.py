@@ -53,6 +53,8 @@ def convert_command(args, *, stdout=None) -> int:
     doc = gvxr_to_dict(read_json(src), base_dir=src.parent, file=src)
     scene = scene_from_dict(doc, base_dir=src.parent, file=src)   # every mesh and value checked
     for body in doc["body"]:
+        if "mesh" not in body:       # a primitive (a gVXR Cube): no file
+            continue
         mesh = Path(body["mesh"])
         full = mesh if mesh.is_absolute() else (src.parent / mesh).resolve()
         try:

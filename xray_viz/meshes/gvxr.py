@@ -35,8 +35,9 @@ What maps (gVXR -> xray-viz):
 ================================================  ==============================================
 
 No equivalent, an error (one line naming the key): a beam of several energies or from a text
-file or GATE macro, ``["HU", value]`` materials, primitive samples (``Cube``, ``Cuboid``,
-``Cylinder``; save them as mesh files), ``MoveToCentre``, a ``SceneGraph``, the detector's
+file or GATE macro, ``["HU", value]`` materials, primitive samples other than ``Cube`` (a
+``Cube`` is a ``shape = { kind = "box" }`` body; ``Cuboid``, ``Cylinder``: save them as mesh
+files), ``MoveToCentre``, a ``SceneGraph``, the detector's
 ``Energy response`` and ``LSF``, a ``RightVector`` that would mirror the image, and a
 ``Transform`` that shears. Ignored: ``WindowSize``, ``File format version``, colours,
 ``Opacity``, ``Type`` (inner/outer: the innermost body wins anyway), the normal-flipping flags
@@ -555,14 +556,26 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
         if not isinstance(label, str) or not label.strip():
             ctx.fail(where, f"Label must be a non-empty string, got {label!r}")
         where = f"Samples #{k} ({label!r})"
+        cube = sample.get("Cube")
         for p in _PRIMITIVES:
-            if p in sample:
+            if p in sample and p != "Cube":
                 ctx.fail(where, f"the primitive '{p}' has no equivalent; save it as a mesh "
-                                "file (e.g. with trimesh.creation) and give its 'Path'")
-        if "Path" not in sample or not isinstance(sample["Path"], str):
+                                "file (e.g. with trimesh.creation) and give its 'Path', or "
+                                "give a Cube")
+        if cube is not None:         # gvxr.makeCube(label, size, unit): centred on the origin
+            if not isinstance(cube, list) or len(cube) != 2:
+                ctx.fail(f"{where} Cube", f"must be [size, \"unit\"], got "
+                                          f"{excerpt(json.dumps(cube))}")
+            size = _number(ctx, cube[0], f"{where} Cube") * _length_unit(ctx, cube[1],
+                                                                          f"{where} Cube")
+            if not size > 0:
+                ctx.fail(f"{where} Cube", f"size must be > 0, got {size:g} mm")
+            body = {"name": label, "shape": {"kind": "box", "size": [_clean(size)] * 3}}
+        elif "Path" not in sample or not isinstance(sample["Path"], str):
             ctx.fail(where, "has no 'Path' (the mesh file)")
-        body = {"name": label, "mesh": sample["Path"]}
-        unit = sample.get("Unit", "mm")
+        else:
+            body = {"name": label, "mesh": sample["Path"]}
+        unit = sample.get("Unit", "mm") if cube is None else "mm"   # a Cube's own unit
         factor = _length_unit(ctx, unit, f"{where} Unit")
         body.update(_material(ctx, sample, where))
         m = _transform(ctx, sample["Transform"], f"{where} Transform") \
