@@ -74,3 +74,15 @@ def test_a_bad_shape_is_one_line_naming_the_key(body, expect):
     with pytest.raises(SceneError, match=expect) as info:
         scene_of(body)
     assert "\n" not in str(info.value) and "[[body]]" in str(info.value)
+
+
+def test_a_moved_primitive_writes_its_new_placement():
+    scene = scene_of({"name": "b", "shape": {"kind": "box", "size": [10.0, 10.0, 10.0]},
+                      "mu": 0.3, "position": [3.0, 0.0, 0.0]})
+    moved = scene.transform_bodies(np.array([[1, 0, 0, 5.0], [0, 1, 0, 0], [0, 0, 1, 0],
+                                             [0, 0, 0, 1]]))
+    again = scene_from_dict(tomllib.loads(moved.to_toml()))
+    np.testing.assert_allclose(again.bodies[0].mesh.bounds, moved.bodies[0].mesh.bounds,
+                               atol=1e-9)
+    np.testing.assert_allclose(again.bodies[0].mesh.bounds.mean(axis=0), [8.0, 0.0, 0.0],
+                               atol=1e-9)

@@ -805,12 +805,12 @@ class Scene:
         5.0
         """
         def placed(body, m):
-            if body.source_file is None:
+            if body.source_file is None and getattr(body, "shape", None) is None:
                 return {}
             placement = _compose_placement(body.placement, m)
-            # a shear has no scene-file keys: the mesh is no longer its file's
+            # a shear has no scene-file keys: the mesh is no longer its file's (or shape's)
             return {"placement": placement} if placement is not None else \
-                {"placement": None, "source_file": None}
+                {"placement": None, "source_file": None, "shape": None}
         return dataclasses.replace(self, bodies=self.bodies.transform(matrix, changes=placed))
 
     @property
