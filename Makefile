@@ -10,17 +10,33 @@ DOCS_OUT ?= build/docs
 
 .PHONY: setup demo test test-all docs bench clean
 
-$(STAMP): pyproject.toml .ci/system-deps
-	bash .ci/system-deps
+# Two installs into the one .venv: `make demo` the core package only (what a render needs: no
+# test, docs or ct extras; of the Debian packages only the GL libraries pymeshlab links against),
+# `make test` everything the tests need. Either may come first. pip shows its progress; only its
+# "WARNING: Location ... ignored" notices on stderr are filtered out (pipefail keeps its status).
+PIP := $(PY) -m pip
+QUIET_LOCATION := 2> >(grep -v '^WARNING: Location' >&2)
+CORE_STAMP := $(VENV)/.installed-core
+
+$(VENV)/bin/python:
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip 2>&1 | { grep -v '^WARNING: Location' || true; }
-	$(PY) -m pip install --quiet -e '.[test,docs,ct]' 2>&1 | { grep -v '^WARNING: Location' || true; }
+	$(PIP) install --upgrade pip $(QUIET_LOCATION)
+
+$(CORE_STAMP): pyproject.toml .ci/system-deps | $(VENV)/bin/python
+	bash .ci/system-deps core
+	if [ -f $(STAMP) ] && [ $(STAMP) -nt pyproject.toml ]; then :; else \
+	  $(PIP) install -e . $(QUIET_LOCATION); fi
+	touch $(CORE_STAMP)
+
+$(STAMP): pyproject.toml .ci/system-deps | $(VENV)/bin/python
+	bash .ci/system-deps
+	$(PIP) install -e '.[test,docs,ct]' $(QUIET_LOCATION)
 	touch $(STAMP)
 
 setup: $(STAMP)
 
-## Render the bundled default scene to out/default.png (and print where it went).
-demo: setup
+## Render the bundled default scene to out/default.png (and print where it went): the core only.
+demo: $(CORE_STAMP)
 	$(VENV)/bin/xray-viz render default -o out/default.png
 
 ## Run the test suite (a bounded sample of the slow stress cases included).
@@ -29,7 +45,7 @@ test: setup
 
 ## Everything, including every slow stress case (and mbirjax, ~1 GB, for its slow reconstructions).
 test-all: setup
-	$(PY) -m pip install --quiet -e '.[test,docs,ct,ct-mbir]' 2>&1 | { grep -v '^WARNING: Location' || true; }
+	$(PIP) install -e '.[test,docs,ct,ct-mbir]' $(QUIET_LOCATION)
 	$(PY) -m pytest -q -m "slow or not slow"
 
 ## The documentation site: build/docs/html/index.html (every walkthrough executed; warnings are

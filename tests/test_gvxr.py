@@ -132,12 +132,14 @@ def test_focal_spot_and_scan_warn(tmp_path):
         d = G.gvxr_to_dict(doc)
     assert d["detector"]["focal_spot"] == 0.4
     messages = " | ".join(str(w.message) for w in record)
-    assert "Gaussian" in messages and "Scan" in messages
+    assert "Gaussian" in messages and "Scan" not in messages        # the Scan is a scan now
+    assert d["scan"]["projections"] == 10
 
 
 @pytest.mark.parametrize("change, expect", [
-    (dict(Samples=[{"Label": "c", "Cube": [10, "mm"], "Material": ["Element", "Fe"]}]),
-     r"Samples #1 \('c'\): the primitive 'Cube' has no equivalent"),
+    (dict(Samples=[{"Label": "c", "Cylinder": [32, 10, 2, "mm"],
+                    "Material": ["Element", "Fe"]}]),
+     r"Samples #1 \('c'\): the primitive 'Cylinder' has no equivalent"),
     (dict(Samples=[{"Label": "b", "Path": "meshes/ball.stl", "Material": ["HU", 400]}]),
      r"a Hounsfield value has no equivalent"),
     (dict(Source__Beam=[{"Energy": 40, "Unit": "keV", "PhotonCount": 1},
@@ -293,3 +295,69 @@ def test_glb_errors_are_one_line(tmp_path, capsys):
         rc = cli.main(["render", str(tmp_path / "s.toml"), "-o", str(tmp_path / "o.npy")])
         err = capsys.readouterr().err
         assert rc == 2 and err.count("\n") == 1 and re.search(expect, err), err
+
+
+# -- a gVXR Scan becomes the scene's orbit ------------------------------------------------------
+
+@pytest.mark.parametrize("scan, angles", [
+    ({"NumberOfProjections": 4, "FinalAngle": 360}, [0, 90, 180, 270]),
+    ({"NumberOfProjections": 4, "FinalAngle": 360, "IncludeLastAngle": True},
+     [0, 90, 180, 270, 360]),
+    ({"AngleStep": 45, "FinalAngle": 180, "StartAngle": 0}, [0, 45, 90, 135]),
+    ({"AngleStep": 30, "NumberOfProjections": 3}, [0, 30, 60]),
+    ({"NumberOfProjections": 3, "FinalAngle": 90, "StartAngle": 30}, [0, 20, 40]),
+])
+def test_a_gvxr_scan_becomes_the_orbit_json2gvxr_makes(tmp_path, scan, angles):
+    """json2gvxr images the scene as it is, then turns the samples by the step about the
+    detector's up vector through the origin (right-handed) before each next projection: in
+    the samples' frame the source and detector turn the other way, computed here with
+    scipy's rotations."""
+    from xray_viz.scene import scene_from_dict
+
+    up = np.array([0.0, 0.6, 0.8])
+    doc = gvxr_doc(Scan=scan, Detector__UpVector=up.tolist())
+    write_meshes(tmp_path / "meshes")
+    d = G.gvxr_to_dict(doc, base_dir=tmp_path)
+    scene = scene_from_dict(d, base_dir=tmp_path)
+    acquisitions = list(scene.orbit.acquisitions(scene.acquisition))
+    assert len(acquisitions) == len(angles)
+    source = np.array(scene.source.position, float)
+    centre = np.array(scene.detector.center, float)
+    for acq, angle in zip(acquisitions, angles):
+        turn = Rotation.from_rotvec(-np.radians(angle) * up)        # the samples' +angle
+        np.testing.assert_allclose(acq.frame.source, turn.apply(source), atol=1e-9)
+        np.testing.assert_allclose(acq.frame.center, turn.apply(centre), atol=1e-9)
+
+
+def test_a_gvxr_scan_about_another_centre_is_ignored_with_a_warning(tmp_path):
+    doc = gvxr_doc(Scan={"NumberOfProjections": 4, "FinalAngle": 360,
+                         "CenterOfRotation": [0, 0, 5, "mm"]})
+    with pytest.warns(G.GvxrWarning, match="CenterOfRotation"):
+        d = G.gvxr_to_dict(doc)
+    assert "scan" not in d
+
+
+@pytest.mark.parametrize("scan, expect", [
+    ({"FinalAngle": 360}, r"Scan: needs FinalAngle and NumberOfProjections or AngleStep"),
+    ({"NumberOfProjections": 4, "FinalAngle": 360, "Turns": 2}, r"Scan.*Turns"),
+    ({"NumberOfProjections": 2.5, "FinalAngle": 360}, r"NumberOfProjections: must be a whole"),
+])
+def test_a_bad_gvxr_scan_is_one_line(scan, expect):
+    with pytest.raises(SceneError, match=expect):
+        G.gvxr_to_dict(gvxr_doc(Scan=scan))
+
+
+def test_a_gvxr_cube_is_a_box_body(tmp_path):
+    """gvxr.makeCube(label, size, unit) is a cube of that edge centred on the origin, placed by
+    the sample's Transform: a box shape, traced with its exact chord."""
+    doc = gvxr_doc(Samples=[{"Label": "c", "Cube": [2, "cm"], "Material": ["mu", 0.5],
+                             "Transform": [["Translation", 0, 0, 5, "mm"]]}])
+    d = G.gvxr_to_dict(doc)
+    assert d["body"] == [{"name": "c", "shape": {"kind": "box", "size": [20.0, 20.0, 20.0]},
+                          "mu": 0.5, "position": [0.0, 0.0, 5.0]}]
+    p = write_json(tmp_path, doc)
+    li = xray_viz.render(xray_viz.load_scene(p)).line_integral
+    np.testing.assert_allclose(li[23:25, 31:33], 0.5 * 2.0, rtol=1e-6)   # 20 mm of mu 0.5/cm
+    out = tmp_path / "cube.toml"
+    assert cli.main(["convert", str(p), "-o", str(out)]) == 0
+    assert tomllib.loads(out.read_text())["body"][0]["shape"]["kind"] == "box"

@@ -83,7 +83,7 @@ BAD = [
     # the known keys listed are every key the table accepts, not only those the file uses
     ("mu = 0.2", "mu = 0.2\nrotaton = [0, 0, 90]",
      "unknown key 'rotaton' (did you mean 'rotation'?); known keys: density, material, mesh, mu, "
-     "name, position, repair, rotation, scale, units"),
+     "name, position, repair, rotation, scale, shape, units"),
     ("pitch = 2.0", "pitch = 2.0\npich = 2.0", "known keys: I0, center, electronic_noise, "
      "falloff, focal_spot, gain, mtf, noise, offset, pitch, response, scintillator, seed, shape, "
      "size, supersample, u, up, v"),

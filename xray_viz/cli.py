@@ -36,6 +36,8 @@ A scene is a TOML file ([source], [detector], [[body]] tables) or the name of a 
 EPILOG = """\
 examples:
   xray-viz render default -o out/default.png       render the bundled default scene
+  xray-viz render part.stl -o part.png             a mesh alone, framed, aluminium (it says so)
+  xray-viz init --from part.stl -o scene.toml      that scene as a commented file to edit
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz render limb -o limb.png --energy 40     a scene file's value, changed for one run
@@ -111,10 +113,11 @@ def _render_command(args) -> int:
         k = air_kerma(scene)
         dose = (f", {k.mas:g} mAs: air kerma " + (f"{k.entrance_uGy:.4g} uGy at entrance, "
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
-    nv = len(getattr(scene, "volumes", ()))
+    nv = len(scene.volumes)
     vols = f", {nv} voxel volume{'s' * (nv > 1)}" if nv else ""
-    print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}{vols}, "
-          f"engine {engine}, {total_ms:.0f} ms{dose})")
+    if not args.quiet:                # -q: nothing on success, as `cp` says nothing
+        print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}{vols}, "
+              f"engine {engine}, {total_ms:.0f} ms{dose})")
     if ENGINES[args.engine].compiled:   # the compiled mesh checks, for the next runs
         from xray_viz.meshes import _check_kernels
 
@@ -153,26 +156,54 @@ def version_report(*, gpu: bool = True) -> str:
     """
     import scooby
 
-    meta = []
-    if gpu:
-        from xray_viz.viz.command import _use_egl_if_headless
-
-        _use_egl_if_headless()        # no X server: EGL, as `xray-viz show --screenshot` uses
-        try:
-            from pyvista.report import GPUInfo
-
-            meta = list(GPUInfo().get_info())
-        except Exception as exc:  # noqa: BLE001 - a bug report must not fail on a broken GPU
-            meta = [("GPU Details", f"error: {exc}")]
-        try:
-            import vtk
-
-            window = vtk.vtkRenderWindow()
-            meta.append(("Render Window", window.GetClassName()))
-        except Exception as exc:  # noqa: BLE001
-            meta.append(("Render Window", f"error: {exc}"))
+    meta = _render_window_info() if gpu else []
     return str(scooby.Report(core=list(REPORT_CORE), optional=list(REPORT_OPTIONAL),
                              extra_meta=meta, sort=False, text_width=92))
+
+
+#: Run in a subprocess by :func:`_render_window_info` (a broken GPU driver may crash it): the
+#: OpenGL strings and VTK's render-window class, as pyvista.Report's GPUInfo reads them, with
+#: only the two VTK modules a window needs imported (``import vtk`` loads every module: ~1 s).
+_WINDOW_PROBE = """
+from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindow
+import vtkmodules.vtkRenderingOpenGL2
+win = vtkRenderWindow()
+win.OffScreenRenderingOn()
+win.AddRenderer(vtkRenderer())
+win.Render()
+print(win.ReportCapabilities())
+print("vtkRenderWindow class name:", win.GetClassName())
+"""
+
+
+def _render_window_info() -> list[tuple[str, str]]:
+    """The OpenGL vendor, renderer and version and VTK's render-window class (from an
+    off-screen window, EGL when there is no display), or ``error: ...`` rows."""
+    import os
+    import re
+    import subprocess
+
+    env = dict(os.environ)
+    if sys.platform.startswith("linux") and not env.get("DISPLAY") \
+            and not env.get("WAYLAND_DISPLAY"):    # as `xray-viz show --screenshot` does
+        env.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    try:
+        done = subprocess.run([sys.executable, "-c", _WINDOW_PROBE], env=env, timeout=60,
+                              capture_output=True, text=True)
+        text = done.stdout if done.returncode == 0 else ""
+        error = "" if text else (done.stderr.strip().splitlines() or
+                                 [f"exit status {done.returncode}"])[-1]
+    except (OSError, subprocess.SubprocessError) as exc:
+        text, error = "", str(exc)
+
+    def field(name):
+        found = re.findall(rf"{name}:(.+)\n", text)
+        return found[0].strip() if found else f"error: {error or 'not reported'}"
+
+    return [("GPU Vendor", field("OpenGL vendor string")),
+            ("GPU Renderer", field("OpenGL renderer string")),
+            ("GPU Version", field("OpenGL version string")),
+            ("Render Window", field("vtkRenderWindow class name"))]
 
 
 def _report_command(args) -> int:
@@ -226,7 +257,8 @@ def _add_verbosity(parser, *, top: bool) -> None:
                    help="also print debug messages on stderr (with --version: the versions of "
                         "every dependency)" if top else "also print debug messages on stderr")
     g.add_argument("-q", "--quiet", action="count", default=default,
-                   help="no progress bars or notices on stderr (-qq: no warnings either)")
+                   help="no progress bars or notices on stderr, no 'wrote ...' line (-qq: no "
+                        "warnings either)")
 
 
 def build_parser(*, only: str | None = None) -> argparse.ArgumentParser:
@@ -294,9 +326,10 @@ def _add_other_commands(sub) -> None:
 
     add_show_parser(sub)
     add_mesh_parser(sub)
-    from xray_viz.convert import add_convert_parser
+    from xray_viz.convert import add_convert_parser, add_init_parser
 
     add_convert_parser(sub)
+    add_init_parser(sub)
     p = sub.add_parser(
         "bench", help="benchmark the engines: time vs error, peers, scaling (source checkout)",
         add_help=False, description="Runs benchmarks/suites.py of the source repository.")
@@ -369,7 +402,11 @@ def main(argv=None) -> int:
     (:func:`xray_viz.output.atomic_write` removed its temporary file first; one line says so).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(only=_only_command(argv))
+    only = _only_command(argv)
+    if "--version" in argv and all(a == "--version" or a in _LEADING or (
+            len(a) > 1 and a[0] == "-" and set(a[1:]) <= {"v", "q"}) for a in argv):
+        only = "render"        # the version or the report: the other commands' modules unused
+    parser = build_parser(only=only)
     args, extra = parser.parse_known_args(argv)
     if extra and getattr(args, "command", None) == "bench":
         args.bench_args = extra              # the suites' own options (see `xray-viz bench --help`)

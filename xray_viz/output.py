@@ -27,7 +27,7 @@ from xray_viz.errors import OutputError, WriteInterrupted, one_line, reader_reas
 
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
-           "format_of", "FORMATS", "UNITS"]
+           "format_of", "FORMATS", "UNITS", "window_range", "OUTLIER_FRACTION"]
 
 #: Output suffixes and what they hold.
 FORMATS = {
@@ -47,6 +47,8 @@ FORMATS = {
 def to_uint16(image, *, bright="high") -> np.ndarray:
     """Window an image to the range of its finite values and scale it to 0..65535.
 
+    A few pixels far beyond the others at the attenuating end (a metal implant's: see
+    :func:`window_range`) are drawn saturated at the window's end instead of taking the window.
     Non-finite values do not stretch the window: it spans the finite values only, ``+inf`` is
     drawn at its top (the largest value; white with ``bright="high"``, so a line integral
     through a body that stops every photon is white), ``-inf`` and NaN at its bottom (as
@@ -85,7 +87,7 @@ def _window(image, *, bright="high") -> tuple[np.ndarray, int]:
     a = np.asarray(image, dtype=np.float64)
     finite = np.isfinite(a)
     bad = int(a.size - np.count_nonzero(finite))
-    lo, hi = (float(a[finite].min()), float(a[finite].max())) if bad < a.size else (0.0, 0.0)
+    lo, hi = window_range(a[finite], bright=bright)
     if hi > lo:
         scaled = (np.where(finite, a, lo) - lo) / (hi - lo)
     else:
@@ -769,12 +771,57 @@ def _json(meta: dict) -> str:
 
 
 def _window_of(image, *, bright: str) -> dict:
-    """The PNG window: the finite values mapped to stored 0 and 65535 (:func:`_window`)."""
+    """The PNG window: the values mapped to stored 0 and 65535 (:func:`_window`), and how many
+    finite pixels lie beyond it (``clipped``: an implant's, see :func:`window_range`)."""
     a = np.asarray(image, dtype=np.float64)
     finite = a[np.isfinite(a)]
-    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
-    return {"low": lo, "high": hi, "bright": bright,
-            "step": (hi - lo) / 65535.0}
+    lo, hi = window_range(finite, bright=bright)
+    window = {"low": lo, "high": hi, "bright": bright, "step": (hi - lo) / 65535.0}
+    clipped = int(np.count_nonzero((finite < lo) | (finite > hi)))
+    if clipped:
+        window["clipped"] = clipped
+    return window
+
+
+#: A PNG's window leaves out at most this fraction of the pixels, at the attenuating end.
+OUTLIER_FRACTION = 0.005
+
+
+def window_range(values, *, bright: str = "high") -> tuple[float, float]:
+    """The values a PNG's 16 bits span: the range of ``values`` (finite), except that a few
+    pixels far beyond the others at the attenuating end (a metal implant's) are left out.
+
+    The attenuating end is the high one for ``bright="high"`` (line integrals, path lengths)
+    and the low one for ``bright="low"`` (intensities). When the last
+    :data:`OUTLIER_FRACTION` of the pixels at that end spans a wider range than all the others
+    together, the window ends at the last value within a quarter of the others' range beyond
+    that quantile ``q`` (``q + (q - lo) / 4``): the pixels beyond are drawn at the window's
+    end, saturated, and the body's contrast keeps the whole window instead of a fraction. Otherwise (no such outliers, fewer than 1000 pixels) the whole range.
+
+    Examples
+    --------
+    >>> body = np.linspace(0.0, 2.0, 10_000)               # line integrals through a limb
+    >>> window_range(body)
+    (0.0, 2.0)
+    >>> implant = np.concatenate([body, np.full(20, 15.0)])   # 0.2 % of pixels through steel
+    >>> lo, hi = window_range(implant)
+    >>> lo, round(hi, 2)
+    (0.0, 2.0)
+    """
+    f = np.asarray(values, dtype=np.float64).ravel()
+    if f.size == 0:
+        return 0.0, 0.0
+    lo, hi = float(f.min()), float(f.max())
+    if f.size >= 1000:
+        if bright == "high":
+            q = float(np.quantile(f, 1.0 - OUTLIER_FRACTION))
+            if hi - q > q - lo:
+                hi = float(f[f <= q + (q - lo) / 4].max())
+        else:
+            q = float(np.quantile(f, OUTLIER_FRACTION))
+            if q - lo > hi - q:
+                lo = float(f[f >= q - (hi - q) / 4].min())
+    return lo, hi
 
 
 def _write_tiff(tmp, data, meta) -> None:

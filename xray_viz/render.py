@@ -159,6 +159,77 @@ class Radiograph:
             return self.total_path_length
         raise SceneError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
 
+    def display(self, quantity: str = "intensity") -> np.ndarray:
+        """The (H, W) image as shown by :meth:`plot` and in a notebook, 0 (black) to 1
+        (white), attenuation bright: ``quantity`` windowed to its finite values, an
+        intensity inverted (as the PNG that ``xray-viz render`` writes shows it); a
+        non-finite pixel is drawn at the window's attenuating end.
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> shown = xray_viz.render(xray_viz.load_scene("sphere")).display()
+        >>> round(float(shown[0, 0]), 6), round(float(shown[128, 128]), 6)  # open beam, ball
+        (0.0, 1.0)
+        """
+        a = np.asarray(self.quantity(quantity), dtype=np.float64)
+        finite = np.isfinite(a)
+        lo, hi = (a[finite].min(), a[finite].max()) if finite.any() else (0.0, 0.0)
+        scaled = (np.where(finite, a, hi) - lo) / (hi - lo) if hi > lo else np.zeros_like(a)
+        if quantity == "intensity":
+            scaled = 1.0 - scaled
+            scaled[~finite] = 1.0
+        return np.clip(scaled, 0.0, 1.0)
+
+    def plot(self, quantity: str = "intensity", *, ax=None, colorbar: bool = True):
+        """Draw the radiograph with matplotlib, attenuation bright, axes in mm on the detector.
+
+        Parameters
+        ----------
+        quantity : {"intensity", "line-integral", "path-length"}
+        ax : matplotlib.axes.Axes, optional
+            Where to draw (default: a new figure's axes).
+        colorbar : bool
+            A colour bar in the quantity's own values.
+
+        Returns
+        -------
+        matplotlib.image.AxesImage
+            Its data is the quantity itself (``get_array()``); intensity uses the reversed grey
+            map, so that attenuation is bright as on a film viewer.
+        """
+        if ax is None:
+            import matplotlib.pyplot as plt
+
+            _, ax = plt.subplots()
+        a = self.quantity(quantity)
+        h, w = a.shape
+        extent = None
+        detector = getattr(self.scene, "detector", None)
+        if detector is not None:
+            pu, pv = np.broadcast_to(np.asarray(detector.pitch, dtype=float), (2,))
+            extent = (-w * pu / 2, w * pu / 2, -h * pv / 2, h * pv / 2)
+            ax.set_xlabel("u (mm)")
+            ax.set_ylabel("v (mm)")
+        shown = ax.imshow(a, cmap="gray_r" if quantity == "intensity" else "gray",
+                          extent=extent, interpolation="nearest")
+        ax.set_title(f"{quantity} ({w} x {h}, engine {self.engine})")
+        if colorbar:
+            ax.figure.colorbar(shown, ax=ax,
+                               label={"intensity": "I / I0", "line-integral": "sum mu L",
+                                      "line_integral": "sum mu L"}.get(quantity, "mm"))
+        return shown
+
+    def _repr_png_(self) -> bytes:
+        """An 8-bit PNG of :meth:`display` (Jupyter shows it as the cell's output)."""
+        import io
+
+        from PIL import Image
+
+        buffer = io.BytesIO()
+        Image.fromarray(np.round(self.display() * 255).astype(np.uint8)).save(buffer, "PNG")
+        return buffer.getvalue()
+
 
 def _band_rows(projector, acquisition, n) -> int:
     """Image rows per band: ``rows x W x n^2`` rays of path lengths fill :data:`BAND_BYTES`

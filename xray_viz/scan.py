@@ -42,8 +42,8 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "Projection
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
-           "pose_table", "done_flags", "damaged_projections", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
-           "INLINE_POSES_MAX", "POSE_ROWS"]
+           "pose_table", "done_flags", "damaged_projections", "LAYOUT_VERSION",
+           "ARRAYS_LAYOUT_VERSION", "INLINE_POSES_MAX", "POSE_ROWS", "cil_geometry", "to_cil"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -389,6 +389,88 @@ def tigre_geometry(geometry, *, axis=None, center=None, tolerance: float = 1e-9)
             "angles": np.c_[np.mod(alpha, 2 * np.pi), np.zeros(n), np.zeros(n)],
             "mode": "parallel" if geometry["beam"] == "parallel" else "cone",
             "frame": {"origin": center.tolist(), "axes": M.tolist()}}
+
+
+def cil_geometry(geometry) -> dict:
+    """The scan's geometry as the arguments of CIL's ``AcquisitionGeometry`` (the Core
+    Imaging Library: gVirtualXray's tutorials reconstruct with it), mm and degrees.
+
+    ``create``: the keywords of ``AcquisitionGeometry.create_Cone3D`` (``source_position``)
+    or ``create_Parallel3D`` (``ray_direction``) with ``detector_position`` (the pixel grid's
+    middle), ``detector_direction_x`` (``u``, along a row), ``detector_direction_y`` (``v``,
+    up a column), ``rotation_axis_position`` (the orbit's centre) and
+    ``rotation_axis_direction``: minus the orbit's axis, since CIL turns the *object* by each
+    angle (its ASTRA plugin turns source and detector by ``-angle`` about that direction),
+    while xray_viz's orbit turns source and detector by ``+angle`` about its axis. ``angles``
+    for ``set_angles`` (degrees, ``initial_angle`` 0); ``panel`` for ``set_panel``:
+    ``num_pixels`` [W, H], ``pixel_size`` [pu, pv] and ``origin`` ``"top-left"`` (row 0 at the
+    top, as the stack is); ``dimension_labels`` the stack's own order, so the stack is CIL's
+    ``AcquisitionData`` array as it is. :func:`to_cil` builds the object where CIL is
+    installed (it is not on PyPI: conda's ``cil``).
+
+    Raises
+    ------
+    SceneError
+        An orbit CIL cannot describe: explicit or random poses, or a helical one.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
+    >>> c = cil_geometry(g)
+    >>> c["create"]["source_position"], c["create"]["rotation_axis_direction"], c["angles"]
+    ([0.0, 0.0, 1000.0], [-0.0, -1.0, -0.0], [0.0, 90.0, 180.0, 270.0])
+    """
+    if geometry.get("orbit") == "poses" or geometry.get("axis") is None:
+        raise SceneError("CIL's AcquisitionGeometry turns about one axis: a scan of explicit "
+                         "or random poses has no CIL geometry (use astra_vectors)")
+    if float(geometry.get("pitch_mm_per_turn") or 0.0) != 0.0:
+        raise SceneError("CIL's AcquisitionGeometry has no helical orbit (pitch_mm_per_turn "
+                         f"{geometry['pitch_mm_per_turn']:g}); use astra_vectors")
+    first = geometry["poses"][0]
+    source, centre = first["source"], first["detector_center"]
+    create = {"detector_position": [float(x) for x in centre],
+              "detector_direction_x": [float(x) for x in first["u"]],
+              "detector_direction_y": [float(x) for x in first["v"]],
+              "rotation_axis_position": [float(x) for x in geometry["center"]],
+              "rotation_axis_direction": [-float(x) for x in geometry["axis"]],
+              "units": "mm"}
+    if geometry["beam"] == "cone":
+        create["source_position"] = [float(x) for x in source]
+    else:
+        create["ray_direction"] = _unit(np.asarray(centre, float)
+                                        - np.asarray(source, float)).tolist()
+    w, h = geometry["detector"]["shape"]
+    return {"beam": geometry["beam"], "create": create,
+            "angles": [float(a) for a in geometry["angles_deg"]],
+            "panel": {"num_pixels": [int(w), int(h)],
+                      "pixel_size": [float(p) for p in geometry["detector"]["pitch_mm"]],
+                      "origin": "top-left"},
+            "dimension_labels": ["angle", "vertical", "horizontal"]}
+
+
+def to_cil(geometry):
+    """CIL's ``AcquisitionGeometry`` of a scan (:func:`cil_geometry`), built by CIL.
+
+    Raises
+    ------
+    SceneError
+        CIL is not installed (it is on conda, not PyPI), or the orbit has no CIL geometry.
+    """
+    g = cil_geometry(geometry)
+    try:
+        from cil.framework import AcquisitionGeometry
+    except ImportError:
+        raise SceneError("CIL is not installed (`conda install -c conda-forge -c ccpi cil`; "
+                         "it is not on PyPI): cil_geometry(geometry) gives its arguments") \
+            from None
+    make = (AcquisitionGeometry.create_Cone3D if g["beam"] == "cone"
+            else AcquisitionGeometry.create_Parallel3D)
+    ag = make(**g["create"])
+    ag.set_angles(g["angles"], angle_unit="degree")
+    ag.set_panel(**g["panel"])
+    ag.set_labels(g["dimension_labels"])
+    return ag
 
 
 def poses_from_tigre(tigre) -> list[dict]:

@@ -658,6 +658,7 @@ class Body:
     density: float | None = None
     source_file: Path | None = None
     placement: dict | None = None
+    shape: dict | None = None           # a primitive's table (xray_viz.meshes.primitives)
 
     def __post_init__(self):
         from xray_viz.meshes.io import as_trimesh
@@ -814,12 +815,12 @@ class Scene:
         5.0
         """
         def placed(body, m):
-            if body.source_file is None:
+            if body.source_file is None and getattr(body, "shape", None) is None:
                 return {}
             placement = _compose_placement(body.placement, m)
-            # a shear has no scene-file keys: the mesh is no longer its file's
+            # a shear has no scene-file keys: the mesh is no longer its file's (or shape's)
             return {"placement": placement} if placement is not None else \
-                {"placement": None, "source_file": None}
+                {"placement": None, "source_file": None, "shape": None}
         return dataclasses.replace(self, bodies=self.bodies.transform(matrix, changes=placed))
 
     @property
@@ -861,8 +862,23 @@ class Scene:
         """
         return _scene_document(self, base=None if base is None else Path(base))
 
-    def to_toml(self, *, base: str | Path | None = None) -> str:
+    def to_toml(self, path: str | Path | None = None, *, base: str | Path | None = None) -> str:
         """The scene as the text of a scene file (:meth:`to_dict` written by tomlkit).
+
+        Parameters
+        ----------
+        path : path-like, optional
+            Also write the text to this file (through a temporary file beside it, renamed into
+            place: never half-written), with mesh and table paths relative to its folder, so
+            that the file and its meshes can be moved together.
+        base : path-like, optional
+            Folder the paths are written relative to (default: ``path``'s folder with a
+            ``path``, else absolute paths: the text then loads from anywhere on this machine,
+            as the scene embedded in an image's metadata must).
+
+        Returns
+        -------
+        str
 
         Examples
         --------
@@ -874,7 +890,26 @@ class Scene:
         """
         from xray_viz._toml import dumps
 
-        return dumps(self.to_dict(base=base))
+        if path is None:
+            return dumps(self.to_dict(base=base))
+        import os
+        import tempfile
+
+        path = Path(path)
+        folder = path.parent if str(path.parent) else Path(".")
+        text = dumps(self.to_dict(base=folder if base is None else base))
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+        return text
 
     @property
     def triangles(self) -> np.ndarray:
@@ -950,7 +985,12 @@ def _path_text(path, base: Path | None) -> str:
     import os
 
     path = Path(path).resolve()
-    return str(path) if base is None else os.path.relpath(path, Path(base).resolve())
+    if base is None:
+        return str(path)
+    try:
+        return Path(os.path.relpath(path, Path(base).resolve())).as_posix()
+    except ValueError:         # another drive: no relative path
+        return str(path)
 
 
 def _with_paths(table: dict, base: Path | None) -> dict:
@@ -996,6 +1036,17 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     detector.update(electronic_noise=det.electronic_noise, gain=det.gain)
     bodies = []
     for body in scene.bodies:
+        if getattr(body, "shape", None) is not None:        # a primitive: its table
+            entry = {"name": body.name, "shape": _plain(dict(body.shape))}
+            if body.mu is not None:
+                entry["mu"] = body.mu
+            else:
+                entry["material"] = _plain(body.material)
+                if body.density is not None:
+                    entry["density"] = body.density
+            entry.update(_plain(dict(body.placement or {})))
+            bodies.append(entry)
+            continue
         if body.source_file is None:
             raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
                              "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
@@ -1053,8 +1104,8 @@ SOURCE_KEYS = ("position", "kind", "energy", "spectrum", "mas", "heel")
 DETECTOR_KEYS = ("center", "up", "shape", "pitch", "size", "response", "I0", "noise", "seed",
                  "falloff", "supersample", "focal_spot", "scintillator", "mtf",
                  "electronic_noise", "gain", "offset", "u", "v")
-BODY_KEYS = ("name", "mesh", "mu", "material", "density", "position", "rotation", "scale",
-             "units", "repair")
+BODY_KEYS = ("name", "mesh", "shape", "mu", "material", "density", "position", "rotation",
+             "scale", "units", "repair")
 
 
 class _Table:
@@ -1308,9 +1359,21 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     except SceneError as exc:
         t.fail(f"name: {exc}")
     label = f"(name {name!r})"
-    mesh_name = t.string("mesh", required=True)
-    if not mesh_name.strip():
-        t.fail(f"{label} mesh must name a mesh file, got {mesh_name!r}")
+    shape = None
+    if t.has("shape"):                   # a primitive instead of a mesh file
+        from xray_viz.meshes.primitives import check_shape
+
+        if t.has("mesh"):
+            t.fail(f"{label} gives both 'mesh' and 'shape'; use one")
+        try:
+            shape = check_shape(t.raw("shape"))
+        except SceneError as exc:
+            t.fail(f"{label} {exc}")
+        mesh_name = None
+    else:
+        mesh_name = t.string("mesh", required=True)
+        if not mesh_name.strip():
+            t.fail(f"{label} mesh must name a mesh file, got {mesh_name!r}")
     mu = t.number("mu")                                  # types here, values in Body's rules
     material = t.raw("material")
     density = t.number("density")
@@ -1342,15 +1405,21 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
     if not isinstance(repair, bool):
         t.fail(f"repair must be true or false, got {repair!r}")
     t.done()
-    path = (base_dir / mesh_name) if not Path(mesh_name).is_absolute() else Path(mesh_name)
-    if not Path(mesh_name).is_absolute():        # model.glb#NODE: the node's name kept as is
-        mesh_file, node = split_node(path)
-        path = mesh_file.resolve() if node is None else Path(f"{mesh_file.resolve()}#{node}")
     where = f"{t.file}: " if t.file else ""
-    try:
-        mesh = load_mesh(path)
-    except XrayVizError as exc:
-        raise type(exc)(f"{where}body {name!r}: {exc}") from None
+    if shape is not None:
+        from xray_viz.meshes.primitives import shape_mesh
+
+        path = None
+        mesh = shape_mesh(shape)
+    else:
+        path = (base_dir / mesh_name) if not Path(mesh_name).is_absolute() else Path(mesh_name)
+        if not Path(mesh_name).is_absolute():    # model.glb#NODE: the node's name kept as is
+            mesh_file, node = split_node(path)
+            path = mesh_file.resolve() if node is None else Path(f"{mesh_file.resolve()}#{node}")
+        try:
+            mesh = load_mesh(path)
+        except XrayVizError as exc:
+            raise type(exc)(f"{where}body {name!r}: {exc}") from None
     try:
         transform = body_transform(position=position, rotation=rotation, scale=scale, units=units)
     except SceneError as exc:
@@ -1363,16 +1432,16 @@ def _parse_body(t: _Table, base_dir: Path, index: int):
         mesh, changes, report = ensure_traceable(mesh, name=name, repair=repair,
                                                  return_report=True)
     except XrayVizError as exc:
-        raise type(exc)(f"{where}{path.name}: {exc}") from None
+        raise type(exc)(f"{where}{path.name if path else shape['kind']}: {exc}") from None
     if changes:
         import warnings
 
-        warnings.warn(f"{where}body {name!r} ({path.name}): mesh repaired: {'; '.join(changes)}",
-                      MeshRepairWarning, stacklevel=2)
+        warnings.warn(f"{where}body {name!r} ({path.name if path else shape['kind']}): mesh "
+                      f"repaired: {'; '.join(changes)}", MeshRepairWarning, stacklevel=2)
     placement = {k: t.data[k] for k in ("position", "rotation", "scale", "units", "repair")
                  if k in t.data}
     return Body(name=name, mesh=mesh, mu=mu, material=material, density=density,
-                source_file=path, placement=placement), report
+                source_file=path, placement=placement, shape=shape), report
 
 
 def _check_material_energies(src: _Table, energy, spectrum, bodies) -> None:
@@ -1570,7 +1639,9 @@ def load_scene(path: str | Path) -> Scene:
     Parameters
     ----------
     path : str or Path
-        A ``.toml`` scene file, or the name of a bundled phantom (see ``xray-viz phantoms``).
+        A ``.toml`` scene file, or the name of a bundled phantom (see ``xray-viz phantoms``),
+        or a mesh file alone (STL, OBJ, PLY, ...: framed with a stated material, see
+        :mod:`xray_viz.starter`).
         An existing file is read; otherwise a bare name (no suffix, no folder) is a phantom's
         name, even when a folder of that name exists (``./frog`` names the folder).
 
@@ -1615,6 +1686,10 @@ def load_scene(path: str | Path) -> Scene:
             from xray_viz._files import require_regular
 
             require_regular(p, SceneError, "scene file")
+    from xray_viz.starter import framed_document, is_mesh_file
+
+    if is_mesh_file(p):              # a mesh alone: framed, with a stated material (logged)
+        return scene_from_dict(framed_document(p), base_dir=p.parent, file=p)
     if p.suffix.lower() == ".json":  # a gVirtualXray scene
         from xray_viz.meshes.gvxr import gvxr_to_dict, read_json
 

@@ -33,13 +33,32 @@ def _compile_notice(engine: str):
         return contextlib.nullcontext()
     from xray_viz.tracing import _numba_cache
 
-    def notice(where):
-        then = f"cached in {where} afterwards" if where else "not cached: no writable place"
-        logging.getLogger("xray_viz.compile").info(
-            "compiling the fast engine on first use (a few seconds, %s)...", then)
-        progress.status("compiling the fast engine")
+    return _numba_cache.on_first_compile(_say_compiling)
 
-    return _numba_cache.on_first_compile(notice)
+
+def _say_compiling(where) -> None:
+    """The compile notice, for kernels about to be cached in ``where`` (None: uncached).
+
+    Said once per kernel cache (a marker file beside the kernels), not once per kind of
+    scene: a new user's next scenes need a few other kernels, compiled as quietly as they
+    load (the progress line on a terminal still says so), at debug level (``-v``).
+    Uncached: said every time, since every process compiles again.
+    """
+    from xray_viz import __version__
+
+    marker = Path(where) / f".compile-notice-{__version__}" if where else None
+    seen = marker is not None and marker.exists()
+    then = f"cached in {where} afterwards" if where else "not cached: no writable place"
+    logging.getLogger("xray_viz.compile").log(
+        logging.DEBUG if seen else logging.INFO,
+        "compiling the fast engine on first use (a few seconds, %s)...", then)
+    progress.status("compiling the fast engine")
+    if marker is not None and not seen:
+        try:
+            marker.parent.mkdir(parents=True, exist_ok=True)
+            marker.touch()
+        except OSError:          # a cache numba writes but this user cannot: said again
+            pass
 
 
 # --------------------------------------------------------------------------------------------
@@ -262,8 +281,11 @@ def _load_with_file_overrides(args):
         _log_scene(scene)
         return scene
     path = _scene_file(args.scene)
+    from xray_viz.starter import framed_document, is_mesh_file
+
     try:
-        original = tomllib.loads(path.read_bytes().decode("utf-8"))
+        original = (framed_document(path) if is_mesh_file(path)    # a mesh alone, framed
+                    else tomllib.loads(path.read_bytes().decode("utf-8")))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
         return xray_viz.load_scene(path)           # raises its own one-line error
     doc = copy.deepcopy(original)

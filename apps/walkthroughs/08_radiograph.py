@@ -60,8 +60,9 @@ print(f"nested_spheres: {scene.detector.shape[0]} x {scene.detector.shape[1]} pi
 # They agree: the meshes are icospheres with a vertex on the beam axis, and vertices lie on the
 # ideal spheres. Off the axis the traced chords fall short of the ideal ones by up to about a
 # tenth of a millimetre (walkthrough 7): tessellation, not arithmetic. The air bubble shows as a
-# *brighter* disc inside the bone's shadow: air attenuates almost nothing, and inside the bubble
-# it replaces the bone.
+# *darker* disc inside the bone's bright shadow (the radiograph is drawn attenuation bright, as on
+# a film viewer: more I/I0 is darker): air attenuates almost nothing, and inside the bubble it
+# replaces the bone, so more of the beam gets through.
 #
 # The 3D view and the radiograph
 # ------------------------------
@@ -81,9 +82,9 @@ show_or_save(plotter, "nested_spheres", walkthrough=WALKTHROUGH)
 # A forearm
 # ---------
 # The ``limb`` phantom: skin and fat around muscle, with two long bones (radius and ulna) each
-# holding a fatty marrow cavity. Each bone's shadow is darkest at its edges, where the rays run
-# longest through the cortical wall, and lighter in the middle over the marrow: the "tram lines"
-# of a real forearm radiograph.
+# holding a fatty marrow cavity. Each bone's shadow is brightest at its edges, where the rays run
+# longest through the cortical wall, and darker in the middle over the marrow (attenuation
+# bright, as above): the "tram lines" of a real forearm radiograph.
 limb = xray_viz.load_scene("limb")
 limb_image = xray_viz.render(limb, engine="numpy")
 w, h = limb.detector.shape

@@ -35,13 +35,15 @@ What maps (gVXR -> xray-viz):
 ================================================  ==============================================
 
 No equivalent, an error (one line naming the key): a beam of several energies or from a text
-file or GATE macro, ``["HU", value]`` materials, primitive samples (``Cube``, ``Cuboid``,
-``Cylinder``; save them as mesh files), ``MoveToCentre``, a ``SceneGraph``, the detector's
+file or GATE macro, ``["HU", value]`` materials, primitive samples other than ``Cube`` (a
+``Cube`` is a ``shape = { kind = "box" }`` body; ``Cuboid``, ``Cylinder``: save them as mesh
+files), ``MoveToCentre``, a ``SceneGraph``, the detector's
 ``Energy response`` and ``LSF``, a ``RightVector`` that would mirror the image, and a
 ``Transform`` that shears. Ignored: ``WindowSize``, ``File format version``, colours,
 ``Opacity``, ``Type`` (inner/outer: the innermost body wins anyway), the normal-flipping flags
-(bodies are oriented outward on load); a ``Scan`` (a CT acquisition) is ignored with a warning:
-the scene is its first projection.
+(bodies are oriented outward on load). A ``Scan`` becomes the scene's ``[scan]`` orbit (as gVXR's
+``json2gvxr`` scans: see ``_scan``), except one about a ``CenterOfRotation`` off the origin,
+ignored with a warning.
 
 Examples
 --------
@@ -146,6 +148,62 @@ def _vector(ctx, v, where) -> list:
     if not any(out):
         ctx.fail(where, "must not be the zero vector")
     return out
+
+
+_SCAN_KEYS = ("NumberOfProjections", "AngleStep", "FinalAngle", "StartAngle", "IncludeLastAngle",
+              "CenterOfRotation", "CentreOfRotation", "OutFolder", "GifPath")
+
+
+def _scan(ctx, scan, up, file) -> dict | None:
+    """A gVXR ``Scan`` as a ``[scan]`` table, or None (a centre of rotation off the origin:
+    ignored, with a warning).
+
+    As gVXR's ``json2gvxr`` scans: the projection count is ``NumberOfProjections`` or
+    ``int((FinalAngle - StartAngle) / AngleStep)``, the step ``AngleStep`` or ``(FinalAngle -
+    StartAngle) / NumberOfProjections``, one more projection with ``IncludeLastAngle``; the
+    first projection is the scene as it is (at angle 0 whatever ``StartAngle``), and before
+    each next one the samples turn by the step about ``Detector UpVector`` through the origin
+    (right-handed, as OpenGL's rotations): the source and detector turn the other way about
+    it, which is the ``[scan]`` orbit about ``-UpVector``.
+    """
+    _keys(ctx, scan, _SCAN_KEYS, "Scan")
+
+    def number(key, default=None):
+        if key not in scan:
+            return default
+        return _number(ctx, scan[key], f"Scan {key}")
+
+    nop, step = number("NumberOfProjections"), number("AngleStep")
+    final, start = number("FinalAngle"), number("StartAngle", 0.0)
+    last = scan.get("IncludeLastAngle", False)
+    if not isinstance(last, bool):
+        ctx.fail("Scan IncludeLastAngle", f"must be true or false, got {excerpt(json.dumps(last))}")
+    if nop is not None and (nop != int(nop) or nop < 1):
+        ctx.fail("Scan NumberOfProjections", f"must be a whole number >= 1, got {nop:g}")
+    if nop is None or step is None:
+        if (nop is None and step is None) or final is None:
+            ctx.fail("Scan", "needs FinalAngle and NumberOfProjections or AngleStep (or both of "
+                             "these)")
+        if nop is None:
+            if step == 0:
+                ctx.fail("Scan AngleStep", "must not be 0")
+            nop = int((final - start) / step)
+        else:
+            step = (final - start) / nop
+    count = int(nop) + int(last)
+    if count < 1 or step == 0:
+        ctx.fail("Scan", f"gives {count} projections {step:g} degrees apart; it needs at least "
+                         "one projection and a step other than 0")
+    key = "CenterOfRotation" if "CenterOfRotation" in scan else "CentreOfRotation"
+    centre = _point(ctx, scan.get(key, [0, 0, 0, "mm"]), f"Scan {key}")
+    if any(c != 0 for c in centre):
+        warnings.warn(f"{file}: " * bool(file) + f"gVXR Scan {key} {centre} mm ignored, and the "
+                      "scan with it (gVXR moves the source and detector by it during the scan "
+                      "only): the scene is the radiograph without it", GvxrWarning, stacklevel=4)
+        return None
+    axis = [-float(x) for x in up] if step > 0 else [float(x) for x in up]
+    return {"orbit": "circular", "projections": count, "arc": _clean(count * abs(step)),
+            "axis": [_clean(x) + 0.0 for x in axis], "center": [0.0, 0.0, 0.0]}
 
 
 def _keys(ctx, table, allowed, where):
@@ -389,7 +447,7 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
     Warns
     -----
     GvxrWarning
-        A focal spot taken as a Gaussian; a ``Scan`` ignored.
+        A focal spot taken as a Gaussian; a ``Scan`` about a centre off the origin ignored.
     """
     ctx = _Ctx(file)
     _keys(ctx, doc, _TOP_KEYS, "scene")
@@ -399,14 +457,6 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
     for key in ("Source", "Detector"):
         if key not in doc:
             ctx.fail("scene", f"has no '{key}'")
-    if "Scan" in doc:
-        scan = doc["Scan"]
-        if isinstance(scan, Mapping) and scan.get("StartAngle", 0) not in (0, 0.0):
-            ctx.fail("Scan StartAngle", "a CT scan has no equivalent: xray-viz renders one "
-                                        "radiograph; remove 'Scan' (or set StartAngle to 0 to "
-                                        "render the first projection)")
-        warnings.warn(f"{file}: " * bool(file) + "gVXR Scan (a CT acquisition) ignored: the "
-                      "scene is its first projection", GvxrWarning, stacklevel=3)
 
     src_doc = doc["Source"]
     _keys(ctx, src_doc, _SOURCE_KEYS, "Source")
@@ -500,14 +550,26 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
         if not isinstance(label, str) or not label.strip():
             ctx.fail(where, f"Label must be a non-empty string, got {label!r}")
         where = f"Samples #{k} ({label!r})"
+        cube = sample.get("Cube")
         for p in _PRIMITIVES:
-            if p in sample:
+            if p in sample and p != "Cube":
                 ctx.fail(where, f"the primitive '{p}' has no equivalent; save it as a mesh "
-                                "file (e.g. with trimesh.creation) and give its 'Path'")
-        if "Path" not in sample or not isinstance(sample["Path"], str):
+                                "file (e.g. with trimesh.creation) and give its 'Path', or "
+                                "give a Cube")
+        if cube is not None:         # gvxr.makeCube(label, size, unit): centred on the origin
+            if not isinstance(cube, list) or len(cube) != 2:
+                ctx.fail(f"{where} Cube", f"must be [size, \"unit\"], got "
+                                          f"{excerpt(json.dumps(cube))}")
+            size = _number(ctx, cube[0], f"{where} Cube") * _length_unit(ctx, cube[1],
+                                                                          f"{where} Cube")
+            if not size > 0:
+                ctx.fail(f"{where} Cube", f"size must be > 0, got {size:g} mm")
+            body = {"name": label, "shape": {"kind": "box", "size": [_clean(size)] * 3}}
+        elif "Path" not in sample or not isinstance(sample["Path"], str):
             ctx.fail(where, "has no 'Path' (the mesh file)")
-        body = {"name": label, "mesh": sample["Path"]}
-        unit = sample.get("Unit", "mm")
+        else:
+            body = {"name": label, "mesh": sample["Path"]}
+        unit = sample.get("Unit", "mm") if cube is None else "mm"   # a Cube's own unit
         factor = _length_unit(ctx, unit, f"{where} Unit")
         body.update(_material(ctx, sample, where))
         m = _transform(ctx, sample["Transform"], f"{where} Transform") \
@@ -520,7 +582,12 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
             placement["scale"] = [_clean(x * factor) for x in placement.get("scale", [1, 1, 1])]
         body.update(placement)
         bodies.append(body)
-    return {"source": source, "detector": detector, "body": bodies}
+    out = {"source": source, "detector": detector, "body": bodies}
+    if "Scan" in doc:
+        scan = _scan(ctx, doc["Scan"], detector["up"], file)
+        if scan is not None:
+            out["scan"] = scan
+    return out
 
 
 def read_json(path):

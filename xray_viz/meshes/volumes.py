@@ -90,7 +90,7 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFoundError, \
-    XrayVizError, one_line, reader_reason
+    XrayVizError, reader_reason
 from xray_viz.meshes._volume_files import (  # noqa: F401 (re-exported)
     DICOM_SEG_SUFFIXES,
     ITK_SUFFIXES,
