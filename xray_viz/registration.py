@@ -349,6 +349,12 @@ def register(scene, images, *, bodies, similarity: str = "ssd", levels=(4, 2, 1)
     SceneError
         An unknown body, an image whose shape does not match its detector, an unknown
         similarity, or a body that no view's beam crosses.
+
+    Notes
+    -----
+    The simulated images are ideal line integrals with one ray per pixel (the detector's
+    supersampling, blur and noise are not simulated: the images given carry their own). The
+    bodies are assumed to keep their nesting while they move (as their precedence is kept).
     """
     from scipy.optimize import least_squares, minimize
 
