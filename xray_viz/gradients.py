@@ -49,7 +49,7 @@ import numpy as np
 from xray_viz.errors import SceneError
 
 __all__ = ["pose_gradient", "acquisition_gradient", "line_integral_gradient", "centroid",
-           "pose_matrix", "move_bodies", "GradientResult"]
+           "pose_matrix", "move_bodies", "nesting", "GradientResult"]
 
 
 def centroid(body) -> np.ndarray:
@@ -237,7 +237,36 @@ def _apart(scene, idx) -> bool:
     return True
 
 
-def _fast_gradient(scene, idx, centers, acquisition, center):
+def nesting(scene) -> list[list[int]]:
+    """For each body, the bodies it lies wholly inside
+    (:func:`xray_viz.meshes.repair.containers`, cached on disk by the meshes' content): what
+    :func:`line_integral_gradient` needs to use its kernel on nested bodies. A registration
+    computes it once for the input scene (rigid moves that keep the bodies' nesting keep it).
+    """
+    from xray_viz.meshes.repair import containers
+
+    bodies = scene.bodies
+    return containers([b.mesh for b in bodies], bounds=bodies.bounds, reports=bodies.reports)
+
+
+def _parents(scene, idx, inside):
+    """Each body's parent (``{body: the innermost body containing it, or -1}``), or None when
+    a body of ``idx`` shares bounding-box space with a body that neither contains it nor lies
+    inside it (a partial overlap, or a disjoint body the boxes cannot tell apart)."""
+    box = scene.bodies.bounds
+    rank = np.asarray(scene.bodies.precedence)
+    parents = {}
+    for b in idx:
+        for o in range(len(box)):
+            if o == b or not (np.all(box[b, 0] <= box[o, 1]) and np.all(box[o, 0] <= box[b, 1])):
+                continue
+            if o not in inside[b] and b not in inside[o]:
+                return None
+        parents[b] = max(inside[b], key=lambda o: rank[o]) if inside[b] else -1
+    return parents
+
+
+def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
     """:func:`line_integral_gradient` by the numba kernel (one ray per pixel, bodies apart):
     the fast engine's path lengths give each ray's slopes, the kernel the hits' terms."""
     from xray_viz._gradient_kernels import body_pose_gradient
@@ -263,10 +292,14 @@ def _fast_gradient(scene, idx, centers, acquisition, center):
     def one(b, c):
         body = scene.bodies[b]
         out = np.zeros((6, w * h))
+        # the material outside the body's surface is its parent's (nested bodies): an entry
+        # changes ell by g(parent) - g(b) per mm, an exit by g(b) - g(parent)
+        p = -1 if parents is None else parents[b]     # every body asked for has one
+        slope = g[b] if p < 0 else np.ascontiguousarray(g[b] - g[p])
         body_pose_gradient(np.ascontiguousarray(body.vertices),
                            np.ascontiguousarray(body.faces), np.asarray(c, dtype=np.float64),
-                           p00, eu, ev, inv, source, direction, depth, parallel, g[b], w, h,
-                           out)
+                           p00, eu, ev, inv, source, direction, depth, parallel, slope, w,
+                           h, out)
         return out
     pose = np.zeros((len(idx), 6, w * h))
     for k, b in enumerate(idx):
@@ -285,7 +318,7 @@ def _fast_gradient(scene, idx, centers, acquisition, center):
 def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
                            center=(0.0, 0.0, 0.0), centers=None,
                            supersample: int | None = None,
-                           engine: str = "fast") -> GradientResult:
+                           engine: str = "fast", inside=None) -> GradientResult:
     """The line-integral image and its exact pose derivatives, from one trace.
 
     Parameters
@@ -308,6 +341,9 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
         all of them for ``acquisition``, with bounding boxes apart from every other body's),
         the reference otherwise; ``"numpy"``: the reference, every hit from
         :func:`~xray_viz.tracing.hits.trace_rays` swept by precedence.
+    inside : list of list of int, optional
+        :func:`nesting` of the scene, when known: with it the kernel also takes bodies that
+        lie inside others or contain them (computed here when some boxes meet).
 
     Returns
     -------
@@ -328,9 +364,14 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
         centers = np.array([centroid(scene.bodies[b]) for b in idx]).reshape(-1, 3)
     else:
         centers = np.asarray(centers, dtype=np.float64).reshape(len(idx), 3)
-    if (kernel and nn == 1 and w > 1 and h > 1
-            and _apart(scene, range(len(scene.bodies)) if acquisition else idx)):
-        return _fast_gradient(scene, idx, centers, acquisition, center)
+    if kernel and nn == 1 and w > 1 and h > 1:
+        every = list(range(len(scene.bodies)))
+        if _apart(scene, every if acquisition else idx):
+            return _fast_gradient(scene, idx, centers, acquisition, center)
+        parents = _parents(scene, every if acquisition else idx,
+                           nesting(scene) if inside is None else inside)
+        if parents is not None:
+            return _fast_gradient(scene, idx, centers, acquisition, center, parents)
     acq = scene.acquisition
     rays = acq.rays(supersample=n)
     nb = len(scene.bodies)

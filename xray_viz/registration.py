@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from xray_viz.errors import SceneError
-from xray_viz.gradients import centroid, line_integral_gradient, move_bodies, pose_matrix
+from xray_viz.gradients import (centroid, line_integral_gradient, move_bodies, nesting,
+                                pose_matrix)
 
 __all__ = ["Registration", "register", "SIMILARITIES", "target_registration_error", "demo_stem"]
 
@@ -242,6 +243,12 @@ class _Problem:
         self.last_x = None
         self.level = 1
         self.history = []
+        # which body lies inside which, once (the moves are assumed to keep it, as the
+        # bodies' precedence is kept): the gradient kernel then takes nested bodies too
+        box = scene.bodies.bounds
+        meet = any(np.all(box[a, 0] <= box[b, 1]) and np.all(box[b, 0] <= box[a, 1])
+                   for a in range(len(box)) for b in range(a))
+        self.inside = nesting(scene) if meet else [[] for _ in range(len(box))]
 
     def params(self, x):
         """(n_bodies, 6) pose parameters (mm, rad) of the scaled vector ``x``."""
@@ -270,7 +277,7 @@ class _Problem:
         out = []
         for acq, image in self.views:
             res = line_integral_gradient(moved.replace(acquisition=acq), self.names,
-                                         centers=centers, supersample=1)
+                                         centers=centers, supersample=1, inside=self.inside)
             jac = np.einsum("kij,kihw->kjhw", np.array(chain), res.pose)
             out.append((res.line_integral, jac.reshape(-1, *image.shape), image))
         self.last_x, self.last = x.copy(), out
@@ -342,6 +349,12 @@ def register(scene, images, *, bodies, similarity: str = "ssd", levels=(4, 2, 1)
     SceneError
         An unknown body, an image whose shape does not match its detector, an unknown
         similarity, or a body that no view's beam crosses.
+
+    Notes
+    -----
+    The simulated images are ideal line integrals with one ray per pixel (the detector's
+    supersampling, blur and noise are not simulated: the images given carry their own). The
+    bodies are assumed to keep their nesting while they move (as their precedence is kept).
     """
     from scipy.optimize import least_squares, minimize
 
