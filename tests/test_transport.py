@@ -287,6 +287,9 @@ def test_parallel_beam_primary_is_beer_lambert():
                   detector=Detector(center=[0, 0, -400], shape=(4, 4), pitch=(20.0, 20.0)),
                   bodies=(Body(name="water", mesh=slab, material="Water, Liquid"),))
     result = xray_viz.transport(scene, 40_000, seed=8)
+    # one body: the error of all the bodies' energy is that body's
+    assert result.balance_error["deposited"] == pytest.approx(result.energy_error["water"],
+                                                              rel=1e-9)
     from xray_viz.physics.materials import linear_attenuation
     transmitted = float(np.exp(-linear_attenuation("Water, Liquid", 60.0)[0] * 5.0))
     got = result.images["primary"].sum() / 60_000.0

@@ -247,6 +247,9 @@ class Transport:
     balance : dict of str to float
         eV per history: ``emitted``, ``deposited`` (bodies), ``world`` (the world medium),
         ``escaped``, ``detector``; ``emitted`` = the others' sum, to rounding.
+    balance_error : dict of str to float
+        Standard errors of ``balance["deposited"]`` (all the bodies together: each history's
+        sum, so the regions' correlation counts) and ``balance["detector"]``.
     dose, dose_error : dict of str to float or None
         Gy per body with ``[source] mas`` and a SpekPy tube spectrum (its output per mAs gives
         the photons emitted into the field): the region's energy over its mass, from the
@@ -254,6 +257,8 @@ class Transport:
         only partly overlap are not carved out of each other (the earlier body's mass then
         counts the overlap); None without ``mas`` or with a CSV or monochromatic spectrum.
     seed : int
+    extra : dict
+        ``interrupted`` (bool) and ``requested`` (histories asked for).
     """
 
     histories: int
@@ -265,6 +270,7 @@ class Transport:
     dose: dict | None = None
     dose_error: dict | None = None
     seed: int = 0
+    balance_error: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
 
     def table(self) -> list[dict]:
@@ -295,6 +301,9 @@ def _result(tallies, *, histories: int, names, seed: int, masses=None,
     images = {key: im[k] * ev for k, key in enumerate(IMAGE_KEYS)}
     image_errors = {key: ie[k] * ev for k, key in enumerate(IMAGE_KEYS)}
     tot = tallies.totals
+    _, dep_err = _mean_error(float(tallies.dep[0, 1:].sum()), tot[6], n)
+    _, det_err = _mean_error(tot[1], tot[2], n)
+    balance_error = {"deposited": float(dep_err * ev), "detector": float(det_err * ev)}
     balance = {"emitted": tot[0] / n * ev, "deposited": float(tallies.dep[0, 1:].sum()) / n * ev,
                "world": tallies.dep[0, 0] / n * ev, "escaped": tot[3] / n * ev,
                "detector": tot[1] / n * ev}
@@ -305,4 +314,5 @@ def _result(tallies, *, histories: int, names, seed: int, masses=None,
         dose_error = {nm: energy_error[nm] * joule / masses[k] for k, nm in enumerate(names)}
     return Transport(histories=n, energy=energy, energy_error=energy_error, images=images,
                      image_errors=image_errors, balance={k: float(v) for k, v in balance.items()},
-                     dose=dose, dose_error=dose_error, seed=seed)
+                     dose=dose, dose_error=dose_error, seed=seed,
+                     balance_error=balance_error)
