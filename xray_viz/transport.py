@@ -10,6 +10,9 @@ Photons only: photoelectric absorption, incoherent (Klein-Nishina x S) and coher
 (Thomson x F^2) scattering; electrons and fluorescence deposit their energy on the spot
 (valid to ~150 keV, as AAPM TG-195's photon codes assume); cut-off 1 keV.
 
+A CT orbit is a transport per pose: ``transport(scene.replace(acquisition=acq), n)`` for each
+acquisition of the orbit (:mod:`xray_viz.orbit`); the bodies' set-up is shared.
+
 Examples
 --------
 >>> import dataclasses, xray_viz
