@@ -134,7 +134,9 @@ def prepare(scene, histories, *, seed: int = 0, batch: int | None = None) -> dic
     tab = tables([("world", world_material, world_density)] + mats,
                  e_max=float(energies.max()))
     tri = np.asarray(scene.triangles, float).reshape(-1, 3, 3)
-    bvh = build_bvh(tri, scene.triangle_body)
+    # kept on the bodies (every pose of an orbit, every call with the same meshes)
+    bvh = scene.bodies.cached(("montecarlo", "bvh"),
+                              lambda: build_bvh(tri, scene.triangle_body), limit=1)
     fa = field(scene.acquisition)
     f = scene.acquisition.frame
     w, h = f.shape
