@@ -68,9 +68,17 @@ def _check_histories(histories) -> int:
     return n
 
 
-def _region_masses(scene, densities) -> np.ndarray:
-    """kg of each body's region: its volume minus the bodies nested in it that win there."""
+#: Points sampled in a body that partly overlaps another, for its region's volume.
+OVERLAP_SAMPLES = 200_000
+
+
+def _region_masses(scene, densities, bvh, rank_order) -> np.ndarray:
+    """kg of each body's region: its volume less the bodies nested in it that win there
+    (exact); a body partly overlapping another (their boxes meet, neither inside the other):
+    its volume times the fraction of :data:`OVERLAP_SAMPLES` seeded points in it where it wins
+    (the transport's own rule, :func:`~xray_viz.montecarlo.geometry.winners`)."""
     from xray_viz.meshes.repair import containers
+    from xray_viz.montecarlo.geometry import winners
 
     bodies = list(scene.bodies)
     vol = np.array([abs(float(b.mesh.volume)) for b in bodies])      # mm3
@@ -83,6 +91,20 @@ def _region_masses(scene, densities) -> np.ndarray:
         if cands:
             inner_most = min(cands, key=lambda b: vol[b])
             region[inner_most] -= vol[a]
+    bounds = np.array([b.mesh.bounds for b in bodies])
+    rng = np.random.default_rng(20150)
+    for a in range(len(bodies)):
+        partial = [b for b in range(len(bodies)) if b != a and b not in inside[a]
+                   and a not in inside[b]
+                   and np.all(bounds[a, 0] < bounds[b, 1]) and np.all(bounds[b, 0] < bounds[a, 1])]
+        if not partial:
+            continue
+        pts = rng.uniform(bounds[a, 0], bounds[a, 1], size=(OVERLAP_SAMPLES, 3))
+        w = winners(pts, bvh.lo, bvh.hi, bvh.child, bvh.start, bvh.count, bvh.v0, bvh.v1,
+                    bvh.v2, bvh.body, rank_order, len(bodies))
+        mine = np.count_nonzero(w == a)               # where a wins: its region
+        box = float(np.prod(bounds[a, 1] - bounds[a, 0]))
+        region[a] = box * mine / len(pts)
     return region * 1e-3 * np.asarray(densities) * 1e-3                  # cm3 * g/cm3 -> kg
 
 
@@ -218,7 +240,7 @@ def transport(scene, histories, *, seed=0, client=None, progress=None, interrupt
     if mas is not None and spectrum.fluence_per_mas is not None and len(p["names"]):
         from xray_viz.montecarlo.sources import solid_angle
 
-        masses = _region_masses(scene, p["densities"])
+        masses = _region_masses(scene, p["densities"], p["bvh"], p["rank_order"])
         # photons/mm2 at 1 m per mAs -> photons per sr: x (1000 mm)^2
         photons = spectrum.fluence_per_mas * 1e6 * solid_angle(scene.acquisition) * mas
     out = _result(total, histories=done, names=p["names"], seed=p["seed"], masses=masses,
@@ -258,9 +280,9 @@ class Transport:
     dose, dose_error : dict of str to float or None
         Gy per body with ``[source] mas`` and a SpekPy tube spectrum (its output per mAs gives
         the photons emitted into the field): the region's energy over its mass, from the
-        body's volume and density less the bodies nested in it that win there. Bodies that
-        only partly overlap are not carved out of each other (the earlier body's mass then
-        counts the overlap); None without ``mas`` or with a CSV or monochromatic spectrum.
+        body's volume and density less the bodies nested in it that win there (exact), or, for
+        a body partly overlapping another, from 200,000 seeded points in its box (~0.2 %);
+        None without ``mas`` or with a CSV or monochromatic spectrum.
     seed : int
     extra : dict
         ``interrupted`` (bool) and ``requested`` (histories asked for).
