@@ -287,6 +287,9 @@ def test_parallel_beam_primary_is_beer_lambert():
                   detector=Detector(center=[0, 0, -400], shape=(4, 4), pitch=(20.0, 20.0)),
                   bodies=(Body(name="water", mesh=slab, material="Water, Liquid"),))
     result = xray_viz.transport(scene, 40_000, seed=8)
+    # one body: the error of all the bodies' energy is that body's
+    assert result.balance_error["deposited"] == pytest.approx(result.energy_error["water"],
+                                                              rel=1e-9)
     from xray_viz.physics.materials import linear_attenuation
     transmitted = float(np.exp(-linear_attenuation("Water, Liquid", 60.0)[0] * 5.0))
     got = result.images["primary"].sum() / 60_000.0
@@ -316,3 +319,24 @@ def test_an_interrupted_transport_keeps_its_finished_groups():
     calls.clear()
     with pytest.raises(KeyboardInterrupt):                    # not asked to keep them
         xray_viz.transport(scene, 5000, seed=4, batch=100, progress=stop_after_first)
+
+
+def test_region_masses_of_nested_and_partly_overlapping_bodies():
+    from xray_viz.transport import _region_masses, prepare
+
+    def box(size, at):
+        m = trimesh.creation.box(extents=[size] * 3)
+        m.apply_translation(at)
+        return m
+
+    bodies = (Body(name="a", mesh=box(40, [0, 0, 0]), material="Water, Liquid"),
+              Body(name="b", mesh=box(40, [20, 0, 0]), material="Water, Liquid"),   # wins a/b
+              Body(name="c", mesh=box(10, [-10, 0, 0]), material="Water, Liquid"))  # inside a
+    scene = Scene(source=Source(position=[0, 0, 600]), detector=Detector(center=[0, 0, -400]),
+                  bodies=bodies)
+    p = prepare(scene, 1)
+    kg = _region_masses(scene, [1.0, 1.0, 1.0], p["bvh"], p["rank_order"])
+    mm3 = kg / 1e-6
+    assert mm3[2] == pytest.approx(1000.0)                       # c: exact
+    assert mm3[1] == pytest.approx(64000.0, rel=0.01)            # b wins the overlap
+    assert mm3[0] == pytest.approx(64000.0 - 32000.0 - 1000.0, rel=0.01)   # a: less both

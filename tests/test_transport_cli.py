@@ -116,6 +116,12 @@ def test_dask_local_cluster_gives_the_serial_bits(tmp_path):
         assert client.scheduler_info()["address"].startswith("tcp://127.0.0.1")
         assert len(client.scheduler_info()["workers"]) == 2
         dask = xray_viz.transport(scene, 12000, seed=9, batch=256, client=client)
+        # the command line on the same cluster (--scheduler ADDR), default batches
+        out = tmp_path / "dask.json"
+        assert main(["dose", str(scene.path), "--histories", "12000", "--seed", "9",
+                     "--scheduler", cluster.scheduler_address, "-o", str(out)]) == 0
+    cli = {r["body"]: r["energy_eV_per_history"] for r in json.loads(out.read_text())["bodies"]}
+    assert cli == xray_viz.transport(scene, 12000, seed=9).energy
     assert dask.energy == serial.energy and dask.energy_error == serial.energy_error
     assert dask.balance == serial.balance
     assert all((dask.images[k] == serial.images[k]).all() for k in serial.images)

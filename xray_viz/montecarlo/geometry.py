@@ -338,3 +338,32 @@ def region_of(inside, rank_order):
         if inside[b] > 0:
             return b
     return -1
+
+
+@numba.njit(cache=True, nogil=True)
+def winners(points, lo, hi, child, start, count, v0, v1, v2, tri_body, rank_order, n_bodies):
+    """(n,) int: the body whose material fills each point (-1: none), by the same rule as the
+    transport: along a fixed ray from the point to infinity, exits minus entries per body
+    (1 inside a closed body), then the precedence."""
+    out = np.empty(points.shape[0], np.int64)
+    inside = np.zeros(max(n_bodies, 1), np.int64)
+    stack = np.empty(128, np.int64)
+    tie_body = np.empty(MAX_TIES, np.int64)
+    tie_enter = np.empty(MAX_TIES, np.bool_)
+    d = np.array([0.5773502691896258, 0.5773502691896257, 0.5773502691896259])
+    d = d / math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    d[0] += 1e-3                                  # off the axes and diagonals of boxes
+    d = d / math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for i in range(points.shape[0]):
+        inside[:] = 0
+        o = points[i]
+        t = 0.0
+        while True:
+            t, n = next_crossing(o, d, t, np.inf, lo, hi, child, start, count, v0, v1, v2,
+                                 tri_body, stack, tie_body, tie_enter)
+            if n == 0:
+                break
+            for k in range(n):
+                inside[tie_body[k]] += -1 if tie_enter[k] else 1
+        out[i] = region_of(inside, rank_order)
+    return out

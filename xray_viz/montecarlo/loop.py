@@ -28,7 +28,8 @@ __all__ = ["TOTALS"]                  # and the kernel ``run_batch``
 
 #: Entries of a batch's ``totals`` (keV summed over its histories; ``*_sq`` of the per-history
 #: values).
-TOTALS = ("emitted", "detector", "detector_sq", "escaped", "deposited", "histories")
+TOTALS = ("emitted", "detector", "detector_sq", "escaped", "deposited", "histories",
+          "deposited_sq")
 
 
 @numba.njit(inline="always")
@@ -171,10 +172,14 @@ def run_batch(n_hist, state, fa, energies, cdf, world_lo, world_hi,
         totals[1] += to_detector
         totals[2] += to_detector * to_detector
         totals[3] += escaped
+        in_bodies = 0.0
         for k in range(n_reg):
             if hist[k] != 0.0:
                 dep[0, k] += hist[k]
                 dep[1, k] += hist[k] * hist[k]
                 totals[4] += hist[k]
+                if k > 0:
+                    in_bodies += hist[k]
                 hist[k] = 0.0
         totals[5] += 1.0
+        totals[6] += in_bodies * in_bodies

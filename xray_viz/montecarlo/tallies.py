@@ -39,7 +39,7 @@ class Tallies:
         """Empty tallies for ``n_regions`` regions and a ``(W, H)`` detector."""
         w, h = shape
         return cls(np.zeros((2, n_regions)), np.zeros((4, h, w)), np.zeros((4, h, w)),
-                   np.zeros(6))
+                   np.zeros(7))
 
     def add(self, other: "Tallies") -> None:
         """Add ``other`` into these (in place)."""
