@@ -277,3 +277,24 @@ def test_a_large_random_scan_starts_writing_before_it_ends(tmp_path, suffix):
     before the last projection could be rendered."""
     seconds, peak = _first_batch(tmp_path, tmp_path / f"m{suffix}", 20_000, 120)
     assert peak < 1 << 30, peak
+
+
+@pytest.mark.parametrize("suffix", [".nxs", ""])
+def test_a_nexus_or_tiff_scan_that_cannot_fit_on_disk_is_refused_before_any_work(
+        tmp_path, suffix, monkeypatch, capsys):
+    """The issue's full disk: HDF5 failing mid-write crashed the process after the error
+    (a segfault); the room is checked first, in one line."""
+    import os
+    from types import SimpleNamespace
+
+    from xray_viz.cli import main
+
+    monkeypatch.setattr(S.os, "statvfs", lambda p: SimpleNamespace(f_bavail=10,
+                                                                   f_frsize=4096))
+    monkeypatch.setattr(S, "projection", lambda *a, **k: pytest.fail("rendered"))
+    out = tmp_path / f"x{suffix}"
+    assert main(["scan", "sphere", "-o", str(out), "--projections", "20", "--axis", "0", "1",
+                 "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "needs about 6.0 MiB on disk" in err and "40 KiB" not in err
+    assert "0.0 MiB free" in err and not out.exists() and os.listdir(tmp_path) == []

@@ -1270,6 +1270,24 @@ def write_nexus(result: Scan, path) -> Path:
     return Path(path)
 
 
+def _check_disk(out, nbytes: int) -> None:
+    """Refuse, in one line and before any work, a file of ``nbytes`` where the disk has less
+    free (HDF5 running out of space mid-write cannot close its file cleanly: the process
+    then crashes; a disk that fills up meanwhile is not foreseen)."""
+    from xray_viz._memory import format_bytes
+
+    folder = Path(out).absolute().parent
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return
+    free = st.f_bavail * st.f_frsize
+    if nbytes > free:
+        raise OutputError(f"{out}: the scan needs about {format_bytes(nbytes)} on disk and "
+                          f"{folder} has {format_bytes(free)} free; free some space or choose "
+                          "another -o")
+
+
 def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress) -> int:
     """Render a scan straight into a NeXus file or a TIFF folder (``kind``), projection by
     projection as they come: memory is one projection, the geometry is built as arrays
@@ -1285,6 +1303,9 @@ def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress)
         geometry["poses"], geometry["projection_matrices"] = _per_projection_lists(poses, mats)
         tables = None
     del poses, mats
+    w, h = scene.detector.shape
+    _check_disk(out, n * (h * w * 4 + (1024 if kind == "tiff" else 64))
+                + (0 if tables is None else tables[0].nbytes + tables[1].nbytes) + (1 << 20))
     opener = _nexus_writer if kind == "nexus" else _tiff_writer
     extra = {"shape": tuple(scene.detector.shape), "flush_every": batch} \
         if kind == "nexus" else {}
