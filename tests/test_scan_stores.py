@@ -298,3 +298,42 @@ def test_a_nexus_or_tiff_scan_that_cannot_fit_on_disk_is_refused_before_any_work
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "needs about 6.0 MiB on disk" in err and "40 KiB" not in err
     assert "0.0 MiB free" in err and not out.exists() and os.listdir(tmp_path) == []
+
+
+def test_a_mesh_file_changed_between_runs_is_not_resumed_into_the_same_store(tmp_path,
+                                                                              capsys):
+    """The scene file names its mesh by path: the store also keys the bodies' meshes, so a
+    resume after ``ball.stl`` changed is refused instead of mixing two bodies' projections."""
+    import trimesh
+
+    from xray_viz.cli import main
+
+    trimesh.creation.icosphere(subdivisions=2, radius=30.0).export(tmp_path / "ball.stl")
+    (tmp_path / "s.toml").write_text("""
+[source]
+position = [0.0, 0.0, 1000.0]
+energy = 60.0
+
+[detector]
+center = [0.0, 0.0, -500.0]
+up = [0.0, 1.0, 0.0]
+shape = [16, 12]
+pitch = 8.0
+
+[[body]]
+mesh = "ball.stl"
+mu = 0.2
+""")
+    store = tmp_path / "s.zarr"
+    args = ["scan", str(tmp_path / "s.toml"), "-o", str(store), "--projections", "4",
+            "--axis", "0", "1", "0"]
+    assert main(args) == 0
+    import zarr
+
+    g = zarr.open_group(str(store), mode="r+")
+    g["done"][2] = g["done"][3] = False           # an interrupted run
+    trimesh.creation.icosphere(subdivisions=2, radius=45.0).export(tmp_path / "ball.stl")
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds another scan" in err and "meshes differ" in err

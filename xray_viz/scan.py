@@ -41,7 +41,7 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "scan_geome
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
-           "pose_table", "done_flags", "damaged_projections", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
+           "pose_table", "done_flags", "damaged_projections", "bodies_digest", "LAYOUT_VERSION", "ARRAYS_LAYOUT_VERSION",
            "INLINE_POSES_MAX", "POSE_ROWS"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
@@ -723,7 +723,31 @@ def _attrs(scene, quantity, geometry, arrays: bool = False) -> dict:
     return {"version": ARRAYS_LAYOUT_VERSION if arrays else LAYOUT_VERSION,
             "quantity": quantity, "units": "1" if quantity == "line-integral" else "photons",
             "geometry": _geometry_attr(geometry) if arrays else geometry,
-            "physics": _physics(scene), "scene": text}
+            "physics": _physics(scene), "scene": text, "bodies": bodies_digest(scene)}
+
+
+def bodies_digest(scene) -> str:
+    """Hex SHA-256 of what the bodies are: each body's name, material or ``mu``, and its
+    mesh's vertex and face arrays (dtype, shape, bytes). A store keeps it: the scene file
+    names its mesh files by path, so a mesh file changed between two runs would otherwise
+    resume a scan with other bodies (or two scenes built in Python, which have no scene
+    file, would pass for one).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> len(bodies_digest(xray_viz.load_scene("sphere")))
+    64
+    """
+    h = hashlib.sha256(b"xray_viz bodies 1")
+    for body in scene.bodies:
+        h.update(repr((getattr(body, "name", None), getattr(body, "material", None),
+                       getattr(body, "mu", None))).encode())
+        for a in (body.mesh.vertices, body.mesh.faces):
+            a = np.ascontiguousarray(a)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
 
 
 def _geometry_attr(geometry) -> dict:
@@ -825,7 +849,8 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
     new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
     same = isinstance(old, dict) and all(
         _canonical(old.get(k)) == _canonical(new[k])
-        for k in ("version", "quantity", "geometry", "physics", "scene"))
+        for k in ("version", "quantity", "geometry", "physics", "scene")
+        + (("bodies",) if "bodies" in old else ()))     # older stores: without it
     if same and arrays:
         poses, mats = _pose_arrays_of(geometry) if tables is None else tables
         try:
@@ -837,8 +862,9 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
             raise OutputError(f"{path}: its pose arrays cannot be read "
                               f"({_reason(exc)}); remove it and scan again") from None
     if not same:
-        raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
-                          "scene differ); remove it or choose another -o to keep both")
+        raise OutputError(f"{path} holds another scan (its geometry, physics, quantity, "
+                          "scene or bodies' meshes differ); remove it or choose another -o to "
+                          "keep both")
     w, h = geometry["detector"]["shape"]
     proj, done = group["projections"], group["done"]
     if (proj.shape, proj.chunks, proj.dtype, done.shape, done.chunks, done.dtype) != \
