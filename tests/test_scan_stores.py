@@ -337,3 +337,26 @@ mu = 0.2
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "holds another scan" in err and "meshes differ" in err
+
+
+def test_a_worker_refuses_mesh_files_that_differ_from_the_scans(tmp_path):
+    """Dask workers load the scene from its text (mesh files by path) and keep it by key: the
+    key carries the bodies' digest, checked against the meshes the worker reads."""
+    import hashlib
+
+    import trimesh
+
+    from xray_viz.errors import SceneError
+
+    trimesh.creation.icosphere(subdivisions=1, radius=30.0).export(tmp_path / "ball.stl")
+    (tmp_path / "s.toml").write_text('[source]\nposition = [0.0, 0.0, 1000.0]\nenergy = 60.0\n'
+                                     '[detector]\ncenter = [0.0, 0.0, -500.0]\nup = [0.0, 1.0, '
+                                     '0.0]\nshape = [8, 8]\npitch = 8.0\n[[body]]\nmesh = '
+                                     '"ball.stl"\nmu = 0.2\n')
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    text = scene.to_toml()
+    key = f"{hashlib.sha256(text.encode()).hexdigest()}:{S.bodies_digest(scene)}"
+    assert S.bodies_digest(S._load_scene_text(text, key)) == S.bodies_digest(scene)
+    trimesh.creation.icosphere(subdivisions=1, radius=31.0).export(tmp_path / "ball.stl")
+    with pytest.raises(SceneError, match="mesh files read on this worker differ"):
+        S._load_scene_text(text, key)

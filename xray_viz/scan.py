@@ -1447,7 +1447,9 @@ def _worker_scenes():
 
 def _load_scene_text(text: str, digest: str):
     """The scene of a scene-file text, loaded once per worker process (keyed by ``digest``,
-    the SHA-256 of the text): its per-mesh set-up is then reused by every task."""
+    the SHA-256 of the text, then ``:`` and :func:`bodies_digest` of the client's scene,
+    checked against the meshes the worker reads): its per-mesh set-up is then reused by
+    every task."""
     import tomllib
 
     from xray_viz.scene import scene_from_dict
@@ -1455,9 +1457,14 @@ def _load_scene_text(text: str, digest: str):
     cache = _worker_scenes()
     if cache is not None and digest in cache:
         return cache[digest]
-    if hashlib.sha256(text.encode()).hexdigest() != digest:
+    text_digest, _, bodies = digest.partition(":")
+    if hashlib.sha256(text.encode()).hexdigest() != text_digest:
         raise SceneError("the scene text does not match its hash")
     scene = scene_from_dict(tomllib.loads(text))
+    if bodies and bodies_digest(scene) != bodies:    # a mesh file changed since the start
+        raise SceneError("the scene's mesh files read on this worker differ from those the "
+                         "scan started with (changed since, or another file at that path); "
+                         "scan again once they are fixed")
     if cache is not None:
         cache.clear()                           # one scene per worker: memory stays bounded
         cache[digest] = scene
@@ -1501,7 +1508,8 @@ def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, pr
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise SceneError(f"batch must be a whole number >= 1, got {batch!r}")
     text = _scene_text(scene)
-    digest = hashlib.sha256(text.encode()).hexdigest()
+    # the text names the mesh files by path: the bodies' own digest keys the workers' scenes
+    digest = f"{hashlib.sha256(text.encode()).hexdigest()}:{bodies_digest(scene)}"
     client.register_plugin(_scene_plugin(engine), name=PLUGIN_NAME)
     if progress and sys.stderr.isatty():
         print(f"xray-viz: Dask dashboard: {client.dashboard_link}", file=sys.stderr)
