@@ -61,6 +61,12 @@ def test_cgroup_v2_memory_max_at_any_level_limits(tmp_path):
     assert got == 2 * gib and "memory.max of 3.0 GiB" in what
     root = _fake_root(tmp_path / "b", meminfo_kb=gib // 1024, v2={"job": (3 * gib, 0)})
     assert _memory.memory_limit(root=root) == (gib, "this machine has 1.0 GiB available")
+    # reclaimable page cache (inactive_file) is not counted as used
+    got, what = _memory.memory_limit(root=_fake_root(tmp_path / "c", meminfo_kb=9 * gib // 1024,
+                                                     v2={"job": (3 * gib, int(2.5 * gib))}))
+    assert got == gib // 2
+    (tmp_path / "c/root/sys/fs/cgroup/job/memory.stat").write_text(f"inactive_file {gib}\n")
+    assert _memory.available_memory(root=tmp_path / "c/root") == gib + gib // 2
 
 
 def test_cgroup_v1_limit_in_bytes_and_its_unlimited_value(tmp_path):
