@@ -61,6 +61,12 @@ def test_cgroup_v2_memory_max_at_any_level_limits(tmp_path):
     assert got == 2 * gib and "memory.max of 3.0 GiB" in what
     root = _fake_root(tmp_path / "b", meminfo_kb=gib // 1024, v2={"job": (3 * gib, 0)})
     assert _memory.memory_limit(root=root) == (gib, "this machine has 1.0 GiB available")
+    # reclaimable page cache (inactive_file) is not counted as used
+    got, what = _memory.memory_limit(root=_fake_root(tmp_path / "c", meminfo_kb=9 * gib // 1024,
+                                                     v2={"job": (3 * gib, int(2.5 * gib))}))
+    assert got == gib // 2
+    (tmp_path / "c/root/sys/fs/cgroup/job/memory.stat").write_text(f"inactive_file {gib}\n")
+    assert _memory.available_memory(root=tmp_path / "c/root") == gib + gib // 2
 
 
 def test_cgroup_v1_limit_in_bytes_and_its_unlimited_value(tmp_path):
@@ -192,3 +198,23 @@ def test_every_up_front_check_goes_through_the_one_reading():
     assert "/proc/meminfo" not in src
     got = _memory.memory_limit()
     assert got is not None and render_mod.available_memory() <= got[0] + (64 << 20)
+
+
+def test_a_dicom_series_that_cannot_fit_as_float64_is_refused_before_decoding(tmp_path,
+                                                                             monkeypatch):
+    pytest.importorskip("pydicom")
+    pytest.importorskip("nibabel")
+    pytest.importorskip("SimpleITK")
+    from test_volumes import grid_affine, write_dicom_series
+
+    from xray_viz.meshes import volumes as V
+
+    hu = np.full((40, 36, 5), 40.0)
+    write_dicom_series(tmp_path / "series", hu, grid_affine())
+    monkeypatch.setattr(_memory, "available_memory", lambda **kw: 2 * 8 * hu.size - 1)
+    with pytest.raises(MeshError, match=r"series: the series' 40 x 36 x 5 voxels as float64 "
+                                        r"needs about .* crop or downsample") as info:
+        V.read_volume(tmp_path / "series", hu=True)
+    assert "\n" not in str(info.value)
+    monkeypatch.setattr(_memory, "available_memory", lambda **kw: 2 * 8 * hu.size)
+    assert V.read_volume(tmp_path / "series", hu=True).data.shape == (40, 36, 5)

@@ -271,9 +271,92 @@ def test_a_million_random_poses_start_writing_with_bounded_memory(tmp_path, suff
     assert peak < 2 << 30, peak
 
 
-@pytest.mark.parametrize("suffix", [".nxs", "", ".zarr"])
+@pytest.mark.parametrize("suffix", [".nxs", ".zarr"])     # TIFF: the test above
 def test_a_large_random_scan_starts_writing_before_it_ends(tmp_path, suffix):
     """The bounded default version: 20,000 random poses, the first batch is on disk long
     before the last projection could be rendered."""
     seconds, peak = _first_batch(tmp_path, tmp_path / f"m{suffix}", 20_000, 120)
     assert peak < 1 << 30, peak
+
+
+@pytest.mark.parametrize("suffix", [".nxs", ""])
+def test_a_nexus_or_tiff_scan_that_cannot_fit_on_disk_is_refused_before_any_work(
+        tmp_path, suffix, monkeypatch, capsys):
+    """The issue's full disk: HDF5 failing mid-write crashed the process after the error
+    (a segfault); the room is checked first, in one line."""
+    import os
+    from types import SimpleNamespace
+
+    from xray_viz.cli import main
+
+    monkeypatch.setattr(S.os, "statvfs", lambda p: SimpleNamespace(f_bavail=10,
+                                                                   f_frsize=4096))
+    monkeypatch.setattr(S, "projection", lambda *a, **k: pytest.fail("rendered"))
+    out = tmp_path / f"x{suffix}"
+    assert main(["scan", "sphere", "-o", str(out), "--projections", "20", "--axis", "0", "1",
+                 "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "needs about 6.0 MiB on disk" in err and "40 KiB" not in err
+    assert "0.0 MiB free" in err and not out.exists() and os.listdir(tmp_path) == []
+
+
+def test_a_mesh_file_changed_between_runs_is_not_resumed_into_the_same_store(tmp_path,
+                                                                              capsys):
+    """The scene file names its mesh by path: the store also keys the bodies' meshes, so a
+    resume after ``ball.stl`` changed is refused instead of mixing two bodies' projections."""
+    import trimesh
+
+    from xray_viz.cli import main
+
+    trimesh.creation.icosphere(subdivisions=2, radius=30.0).export(tmp_path / "ball.stl")
+    (tmp_path / "s.toml").write_text("""
+[source]
+position = [0.0, 0.0, 1000.0]
+energy = 60.0
+
+[detector]
+center = [0.0, 0.0, -500.0]
+up = [0.0, 1.0, 0.0]
+shape = [16, 12]
+pitch = 8.0
+
+[[body]]
+mesh = "ball.stl"
+mu = 0.2
+""")
+    store = tmp_path / "s.zarr"
+    args = ["scan", str(tmp_path / "s.toml"), "-o", str(store), "--projections", "4",
+            "--axis", "0", "1", "0"]
+    assert main(args) == 0
+    import zarr
+
+    g = zarr.open_group(str(store), mode="r+")
+    g["done"][2] = g["done"][3] = False           # an interrupted run
+    trimesh.creation.icosphere(subdivisions=2, radius=45.0).export(tmp_path / "ball.stl")
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds another scan" in err and "meshes differ" in err
+
+
+def test_a_worker_refuses_mesh_files_that_differ_from_the_scans(tmp_path):
+    """Dask workers load the scene from its text (mesh files by path) and keep it by key: the
+    key carries the bodies' digest, checked against the meshes the worker reads."""
+    import hashlib
+
+    import trimesh
+
+    from xray_viz.errors import SceneError
+
+    trimesh.creation.icosphere(subdivisions=1, radius=30.0).export(tmp_path / "ball.stl")
+    (tmp_path / "s.toml").write_text('[source]\nposition = [0.0, 0.0, 1000.0]\nenergy = 60.0\n'
+                                     '[detector]\ncenter = [0.0, 0.0, -500.0]\nup = [0.0, 1.0, '
+                                     '0.0]\nshape = [8, 8]\npitch = 8.0\n[[body]]\nmesh = '
+                                     '"ball.stl"\nmu = 0.2\n')
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    text = scene.to_toml()
+    key = f"{hashlib.sha256(text.encode()).hexdigest()}:{S.bodies_digest(scene)}"
+    assert S.bodies_digest(S._load_scene_text(text, key)) == S.bodies_digest(scene)
+    trimesh.creation.icosphere(subdivisions=1, radius=31.0).export(tmp_path / "ball.stl")
+    with pytest.raises(SceneError, match="mesh files read on this worker differ"):
+        S._load_scene_text(text, key)

@@ -6,7 +6,8 @@ The least of: the machine's available memory (``MemAvailable`` of ``/proc/meminf
 process's own limits (``RLIMIT_AS``, ``ulimit -v`` / ``prlimit --as``, less the address space
 already mapped; ``RLIMIT_DATA`` less the data already allocated) and its control group's
 (cgroup v2 ``memory.max`` less ``memory.current``, v1 ``memory.limit_in_bytes`` less
-``memory.usage_in_bytes``, at its own level and every level above it: a container's limit).
+``memory.usage_in_bytes``, each usage without its reclaimable page cache, ``inactive_file``
+of ``memory.stat``; at its own level and every level above it: a container's limit).
 Nothing of xray_viz is imported here.
 """
 
@@ -76,6 +77,19 @@ def _read_int(path: Path) -> int | None:
     return None if value >= _UNLIMITED else value
 
 
+def _inactive_file(level: Path, key: str) -> int:
+    """Reclaimable page cache of a cgroup (``memory.stat``'s ``key``): counted in its usage,
+    but given back under pressure (as ``docker stats`` leaves it out)."""
+    try:
+        for line in (level / "memory.stat").read_text().splitlines():
+            name, _, value = line.partition(" ")
+            if name == key:
+                return int(value)
+    except (OSError, ValueError):
+        pass
+    return 0
+
+
 def _levels(mount: Path, rel: str):
     """The cgroup folders of the process under ``mount``: its own and every parent up to the
     mount (a container sees its own group as the mount itself)."""
@@ -108,7 +122,8 @@ def _cgroups(root: Path) -> list[tuple[int, str]]:
             for level in _levels(mount, rel):
                 limit = _read_int(level / "memory.max")
                 if limit is not None:
-                    used = _read_int(level / "memory.current") or 0
+                    used = (_read_int(level / "memory.current") or 0) - _inactive_file(
+                        level, "inactive_file")
                     out.append((max(0, limit - used),
                                 f"the control group's memory.max of {format_bytes(limit)}"))
         elif "memory" in controllers.split(","):    # v1: "4:memory:/path"
@@ -116,7 +131,8 @@ def _cgroups(root: Path) -> list[tuple[int, str]]:
             for level in _levels(mount, rel):
                 limit = _read_int(level / "memory.limit_in_bytes")
                 if limit is not None:
-                    used = _read_int(level / "memory.usage_in_bytes") or 0
+                    used = (_read_int(level / "memory.usage_in_bytes") or 0) - _inactive_file(
+                        level, "total_inactive_file")
                     out.append((max(0, limit - used), "the control group's "
                                 f"memory.limit_in_bytes of {format_bytes(limit)}"))
     return out

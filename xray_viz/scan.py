@@ -42,7 +42,7 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "Projection
            "write_nexus", "astra_vectors", "poses_from_astra", "default_orbit", "render_batch",
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
-           "pose_table", "done_flags", "damaged_projections", "LAYOUT_VERSION",
+           "pose_table", "done_flags", "damaged_projections", "bodies_digest", "LAYOUT_VERSION",
            "ARRAYS_LAYOUT_VERSION", "INLINE_POSES_MAX", "POSE_ROWS", "cil_geometry", "to_cil"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
@@ -847,7 +847,31 @@ def _attrs(scene, quantity, geometry, arrays: bool = False) -> dict:
     return {"version": ARRAYS_LAYOUT_VERSION if arrays else LAYOUT_VERSION,
             "quantity": quantity, "units": "1" if quantity == "line-integral" else "photons",
             "geometry": _geometry_attr(geometry) if arrays else geometry,
-            "physics": _physics(scene), "scene": text}
+            "physics": _physics(scene), "scene": text, "bodies": bodies_digest(scene)}
+
+
+def bodies_digest(scene) -> str:
+    """Hex SHA-256 of what the bodies are: each body's name, material or ``mu``, and its
+    mesh's vertex and face arrays (dtype, shape, bytes). A store keeps it: the scene file
+    names its mesh files by path, so a mesh file changed between two runs would otherwise
+    resume a scan with other bodies (or two scenes built in Python, which have no scene
+    file, would pass for one).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> len(bodies_digest(xray_viz.load_scene("sphere")))
+    64
+    """
+    h = hashlib.sha256(b"xray_viz bodies 1")
+    for body in scene.bodies:
+        h.update(repr((getattr(body, "name", None), getattr(body, "material", None),
+                       getattr(body, "mu", None))).encode())
+        for a in (body.mesh.vertices, body.mesh.faces):
+            a = np.ascontiguousarray(a)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
 
 
 def _geometry_attr(geometry) -> dict:
@@ -949,7 +973,8 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
     new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
     same = isinstance(old, dict) and all(
         _canonical(old.get(k)) == _canonical(new[k])
-        for k in ("version", "quantity", "geometry", "physics", "scene"))
+        for k in ("version", "quantity", "geometry", "physics", "scene")
+        + (("bodies",) if "bodies" in old else ()))     # older stores: without it
     if same and arrays:
         poses, mats = _pose_arrays_of(geometry) if tables is None else tables
         try:
@@ -961,8 +986,9 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
             raise OutputError(f"{path}: its pose arrays cannot be read "
                               f"({_reason(exc)}); remove it and scan again") from None
     if not same:
-        raise OutputError(f"{path} holds another scan (its geometry, physics, quantity or "
-                          "scene differ); remove it or choose another -o to keep both")
+        raise OutputError(f"{path} holds another scan (its geometry, physics, quantity, "
+                          "scene or bodies' meshes differ); remove it or choose another -o to "
+                          "keep both")
     w, h = geometry["detector"]["shape"]
     proj, done = group["projections"], group["done"]
     if (proj.shape, proj.chunks, proj.dtype, done.shape, done.chunks, done.dtype) != \
@@ -1397,6 +1423,24 @@ def write_nexus(result: Scan, path) -> Path:
     return Path(path)
 
 
+def _check_disk(out, nbytes: int) -> None:
+    """Refuse, in one line and before any work, a file of ``nbytes`` where the disk has less
+    free (HDF5 running out of space mid-write cannot close its file cleanly: the process
+    then crashes; a disk that fills up meanwhile is not foreseen)."""
+    from xray_viz._memory import format_bytes
+
+    folder = Path(out).absolute().parent
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return
+    free = st.f_bavail * st.f_frsize
+    if nbytes > free:
+        raise OutputError(f"{out}: the scan needs about {format_bytes(nbytes)} on disk and "
+                          f"{folder} has {format_bytes(free)} free; free some space or choose "
+                          "another -o")
+
+
 def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress) -> int:
     """Render a scan straight into a NeXus file or a TIFF folder (``kind``), projection by
     projection as they come: memory is one projection, the geometry is built as arrays
@@ -1412,6 +1456,9 @@ def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress)
         geometry["poses"], geometry["projection_matrices"] = _per_projection_lists(poses, mats)
         tables = None
     del poses, mats
+    w, h = scene.detector.shape
+    _check_disk(out, n * (h * w * 4 + (1024 if kind == "tiff" else 64))
+                + (0 if tables is None else tables[0].nbytes + tables[1].nbytes) + (1 << 20))
     opener = _nexus_writer if kind == "nexus" else _tiff_writer
     extra = {"shape": tuple(scene.detector.shape), "flush_every": batch} \
         if kind == "nexus" else {}
@@ -1529,7 +1576,9 @@ def _worker_scenes():
 
 def _load_scene_text(text: str, digest: str):
     """The scene of a scene-file text, loaded once per worker process (keyed by ``digest``,
-    the SHA-256 of the text): its per-mesh set-up is then reused by every task."""
+    the SHA-256 of the text, then ``:`` and :func:`bodies_digest` of the client's scene,
+    checked against the meshes the worker reads): its per-mesh set-up is then reused by
+    every task."""
     import tomllib
 
     from xray_viz.scene import scene_from_dict
@@ -1537,9 +1586,14 @@ def _load_scene_text(text: str, digest: str):
     cache = _worker_scenes()
     if cache is not None and digest in cache:
         return cache[digest]
-    if hashlib.sha256(text.encode()).hexdigest() != digest:
+    text_digest, _, bodies = digest.partition(":")
+    if hashlib.sha256(text.encode()).hexdigest() != text_digest:
         raise SceneError("the scene text does not match its hash")
     scene = scene_from_dict(tomllib.loads(text))
+    if bodies and bodies_digest(scene) != bodies:    # a mesh file changed since the start
+        raise SceneError("the scene's mesh files read on this worker differ from those the "
+                         "scan started with (changed since, or another file at that path); "
+                         "scan again once they are fixed")
     if cache is not None:
         cache.clear()                           # one scene per worker: memory stays bounded
         cache[digest] = scene
@@ -1583,7 +1637,8 @@ def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, pr
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise SceneError(f"batch must be a whole number >= 1, got {batch!r}")
     text = _scene_text(scene)
-    digest = hashlib.sha256(text.encode()).hexdigest()
+    # the text names the mesh files by path: the bodies' own digest keys the workers' scenes
+    digest = f"{hashlib.sha256(text.encode()).hexdigest()}:{bodies_digest(scene)}"
     client.register_plugin(_scene_plugin(engine), name=PLUGIN_NAME)
     if progress and sys.stderr.isatty():
         print(f"xray-viz: Dask dashboard: {client.dashboard_link}", file=sys.stderr)

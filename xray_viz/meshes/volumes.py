@@ -315,6 +315,13 @@ def _read_dicom_series(folder: Path, *, hu: bool):
     dr, dc = (float(x) for x in first.PixelSpacing)   # between rows, between columns
     slices.sort(key=lambda s: float(np.dot(np.asarray(s[1].ImagePositionPatient, float), normal)))
     pos = np.array([np.asarray(ds.ImagePositionPatient, dtype=np.float64) for _, ds in slices])
+    from xray_viz._memory import check_allocation
+
+    rows, cols = int(getattr(first, "Rows", 0) or 0), int(getattr(first, "Columns", 0) or 0)
+    check_allocation(2 * 8 * len(slices) * rows * cols,   # the float64 slices and their stack
+                     f"{folder}: the series' {cols} x {rows} x {len(slices)} voxels as float64",
+                     "crop or downsample the series (or give the process more memory)",
+                     error=MeshError)
     images = []
     for f, ds in slices:
         if not np.allclose(np.asarray(ds.ImageOrientationPatient, float), iop, atol=1e-4):
