@@ -548,3 +548,20 @@ materials = { 1 = { mu = 0.1 }, 2 = { mu = 0.2, name = "two" }, 3 = { mu = 0.3 }
     image = xray_viz.render(scene)
     np.testing.assert_allclose(image.line_integral.ravel(), want @ [0.01, 0.02, 0.03],
                                rtol=1e-9, atol=1e-12)
+
+
+def test_a_scene_with_a_ct_volume_writes_its_table_and_loads_back(tmp_path):
+    hu, affine = ct_hu(24)
+    write_ct(tmp_path, hu, affine)
+    (tmp_path / "s.toml").write_text(SCENE.format(body="", extra=""))
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    text = scene.to_toml(base=tmp_path)
+    assert "[[ct]]" in text and 'trace = "voxels"' in text
+    (tmp_path / "back.toml").write_text(text)
+    back = xray_viz.load_scene(tmp_path / "back.toml")
+    assert [v.names for v in back.volumes] == [v.names for v in scene.volumes]
+    np.testing.assert_array_equal(xray_viz.render(back).line_integral,
+                                  xray_viz.render(scene).line_integral)
+    built = dataclasses.replace(scene, volumes=(ct_volume(hu, affine, name="py"),))
+    with pytest.raises(SceneError, match="voxel volume 'py' was built in Python"):
+        built.to_toml()

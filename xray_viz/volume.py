@@ -121,6 +121,7 @@ class VoxelVolume:
         Per voxel: its density (g/cm3, a CT class traced by densities) or 1.
     materials : tuple of VoxelMaterial
     source_file : Path or None
+    table : (str, dict) or None
     """
 
     name: str
@@ -129,6 +130,9 @@ class VoxelVolume:
     weights: np.ndarray = field(repr=False)
     materials: tuple = field(repr=False)
     source_file: Path | None = None
+    #: ``(kind, table)``: the scene file's ``[[ct]]`` or ``[[labels]]`` table it was read from
+    #: (``Scene.to_dict`` writes it back); None for a volume built in Python.
+    table: tuple | None = field(repr=False, default=None)
 
     def __post_init__(self):
         where = f"{self.source_file or self.name}"

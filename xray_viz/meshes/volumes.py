@@ -76,6 +76,7 @@ True
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -1079,8 +1080,9 @@ def _labels_bodies(raw, k, base_dir, file, cache, body):
             warnings.warn(f"{where}: {path.name}: label{'s' * (len(skipped) > 1)} "
                           f"{', '.join(map(str, skipped))} not in 'materials': skipped (empty)",
                           LabelSkippedWarning, stacklevel=4)
-        return [label_volume(vol.data, vol.affine, entries, name=_stem(path), source_file=path,
-                             names={v: e["name"] for v, e in entries.items() if "name" in e})]
+        made = label_volume(vol.data, vol.affine, entries, name=_stem(path), source_file=path,
+                            names={v: e["name"] for v, e in entries.items() if "name" in e})
+        return [dataclasses.replace(made, table=("labels", dict(raw)))]
     max_error = _max_error(raw, where)
     try:
         meshes = label_surfaces(path, sorted(entries), max_error=max_error, cache=cache,
@@ -1141,8 +1143,9 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
         else:
             table = None
         try:
-            return [ct_volume(vol.data, vol.affine, name=_stem(path), ranges=table,
-                              source_file=path)]
+            made = ct_volume(vol.data, vol.affine, name=_stem(path), ranges=table,
+                             source_file=path)
+            return [dataclasses.replace(made, table=("ct", dict(raw)))]
         except SceneError as exc:
             _fail(where, str(exc))
     median = raw.get("median", 1)
