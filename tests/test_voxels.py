@@ -446,7 +446,8 @@ def test_names_of_bodies_and_classes_must_be_unique():
 # against RTK's forward projector
 
 
-@pytest.mark.parametrize("kind", ["point", "parallel"])
+@pytest.mark.slow      # ~50 s: loading RTK's Joseph filter (the default suite checks the
+@pytest.mark.parametrize("kind", ["point", "parallel"])   # kernel against grid_chords)
 def test_the_projection_agrees_with_rtk_joseph_within_its_interpolation(kind):
     """RTK's CPU Joseph projector on the same grid (rotated 20 degrees, anisotropic voxels,
     an off-centre Gaussian blob) and geometry. Joseph interpolates the voxel values bilinearly
