@@ -294,7 +294,7 @@ def _read_dicom_series(folder: Path, *, hu: bool):
     return data, LPS_TO_RAS @ lps
 
 
-def read_volume(path, *, hu: bool = False) -> Volume:
+def read_volume(path, *, hu: bool = False, dtype=np.float64) -> Volume:
     """Read a label map or CT volume and its affine (voxel index -> scene mm, RAS+).
 
     Parameters
@@ -305,8 +305,11 @@ def read_volume(path, *, hu: bool = False) -> Volume:
         :func:`~xray_viz.meshes.dicom_seg.read_dicom_seg`), or a folder holding one DICOM
         series (pydicom).
     hu : bool, optional
-        Read a CT in Hounsfield units (float64; DICOM's rescale applied). Otherwise the
+        Read a CT in Hounsfield units (``dtype``; DICOM's rescale applied). Otherwise the
         values must be whole numbers (a label map) and come back as int64.
+    dtype : numpy dtype, optional
+        Of a CT's values (float64 by default; the voxel tracer reads float32: HU are whole
+        numbers well within its 24 bits, and a 512 x 512 x 133 CT is half the memory).
 
     Returns
     -------
@@ -352,7 +355,7 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     if not np.all(np.isfinite(affine)) or abs(np.linalg.det(affine[:3, :3])) < 1e-12:
         raise MeshError(f"{path}: its voxel-to-world affine is degenerate or not finite")
     if hu:
-        data = np.asarray(data, dtype=np.float64)
+        data = np.asarray(data, dtype=dtype)
         if not np.all(np.isfinite(data)):
             raise MeshError(f"{path}: the CT holds NaN or infinite values")
     else:
@@ -1031,7 +1034,7 @@ def _trace_mode(raw, where, table):
 
 def _read_for_voxels(path, where, *, hu):
     try:
-        return read_volume(path, hu=hu)
+        return read_volume(path, hu=hu, dtype=np.float32)
     except XrayVizError as exc:
         raise type(exc)(f"{where}: {exc}") from None
 
