@@ -566,3 +566,24 @@ def test_a_scene_with_a_ct_volume_writes_its_table_and_loads_back(tmp_path):
     built = dataclasses.replace(scene, volumes=(ct_volume(hu, affine, name="py"),))
     with pytest.raises(SceneError, match="voxel volume 'py' was built in Python"):
         built.to_toml()
+
+
+def test_the_viewer_draws_a_voxel_volume_as_its_box_and_a_slice():
+    pytest.importorskip("pyvista")
+    import trimesh
+
+    from xray_viz.viz.scene_view import plot_scene
+
+    hu, affine = ct_hu(24)
+    vol = ct_volume(hu, affine, name="ct")
+    pin = Body(name="pin", mesh=trimesh.creation.box(bounds=[[-1, -1, -3], [1, 1, 3]]), mu=1.0)
+    view = plot_scene(_scene(bodies=[pin], volumes=(vol,)), rays=None, window_size=(320, 240))
+    box = view.datasets["volume:ct:box"]
+    np.testing.assert_allclose(np.sort(box.points, axis=0), np.sort(vol.corners, axis=0))
+    assert box.n_lines == 12
+    assert float(view.datasets["volume:ct:slice"].point_data["weight"].max()) > 1.7   # bone
+    lo, hi = view.bodies_bounds
+    np.testing.assert_allclose([lo, hi], vol.bounds)          # the volume is around the pin
+    view.set_visible("bodies", False)
+    assert not view.plotter.actors["volume:ct:slice"].GetVisibility()
+    view.plotter.close()
