@@ -446,7 +446,8 @@ def test_names_of_bodies_and_classes_must_be_unique():
 # against RTK's forward projector
 
 
-@pytest.mark.parametrize("kind", ["point", "parallel"])
+@pytest.mark.slow      # ~50 s: loading RTK's Joseph filter (the default suite checks the
+@pytest.mark.parametrize("kind", ["point", "parallel"])   # kernel against grid_chords)
 def test_the_projection_agrees_with_rtk_joseph_within_its_interpolation(kind):
     """RTK's CPU Joseph projector on the same grid (rotated 20 degrees, anisotropic voxels,
     an off-centre Gaussian blob) and geometry. Joseph interpolates the voxel values bilinearly
@@ -548,3 +549,41 @@ materials = { 1 = { mu = 0.1 }, 2 = { mu = 0.2, name = "two" }, 3 = { mu = 0.3 }
     image = xray_viz.render(scene)
     np.testing.assert_allclose(image.line_integral.ravel(), want @ [0.01, 0.02, 0.03],
                                rtol=1e-9, atol=1e-12)
+
+
+def test_a_scene_with_a_ct_volume_writes_its_table_and_loads_back(tmp_path):
+    hu, affine = ct_hu(24)
+    write_ct(tmp_path, hu, affine)
+    (tmp_path / "s.toml").write_text(SCENE.format(body="", extra=""))
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    text = scene.to_toml(base=tmp_path)
+    assert "[[ct]]" in text and 'trace = "voxels"' in text
+    (tmp_path / "back.toml").write_text(text)
+    back = xray_viz.load_scene(tmp_path / "back.toml")
+    assert [v.names for v in back.volumes] == [v.names for v in scene.volumes]
+    np.testing.assert_array_equal(xray_viz.render(back).line_integral,
+                                  xray_viz.render(scene).line_integral)
+    built = dataclasses.replace(scene, volumes=(ct_volume(hu, affine, name="py"),))
+    with pytest.raises(SceneError, match="voxel volume 'py' was built in Python"):
+        built.to_toml()
+
+
+def test_the_viewer_draws_a_voxel_volume_as_its_box_and_a_slice():
+    pytest.importorskip("pyvista")
+    import trimesh
+
+    from xray_viz.viz.scene_view import plot_scene
+
+    hu, affine = ct_hu(24)
+    vol = ct_volume(hu, affine, name="ct")
+    pin = Body(name="pin", mesh=trimesh.creation.box(bounds=[[-1, -1, -3], [1, 1, 3]]), mu=1.0)
+    view = plot_scene(_scene(bodies=[pin], volumes=(vol,)), rays=None, window_size=(320, 240))
+    box = view.datasets["volume:ct:box"]
+    np.testing.assert_allclose(np.sort(box.points, axis=0), np.sort(vol.corners, axis=0))
+    assert box.n_lines == 12
+    assert float(view.datasets["volume:ct:slice"].point_data["weight"].max()) > 1.7   # bone
+    lo, hi = view.bodies_bounds
+    np.testing.assert_allclose([lo, hi], vol.bounds)          # the volume is around the pin
+    view.set_visible("bodies", False)
+    assert not view.plotter.actors["volume:ct:slice"].GetVisibility()
+    view.plotter.close()

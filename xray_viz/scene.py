@@ -1073,6 +1073,15 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     if getattr(scene, "world", None) is not None:       # the transport's medium
         doc["world"] = {"material": scene.world["material"],
                         "density": float(scene.world["density"])}
+    for vol in getattr(scene, "volumes", ()):       # voxel volumes: their [[ct]] / [[labels]]
+        if vol.table is None or vol.source_file is None:
+            raise SceneError(f"voxel volume {vol.name!r} was built in Python, not read from a "
+                             "[[ct]] or [[labels]] table: save it as NIfTI and refer to it, to "
+                             "write the scene")
+        kind, table = vol.table
+        entry = _plain(dict(table))
+        entry.update(file=_path_text(vol.source_file, base), trace="voxels")
+        doc.setdefault(kind, []).append(entry)
     return doc
 
 

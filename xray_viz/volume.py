@@ -121,6 +121,7 @@ class VoxelVolume:
         Per voxel: its density (g/cm3, a CT class traced by densities) or 1.
     materials : tuple of VoxelMaterial
     source_file : Path or None
+    table : (str, dict) or None
     """
 
     name: str
@@ -129,6 +130,9 @@ class VoxelVolume:
     weights: np.ndarray = field(repr=False)
     materials: tuple = field(repr=False)
     source_file: Path | None = None
+    #: ``(kind, table)``: the scene file's ``[[ct]]`` or ``[[labels]]`` table it was read from
+    #: (``Scene.to_dict`` writes it back); None for a volume built in Python.
+    table: tuple | None = field(repr=False, default=None)
 
     def __post_init__(self):
         where = f"{self.source_file or self.name}"
@@ -369,9 +373,13 @@ def mesh_intervals(bodies, which, origins, directions, t_max, *, axis=None):
     n = len(t_max)
     if not which:
         return np.zeros(n + 1, np.int64), np.zeros(0), np.zeros(0)
-    sub = Bodies([bodies[k] for k in which], check=False,
-                 reports=[bodies.reports[k] for k in which]) if hasattr(bodies, "reports") \
-        else Bodies([bodies[k] for k in which])
+    if isinstance(bodies, Bodies) and list(which) == list(range(len(bodies))):
+        sub = bodies                         # every body: its own set-up, kept on it
+    elif isinstance(bodies, Bodies):
+        sub = Bodies([bodies[k] for k in which], check=False,
+                     reports=[bodies.reports[k] for k in which])
+    else:
+        sub = Bodies([bodies[k] for k in which])
     hits = trace_rays(sub, origins, directions, t_min=0.0, t_max=t_max, axis=axis)
     ray, t, body = hits.ray, hits.t, hits.body
     delta = np.where(hits.entering, 1, -1)

@@ -78,6 +78,7 @@ True
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -352,7 +353,7 @@ def _read_dicom_series(folder: Path, *, hu: bool):
     return data, LPS_TO_RAS @ lps
 
 
-def read_volume(path, *, hu: bool = False) -> Volume:
+def read_volume(path, *, hu: bool = False, dtype=np.float64) -> Volume:
     """Read a label map or CT volume and its affine (voxel index -> scene mm, RAS+).
 
     Parameters
@@ -363,9 +364,12 @@ def read_volume(path, *, hu: bool = False) -> Volume:
         :func:`~xray_viz.meshes.dicom_seg.read_dicom_seg`), or a folder holding one DICOM
         series (pydicom).
     hu : bool, optional
-        Read a CT in Hounsfield units (float64; DICOM's rescale applied). Otherwise the
+        Read a CT in Hounsfield units (``dtype``; DICOM's rescale applied). Otherwise the
         values must be whole numbers (a label map): integer voxels keep their type (booleans
         become uint8), whole floats come back as int64.
+    dtype : numpy dtype, optional
+        Of a CT's values (float64 by default; the voxel tracer reads float32: HU are whole
+        numbers well within its 24 bits, and a 512 x 512 x 133 CT is half the memory).
 
     Returns
     -------
@@ -416,9 +420,9 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     if not np.all(np.isfinite(affine)) or abs(np.linalg.det(affine[:3, :3])) < 1e-12:
         raise MeshError(f"{path}: its voxel-to-world affine is degenerate or not finite")
     if hu:
-        if data.dtype != np.float64:
-            _check_widening(path, data, "the CT's", np.float64)
-        data = np.asarray(data, dtype=np.float64)
+        if data.dtype != np.dtype(dtype):
+            _check_widening(path, data, "the CT's", np.dtype(dtype))
+        data = np.asarray(data, dtype=dtype)
         if not np.all(np.isfinite(data)):
             raise MeshError(f"{path}: the CT holds NaN or infinite values")
     else:
@@ -1120,7 +1124,7 @@ def _trace_mode(raw, where, table):
 
 def _read_for_voxels(path, where, *, hu):
     try:
-        return read_volume(path, hu=hu)
+        return read_volume(path, hu=hu, dtype=np.float32)
     except XrayVizError as exc:
         raise type(exc)(f"{where}: {exc}") from None
 
@@ -1169,8 +1173,9 @@ def _labels_bodies(raw, k, base_dir, file, cache, body):
             warnings.warn(f"{where}: {path.name}: label{'s' * (len(skipped) > 1)} "
                           f"{', '.join(map(str, skipped))} not in 'materials': skipped (empty)",
                           LabelSkippedWarning, stacklevel=4)
-        return [label_volume(vol.data, vol.affine, entries, name=_stem(path), source_file=path,
-                             names={v: e["name"] for v, e in entries.items() if "name" in e})]
+        made = label_volume(vol.data, vol.affine, entries, name=_stem(path), source_file=path,
+                            names={v: e["name"] for v, e in entries.items() if "name" in e})
+        return [dataclasses.replace(made, table=("labels", dict(raw)))]
     max_error = _max_error(raw, where)
     try:
         meshes = label_surfaces(path, sorted(entries), max_error=max_error, cache=cache,
@@ -1231,8 +1236,9 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
         else:
             table = None
         try:
-            return [ct_volume(vol.data, vol.affine, name=_stem(path), ranges=table,
-                              source_file=path)]
+            made = ct_volume(vol.data, vol.affine, name=_stem(path), ranges=table,
+                             source_file=path)
+            return [dataclasses.replace(made, table=("ct", dict(raw)))]
         except SceneError as exc:
             _fail(where, str(exc))
     median = raw.get("median", 1)

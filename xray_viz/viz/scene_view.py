@@ -292,10 +292,11 @@ class SceneView:
     def bodies_bounds(self):
         """``(lo, hi)``, the (3,) corners of the box around all bodies (the detector's if
         there are none)."""
-        if self.scene.bodies:
-            lo = np.min([b.vertices.min(axis=0) for b in self.scene.bodies], axis=0)
-            hi = np.max([b.vertices.max(axis=0) for b in self.scene.bodies], axis=0)
-            return lo, hi
+        volumes = getattr(self.scene, "volumes", ())
+        if self.scene.bodies or volumes:
+            boxes = [(b.vertices.min(axis=0), b.vertices.max(axis=0)) for b in self.scene.bodies]
+            boxes += [tuple(v.bounds) for v in volumes]      # voxel volumes (issue 40)
+            return np.min([a for a, _ in boxes], axis=0), np.max([b for _, b in boxes], axis=0)
         vp = self.viewport
         corners = np.array([vp.LHC, vp.LHC + vp.HO + vp.VE])
         return corners.min(axis=0), corners.max(axis=0)
@@ -323,7 +324,9 @@ class SceneView:
 
     def _group_names(self, group):
         if group == "bodies":
-            return tuple(f"body:{b.name}" for b in self.scene.bodies)
+            return tuple(f"body:{b.name}" for b in self.scene.bodies) + tuple(
+                f"volume:{v.name}{part}" for v in getattr(self.scene, "volumes", ())
+                for part in (":box", ":slice"))
         return GROUPS[group]
 
     def set_visible(self, group: str, visible: bool) -> None:
@@ -390,6 +393,33 @@ class SceneView:
             drawn[name] = key
         self._drawn_bodies = drawn
         self.material_colors = labels
+        for vol in getattr(self.scene, "volumes", ()):
+            self._draw_volume(vol)
+
+    def _draw_volume(self, vol):
+        """A voxel volume (issue 40): its grid's box and its middle slice across the last
+        index axis, coloured by the voxels' weights (densities, g/cm3, for a CT)."""
+        import pyvista as pv
+
+        c = vol.corners                       # corner order: i, then j, then k (bits 2, 1, 0)
+        edges = [(a, b) for a in range(8) for b in range(a + 1, 8)
+                 if bin(a ^ b).count("1") == 1]
+        lines = np.hstack([[2, a, b] for a, b in edges])
+        self._add(f"volume:{vol.name}:box", pv.PolyData(c, lines=lines), group="bodies",
+                  color="black", line_width=1)
+        ni, nj, nk = vol.shape
+        step = max(1, max(ni, nj) // 256)     # at most 256 x 256 points drawn
+        i, j = np.meshgrid(np.arange(0, ni, step), np.arange(0, nj, step), indexing="ij")
+        k = nk // 2
+        idx = np.stack([i, j, np.full_like(i, k)], axis=-1).reshape(-1, 3).astype(float)
+        pts = idx @ vol.affine[:3, :3].T + vol.affine[:3, 3]
+        grid = pv.StructuredGrid()
+        grid.points = pts
+        grid.dimensions = (i.shape[1], i.shape[0], 1)
+        grid.point_data["weight"] = np.asarray(vol.weights[::step, ::step, k],
+                                               dtype=np.float64).ravel()
+        self._add(f"volume:{vol.name}:slice", grid, group="bodies", scalars="weight",
+                  cmap="gray", show_scalar_bar=False, opacity=0.8)
 
     def _draw_source(self):
         marker = shapes.source_marker(self.viewport.r0, radius=0.4 * self.size_scale)
