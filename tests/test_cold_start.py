@@ -359,7 +359,8 @@ def test_every_submodule_is_an_attribute_without_an_import():
     the package imported everything (walkthrough 08 does this): each public module on disk is
     reached by attribute access in a fresh process and is imported only then."""
     pkg = os.path.dirname(xray_viz.__file__)
-    functions = {"render", "scan", "reconstruct"}     # modules whose attribute is their function
+    # modules whose attribute is their function
+    functions = {"render", "scan", "reconstruct", "transport"}
     on_disk = {n[:-3] if n.endswith(".py") else n for n in os.listdir(pkg)
                if not n.startswith("_") and (n.endswith(".py")
                                              or os.path.isfile(os.path.join(pkg, n, "__init__.py")))}

@@ -57,8 +57,9 @@ def test_deep_poses_file_is_one_line(tmp_path):
 
 
 def test_deep_image_metadata_and_embedded_scene(tmp_path):
-    """An image whose metadata JSON is nested too deep reads as one without metadata; an
-    embedded scene nested too deep is refused in one line."""
+    """An image whose metadata JSON is nested too deep is refused in one line as damaged
+    (its metadata cannot be read, so the file cannot be trusted); an embedded scene nested too
+    deep is refused in one line."""
     from PIL import Image, PngImagePlugin
 
     from xray_viz.output import ImageMetadata, OutputError, load_image
@@ -66,8 +67,9 @@ def test_deep_image_metadata_and_embedded_scene(tmp_path):
     info = PngImagePlugin.PngInfo()
     info.add_text("xray_viz", "[" * DEPTH + "]" * DEPTH)
     Image.fromarray(np.zeros((4, 4), np.uint16)).save(tmp_path / "deep.png", pnginfo=info)
-    image, meta = load_image(tmp_path / "deep.png", with_metadata=True)
-    assert image.shape == (4, 4) and meta.quantity is None
+    with pytest.raises(OutputError, match="metadata are damaged") as info:
+        load_image(tmp_path / "deep.png", with_metadata=True)
+    assert "\n" not in str(info.value)
     meta = ImageMetadata(".png", scene_toml="a = " + "[" * DEPTH + "]" * DEPTH)
     with pytest.raises(OutputError, match="embedded scene is nested too deeply"):
         meta.scene()
@@ -90,7 +92,8 @@ SCENE = ('[source]\nposition = [0.0, 0.0, 1000.0]\nenergy = 60.0\n[detector]\n'
 @pytest.mark.parametrize("median", [1000, 10, 2**40])
 def test_ct_median_too_large_is_one_line(tmp_path, capsys, ct_file, median):
     scene = tmp_path / "scene.toml"
-    scene.write_text(SCENE + f'[[ct]]\nfile = "{ct_file.as_posix()}"\nmedian = {median}\n')
+    scene.write_text(SCENE + f'[[ct]]\nfile = "{ct_file.as_posix()}"\ntrace = "meshes"\n'
+                     f'median = {median}\n')
     assert main(["render", str(scene), "-o", str(tmp_path / "out.npy")]) == 2
     line = _one_line(capsys)
     assert f"median = {median} is too large" in line and "[[ct]]" in line, line

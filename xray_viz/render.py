@@ -205,9 +205,8 @@ class Radiograph:
         a = self.quantity(quantity)
         h, w = a.shape
         extent = None
-        detector = getattr(self.scene, "detector", None)
-        if detector is not None:
-            pu, pv = np.broadcast_to(np.asarray(detector.pitch, dtype=float), (2,))
+        if self.scene is not None:
+            pu, pv = np.broadcast_to(np.asarray(self.scene.detector.pitch, dtype=float), (2,))
             extent = (-w * pu / 2, w * pu / 2, -h * pv / 2, h * pv / 2)
             ax.set_xlabel("u (mm)")
             ax.set_ylabel("v (mm)")
