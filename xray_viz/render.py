@@ -430,7 +430,7 @@ def _check_transmission(log_t):
 def available_memory() -> int | None:
     """Bytes of memory this process may still take, or None where that is not known: the
     least of the machine's ``MemAvailable``, the process's ``RLIMIT_AS`` / ``RLIMIT_DATA``
-    and its control group's limit (:func:`xray_viz._memory.available_memory`)."""
+    and its control group's limit (``xray_viz._memory.available_memory``)."""
     from xray_viz._memory import available_memory as limit
 
     return limit()
@@ -650,7 +650,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
 
 def scene_projector(scene, engine: str = "fast"):
     """The :class:`~xray_viz.tracing.engines.Projector` of a scene's bodies, or with voxel
-    volumes (``scene.volumes``) a :class:`~xray_viz.volume.VolumeProjector`: the volumes'
+    volumes (``scene.volumes``) a ``xray_viz.volume.VolumeProjector``: the volumes'
     classes as columns after the bodies' (:func:`_names`).
 
     Examples
