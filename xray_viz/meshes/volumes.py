@@ -399,6 +399,10 @@ def read_volume(path, *, hu: bool = False) -> Volume:
     require_regular(path, MeshError, "volume file")
     name = path.name.lower()
     if path.is_dir():
+        if not hu:          # an image series, never labels: read as labels it meshes raw HU
+            raise MeshError(f"{path}: a folder of DICOM slices is a CT (an image in HU), not a "
+                            "label map: give it as a CT (`xray-viz mesh FOLDER --ct`, a [[ct]] "
+                            "table); a DICOM label map is one DICOM-SEG .dcm file")
         data, affine = _read_dicom_series(path, hu=hu)
     elif name.endswith(NIFTI_SUFFIXES):
         data, affine = _read_nifti(path, hu=hu)
@@ -428,6 +432,11 @@ def read_volume(path, *, hu: bool = False) -> Volume:
         elif data.dtype.kind not in "iub":
             raise MeshError(f"{path}: not a label map: voxels of type {data.dtype}")
         data = np.asarray(data, dtype=np.int64)
+        if data.size and int(data.min()) < 0:
+            raise MeshError(f"{path}: not a label map: negative values (down to "
+                            f"{int(data.min())}); labels are whole numbers >= 0. A CT in "
+                            "Hounsfield units (air -1000) is given as a CT: `xray-viz mesh IN "
+                            "--ct`, a [[ct]] table")
     return Volume(data=data, affine=affine, path=path)
 
 
