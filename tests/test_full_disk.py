@@ -26,7 +26,6 @@ def _limited():
 
 @pytest.mark.parametrize("argv, out", [
     (["scan", "sphere", "--projections", "8", "-o", "{d}/x.nxs"], "x.nxs"),
-    (["scan", "sphere", "--projections", "8", "-o", "{d}/x.h5"], "x.h5"),
     (["render", "sphere", "-o", "{d}/x.h5", "--shape", "512", "512"], "x.h5"),
 ])
 def test_hdf5_where_there_is_no_room(tmp_path, argv, out):

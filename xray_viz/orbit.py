@@ -116,6 +116,9 @@ class Orbit:
         object.__setattr__(self, "center", _vector(self.center, "center", "[scan] "))
         if self.kind == "circular" and self.pitch != 0:
             raise SceneError(f"[scan] pitch = {self.pitch:g} needs orbit = \"helical\"")
+        if self.kind == "helical" and self.pitch == 0:
+            raise SceneError("[scan] orbit = \"helical\" needs pitch (mm per turn, not 0): "
+                             "without it the orbit is a circle; say orbit = \"circular\"")
         if self.random is not None:
             rnd = self.random if isinstance(self.random, RandomPoses) \
                 else RandomPoses.from_dict(self.random)
@@ -497,6 +500,12 @@ def orbit_from_dict(table, *, base_dir=".", file=None) -> Orbit:
                                         "start") if k in table}
         poses = table.get("poses")
         kind = table.get("orbit", "poses" if poses is not None else "circular")
+        if kind == "poses":                  # each pose says where source and detector are
+            for key in ("arc", "pitch", "start"):
+                if key in table:
+                    raise SceneError(f"[scan] {key} = {table[key]!r} does not apply to a poses "
+                                     "orbit (each pose places the source and detector); "
+                                     f"remove it, or use orbit = \"circular\"/\"helical\"")
         if poses is not None:
             if kind != "poses":
                 raise SceneError(f"[scan] poses are given, so orbit must be \"poses\" "

@@ -1711,6 +1711,9 @@ def _cli_orbit(scene, args) -> Orbit:
     if table.get("orbit") in ("circular", "helical"):
         table.pop("poses", None)
     if table.get("orbit") == "circular" and args.orbit == "circular":
+        if args.pitch:                       # not dropped without a word
+            raise SceneError(f"--pitch {args.pitch:g} does not apply to --orbit circular (a "
+                             "circle has no pitch): use --orbit helical")
         table["pitch"] = 0.0
     if table.get("orbit") == "helical" and "pitch" not in table:
         raise SceneError("--orbit helical needs --pitch (mm per turn)")

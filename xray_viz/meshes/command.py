@@ -34,6 +34,9 @@ WRITE_SUFFIXES = (".stl", ".ply", ".obj", ".off")
 
 #: Relative change of the enclosed volume by decimation above which the report warns.
 VOLUME_TOLERANCE = 0.03
+#: More distinct labels than this in a "label map" is an image's grey values (a CT without
+#: --ct), not an atlas's structures (the largest atlases label a few hundred).
+MAX_LABELS = 1000
 
 _DESCRIPTION = """\
 Repair a triangle mesh so that it can be traced, optionally decimate it, and write it.
@@ -327,6 +330,9 @@ def volume_mesh_command(args, *, stdout=None) -> int:
         labels = [int(v) for v in np.unique(vol.read_volume(src).data) if v != 0]
         if not labels:
             raise MeshError(f"{src}: no labels (every voxel is 0, the background)")
+        if len(labels) > MAX_LABELS:         # a CT's grey values, not an atlas's structures
+            raise MeshError(f"{src}: {len(labels)} different labels: this looks like an image "
+                            "(a CT), not a label map; mesh a CT with --ct")
         result = vol.label_surfaces(src, labels, max_error=max_error)
         materials = {}
     stem = vol._stem(src)

@@ -104,7 +104,7 @@ __all__ = [
     "Volume", "LabelSurface", "VolumeMeshes", "read_volume", "voxel_surface", "mesh_mask",
     "smoothing_limit",
     "label_surfaces",
-    "ct_surfaces", "classify_hu", "volume_bodies", "is_volume_path", "cache_dir",
+    "ct_surfaces", "classify_hu", "check_hounsfield", "volume_bodies", "is_volume_path", "cache_dir",
     "SCHNEIDER_2000", "VOLUME_SUFFIXES", "LabelSkippedWarning", "VolumeCacheWarning",
     "LPS_TO_RAS",
 ]
@@ -402,6 +402,10 @@ def read_volume(path, *, hu: bool = False, dtype=np.float64) -> Volume:
     require_regular(path, MeshError, "volume file")
     name = path.name.lower()
     if path.is_dir():
+        if not hu:          # an image series, never labels: read as labels it meshes raw HU
+            raise MeshError(f"{path}: a folder of DICOM slices is a CT (an image in HU), not a "
+                            "label map: give it as a CT (`xray-viz mesh FOLDER --ct`, a [[ct]] "
+                            "table); a DICOM label map is one DICOM-SEG .dcm file")
         data, affine = _read_dicom_series(path, hu=hu)
     elif name.endswith(NIFTI_SUFFIXES):
         data, affine = _read_nifti(path, hu=hu)
@@ -438,6 +442,11 @@ def read_volume(path, *, hu: bool = False, dtype=np.float64) -> Volume:
             raise MeshError(f"{path}: not a label map: voxels of type {data.dtype}")
         # integer labels keep their own type: a uint8 map of 768^3 voxels stays 0.4 GiB
         # (as int64 it would take 3.4 GiB)
+        if data.size and data.dtype.kind == "i" and int(data.min()) < 0:
+            raise MeshError(f"{path}: not a label map: negative values (down to "
+                            f"{int(data.min())}); labels are whole numbers >= 0. A CT in "
+                            "Hounsfield units (air -1000) is given as a CT: `xray-viz mesh IN "
+                            "--ct`, a [[ct]] table")
     return Volume(data=data, affine=affine, path=path)
 
 
@@ -977,6 +986,36 @@ def classify_hu(hu, ranges=SCHNEIDER_2000, *, median: int = 1, min_voxels: int =
     return classes
 
 
+def check_hounsfield(hu, path) -> None:
+    """Refuse a CT whose values cannot be Hounsfield units, before it is classified.
+
+    A CT in HU spans air (-1000) to tissue and bone (0 to 1000s). Two common mistakes
+    classify into one body of adipose or soft tissue without a word: a volume of linear
+    attenuation coefficients (mu in 1/cm, 0 to about 0.6: a span of a fraction of one HU) and
+    stored values without the scanner's rescale (``RescaleIntercept = -1024`` not applied: no
+    voxel below 0, air at about 0). Both are refused in one line saying which it looks like.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> check_hounsfield(np.array([-1000.0, 0.0, 40.0, 900.0]), "ct.nii")
+    >>> check_hounsfield(np.array([0.0, 0.19, 0.5]), "ct.nii")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    xray_viz.errors.MeshError: ct.nii: its values span only 0 .. 0.5: not Hounsfield units ...
+    """
+    lo, hi = float(np.min(hu)), float(np.max(hu))
+    if hi - lo < 100.0 and lo > -500.0:     # (air alone, -1000 HU, is HU: it makes no body)
+        raise MeshError(f"{path}: its values span only {lo:.4g} .. {hi:.4g}: not Hounsfield "
+                        "units (air -1000, water 0, bone several hundred); a CT of mu (1/cm) or "
+                        "of normalised values must be converted to HU first: "
+                        "HU = 1000 (mu - mu_water) / mu_water")
+    if lo >= 0.0 and hi >= 1000.0:
+        raise MeshError(f"{path}: no voxel below 0 (values {lo:.4g} .. {hi:.4g}): air is -1000 "
+                        "HU, so these look like stored values without the scanner's rescale "
+                        "(RescaleSlope/RescaleIntercept, typically -1024): apply it first")
+
+
 def ct_surfaces(path, ranges=SCHNEIDER_2000, *, max_error: float | None = None,
                 median: int = 1, min_voxels: int = 27, cache: bool = True) -> VolumeMeshes:
     """One closed surface per HU class of a CT (see :func:`classify_hu`), in scene mm.
@@ -999,6 +1038,7 @@ def ct_surfaces(path, ranges=SCHNEIDER_2000, *, max_error: float | None = None,
     """
     path = Path(path)
     vol = read_volume(path, hu=True)
+    check_hounsfield(vol.data, path)
     stem = _stem(path)
     max_error = _default_max_error(vol.spacing) if max_error is None else float(max_error)
     table = [tuple(r[:3]) for r in ranges]
@@ -1187,6 +1227,9 @@ def _labels_bodies(raw, k, base_dir, file, cache, body):
         warnings.warn(f"{where}: {path.name}: label{'s' * (len(sk) > 1)} "
                       f"{', '.join(map(str, sk))} not in 'materials': skipped (no body)",
                       LabelSkippedWarning, stacklevel=4)
+    if not meshes.surfaces:
+        _fail(where, f"{path.name}: no body: none of the labels {sorted(entries)} given in "
+                     "'materials' has voxels in the label map")
     return _make_bodies(meshes, entries, path, where, body)
 
 
@@ -1254,6 +1297,10 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
                              min_voxels=min_voxels, cache=cache)
     except XrayVizError as exc:
         raise type(exc)(f"{where}: {exc}") from None
+    if not meshes.surfaces:                  # a blank image, exit 0, said nothing
+        _fail(where, f"{path.name}: no body: no HU class holds {min_voxels} connected voxels "
+                     f"or more (the ranges: {', '.join(f'{n} {lo:g}..{hi:g}' for n, lo, hi in ranges)}"
+                     "); check the CT's values and the ranges, or lower min_voxels")
     return _make_bodies(meshes, entries, path, where, body)
 
 
