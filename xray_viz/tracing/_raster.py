@@ -350,6 +350,57 @@ def _tie(ex, ey):
     return 0
 
 
+# The coverage primitive, written once: a fine-grid sample ``p`` (fixed point) is inside the
+# projected triangle ``a, b, c`` of orientation ``o`` (+-1) when each edge function
+# ``E_k = o * (e_k x (p - start of edge k))`` (:func:`_edge_function`, edges a->b, b->c, c->a:
+# :func:`_edges`) is at least the edge's tie bias (:func:`_tie_biases`: 0 or 1, so that a sample
+# exactly on an edge shared by two triangles belongs to one of them). SMALL triangles evaluate
+# the edge functions in int64 (stepped along a row by the callers), GIANT ones take their exact
+# signs (:func:`_inside_exact`). Scalars only, so that LLVM inlines every one of them.
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edges(ax, ay, bx, by, cx, cy):
+    """The edge vectors ``b - a``, ``c - b``, ``a - c`` of a projected triangle, as
+    ``(e0x, e0y, e1x, e1y, e2x, e2y)``."""
+    return bx - ax, by - ay, cx - bx, cy - by, ax - cx, ay - cy
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _orientation(e0x, e0y, ax, ay, cx, cy, small):
+    """Sign (+-1, 0 for no area) of the projected triangle's area ``e0 x (c - a)``: int64 for
+    a SMALL triangle, exact limbs otherwise."""
+    if small:
+        area = e0x * (cy - ay) - e0y * (cx - ax)
+        return np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
+    return np.int64(exact_cross_sign(e0x, cy - ay, e0y, cx - ax))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y):
+    """The tie rule: per edge, the least edge function (times ``o``) of a covered sample, 0
+    where a sample exactly on the edge is inside (:func:`_tie`), else 1."""
+    return (0 if o * _tie(e0x, e0y) > 0 else 1, 0 if o * _tie(e1x, e1y) > 0 else 1,
+            0 if o * _tie(e2x, e2y) > 0 else 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_function(ex, ey, dx, dy):
+    """``e x d = ex * dy - ey * dx``: the edge function of edge ``e`` at the sample ``d`` away
+    from the edge's start (int64; exact when the triangle is SMALL)."""
+    return ex * dy - ey * dx
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _inside_exact(o, px, py, ax, ay, bx, by, cx, cy, e0x, e0y, e1x, e1y, e2x, e2y, bias0, bias1,
+                  bias2):
+    """Whether sample ``(px, py)`` is inside a GIANT triangle, with the tie rule: each edge
+    function's exact sign (:func:`exact_cross_sign`) times ``o`` at least its bias."""
+    return (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
+            and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
+            and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _side_value(V, i, r0, planes, k):
     """``n . (V[:, i] - r0) - c`` for side plane ``k`` of the beam, and its rounding scale."""
@@ -481,14 +532,9 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             if not depth_ok and (huge[i0] or huge[i1] or huge[i2]):
                 status[t] = ERR_TOO_CLOSE
                 continue
-            ext = max(xmax - xmin, ymax - ymin)
-            if ext < SAFE_EXTENT:
-                area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
-                o = 1 if area > 0 else (-1 if area < 0 else 0)
-                kind = SMALL
-            else:
-                o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
-                kind = GIANT
+            small = max(xmax - xmin, ymax - ymin) < SAFE_EXTENT
+            kind = SMALL if small else GIANT
+            o = _orientation(bx_ - ax, by_ - ay, ax, ay, cx, cy, small)
             if o == 0:
                 continue  # zero projected area: never hit
             status[t] = kind * o
@@ -656,17 +702,10 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                 wmax = max(w0, max(w1, w2))
                 # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
                 # E > 0).
-                e0x = bx - ax
-                e0y = by - ay
-                e1x = cx - bx
-                e1y = cy - by
-                e2x = ax - cx
-                e2y = ay - cy
+                e0x, e0y, e1x, e1y, e2x, e2y = _edges(ax, ay, bx, by, cx, cy)
                 # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
                 # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
-                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                bias0, bias1, bias2 = _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y)
                 if small and X1 - X0 <= 3 and y1 - y0 <= 3:
                     # A box of at most 4 x 4 samples (most of a fine mesh's): its covered
                     # samples as the bits of a mask, the edge functions at all 16 places
@@ -674,9 +713,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     # (the same hits, in the same order, as the rows below).
                     px = X0 * ONE
                     py = y0 * ONE
-                    E0 = o * (e0x * (py - ay) - e0y * (px - ax))
-                    E1 = o * (e1x * (py - by) - e1y * (px - bx))
-                    E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+                    E0 = o * _edge_function(e0x, e0y, px - ax, py - ay)
+                    E1 = o * _edge_function(e1x, e1y, px - bx, py - by)
+                    E2 = o * _edge_function(e2x, e2y, px - cx, py - cy)
                     sx0 = -o * e0y * ONE
                     sx1 = -o * e1y * ONE
                     sx2 = -o * e2y * ONE
@@ -710,9 +749,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     stepx2 = -o * e2y * ONE
                     for Y in range(y0, y1 + 1):
                         py = Y * ONE
-                        E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
-                        E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
-                        E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+                        E0 = o * _edge_function(e0x, e0y, px0 - ax, py - ay)
+                        E1 = o * _edge_function(e1x, e1y, px0 - bx, py - by)
+                        E2 = o * _edge_function(e2x, e2y, px0 - cx, py - cy)
                         for X in range(X0, X1 + 1):
                             # Every sample of the row is stored and kept (nh moves on) when
                             # it is covered: no branch to mispredict at the triangle's edges
@@ -731,11 +770,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     for Y in range(y0, y1 + 1):
                         py = Y * ONE
                         for X in range(X0, X1 + 1):
-                            px = X * ONE
-                            s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
-                            s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
-                            s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
-                            if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                            if _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
+                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                                 if Wd <= FL:
                                     hk[np.uint64(nh)] = (Y - r0) * nW + X
@@ -1131,12 +1167,12 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 # against three of a 64-bit vpmullq): 0.93-0.96x this raster at 1.3M faces.
                 px = X0 * ONE
                 py = Y0 * ONE
-                E0 = _i32((bx - ax) if one else 0) * _i32((py - ay) if one else 0) - _i32(
-                    (by - ay) if one else 0) * _i32((px - ax) if one else 0)
-                E1 = _i32((cx - bx) if one else 0) * _i32((py - by) if one else 0) - _i32(
-                    (cy - by) if one else 0) * _i32((px - bx) if one else 0)
-                E2 = _i32((ax - cx) if one else 0) * _i32((py - cy) if one else 0) - _i32(
-                    (ay - cy) if one else 0) * _i32((px - cx) if one else 0)
+                E0 = _edge_function(_i32((bx - ax) if one else 0), _i32((by - ay) if one else 0),
+                                    _i32((px - ax) if one else 0), _i32((py - ay) if one else 0))
+                E1 = _edge_function(_i32((cx - bx) if one else 0), _i32((cy - by) if one else 0),
+                                    _i32((px - bx) if one else 0), _i32((py - by) if one else 0))
+                E2 = _edge_function(_i32((ax - cx) if one else 0), _i32((ay - cy) if one else 0),
+                                    _i32((px - cx) if one else 0), _i32((py - cy) if one else 0))
                 # E0 + E1 + E2 is the projected area: all one sign -> inside, and that sign is
                 # the orientation; mixed signs -> outside (or zero area). A zero: general path.
                 decided = one & (E0 != 0) & (E1 != 0) & (E2 != 0)
@@ -1220,14 +1256,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                     if huge[i0] or huge[i1] or huge[i2]:
                         err[c] = t
                         continue
-                ext = max(xmax - xmin, ymax - ymin)
-                small = ext < SAFE_EXTENT
-                e0x = bx - ax
-                e0y = by - ay
-                e1x = cx - bx
-                e1y = cy - by
-                e2x = ax - cx
-                e2y = ay - cy
+                small = max(xmax - xmin, ymax - ymin) < SAFE_EXTENT
+                e0x, e0y, e1x, e1y, e2x, e2y = _edges(ax, ay, bx, by, cx, cy)
                 if small and X0 == X1 and Y0 == Y1:
                     # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0). Apart
                     # from the rows below (which give it the same bits) because it needs no
@@ -1235,9 +1265,9 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                     # is 1.22x slower through the rows.
                     px = X0 * ONE
                     py = Y0 * ONE
-                    E0 = e0x * (py - ay) - e0y * (px - ax)
-                    E1 = e1x * (py - by) - e1y * (px - bx)
-                    E2 = e2x * (py - cy) - e2y * (px - cx)
+                    E0 = _edge_function(e0x, e0y, px - ax, py - ay)
+                    E1 = _edge_function(e1x, e1y, px - bx, py - by)
+                    E2 = _edge_function(e2x, e2y, px - cx, py - cy)
                     if E0 != 0 and E1 != 0 and E2 != 0:
                         # E0 + E1 + E2 is the projected area: all one sign -> inside, and that
                         # sign is the orientation; mixed signs -> outside (or zero area).
@@ -1259,17 +1289,11 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
                         Sc[np.uint64(Y0), np.uint64(X0)] += sgn * Wd
                         continue
-                if small:
-                    area = e0x * (cy - ay) - e0y * (cx - ax)
-                    o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
-                else:
-                    o = np.int64(exact_cross_sign(e0x, cy - ay, e0y, cx - ax))
+                o = _orientation(e0x, e0y, ax, ay, cx, cy, small)
                 if o == 0:
                     continue
                 sgn = -1.0 if o > 0 else 1.0            # entering: minus its depth
-                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                bias0, bias1, bias2 = _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y)
                 if small:
                     # Every sample of the box: its depth, then added (or 0 added) by whether
                     # it is covered, without a branch to mispredict at the triangle's edges
@@ -1284,9 +1308,9 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
                     for Y in range(Y0, Y1 + 1):
                         py = Y * ONE
-                        E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax))
-                        E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx))
-                        E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx))
+                        E0 = o * _edge_function(e0x, e0y, X0 * ONE - ax, py - ay)
+                        E1 = o * _edge_function(e1x, e1y, X0 * ONE - bx, py - by)
+                        E2 = o * _edge_function(e2x, e2y, X0 * ONE - cx, py - cy)
                         for X in range(X0, X1 + 1):
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                             kept = (E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
@@ -1306,10 +1330,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 for Y in range(Y0, Y1 + 1):
                     py = Y * ONE
                     for X in range(X0, X1 + 1):
-                        px = X * ONE
-                        if not (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
-                                and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
-                                and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2):
+                        if not _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
+                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
                             continue
                         if not have_plane:
                             have_plane = True
