@@ -9,8 +9,8 @@ covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracin
 
 Vertices are coordinate-major, ``V`` of shape ``(3, n_vertices)`` (x, y and z each contiguous),
 as the per-mesh set-up (:func:`spatial_order`) writes them: the projection's loops then read
-them with plain vector loads (0.66-0.69x its time against ``(n_vertices, 3)`` rows at 1.3M
-faces); a triangle's plane reads its three vertices' coordinates from the three rows.
+them with plain vector loads (``benchmarks/notes/kernels.md``); a triangle's plane reads its
+three vertices' coordinates from the three rows.
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
     ``Vout[:, rank[i]] = V[i]`` (``Vout`` coordinate-major, ``(3, n)``) and ``Fout`` receives
     the faces, renumbered, in the order visited (outputs of length 0 are not written; with
     ``spatial``, ``Fout`` is needed). Indices read from memory are made unsigned where they
-    index (no negative-index fix-up, see :func:`_faces`: 0.93x). Scratch (``spatial`` only,
+    index (no negative-index fix-up, see :func:`_faces`). Scratch (``spatial`` only,
     int64): ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt`` (V + 1), ``hist`` (3 x 1025,
     zeros).
     """
@@ -275,8 +275,8 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
             xi[j] = np.int64(np.floor((x if ok else 0.0) * ONE + 0.5))
             yi[j] = np.int64(np.floor((y if ok else 0.0) * ONE + 0.5))
             n_huge += np.int64(not ok)
-        # One output a loop, the choice of codes outside the loops: all in one loop (with
-        # ``if codes`` in it) cost the projection ~12 % more.
+        # One output a loop, the choice of codes outside the loops: one loop with ``if codes``
+        # in it is slower (``benchmarks/notes/kernels.md``).
         for j in range(m):
             XYb[j, 0] = xi[j]
             XYb[j, 1] = yi[j]
@@ -481,7 +481,7 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     the same status), as :func:`_raster_direct` does. ``kept[lo:lo + n]`` receives the
     triangles given a non-zero status other than an error, in order. ``counts[b]`` receives
     how many of them meet the rows of band ``b`` (``band_of[Y]`` is the band of sample row
-    Y: a look-up, not two divisions, which cost this loop 25 %).
+    Y: a look-up, not two divisions, which are slower).
 
     Returns ``(lo, n, tris)``: ``tris`` lists, band after band, the kept triangles that meet
     each band's rows, each band's in triangle order (band ``b``'s are ``tris[s[b]:s[b] +
@@ -545,7 +545,7 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             kept[lo + n] = t
             n += 1
             # The first band apart: the loop over the others (most triangles meet one band)
-            # is then mostly empty, not a loop of one to mispredict at its end (0.93x).
+            # is then mostly empty, not a loop of one to mispredict at its end.
             bf = band_of[Y0]
             counts[bf] += 1
             for b in range(bf + 1, band_of[Y1] + 1):
@@ -635,8 +635,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     npix_max = band_height * nW
     pieces = band_start.shape[0]
     cap = 1024
-    # Unsigned, as the faces (:func:`_faces`): indices without numba's negative-index fix-up
-    # (the frog's raster 0.95-0.97x).
+    # Unsigned, as the faces (:func:`_faces`): indices without numba's negative-index fix-up.
     hk = np.empty(cap, np.uint32)         # sample of each hit (index in the band)
     hw = np.empty(cap, np.float64)        # its depth
     hb = np.empty(cap, np.uint32)         # body * 2 + entering
@@ -651,7 +650,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
         r1 = min(nH, r0 + band_height) - 1
         npix = (r1 - r0 + 1) * nW
         # Room for every sample of the band's boxes (one triangle's with ``single``), made
-        # before the band: buffers grown inside the triangle loop cost that loop ~15 %.
+        # before the band: numba keeps buffers grown inside the triangle loop live through it.
         need = np.int64(0)
         for c in range(pieces):
             for idx in range(band_start[c, b], band_start[c, b + 1]):
@@ -754,8 +753,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                         E2 = o * _edge_function(e2x, e2y, px0 - cx, py - cy)
                         for X in range(X0, X1 + 1):
                             # Every sample of the row is stored and kept (nh moves on) when
-                            # it is covered: no branch to mispredict at the triangle's edges
-                            # (0.85x the raster of the frog). The room made for the band
+                            # it is covered: no branch to mispredict at the triangle's edges.
+                            # The room made for the band
                             # counts every sample of its boxes.
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                             hk[np.uint64(nh)] = (Y - r0) * nW + X
@@ -791,7 +790,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
             continue
         # The band's rays (whole pixel rows j0..j1, Y up; image rows down) start at zero:
         # ``L`` need not arrive zeroed (a reused buffer), and the rows are then in the cache.
-        # A slice assignment (a memset): 0.9x the time of the loop over rays and bodies.
+        # A slice assignment (a memset), quicker than a loop over rays and bodies.
         j0 = r0 // n
         j1 = r1 // n
         L[(H - 1 - j1) * W * n * n - ray0:(H - j0) * W * n * n - ray0] = 0.0
@@ -813,8 +812,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
             bb[np.uint64(j)] = hb[i]
         # cnt[p] is now the end of sample p's hits (the start of p + 1's).
         # Unsigned indices where they are read from memory or counted (``nh``, ``j``, ``i``
-        # from ``cnt``): numba adds a negative-index fix-up to a signed one (the frog's raster
-        # 0.90x without them); the sample's X, Y kept alongside p, not divided out of it.
+        # from ``cnt``): numba adds a negative-index fix-up to a signed one; the sample's X, Y
+        # kept alongside p, not divided out of it.
         start = 0
         Xp = -1
         Yp = r0
@@ -1087,8 +1086,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
 
     Indices read from memory (``F``'s vertex numbers, the block's lists) or counted are
     unsigned (or made so where they index): numba then indexes without the fix-up of negative
-    indices that it adds for signed ones (a compare and select each, which made the gathers
-    of the cell codes 1.6x slower): the raster 0.80x at 1.3M faces, 0.87x at 82k.
+    indices that it adds for signed ones (a compare and select each, which slows the gathers
+    of the cell codes most; ``benchmarks/notes/kernels.md``).
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -1164,7 +1163,7 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 # unless the box is small, so that no product can overflow. Every factor is
                 # then below 2**30 in magnitude (p lies in the box): through int32
                 # (:func:`_i32`), LLVM multiplies 32 x 32 -> 64 bits (vpmuldq, one uop,
-                # against three of a 64-bit vpmullq): 0.93-0.96x this raster at 1.3M faces.
+                # against three of a 64-bit vpmullq).
                 px = X0 * ONE
                 py = Y0 * ONE
                 E0 = _edge_function(_i32((bx - ax) if one else 0), _i32((by - ay) if one else 0),
@@ -1261,8 +1260,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 if small and X0 == X1 and Y0 == Y1:
                     # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0). Apart
                     # from the rows below (which give it the same bits) because it needs no
-                    # orientation or tie rule: the scalar path (depth_ok False) at 1.3M faces
-                    # is 1.22x slower through the rows.
+                    # orientation or tie rule, and the scalar path (depth_ok False) is slower
+                    # through the rows.
                     px = X0 * ONE
                     py = Y0 * ONE
                     E0 = _edge_function(e0x, e0y, px - ax, py - ay)
@@ -1296,8 +1295,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 bias0, bias1, bias2 = _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y)
                 if small:
                     # Every sample of the box: its depth, then added (or 0 added) by whether
-                    # it is covered, without a branch to mispredict at the triangle's edges
-                    # (0.85x the raster of 82k faces at 512 x 512). Adding 0.0 to a sum
+                    # it is covered, without a branch to mispredict at the triangle's edges.
+                    # Adding 0.0 to a sum
                     # that starts at +0.0 leaves its bits as they are.
                     if depth_ok:
                         wmin = min(w[i0], min(w[i1], w[i2]))
@@ -1490,8 +1489,8 @@ def _names(paths=None) -> list:
 #: Compile CPU seconds of each kernel beyond what a process pays for its first compile
 #: (``benchmarks/compile_profile.py --opt 1``, one process per kernel, less the ~0.5 s of
 #: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-05, the Xeon VM, after the
-#: vectorised projection and one-body raster; ``_raster_bands`` ~10 % more once it computed the
-#: planes itself), to share them out among the workers; kernels
+#: vectorised projection and one-body raster; ``_raster_bands`` re-measured once it computed
+#: the planes itself), to share them out among the workers; kernels
 #: of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 1.0,
           ("_raster_bands",): 2.5,
@@ -1517,7 +1516,7 @@ _WORKER = ("import os, sys, types, warnings\nwarnings.simplefilter('ignore')\n"
            "    R._kernel(n)\n"
            "    try:\n        print(n, flush=True)\n    except OSError:\n        pass\n")
 #: LLVM optimisation level of the workers' compiles (``NUMBA_OPT``, numba's default 3), unless
-#: the environment sets one: level 1 compiles the kernels in ~15 % less time, and the kernels
+#: the environment sets one: level 1 compiles the kernels in less time, and the kernels
 #: trace as fast and give the same bits (measured on the bundled phantoms:
 #: ``benchmarks/image_hashes.py``, ``benchmarks/notes/coldstart.md``). Level 0 cannot be
 #: cached (numba: "uses dynamic globals"). The cache does not record the level: a kernel
@@ -1544,7 +1543,7 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     needs; default all) to compile itself when it first needs them: the background process
     takes the costliest (by :data:`_COSTS`) until its share is the larger by :data:`_HEAD`, the
     head start it has while this process loads the scene. Then both processors compile what
-    the image waits for, and neither runs two compiles at once (~15 % slower each on 2
+    the image waits for, and neither runs two compiles at once (each would be slower on 2
     processors). With ``workers`` given, every kernel goes to that many background processes
     instead, shared out by cost. A background process compiles its urgent kernels first, then
     the others at a lower priority, and last this process's share (by then most likely cached:
@@ -1723,8 +1722,8 @@ def _faces(F, n_vertices):
     """Faces as the kernels take them: C-contiguous uint32 (a view of int32 faces, no copy).
 
     Unsigned, so that numba indexes the vertex arrays with them without the fix-up of a
-    negative index it adds for a signed one (a compare and a select per access: the one-body
-    raster 0.91x, the banded cull 0.88x, the banded raster 0.95x at the frog); at most
+    negative index it adds for a signed one (a compare and a select per access;
+    ``benchmarks/notes/kernels.md``); at most
     2**31 - 1 vertices and triangles, so that the int32 and uint32 views agree."""
     if len(F) >= 2**31 or (F.dtype != np.int32 and n_vertices >= 2**31):
         from xray_viz.errors import SceneError
