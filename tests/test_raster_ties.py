@@ -52,7 +52,9 @@ def _fan_frustum(kind):
     faces = []
     for k in range(8):
         a, b = 1 + k, 1 + (k + 1) % 8
-        faces.append([0, a, b])                          # front, facing the source (+z)
+        # front, facing the source (+z); vertices rotated so that each edge of the triangle
+        # (a->b, b->c, c->a: each its own tie bias) is an inner one for some triangles
+        faces.append(list(np.roll([0, a, b], k % 3)))
         faces.append([n, n + b, n + a])                  # back
         faces += [[a, a + n, b], [b, a + n, b + n]]      # side
     mesh = trimesh.Trimesh(V, np.array(faces), process=False)
