@@ -395,8 +395,8 @@ def _grid_boxes(vertices, faces, lo, hi, glo, dims):
         for k in range(3):
             dims[k] = 0
         return 0.0, 0
-    # cells about four times the mean face extent (a face in ~2 cells: grid and sweep 0.68x
-    # of twice at 1.3M faces, 0.91x on the phantoms' meshes; benchmarks/notes/checks.md),
+    # cells about four times the mean face extent (a face in ~2 cells: grid and sweep quicker
+    # than at twice; benchmarks/notes/checks.md),
     # fewer than 2**20 along an axis, and made bigger while a face would be entered in too
     # many (one huge face among small ones)
     size = max(4.0 * extent / (3.0 * m), span / 2.0 ** 20)
@@ -481,8 +481,8 @@ def _grid(vertices, faces, *, finish=True):
 
     The arrays are NumPy's, made here: NumPy asks the kernel for transparent huge pages for
     large arrays (where the system gives them on request: ``madvise`` on this project's
-    machines), numba's own allocations do not; filling fresh pages was a third of the grid's
-    time (150 -> 110 ms at 1.3M faces; ``benchmarks/notes/checks.md``).
+    machines), numba's own allocations do not; filling fresh pages was much of the grid's
+    time (``benchmarks/notes/checks.md``).
     """
     m = len(faces)
     lo = np.empty((m, 3))

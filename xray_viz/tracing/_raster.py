@@ -9,8 +9,8 @@ covered by exactly one triangle of each surface sheet. See :mod:`xray_viz.tracin
 
 Vertices are coordinate-major, ``V`` of shape ``(3, n_vertices)`` (x, y and z each contiguous),
 as the per-mesh set-up (:func:`spatial_order`) writes them: the projection's loops then read
-them with plain vector loads (0.66-0.69x its time against ``(n_vertices, 3)`` rows at 1.3M
-faces); a triangle's plane reads its three vertices' coordinates from the three rows.
+them with plain vector loads (``benchmarks/notes/kernels.md``); a triangle's plane reads its
+three vertices' coordinates from the three rows.
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def first_use_rank(V, flat_faces, spatial, rank, Vout, Fout, code, order, tmp, c
     ``Vout[:, rank[i]] = V[i]`` (``Vout`` coordinate-major, ``(3, n)``) and ``Fout`` receives
     the faces, renumbered, in the order visited (outputs of length 0 are not written; with
     ``spatial``, ``Fout`` is needed). Indices read from memory are made unsigned where they
-    index (no negative-index fix-up, see :func:`_faces`: 0.93x). Scratch (``spatial`` only,
+    index (no negative-index fix-up, see :func:`_faces`). Scratch (``spatial`` only,
     int64): ``code``, ``order`` (V), ``tmp`` (max(V, T)), ``cnt`` (V + 1), ``hist`` (3 x 1025,
     zeros).
     """
@@ -275,8 +275,8 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
             xi[j] = np.int64(np.floor((x if ok else 0.0) * ONE + 0.5))
             yi[j] = np.int64(np.floor((y if ok else 0.0) * ONE + 0.5))
             n_huge += np.int64(not ok)
-        # One output a loop, the choice of codes outside the loops: all in one loop (with
-        # ``if codes`` in it) cost the projection ~12 % more.
+        # One output a loop, the choice of codes outside the loops: one loop with ``if codes``
+        # in it is slower (``benchmarks/notes/kernels.md``).
         for j in range(m):
             XYb[j, 0] = xi[j]
             XYb[j, 1] = yi[j]
@@ -348,6 +348,57 @@ def _tie(ex, ey):
     if ex != 0:
         return 1 if ex > 0 else -1
     return 0
+
+
+# The coverage primitive, written once: a fine-grid sample ``p`` (fixed point) is inside the
+# projected triangle ``a, b, c`` of orientation ``o`` (+-1) when each edge function
+# ``E_k = o * (e_k x (p - start of edge k))`` (:func:`_edge_function`, edges a->b, b->c, c->a:
+# :func:`_edges`) is at least the edge's tie bias (:func:`_tie_biases`: 0 or 1, so that a sample
+# exactly on an edge shared by two triangles belongs to one of them). SMALL triangles evaluate
+# the edge functions in int64 (stepped along a row by the callers), GIANT ones take their exact
+# signs (:func:`_inside_exact`). Scalars only, so that LLVM inlines every one of them.
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edges(ax, ay, bx, by, cx, cy):
+    """The edge vectors ``b - a``, ``c - b``, ``a - c`` of a projected triangle, as
+    ``(e0x, e0y, e1x, e1y, e2x, e2y)``."""
+    return bx - ax, by - ay, cx - bx, cy - by, ax - cx, ay - cy
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _orientation(e0x, e0y, ax, ay, cx, cy, small):
+    """Sign (+-1, 0 for no area) of the projected triangle's area ``e0 x (c - a)``: int64 for
+    a SMALL triangle, exact limbs otherwise."""
+    if small:
+        area = e0x * (cy - ay) - e0y * (cx - ax)
+        return np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
+    return np.int64(exact_cross_sign(e0x, cy - ay, e0y, cx - ax))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y):
+    """The tie rule: per edge, the least edge function (times ``o``) of a covered sample, 0
+    where a sample exactly on the edge is inside (:func:`_tie`), else 1."""
+    return (0 if o * _tie(e0x, e0y) > 0 else 1, 0 if o * _tie(e1x, e1y) > 0 else 1,
+            0 if o * _tie(e2x, e2y) > 0 else 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _edge_function(ex, ey, dx, dy):
+    """``e x d = ex * dy - ey * dx``: the edge function of edge ``e`` at the sample ``d`` away
+    from the edge's start (int64; exact when the triangle is SMALL)."""
+    return ex * dy - ey * dx
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _inside_exact(o, px, py, ax, ay, bx, by, cx, cy, e0x, e0y, e1x, e1y, e2x, e2y, bias0, bias1,
+                  bias2):
+    """Whether sample ``(px, py)`` is inside a GIANT triangle, with the tie rule: each edge
+    function's exact sign (:func:`exact_cross_sign`) times ``o`` at least its bias."""
+    return (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
+            and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
+            and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -430,7 +481,7 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     the same status), as :func:`_raster_direct` does. ``kept[lo:lo + n]`` receives the
     triangles given a non-zero status other than an error, in order. ``counts[b]`` receives
     how many of them meet the rows of band ``b`` (``band_of[Y]`` is the band of sample row
-    Y: a look-up, not two divisions, which cost this loop 25 %).
+    Y: a look-up, not two divisions, which are slower).
 
     Returns ``(lo, n, tris)``: ``tris`` lists, band after band, the kept triangles that meet
     each band's rows, each band's in triangle order (band ``b``'s are ``tris[s[b]:s[b] +
@@ -481,14 +532,9 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             if not depth_ok and (huge[i0] or huge[i1] or huge[i2]):
                 status[t] = ERR_TOO_CLOSE
                 continue
-            ext = max(xmax - xmin, ymax - ymin)
-            if ext < SAFE_EXTENT:
-                area = (bx_ - ax) * (cy - ay) - (by_ - ay) * (cx - ax)
-                o = 1 if area > 0 else (-1 if area < 0 else 0)
-                kind = SMALL
-            else:
-                o = exact_cross_sign(bx_ - ax, cy - ay, by_ - ay, cx - ax)
-                kind = GIANT
+            small = max(xmax - xmin, ymax - ymin) < SAFE_EXTENT
+            kind = SMALL if small else GIANT
+            o = _orientation(bx_ - ax, by_ - ay, ax, ay, cx, cy, small)
             if o == 0:
                 continue  # zero projected area: never hit
             status[t] = kind * o
@@ -499,7 +545,7 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
             kept[lo + n] = t
             n += 1
             # The first band apart: the loop over the others (most triangles meet one band)
-            # is then mostly empty, not a loop of one to mispredict at its end (0.93x).
+            # is then mostly empty, not a loop of one to mispredict at its end.
             bf = band_of[Y0]
             counts[bf] += 1
             for b in range(bf + 1, band_of[Y1] + 1):
@@ -589,8 +635,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     npix_max = band_height * nW
     pieces = band_start.shape[0]
     cap = 1024
-    # Unsigned, as the faces (:func:`_faces`): indices without numba's negative-index fix-up
-    # (the frog's raster 0.95-0.97x).
+    # Unsigned, as the faces (:func:`_faces`): indices without numba's negative-index fix-up.
     hk = np.empty(cap, np.uint32)         # sample of each hit (index in the band)
     hw = np.empty(cap, np.float64)        # its depth
     hb = np.empty(cap, np.uint32)         # body * 2 + entering
@@ -605,7 +650,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
         r1 = min(nH, r0 + band_height) - 1
         npix = (r1 - r0 + 1) * nW
         # Room for every sample of the band's boxes (one triangle's with ``single``), made
-        # before the band: buffers grown inside the triangle loop cost that loop ~15 %.
+        # before the band: numba keeps buffers grown inside the triangle loop live through it.
         need = np.int64(0)
         for c in range(pieces):
             for idx in range(band_start[c, b], band_start[c, b + 1]):
@@ -656,17 +701,10 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                 wmax = max(w0, max(w1, w2))
                 # Edges a->b, b->c, c->a: E = ex * (py - sy) - ey * (px - sx), times o (inside:
                 # E > 0).
-                e0x = bx - ax
-                e0y = by - ay
-                e1x = cx - bx
-                e1y = cy - by
-                e2x = ax - cx
-                e2y = ay - cy
+                e0x, e0y, e1x, e1y, e2x, e2y = _edges(ax, ay, bx, by, cx, cy)
                 # Exact edge functions and the tie rule: int64 for SMALL triangles, limbs for
                 # GIANT ones; a hit beyond the detector (depth > FL) is dropped.
-                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                bias0, bias1, bias2 = _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y)
                 if small and X1 - X0 <= 3 and y1 - y0 <= 3:
                     # A box of at most 4 x 4 samples (most of a fine mesh's): its covered
                     # samples as the bits of a mask, the edge functions at all 16 places
@@ -674,9 +712,9 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     # (the same hits, in the same order, as the rows below).
                     px = X0 * ONE
                     py = y0 * ONE
-                    E0 = o * (e0x * (py - ay) - e0y * (px - ax))
-                    E1 = o * (e1x * (py - by) - e1y * (px - bx))
-                    E2 = o * (e2x * (py - cy) - e2y * (px - cx))
+                    E0 = o * _edge_function(e0x, e0y, px - ax, py - ay)
+                    E1 = o * _edge_function(e1x, e1y, px - bx, py - by)
+                    E2 = o * _edge_function(e2x, e2y, px - cx, py - cy)
                     sx0 = -o * e0y * ONE
                     sx1 = -o * e1y * ONE
                     sx2 = -o * e2y * ONE
@@ -710,13 +748,13 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     stepx2 = -o * e2y * ONE
                     for Y in range(y0, y1 + 1):
                         py = Y * ONE
-                        E0 = o * (e0x * (py - ay) - e0y * (px0 - ax))
-                        E1 = o * (e1x * (py - by) - e1y * (px0 - bx))
-                        E2 = o * (e2x * (py - cy) - e2y * (px0 - cx))
+                        E0 = o * _edge_function(e0x, e0y, px0 - ax, py - ay)
+                        E1 = o * _edge_function(e1x, e1y, px0 - bx, py - by)
+                        E2 = o * _edge_function(e2x, e2y, px0 - cx, py - cy)
                         for X in range(X0, X1 + 1):
                             # Every sample of the row is stored and kept (nh moves on) when
-                            # it is covered: no branch to mispredict at the triangle's edges
-                            # (0.85x the raster of the frog). The room made for the band
+                            # it is covered: no branch to mispredict at the triangle's edges.
+                            # The room made for the band
                             # counts every sample of its boxes.
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                             hk[np.uint64(nh)] = (Y - r0) * nW + X
@@ -731,11 +769,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
                     for Y in range(y0, y1 + 1):
                         py = Y * ONE
                         for X in range(X0, X1 + 1):
-                            px = X * ONE
-                            s0 = o * exact_cross_sign(e0x, py - ay, e0y, px - ax)
-                            s1 = o * exact_cross_sign(e1x, py - by, e1y, px - bx)
-                            s2 = o * exact_cross_sign(e2x, py - cy, e2y, px - cx)
-                            if s0 >= bias0 and s1 >= bias1 and s2 >= bias2:
+                            if _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
+                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                                 if Wd <= FL:
                                     hk[np.uint64(nh)] = (Y - r0) * nW + X
@@ -755,7 +790,7 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
             continue
         # The band's rays (whole pixel rows j0..j1, Y up; image rows down) start at zero:
         # ``L`` need not arrive zeroed (a reused buffer), and the rows are then in the cache.
-        # A slice assignment (a memset): 0.9x the time of the loop over rays and bodies.
+        # A slice assignment (a memset), quicker than a loop over rays and bodies.
         j0 = r0 // n
         j1 = r1 // n
         L[(H - 1 - j1) * W * n * n - ray0:(H - j0) * W * n * n - ray0] = 0.0
@@ -777,8 +812,8 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
             bb[np.uint64(j)] = hb[i]
         # cnt[p] is now the end of sample p's hits (the start of p + 1's).
         # Unsigned indices where they are read from memory or counted (``nh``, ``j``, ``i``
-        # from ``cnt``): numba adds a negative-index fix-up to a signed one (the frog's raster
-        # 0.90x without them); the sample's X, Y kept alongside p, not divided out of it.
+        # from ``cnt``): numba adds a negative-index fix-up to a signed one; the sample's X, Y
+        # kept alongside p, not divided out of it.
         start = 0
         Xp = -1
         Yp = r0
@@ -1051,8 +1086,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
 
     Indices read from memory (``F``'s vertex numbers, the block's lists) or counted are
     unsigned (or made so where they index): numba then indexes without the fix-up of negative
-    indices that it adds for signed ones (a compare and select each, which made the gathers
-    of the cell codes 1.6x slower): the raster 0.80x at 1.3M faces, 0.87x at 82k.
+    indices that it adds for signed ones (a compare and select each, which slows the gathers
+    of the cell codes most; ``benchmarks/notes/kernels.md``).
     """
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
@@ -1128,15 +1163,15 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 # unless the box is small, so that no product can overflow. Every factor is
                 # then below 2**30 in magnitude (p lies in the box): through int32
                 # (:func:`_i32`), LLVM multiplies 32 x 32 -> 64 bits (vpmuldq, one uop,
-                # against three of a 64-bit vpmullq): 0.93-0.96x this raster at 1.3M faces.
+                # against three of a 64-bit vpmullq).
                 px = X0 * ONE
                 py = Y0 * ONE
-                E0 = _i32((bx - ax) if one else 0) * _i32((py - ay) if one else 0) - _i32(
-                    (by - ay) if one else 0) * _i32((px - ax) if one else 0)
-                E1 = _i32((cx - bx) if one else 0) * _i32((py - by) if one else 0) - _i32(
-                    (cy - by) if one else 0) * _i32((px - bx) if one else 0)
-                E2 = _i32((ax - cx) if one else 0) * _i32((py - cy) if one else 0) - _i32(
-                    (ay - cy) if one else 0) * _i32((px - cx) if one else 0)
+                E0 = _edge_function(_i32((bx - ax) if one else 0), _i32((by - ay) if one else 0),
+                                    _i32((px - ax) if one else 0), _i32((py - ay) if one else 0))
+                E1 = _edge_function(_i32((cx - bx) if one else 0), _i32((cy - by) if one else 0),
+                                    _i32((px - bx) if one else 0), _i32((py - by) if one else 0))
+                E2 = _edge_function(_i32((ax - cx) if one else 0), _i32((ay - cy) if one else 0),
+                                    _i32((px - cx) if one else 0), _i32((py - cy) if one else 0))
                 # E0 + E1 + E2 is the projected area: all one sign -> inside, and that sign is
                 # the orientation; mixed signs -> outside (or zero area). A zero: general path.
                 decided = one & (E0 != 0) & (E1 != 0) & (E2 != 0)
@@ -1220,24 +1255,18 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                     if huge[i0] or huge[i1] or huge[i2]:
                         err[c] = t
                         continue
-                ext = max(xmax - xmin, ymax - ymin)
-                small = ext < SAFE_EXTENT
-                e0x = bx - ax
-                e0y = by - ay
-                e1x = cx - bx
-                e1y = cy - by
-                e2x = ax - cx
-                e2y = ay - cy
+                small = max(xmax - xmin, ymax - ymin) < SAFE_EXTENT
+                e0x, e0y, e1x, e1y, e2x, e2y = _edges(ax, ay, bx, by, cx, cy)
                 if small and X0 == X1 and Y0 == Y1:
                     # One sample: E_k = e_k x (p - start of edge k) at p = (X0, Y0). Apart
                     # from the rows below (which give it the same bits) because it needs no
-                    # orientation or tie rule: the scalar path (depth_ok False) at 1.3M faces
-                    # is 1.22x slower through the rows.
+                    # orientation or tie rule, and the scalar path (depth_ok False) is slower
+                    # through the rows.
                     px = X0 * ONE
                     py = Y0 * ONE
-                    E0 = e0x * (py - ay) - e0y * (px - ax)
-                    E1 = e1x * (py - by) - e1y * (px - bx)
-                    E2 = e2x * (py - cy) - e2y * (px - cx)
+                    E0 = _edge_function(e0x, e0y, px - ax, py - ay)
+                    E1 = _edge_function(e1x, e1y, px - bx, py - by)
+                    E2 = _edge_function(e2x, e2y, px - cx, py - cy)
                     if E0 != 0 and E1 != 0 and E2 != 0:
                         # E0 + E1 + E2 is the projected area: all one sign -> inside, and that
                         # sign is the orientation; mixed signs -> outside (or zero area).
@@ -1259,21 +1288,15 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
                         Sc[np.uint64(Y0), np.uint64(X0)] += sgn * Wd
                         continue
-                if small:
-                    area = e0x * (cy - ay) - e0y * (cx - ax)
-                    o = np.int64(1) if area > 0 else (np.int64(-1) if area < 0 else np.int64(0))
-                else:
-                    o = np.int64(exact_cross_sign(e0x, cy - ay, e0y, cx - ax))
+                o = _orientation(e0x, e0y, ax, ay, cx, cy, small)
                 if o == 0:
                     continue
                 sgn = -1.0 if o > 0 else 1.0            # entering: minus its depth
-                bias0 = 0 if o * _tie(e0x, e0y) > 0 else 1
-                bias1 = 0 if o * _tie(e1x, e1y) > 0 else 1
-                bias2 = 0 if o * _tie(e2x, e2y) > 0 else 1
+                bias0, bias1, bias2 = _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y)
                 if small:
                     # Every sample of the box: its depth, then added (or 0 added) by whether
-                    # it is covered, without a branch to mispredict at the triangle's edges
-                    # (0.85x the raster of 82k faces at 512 x 512). Adding 0.0 to a sum
+                    # it is covered, without a branch to mispredict at the triangle's edges.
+                    # Adding 0.0 to a sum
                     # that starts at +0.0 leaves its bits as they are.
                     if depth_ok:
                         wmin = min(w[i0], min(w[i1], w[i2]))
@@ -1284,9 +1307,9 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                         p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
                     for Y in range(Y0, Y1 + 1):
                         py = Y * ONE
-                        E0 = o * (e0x * (py - ay) - e0y * (X0 * ONE - ax))
-                        E1 = o * (e1x * (py - by) - e1y * (X0 * ONE - bx))
-                        E2 = o * (e2x * (py - cy) - e2y * (X0 * ONE - cx))
+                        E0 = o * _edge_function(e0x, e0y, X0 * ONE - ax, py - ay)
+                        E1 = o * _edge_function(e1x, e1y, X0 * ONE - bx, py - by)
+                        E2 = o * _edge_function(e2x, e2y, X0 * ONE - cx, py - cy)
                         for X in range(X0, X1 + 1):
                             Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                             kept = (E0 >= bias0) & (E1 >= bias1) & (E2 >= bias2)
@@ -1306,10 +1329,8 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
                 for Y in range(Y0, Y1 + 1):
                     py = Y * ONE
                     for X in range(X0, X1 + 1):
-                        px = X * ONE
-                        if not (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
-                                and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
-                                and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2):
+                        if not _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
+                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
                             continue
                         if not have_plane:
                             have_plane = True
@@ -1468,8 +1489,8 @@ def _names(paths=None) -> list:
 #: Compile CPU seconds of each kernel beyond what a process pays for its first compile
 #: (``benchmarks/compile_profile.py --opt 1``, one process per kernel, less the ~0.5 s of
 #: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-05, the Xeon VM, after the
-#: vectorised projection and one-body raster; ``_raster_bands`` ~10 % more once it computed the
-#: planes itself), to share them out among the workers; kernels
+#: vectorised projection and one-body raster; ``_raster_bands`` re-measured once it computed
+#: the planes itself), to share them out among the workers; kernels
 #: of one tuple share helpers and go to the same worker.
 _COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 1.0,
           ("_raster_bands",): 2.5,
@@ -1495,7 +1516,7 @@ _WORKER = ("import os, sys, types, warnings\nwarnings.simplefilter('ignore')\n"
            "    R._kernel(n)\n"
            "    try:\n        print(n, flush=True)\n    except OSError:\n        pass\n")
 #: LLVM optimisation level of the workers' compiles (``NUMBA_OPT``, numba's default 3), unless
-#: the environment sets one: level 1 compiles the kernels in ~15 % less time, and the kernels
+#: the environment sets one: level 1 compiles the kernels in less time, and the kernels
 #: trace as fast and give the same bits (measured on the bundled phantoms:
 #: ``benchmarks/image_hashes.py``, ``benchmarks/notes/coldstart.md``). Level 0 cannot be
 #: cached (numba: "uses dynamic globals"). The cache does not record the level: a kernel
@@ -1522,7 +1543,7 @@ def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
     needs; default all) to compile itself when it first needs them: the background process
     takes the costliest (by :data:`_COSTS`) until its share is the larger by :data:`_HEAD`, the
     head start it has while this process loads the scene. Then both processors compile what
-    the image waits for, and neither runs two compiles at once (~15 % slower each on 2
+    the image waits for, and neither runs two compiles at once (each would be slower on 2
     processors). With ``workers`` given, every kernel goes to that many background processes
     instead, shared out by cost. A background process compiles its urgent kernels first, then
     the others at a lower priority, and last this process's share (by then most likely cached:
@@ -1701,8 +1722,8 @@ def _faces(F, n_vertices):
     """Faces as the kernels take them: C-contiguous uint32 (a view of int32 faces, no copy).
 
     Unsigned, so that numba indexes the vertex arrays with them without the fix-up of a
-    negative index it adds for a signed one (a compare and a select per access: the one-body
-    raster 0.91x, the banded cull 0.88x, the banded raster 0.95x at the frog); at most
+    negative index it adds for a signed one (a compare and a select per access;
+    ``benchmarks/notes/kernels.md``); at most
     2**31 - 1 vertices and triangles, so that the int32 and uint32 views agree."""
     if len(F) >= 2**31 or (F.dtype != np.int32 and n_vertices >= 2**31):
         from xray_viz.errors import SceneError

@@ -128,7 +128,7 @@ def _split(scene):
 def _spatial_order(v, f):
     """Faces sorted along the Morton (Z-curve) order of their first vertex, and vertices
     numbered in order of first use by those faces, so that the per-call passes over triangles
-    and vertices touch memory nearly in sequence (1.3M faces: -25 % time); the vertices
+    and vertices touch memory nearly in sequence (``benchmarks/notes/kernels.md``); the vertices
     coordinate-major, ``(3, n)`` (the kernels' layout; small meshes keep their order). Projection
     independent: done once per mesh, in compiled code (:func:`xray_viz.tracing._raster.
     spatial_order`: a radix sort of the vertices' Morton codes, a counting sort of the faces)."""
@@ -247,8 +247,8 @@ def _result_buffer(bodies, n_rays, nb):
     ray of its rows).
 
     The array the last call on these bodies returned, if nothing else holds it any more (not
-    the caller, a view of it, nor the result cache): the first touch of a fresh 33 MB result
-    (the frog's 262144 rays x 16 bodies) cost ~4 ms of page faults a frame. Else a new array,
+    the caller, a view of it, nor the result cache): the first touch of a fresh result costs
+    page faults every frame (``benchmarks/notes/kernels.md``). Else a new array,
     kept for the next call. Results above 64 MiB are not kept (a dead buffer of that size
     held between frames is memory the caller did not ask for). Called under ``_LOCK``."""
     if n_rays * nb * 8 > _RESULT_ENTRY_BYTES:
@@ -303,8 +303,8 @@ def _refuse(bodies, acq, B, t, r0, w, F):
 def _accumulators(bodies, n_chunks, nH, nW):
     """Zeroed per-thread depth sums, reused between calls on the same bodies (no fresh
     pages to fault in); each thread's is zeroed on a thread of the pool (NumPy's fill
-    releases the GIL: 0.2 ms for two at 512 x 512 against 0.3 ms in turn; zeroing in the
-    raster kernel cost 0.6 s more of its compile)."""
+    releases the GIL, so two threads zero faster than one in turn; zeroing in the raster
+    kernel would lengthen its compile; ``benchmarks/notes/kernels.md``)."""
     from xray_viz._threads import run_pieces
 
     fresh = []
@@ -322,7 +322,7 @@ def _band_order(entries):
     raster time follows its entries (correlation 0.998 over the frog's 32 bands, which hold 0
     to 25k entries each). Taken so, the threads end within about one band of each other
     whatever their speed (a late or slowed thread takes fewer), where bands dealt out before
-    the start left one thread up to 1.7 ms idle in a 20 ms frame of the frog. Deterministic,
+    the start left one thread idle at the end of a frame. Deterministic,
     and the results do not depend on it (each band writes its own rays).
 
     Examples
