@@ -32,3 +32,200 @@ def test_apply_rotations_is_the_matrix_product():
                                rtol=0, atol=1e-14)
     # the same bits in any batch: no BLAS
     assert np.array_equal(apply_rotations(rot[3:4], p[3:4])[0], apply_rotations(rot, p)[3])
+
+
+# --- conventions users bring ---------------------------------------------------------------
+
+import xray_viz  # noqa: E402
+from xray_viz.errors import SceneError  # noqa: E402
+from xray_viz.poses import (  # noqa: E402
+    carm_acquisition,
+    carm_rotation,
+    diffdrr_acquisition,
+    diffdrr_rotation,
+    euler_to_matrix,
+    matrix_to_euler,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+)
+
+
+def _axis_turn(letter, angle):
+    """The elementary rotation PyTorch3D's ``_axis_angle_rotation`` writes out (radians)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return {"X": np.array([[1, 0, 0], [0, c, -s], [0, s, c]]),
+            "Y": np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+            "Z": np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])}[letter]
+
+
+ORDERS = ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX", "XYX", "ZYZ"]
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_euler_intrinsic_is_the_product_of_the_turns_and_extrinsic_its_reverse(order):
+    a = np.radians([23.0, -41.0, 67.0])
+    by_hand = _axis_turn(order[0], a[0]) @ _axis_turn(order[1], a[1]) @ _axis_turn(order[2], a[2])
+    assert np.abs(euler_to_matrix(a, order, degrees=False) - by_hand).max() < 1e-14
+    fixed = _axis_turn(order[2], a[2]) @ _axis_turn(order[1], a[1]) @ _axis_turn(order[0], a[0])
+    assert np.abs(euler_to_matrix(np.degrees(a), order, intrinsic=False) - fixed).max() < 1e-14
+
+
+@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("intrinsic", [True, False])
+def test_euler_round_trip(order, intrinsic):
+    rng = np.random.default_rng(5)
+    R = Rotation.random(20, random_state=rng).as_matrix()
+    angles = matrix_to_euler(R, order, intrinsic=intrinsic)
+    assert np.abs(euler_to_matrix(angles, order, intrinsic=intrinsic) - R).max() < 1e-12
+
+
+def test_euler_order_is_checked():
+    with pytest.raises(SceneError, match="Euler order 'ZZY'"):
+        euler_to_matrix([0, 0, 0], "ZZY")
+
+
+def test_quaternions_scalar_first_and_last():
+    half = np.radians(50.0) / 2                 # 50 degrees about (1, 2, 2) / 3
+    axis = np.array([1.0, 2.0, 2.0]) / 3
+    wxyz = np.concatenate([[np.cos(half)], np.sin(half) * axis])
+    R = rotation(axis, 50.0)
+    assert np.abs(quaternion_to_matrix(wxyz, scalar_first=True) - R).max() < 1e-14
+    assert np.abs(quaternion_to_matrix(np.roll(wxyz, -1)) - R).max() < 1e-14
+    assert np.abs(matrix_to_quaternion(R, scalar_first=True) - wxyz).max() < 1e-14
+    assert np.abs(matrix_to_quaternion(R) - np.roll(wxyz, -1)).max() < 1e-14
+    # q and -q are the same rotation; the returned one has w >= 0
+    assert matrix_to_quaternion(quaternion_to_matrix(-wxyz, scalar_first=True),
+                                scalar_first=True)[0] > 0
+    with pytest.raises(SceneError, match="quaternion"):
+        quaternion_to_matrix([0, 0, 0, 0])
+
+
+def _pytorch3d_quaternion_to_matrix(q):
+    """DiffDRR's ``quaternion_to_matrix`` (PyTorch3D's), real part first, written out."""
+    r, i, j, k = q
+    two_s = 2.0 / (q @ q)
+    return np.array([[1 - two_s * (j * j + k * k), two_s * (i * j - k * r), two_s * (i * k + j * r)],
+                     [two_s * (i * j + k * r), 1 - two_s * (i * i + k * k), two_s * (j * k - i * r)],
+                     [two_s * (i * k - j * r), two_s * (j * k + i * r), 1 - two_s * (i * i + j * j)]])
+
+
+def test_diffdrr_parametrisations_agree_with_its_formulas():
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        a = rng.uniform(-np.pi, np.pi, 3)
+        R = diffdrr_rotation(a, parameterization="euler_angles", convention="ZXY")
+        assert np.abs(R - _axis_turn("Z", a[0]) @ _axis_turn("X", a[1]) @ _axis_turn("Y", a[2])
+                      ).max() < 1e-14
+        q = rng.normal(size=4) * 3                       # DiffDRR normalises (two_s)
+        assert np.abs(diffdrr_rotation(q, parameterization="quaternion")
+                      - _pytorch3d_quaternion_to_matrix(q)).max() < 1e-13
+        rv = rng.normal(size=3)
+        assert np.abs(diffdrr_rotation(rv, parameterization="axis_angle")
+                      - rotation(rv, np.degrees(np.linalg.norm(rv)))).max() < 1e-14
+        assert np.abs(diffdrr_rotation(R[:2].ravel(), parameterization="rotation_6d") - R
+                      ).max() < 1e-14
+        assert np.array_equal(diffdrr_rotation(R, parameterization="matrix"), R)
+    with pytest.raises(SceneError, match="convention"):
+        diffdrr_rotation([0, 0, 0], parameterization="euler_angles")
+    with pytest.raises(SceneError, match="se3_log_map"):
+        diffdrr_rotation([0] * 6, parameterization="se3_log_map")
+
+
+def _diffdrr_rays(R, t, *, sdd, height, width, delx, dely, x0, y0, reorient,
+                  reverse_x_axis=False):
+    """DiffDRR's ``Detector._initialize_carm`` + calibration + ``forward`` (source, targets in
+    its image order), reimplemented from its source."""
+    h_off = 1.0 if height % 2 else 0.5
+    w_off = 1.0 if width % 2 else 0.5
+    tt = -(np.arange(-height // 2, height // 2) + h_off)
+    s = -(np.arange(-width // 2, width // 2) + w_off)
+    if not reverse_x_axis:
+        s = -s
+    coefs = np.array([(a, b) for a in tt for b in s])           # cartesian_prod(t, s)
+    basis = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    target = coefs @ basis + [0.0, 0.0, 1.0]
+    calibration = np.array([[delx, 0, 0, x0], [0, dely, 0, y0], [0, 0, sdd, 0], [0, 0, 0, 1]])
+    extrinsic = np.eye(4)
+    extrinsic[:3, :3], extrinsic[:3, 3] = R, t
+    pose = extrinsic @ reorient                                # reorient.compose(extrinsic)
+    homog = np.c_[target, np.ones(len(target))] @ calibration.T
+    target = homog @ pose.T
+    return pose[:3, 3], target[:, :3].reshape(height, width, 3)
+
+
+@pytest.mark.parametrize("reverse_x_axis", [False, True])
+def test_diffdrr_pose_gives_its_source_and_pixels(reverse_x_axis):
+    like = xray_viz.load_scene("sphere").acquisition
+    reorient = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # its "AP"
+    cases = [([0.0, 0.0, 0.0], [0.0, 0.0, -500.0], "euler_angles", "ZXY", np.eye(4)),
+             ([0.3, -0.4, 1.1], [20.0, 850.0, -30.0], "euler_angles", "ZXY", reorient),
+             ([0.9, 0.1, -0.3, 0.2], [5.0, -7.0, 600.0], "quaternion", None, reorient),
+             ([0.2, 1.3, -0.5], [-40.0, 10.0, 700.0], "axis_angle", None, np.eye(4))]
+    for rot, t, param, conv, reo in cases:
+        geo = dict(sdd=1020.0, height=5, width=7, delx=1.5, dely=2.0, x0=3.0, y0=-4.5)
+        acq = diffdrr_acquisition(rot, t, like=like, parameterization=param, convention=conv,
+                                  reorient=reo, **geo)
+        R = diffdrr_rotation(rot, parameterization=param, convention=conv)
+        src, targets = _diffdrr_rays(R, np.array(t), reorient=reo,
+                                     reverse_x_axis=reverse_x_axis, **geo)
+        assert np.abs(acq.source.position - src).max() < 1e-9
+        ends = acq.rays().ends.reshape(5, 7, 3)                # xray_viz's image order
+        mine = ends if reverse_x_axis else ends[:, ::-1]       # its columns run the other way
+        assert np.abs(mine - targets).max() < 1e-9
+
+
+def test_carm_cardinal_views_against_the_hand_derived_geometry():
+    """LPS axes: x left, y posterior, z superior; source sod before the isocentre, detector
+    sid - sod beyond it, up the head end turned with the arm."""
+    like = xray_viz.load_scene("sphere").acquisition
+    iso = np.array([10.0, -20.0, 30.0])
+    c30, s30 = np.cos(np.radians(30)), np.sin(np.radians(30))
+    views = {  # (lao, cranial): (unit source -> detector, detector up)
+        (0.0, 0.0): ([0, -1, 0], [0, 0, 1]),            # AP: beam posterior -> anterior
+        (90.0, 0.0): ([1, 0, 0], [0, 0, 1]),            # LAO 90: left lateral
+        (-90.0, 0.0): ([-1, 0, 0], [0, 0, 1]),          # RAO 90: right lateral
+        (0.0, 30.0): ([0, -c30, s30], [0, s30, c30]),   # cranial 30: detector towards the head
+        (0.0, -30.0): ([0, -c30, -s30], [0, -s30, c30]),  # caudal 30
+        (30.0, 0.0): ([s30, -c30, 0], [0, 0, 1]),       # LAO 30
+    }
+    for convention in ("dicom", "deepdrr"):
+        for (lao, cra), (beam, up) in views.items():
+            acq = carm_acquisition(like, lao=lao, cranial=cra, sid=1000.0, sod=700.0,
+                                   isocenter=iso, convention=convention)
+            beam, up = np.array(beam, float), np.array(up, float)
+            assert np.abs(acq.source.position - (iso - 700.0 * beam)).max() < 1e-9
+            assert np.abs(acq.detector.center - (iso + 300.0 * beam)).max() < 1e-9
+            assert np.abs(acq.frame.forward - beam).max() < 1e-12
+            assert np.abs(acq.frame.ve / np.linalg.norm(acq.frame.ve) - up).max() < 1e-12
+            # at AP the image's columns run towards the patient's right (seen from the source)
+            if (lao, cra) == (0.0, 0.0):
+                assert np.abs(acq.frame.ho / np.linalg.norm(acq.frame.ho) - [-1, 0, 0]
+                              ).max() < 1e-12
+
+
+def test_carm_conventions_differ_only_when_both_angles_are_set():
+    """DICOM: the cranial turn about the rolled arm; DeepDRR: about the fixed left-right axis
+    (its MobileCArm's ``from_euler("xy", [alpha, beta])``, alpha RAO+, beta caudal+)."""
+    lao, cra = np.radians(40.0), np.radians(25.0)
+    dicom = carm_rotation(40.0, 25.0) @ [0, -1, 0]
+    assert np.abs(dicom - [np.sin(lao) * np.cos(cra), -np.cos(lao) * np.cos(cra), np.sin(cra)]
+                  ).max() < 1e-14
+    deep = carm_rotation(40.0, 25.0, convention="deepdrr") @ [0, -1, 0]
+    # DeepDRR by hand: principal ray Ry(beta) Rx(alpha) z in its device frame (x inferior,
+    # y left, z anterior), alpha = -lao, beta = -cranial
+    a, b = -lao, -cra
+    ray = _axis_turn("Y", b) @ _axis_turn("X", a) @ [0, 0, 1]
+    lps = ray[0] * np.array([0, 0, -1]) + ray[1] * np.array([1, 0, 0]) + ray[2] * np.array(
+        [0, -1, 0])
+    assert np.abs(deep - lps).max() < 1e-14
+    assert np.abs(deep - dicom).max() > 0.05
+
+
+def test_carm_bad_input_names_the_value():
+    like = xray_viz.load_scene("sphere").acquisition
+    with pytest.raises(SceneError, match="0 < sod < sid"):
+        carm_acquisition(like, sid=500.0, sod=700.0)
+    with pytest.raises(SceneError, match="C-arm lao"):
+        carm_acquisition(like, lao=float("nan"), sid=1000.0, sod=700.0)
+    with pytest.raises(SceneError, match="convention 'siemens'"):
+        carm_acquisition(like, sid=1000.0, sod=700.0, convention="siemens")
