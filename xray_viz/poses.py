@@ -39,51 +39,329 @@ True
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
+from xray_viz._checks import vector3
+from xray_viz._rotation import apply_rotations, rotation, rotations
 from xray_viz.errors import SceneError
+from xray_viz.geometry import UP_TOLERANCE, Acquisition, detector_axes, tilted_normal
 
 __all__ = ["rotation", "rotations", "apply_rotations", "euler_to_matrix", "matrix_to_euler",
            "quaternion_to_matrix", "matrix_to_quaternion", "diffdrr_rotation",
            "diffdrr_acquisition", "carm_rotation", "carm_acquisition", "CARM_CONVENTIONS",
-           "DIFFDRR_PARAMETERIZATIONS"]
+           "DIFFDRR_PARAMETERIZATIONS", "acquisition_pose", "check_pose", "pose_acquisition",
+           "POSE_TOLERANCE", "pose_frames", "projection_matrices", "astra_vectors",
+           "poses_from_astra", "tigre_geometry", "poses_from_tigre"]
+
+#: How far a pose's ``u`` and ``v`` may be from perpendicular (and from the frame derived from
+#: the source and the centre, for an untilted detector).
+POSE_TOLERANCE = 1e-9
 
 
-def _cross_matrix(a) -> np.ndarray:
-    """``K`` with ``K @ x = a x x``."""
-    return np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+# --- poses of acquisitions, and the exports of a scan's poses ------------------------------
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v)
 
 
-def rotation(axis, degrees) -> np.ndarray:
-    """(3, 3): the rotation by ``degrees`` about the direction ``axis`` (right-handed).
+
+def acquisition_pose(acq) -> dict:
+    """The pose of an acquisition: ``{"source", "detector_center", "u", "v"}`` (lists; ``u``,
+    ``v`` unit, the detector centre the middle of the pixel grid, offset included; a parallel
+    beam's source on its middle ray), as a scan's geometry lists them.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> acquisition_pose(xray_viz.load_scene("sphere").acquisition)["detector_center"]
+    [0.0, 0.0, -500.0]
+    """
+    f = acq.frame          # the pose's centre is the pixel grid's middle (offset included);
+    source = f.source if not f.parallel or f.plain else f.source + (f.middle - f.center)
+    return {"source": source.tolist(), "detector_center": f.middle.tolist(),   # a parallel
+            "u": f.ho.tolist(), "v": f.ve.tolist()}         # beam's source: on its middle ray
+
+
+def pose_frames(source, center, up):
+    """``(forward, ho, ve, sid)`` of many poses at once, ``(n, 3)`` arrays and ``(n,)``:
+    :func:`xray_viz.geometry.detector_axes` over rows."""
+    fl = source - center
+    sid = np.sqrt(np.einsum("ij,ij->i", fl, fl))
+    if not np.all(sid > 0):
+        raise SceneError("the source sits at the detector centre: FL = r0 - center is zero")
+    forward = -fl / sid[:, None]
+    ho = np.cross(forward, up)
+    norm = np.sqrt(np.einsum("ij,ij->i", ho, ho))
+    if not np.all(norm >= UP_TOLERANCE * np.sqrt(np.einsum("ij,ij->i", up, up))):
+        raise SceneError("[detector] up is parallel to the beam (source -> detector centre) "
+                         "for some poses; choose an up vector across the beam")
+    ho = ho / norm[:, None]
+    return forward, ho, np.cross(ho, forward), sid
+
+
+def projection_matrices(source, center, forward, ho, ve, sid, *, shape, pitch,
+                         parallel) -> np.ndarray:
+    """``(n, 3, 4)``: :meth:`Acquisition.projection_matrix` of many poses at once."""
+    (w, h), (pu, pv) = shape, pitch
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    n = len(source)
+    out = np.zeros((n, 3, 4))
+    if parallel:
+        out[:, 0, :3], out[:, 1, :3] = ho / pu, ve / pv
+        out[:, 0, 3] = cx - np.einsum("ij,ij->i", ho, center) / pu
+        out[:, 1, 3] = cy - np.einsum("ij,ij->i", ve, center) / pv
+        out[:, 2, 3] = 1.0
+        return out
+    out[:, 0, :3] = (sid / pu)[:, None] * ho + cx * forward
+    out[:, 1, :3] = (sid / pv)[:, None] * ve + cy * forward
+    out[:, 2, :3] = forward
+    out[:, :, 3] = -np.einsum("nij,nj->ni", out[:, :, :3], source)
+    return out
+
+
+
+def astra_vectors(geometry) -> np.ndarray:
+    """The scan's geometry as ASTRA's vector geometry: one row per projection, ``cone_vec``
+    ``(src, d, u, v)`` for a cone beam or ``parallel3d_vec`` ``(ray, d, u, v)`` for a parallel
+    beam (12 numbers, mm).
+
+    ``d`` is the detector centre, ``u`` the step from detector pixel (0, 0) to (0, 1) (one
+    column, along ``HO``) and ``v`` from (0, 0) to (1, 0) (one row: *down* the image, against
+    ``VE``), so that ASTRA's projection data are the stack as ``projections.transpose(1, 0, 2)``
+    (rows, angles, columns) with no flip.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> from xray_viz.scan import Orbit, scan_geometry
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=2, axis=[0, 1, 0]))
+    >>> (astra_vectors(g)[0].round(6) + 0.0).tolist()
+    [0.0, 0.0, 1000.0, 0.0, 0.0, -500.0, 0.5, 0.0, 0.0, 0.0, -0.5, 0.0]
+    """
+    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
+    rows = []
+    for pose in geometry["poses"]:
+        src, d = np.asarray(pose["source"], float), np.asarray(pose["detector_center"], float)
+        u, v = np.asarray(pose["u"], float) * pu, -np.asarray(pose["v"], float) * pv
+        first = src if geometry["beam"] == "cone" else _unit(d - src)
+        rows.append(np.concatenate([first, d, u, v]))
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 12)
+
+
+def poses_from_astra(vectors, *, beam: str = "cone", sid: float | None = None) -> list[dict]:
+    """The per-projection poses (source, detector centre, unit ``u`` = HO, unit ``v`` = VE) of
+    ASTRA vectors (:func:`astra_vectors`); a parallel beam's source lies ``sid`` mm before
+    the detector centre along the ray (ASTRA's rows do not say where).
+
+    Raises
+    ------
+    SceneError
+        Rows of the wrong shape, or a parallel beam without ``sid``.
+    """
+    rows = np.asarray(vectors, dtype=np.float64)
+    if rows.ndim != 2 or rows.shape[1] != 12 or not np.all(np.isfinite(rows)):
+        raise SceneError(f"ASTRA vectors must be finite rows of 12 numbers, got shape "
+                         f"{rows.shape}")
+    if beam != "cone" and sid is None:
+        raise SceneError("a parallel beam's ASTRA rows give no source position: pass sid= "
+                         "(mm from the source plane to the detector)")
+    poses = []
+    for r in rows:
+        first, d, u, v = r[:3], r[3:6], r[6:9], r[9:12]
+        src = first if beam == "cone" else d - float(sid) * _unit(first)
+        poses.append({"source": src.tolist(), "detector_center": d.tolist(),
+                      "u": _unit(u).tolist(), "v": (-_unit(v)).tolist()})
+    return poses
+
+
+def _tigre_rotation(alpha: float) -> np.ndarray:
+    """TIGRE's ``eulerZYZ`` with ``theta = psi = 0``: a turn by ``alpha`` radians about z."""
+    c, s = np.cos(alpha), np.sin(alpha)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def tigre_geometry(geometry, *, axis=None, center=None, tolerance: float = 1e-9) -> dict:
+    """The scan's geometry in TIGRE's conventions (``tigre.geometry`` fields, mm and radians).
+
+    TIGRE (``Common/CUDA/Siddon_projection.cu``, ``Python/tigre/utilities``) turns the source
+    ``(DSO, 0, 0)`` and the detector, centred at ``(-(DSD - DSO), offU, offV)`` with ``U`` along
+    +y and rows down -z, about its z axis by ``angles[:, 0]``, then subtracts ``offOrigin``.
+    Here TIGRE's z is the scan's rotation ``axis`` through ``center`` and its x the direction
+    from the axis to the source at angle 0 (``frame``): ``u`` (image columns) is TIGRE's U
+    and the image rows TIGRE's V from the top, so TIGRE's projections ``(angles, V, U)`` are
+    the stack as it is, no flip. Python-TIGRE's orders: ``nDetector``, ``dDetector``,
+    ``sDetector``, ``offDetector`` are ``(V, U)``, ``offOrigin`` is ``(z, y, x)``.
 
     Parameters
     ----------
-    axis : (3,) float
-        Any non-zero length (normalised here).
-    degrees : float
+    geometry : dict
+        :func:`scan_geometry`.
+    axis, center : (3,) float, optional
+        The rotation axis (default the geometry's; needed for ``"poses"`` orbits).
+    tolerance : float
+        How far a pose's ``u`` may lean on the axis (TIGRE's detector turns about z only).
+
+    Returns
+    -------
+    dict
+        ``DSD``, ``DSO`` ``(n,)``; ``nDetector``, ``dDetector``, ``sDetector`` ``(2,)``;
+        ``offDetector`` ``(n, 2)``; ``offOrigin`` ``(n, 3)``; ``angles`` ``(n, 3)``
+        (ZYZ Euler angles, the last two 0); ``mode`` (``"cone"``/``"parallel"``); ``frame``
+        ``{"origin", "axes"}``: TIGRE's origin and x, y, z axes in scene coordinates.
+
+    Raises
+    ------
+    SceneError
+        A pose whose detector does not stand along the axis (``v`` not parallel to it: a
+        tilted pose would need TIGRE's ``rotDetector``), or no axis for a poses orbit.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> from xray_viz.scan import Orbit, scan_geometry
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
+    >>> t = tigre_geometry(g)
+    >>> t["DSO"].tolist(), t["DSD"].tolist()[:1], t["nDetector"].tolist(), t["mode"]
+    ([1000.0, 1000.0, 1000.0, 1000.0], [1500.0], [256, 256], 'cone')
+    >>> (t["angles"][:, 0].round(6)).tolist()
+    [0.0, 1.570796, 3.141593, 4.712389]
     """
-    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    t = math.radians(degrees)
-    k = _cross_matrix(a)
-    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * (k @ k)
+    axis = geometry.get("axis") if axis is None else axis
+    center = geometry.get("center") if center is None else center
+    if axis is None or center is None:
+        raise SceneError("TIGRE's geometry turns about an axis: give tigre_geometry(axis=..., "
+                         "center=...) for a poses orbit")
+    z, center = _unit(axis), np.asarray(center, np.float64)
+    poses = geometry["poses"]
+    s0 = np.asarray(poses[0]["source"], float) - center
+    theta0 = (geometry.get("angles_deg") or [0.0])[0]
+    ref = rotation(z, -theta0) @ s0                     # the source at angle 0
+    x = ref - (ref @ z) * z
+    if not np.linalg.norm(x) > 1e-9:
+        raise SceneError("the source lies on the rotation axis: TIGRE's frame is undefined")
+    x = x / np.linalg.norm(x)
+    M = np.array([x, np.cross(z, x), z])                 # rows: TIGRE's x, y, z in the scene
+    n = len(poses)
+    dso, dsd = np.empty(n), np.empty(n)
+    off_det, off_orig, alpha = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
+    for k, pose in enumerate(poses):
+        s = M @ (np.asarray(pose["source"], float) - center)
+        c = M @ (np.asarray(pose["detector_center"], float) - center)
+        u, v = M @ np.asarray(pose["u"], float), M @ np.asarray(pose["v"], float)
+        if abs(u[2]) > tolerance or abs(v[2] - 1.0) > tolerance:
+            raise SceneError(f"pose {k}: the detector is tilted against the rotation axis "
+                             f"(v = {np.round(M.T @ v, 9).tolist()}, axis {z.tolist()}); "
+                             "TIGRE's geometry needs rotDetector for it, not supported")
+        alpha[k] = np.arctan2(-u[0], u[1])
+        R = _tigre_rotation(alpha[k])
+        sp, cp = R.T @ s, R.T @ c                        # in the turned frame
+        o = np.array([0.0, -sp[1], -sp[2]])             # the volume moved, not the source
+        dso[k], dsd[k] = sp[0], sp[0] - cp[0]
+        off_det[k] = [cp[2] - sp[2], cp[1] - sp[1]]      # (V, U)
+        off_orig[k] = (R @ o)[::-1]                      # (z, y, x)
+    w, h = geometry["detector"]["shape"]
+    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
+    return {"DSD": dsd, "DSO": dso, "nDetector": np.array([h, w]),
+            "dDetector": np.array([pv, pu]), "sDetector": np.array([h * pv, w * pu]),
+            "offDetector": off_det, "offOrigin": off_orig,
+            "angles": np.c_[np.mod(alpha, 2 * np.pi), np.zeros(n), np.zeros(n)],
+            "mode": "parallel" if geometry["beam"] == "parallel" else "cone",
+            "frame": {"origin": center.tolist(), "axes": M.tolist()}}
 
 
-def rotations(axis, degrees) -> np.ndarray:
-    """``(n, 3, 3)``: the rotations by each of ``degrees`` about the one direction ``axis``
-    (as :func:`rotation`, element-wise)."""
-    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
-    t = np.radians(np.asarray(degrees, np.float64))
-    k = _cross_matrix(a)
-    return np.eye(3) + np.sin(t)[:, None, None] * k + (1 - np.cos(t))[:, None, None] * (k @ k)
+def poses_from_tigre(tigre) -> list[dict]:
+    """The per-projection poses (source, detector centre, unit ``u``, ``v``) of a TIGRE
+    geometry (:func:`tigre_geometry`; ``frame`` places TIGRE's axes in the scene, default
+    the scene's own). Inverse of :func:`tigre_geometry`.
+
+    Raises
+    ------
+    SceneError
+        Euler angles other than a turn about z (``angles[:, 1:]`` not 0), or fields of
+        mismatched lengths.
+    """
+    angles = np.atleast_1d(np.asarray(tigre["angles"], np.float64))
+    angles = angles[:, None] if angles.ndim == 1 else angles
+    n = len(angles)
+    if angles.shape[1] == 3 and np.any(angles[:, 1:] != 0):
+        raise SceneError("TIGRE angles with theta/psi (a tilted orbit) are not supported: "
+                         "angles[:, 1:] must be 0")
+
+    def per(name, width):
+        value = np.asarray(tigre.get(name, np.zeros(width)), np.float64)
+        out = np.broadcast_to(value, (n,) if width == 0 else (n, width))
+        return out
+
+    try:
+        dso, dsd = per("DSO", 0), per("DSD", 0)
+        off_det, off_orig = per("offDetector", 2), per("offOrigin", 3)
+    except ValueError as exc:
+        raise SceneError(f"TIGRE geometry fields do not match {n} angles: {exc}") from None
+    frame = tigre.get("frame") or {"origin": [0.0, 0.0, 0.0], "axes": np.eye(3).tolist()}
+    origin, M = np.asarray(frame["origin"], float), np.asarray(frame["axes"], float)
+    poses = []
+    for k in range(n):
+        R = _tigre_rotation(angles[k, 0])
+        o = off_orig[k][::-1]
+        s = R @ np.array([dso[k], 0.0, 0.0]) - o
+        c = R @ np.array([-(dsd[k] - dso[k]), off_det[k][1], off_det[k][0]]) - o
+        poses.append({"source": (origin + M.T @ s).tolist(),
+                      "detector_center": (origin + M.T @ c).tolist(),
+                      "u": (M.T @ R[:, 1]).tolist(), "v": (M.T @ R[:, 2]).tolist()})
+    return poses
 
 
-def apply_rotations(rot, p) -> np.ndarray:
-    """``rot[i] @ p[i]`` for every ``i``, written out (no BLAS: the same bits in any batch)."""
-    return (rot[:, :, 0] * p[:, 0, None] + rot[:, :, 1] * p[:, 1, None]
-            + rot[:, :, 2] * p[:, 2, None])
+
+def check_pose(pose, *, where: str = "") -> tuple:
+    """``(source, detector_center, u, v)`` of a pose as float arrays (``u``, ``v`` unit).
+
+    Raises
+    ------
+    SceneError
+        If the pose is not a table of those four 3-vectors, ``u`` and ``v`` are not
+        perpendicular (to 1e-9 after normalising), or the detector plane they span is parallel
+        to the beam or faces away from the source.
+    """
+    keys = {"source", "detector_center", "u", "v"}
+    if not isinstance(pose, dict) or set(pose) != keys:
+        raise SceneError(f"{where}a pose is a table of source, detector_center, u and v, "
+                         f"got {pose!r}")
+    s, c, u, v = (vector3(pose[k], f"{where}{k}") for k in ("source", "detector_center", "u", "v"))
+    if not (np.linalg.norm(u) > 0 and np.linalg.norm(v) > 0):
+        raise SceneError(f"{where}u and v must be non-zero vectors")
+    u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+    if not abs(u @ v) <= POSE_TOLERANCE:
+        raise SceneError(f"{where}u {u.tolist()} and v {v.tolist()} must be perpendicular "
+                         f"(u . v = {u @ v:.3g})")
+    try:
+        tilted_normal(s, c, u, v)
+    except SceneError as exc:
+        raise SceneError(f"{where}{str(exc).removeprefix('[detector] ')}") from None
+    return s, c, u, v
+
+
+def _untilted(s, c, u, v) -> bool:
+    """``u``, ``v`` are the frame derived from ``s -> c`` with ``up = v`` (to POSE_TOLERANCE)."""
+    try:
+        _, ho, ve = detector_axes(s, c, v)
+    except SceneError:
+        return False
+    return np.abs(ho - u).max() <= POSE_TOLERANCE and np.abs(ve - v).max() <= POSE_TOLERANCE
+
+
+def pose_acquisition(base, pose, *, where: str = "") -> Acquisition:
+    """``base`` with the source and the detector placed as ``pose`` says (:func:`check_pose`):
+    an untilted detector centred on ``detector_center`` when ``u``, ``v`` are the frame
+    derived from the source and the centre, else a tilted one (its ``u``, ``v``); no offset
+    (the pose's centre is the middle of the pixel grid)."""
+    s, c, u, v = check_pose(pose, where=where)
+    tilt = {"u": None, "v": None} if _untilted(s, c, u, v) else {"u": u, "v": v}
+    return Acquisition(source=dataclasses.replace(base.source, position=s),
+                       detector=dataclasses.replace(base.detector, center=c, up=v,
+                                                    offset=(0.0, 0.0), **tilt))
+
 
 
 # --- conventions users bring --------------------------------------------------------------
@@ -479,8 +757,6 @@ def carm_acquisition(like, *, lao: float = 0.0, cranial: float = 0.0, sid: float
     >>> (np.round(acq.detector.center, 9) + 0.0).tolist()
     [400.0, 0.0, 0.0]
     """
-    from xray_viz._checks import vector3
-
     sid, sod = float(sid), float(sod)
     if not (np.isfinite(sid) and np.isfinite(sod) and 0.0 < sod < sid):
         raise SceneError(f"C-arm distances must satisfy 0 < sod < sid (mm); got sod={sod}, "
