@@ -229,3 +229,33 @@ def test_carm_bad_input_names_the_value():
         carm_acquisition(like, lao=float("nan"), sid=1000.0, sod=700.0)
     with pytest.raises(SceneError, match="convention 'siemens'"):
         carm_acquisition(like, sid=1000.0, sod=700.0, convention="siemens")
+
+
+def test_a_scan_builds_each_acquisition_once_for_its_images_and_its_geometry(monkeypatch):
+    """Issue 37: the poses are computed once and shared with the geometry export."""
+    import dataclasses
+
+    from xray_viz.geometry import Acquisition
+    from xray_viz.scan import Orbit, Projections, scan_geometry
+
+    scene = xray_viz.load_scene("sphere")
+    small = scene.replace(detector=dataclasses.replace(scene.detector, shape=(16, 12),
+                                                       pitch=(16.0, 16.0)))
+    orbit = Orbit(projections=5, axis=[0, 1, 0])
+    reference = xray_viz.scan(small, orbit)                 # before counting
+    built = []
+    original = Acquisition.__post_init__
+
+    def counting(self):
+        built.append(self)
+        original(self)
+
+    monkeypatch.setattr(Acquisition, "__post_init__", counting)
+    s = xray_viz.scan(small, orbit)
+    assert len(built) == 5             # one per projection (before: 5 + 5 + 1 for the geometry)
+    np.testing.assert_array_equal(s.projections, reference.projections)
+    # the geometry read from the kept acquisitions is the one built on its own
+    monkeypatch.setattr(Acquisition, "__post_init__", original)
+    project = Projections(small, orbit, keep=True)
+    assert scan_geometry(small, orbit, acquisitions=project.acquisitions) == \
+        scan_geometry(small, orbit)

@@ -83,11 +83,12 @@ def projection_seed(seed: int | None, k: int) -> int | None:
     return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1, np.uint64)[0])
 
 
-def pose_table(scene, orbit: Orbit):
+def pose_table(scene, orbit: Orbit, *, acquisitions=None):
     """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
     detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
     (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`) for an untilted detector without
-    offset, other orbits and detectors pose by pose.
+    offset, other orbits and detectors pose by pose (from ``acquisitions``, the orbit's
+    acquisitions when the caller has them already, e.g. :class:`Projections`'s).
 
     Examples
     --------
@@ -101,7 +102,7 @@ def pose_table(scene, orbit: Orbit):
     base = scene.acquisition
     if orbit.random is None or not getattr(base.frame, "plain", True):
         # pose by pose (a tilted or offset detector: the general frame and matrix)
-        acqs = list(orbit.acquisitions(base))
+        acqs = list(orbit.acquisitions(base)) if acquisitions is None else acquisitions
         poses = np.array([[acquisition_pose(a)[r] for r in POSE_ROWS] for a in acqs],
                          np.float64).reshape(-1, 4, 3)
         mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
@@ -136,9 +137,13 @@ def _per_projection_lists(poses, mats) -> tuple:
         return poses, np.asarray(mats, np.float64).tolist()
 
 
-def scan_geometry(scene, orbit: Orbit) -> dict:
+def scan_geometry(scene, orbit: Orbit, *, acquisitions=None) -> dict:
     """The geometry dict of a scan (the shared layout: angles, axis, SID, SOD, detector,
     per-projection poses and projection matrices), JSON-serialisable.
+
+    ``acquisitions`` (optional): the orbit's acquisitions, when the caller has built them
+    already (:attr:`Projections.acquisitions`): the poses are then read from them, not built
+    again.
 
     Random poses are built over all projections at once (:func:`pose_table`): 100,000 of them
     in about a second.
@@ -153,14 +158,14 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
     base = scene.acquisition
     det = scene.detector
     angles = orbit.angles()
-    first = orbit.acquisition(base, 0).frame
+    first = (acquisitions[0] if acquisitions else orbit.acquisition(base, 0)).frame
     if orbit.kind == "poses":
         axis = center = sod = None
     else:
         axis, center = orbit.axis.tolist(), orbit.center.tolist()
         rel = first.source - orbit.center
         sod = float(np.linalg.norm(rel - (rel @ orbit.axis) * orbit.axis))
-    poses, mats = _per_projection_lists(*pose_table(scene, orbit))
+    poses, mats = _per_projection_lists(*pose_table(scene, orbit, acquisitions=acquisitions))
     out = {
         "orbit": orbit.kind,
         "beam": "parallel" if base.parallel else "cone",
@@ -252,6 +257,8 @@ class Projections:
     ``Projections(scene, orbit)(k)`` is projection ``k``, ``(H, W)`` float32: the orbit's
     acquisition ``k`` (no scene is built), the noise seeded with :func:`projection_seed`
     ``(seed, k)``; bit for bit :func:`xray_viz.render` of the scene moved to that pose.
+    With ``keep=True`` the orbit's acquisitions are built once here and kept
+    (:attr:`acquisitions`), for :func:`scan_geometry` to read the poses from them.
 
     Examples
     --------
@@ -265,7 +272,7 @@ class Projections:
     """
 
     def __init__(self, scene, orbit: Orbit, *, quantity: str = "line-integral",
-                 engine: str = "fast"):
+                 engine: str = "fast", keep: bool = False):
         from xray_viz.render import check_memory, stages
         from xray_viz.tracing.engines import Projector
 
@@ -273,6 +280,10 @@ class Projections:
         self.projector = Projector(scene.bodies, engine)
         self.beam, self.model = stages(scene)
         self.base, self.orbit, self.quantity = scene.acquisition, orbit, quantity
+        #: With ``keep``: the orbit's acquisitions, built once, shared by the images and the
+        #: geometry export (``scan_geometry(..., acquisitions=)``); else None (each built
+        #: when its projection is rendered: bounded memory for large scans).
+        self.acquisitions = list(orbit.acquisitions(self.base)) if keep else None
         self.supersample = scene.detector.supersample
         check_memory(scene, supersample=self.supersample, engine=engine)
 
@@ -280,7 +291,8 @@ class Projections:
         """Projection ``k``, ``(H, W)`` float32."""
         from xray_viz.render import image
 
-        acq = self.orbit.acquisition(self.base, k)
+        acq = self.acquisitions[k] if self.acquisitions is not None \
+            else self.orbit.acquisition(self.base, k)
         seed = acq.detector.seed
         intensity, line_integral = image(
             self.projector, self.beam, self.model, acq, supersample=self.supersample,
@@ -394,20 +406,24 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
     """
     _check_quantity(quantity)
     orbit = _orbit_of(scene, orbit)
-    geometry = scan_geometry(scene, orbit)
     if client is not None and store is None:
         raise SceneError("scan(client=...) writes a Zarr store: give store= (a path)")
     if store is None:
         w, h = scene.detector.shape
         out = np.empty((orbit.projections, h, w), np.float32)
+        # the stack is in memory anyway: the acquisitions are built once, for the images
+        # and the geometry (random poses: the geometry's arrays, built all at once)
+        project = Projections(scene, orbit, quantity=quantity, engine=engine,
+                              keep=orbit.random is None)
+        geometry = scan_geometry(scene, orbit, acquisitions=project.acquisitions)
         bar = _bar(orbit.projections, progress)
-        project = Projections(scene, orbit, quantity=quantity, engine=engine)
         for k in range(orbit.projections):
             out[k] = project(k)
             bar.update(1)
         bar.close()
         flat, dark = flat_dark(scene, geometry, quantity)
         return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
+    geometry = scan_geometry(scene, orbit)
     _scan_to_store(scene, orbit, store, geometry=geometry, quantity=quantity, engine=engine,
                    client=client, batch=batch, progress=progress)
     return read_zarr(store, scene=scene, lazy=True)
