@@ -259,3 +259,96 @@ def test_a_scan_builds_each_acquisition_once_for_its_images_and_its_geometry(mon
     project = Projections(small, orbit, keep=True)
     assert scan_geometry(small, orbit, acquisitions=project.acquisitions) == \
         scan_geometry(small, orbit)
+
+
+# --- CIL ---------------------------------------------------------------------------------
+
+def _cil_to_astra(cil):
+    """CIL's own map of a circular AcquisitionGeometry to ASTRA ``cone_vec`` /
+    ``parallel3d_vec`` rows (``cil.plugins.astra.utilities.convert_geometry_to_astra_vec_3D``,
+    reimplemented from its source): the frame aligned so that the rotation axis is z through
+    the origin (``align_reference_frame('cil')``), ``row = pixel_size[0] direction_x``,
+    ``col = pixel_size[1] direction_y`` (negated for a ``right`` / ``top`` origin), and
+    each system turned by ``-angle`` about z. Returns the rows and the frame ``(M, origin)``."""
+    sysargs, panel = cil["system"], cil["panel"]
+    z = np.asarray(sysargs["rotation_axis_direction"], float)
+    z /= np.linalg.norm(z)
+    ref = np.eye(3)[int(np.argmin(np.abs(z)))]
+    x = np.cross(ref, z)
+    x /= np.linalg.norm(x)
+    M = np.array([x, np.cross(z, x), z])                  # rows: the aligned frame's axes
+    o = np.asarray(sysargs["rotation_axis_position"], float)
+    row = panel["pixel_size"][0] * M @ sysargs["detector_direction_x"]
+    col = panel["pixel_size"][1] * M @ sysargs["detector_direction_y"]
+    if "right" in panel["origin"]:
+        row = -row
+    if "top" in panel["origin"]:
+        col = -col
+    det = M @ (np.asarray(sysargs["detector_position"], float) - o)
+    src = M @ sysargs["ray_direction"] if "ray_direction" in sysargs \
+        else M @ (np.asarray(sysargs["source_position"], float) - o)
+    out = []
+    for theta in cil["angles"]["angles"]:
+        t = np.radians(-theta)
+        Rz = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+        out.append(np.concatenate([Rz @ src, Rz @ det, Rz @ row, Rz @ col]))
+    return np.array(out), M, o
+
+
+@pytest.mark.parametrize("beam", ["cone", "parallel"])
+def test_cil_geometry_is_our_astra_geometry_through_cils_own_conversion(beam):
+    import dataclasses
+
+    from xray_viz.poses import astra_vectors, cil_geometry
+    from xray_viz.scan import Orbit, scan_geometry
+
+    scene = xray_viz.load_scene("sphere")
+    det = dataclasses.replace(scene.detector, shape=(40, 30), pitch=(2.0, 3.0),
+                              offset=(7.0, -5.0))
+    src = dataclasses.replace(scene.source, kind="parallel") if beam == "parallel" \
+        else scene.source
+    scene = scene.replace(detector=det, source=src)
+    orbit = Orbit(projections=7, axis=[0.2, 1.0, 0.1], center=[3.0, -4.0, 5.0], start=30.0,
+                  arc=250.0)
+    g = scan_geometry(scene, orbit)
+    cil = cil_geometry(g)
+    assert cil["create"] == ("create_Cone3D" if beam == "cone" else "create_Parallel3D")
+    assert cil["dimension_labels"] == ["angle", "vertical", "horizontal"]
+    theirs, M, o = _cil_to_astra(cil)
+    ours = astra_vectors(g)
+    # ours in CIL's aligned frame: positions moved by -o, everything turned by M
+    ours_aligned = np.concatenate(
+        [(ours[:, :3] - (0 if beam == "parallel" else o)) @ M.T, (ours[:, 3:6] - o) @ M.T,
+         ours[:, 6:9] @ M.T, ours[:, 9:] @ M.T], axis=1)
+    assert np.abs(theirs - ours_aligned).max() < 1e-9
+
+
+def test_cil_geometry_refuses_what_is_not_one_system_turned():
+    from xray_viz.poses import cil_geometry
+    from xray_viz.scan import orbit_from_dict, scan_geometry
+
+    scene = xray_viz.load_scene("sphere")
+    helical = scan_geometry(scene, orbit_from_dict({"orbit": "helical", "projections": 4,
+                                                    "axis": [0, 1, 0], "pitch": 20.0}))
+    with pytest.raises(SceneError, match="pose 1 is not the first pose turned"):
+        cil_geometry(helical)
+    random = scan_geometry(scene, orbit_from_dict({"axis": [0, 1, 0],
+                                                   "poses": {"random": 3, "seed": 1}}))
+    with pytest.raises(SceneError, match="astra_vectors"):
+        cil_geometry(random)
+
+
+def test_cil_acquisition_geometry_names_how_to_get_cil():
+    from xray_viz.poses import cil_acquisition_geometry
+    from xray_viz.scan import Orbit, scan_geometry
+
+    try:
+        import cil  # noqa: F401
+    except ModuleNotFoundError:
+        g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=2, axis=[0, 1, 0]))
+        with pytest.raises(ModuleNotFoundError, match="conda-forge"):
+            cil_acquisition_geometry(g)
+    else:
+        g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=2, axis=[0, 1, 0]))
+        ag = cil_acquisition_geometry(g)
+        assert ag.config.panel.num_pixels.tolist() == [256, 256]

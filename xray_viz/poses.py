@@ -52,7 +52,8 @@ __all__ = ["rotation", "rotations", "apply_rotations", "euler_to_matrix", "matri
            "diffdrr_acquisition", "carm_rotation", "carm_acquisition", "CARM_CONVENTIONS",
            "DIFFDRR_PARAMETERIZATIONS", "acquisition_pose", "check_pose", "pose_acquisition",
            "POSE_TOLERANCE", "pose_frames", "projection_matrices", "astra_vectors",
-           "poses_from_astra", "tigre_geometry", "poses_from_tigre"]
+           "poses_from_astra", "tigre_geometry", "poses_from_tigre", "cil_geometry",
+           "cil_acquisition_geometry"]
 
 #: How far a pose's ``u`` and ``v`` may be from perpendicular (and from the frame derived from
 #: the source and the centre, for an untilted detector).
@@ -771,3 +772,118 @@ def carm_acquisition(like, *, lao: float = 0.0, cranial: float = 0.0, sid: float
         R = W @ R
     beam = R @ [0.0, -1.0, 0.0]
     return _placed(like, iso - sod * beam, iso + (sid - sod) * beam, R @ [0.0, 0.0, 1.0])
+
+
+def cil_geometry(geometry, *, tolerance: float = 1e-6) -> dict:
+    """The scan's geometry as CIL's ``AcquisitionGeometry`` arguments (a plain dict, no CIL
+    needed; :func:`cil_acquisition_geometry` builds CIL's object from it).
+
+    CIL (``cil.framework.AcquisitionGeometry``) describes a circular scan: the system at
+    angle 0 (``create_Cone3D(source_position, detector_position, detector_direction_x,
+    detector_direction_y, rotation_axis_position, rotation_axis_direction)`` or
+    ``create_Parallel3D(ray_direction, ...)``), the panel (``set_panel(num_pixels,
+    pixel_size, origin)``) and the angles (``set_angles``). CIL turns the *sample* by
+    ``+angle`` about the rotation axis (its ASTRA plugin turns the system by ``-angle``), while
+    a scan here turns the gantry by ``angles_deg``: the system is the scan's first pose and
+    CIL's angles are ``-(angles_deg - angles_deg[0])``. The panel's ``origin`` is
+    ``"top-left"`` (row 0 of the stack at the top, along ``-v``; column 0 at the left, along
+    ``u``), so that CIL's data ``(angle, vertical, horizontal)`` are the stack as it is.
+
+    Parameters
+    ----------
+    geometry : dict
+        :func:`xray_viz.scan.scan_geometry`.
+    tolerance : float
+        How far (mm, and for the unit directions) each pose may be from the first one turned
+        by its angle: CIL's geometry is one system turned about one axis.
+
+    Returns
+    -------
+    dict
+        ``create`` (``"create_Cone3D"`` or ``"create_Parallel3D"``), ``system`` (its keyword
+        arguments, ``units="mm"``), ``panel`` (``set_panel``'s), ``angles`` (``set_angles``'s,
+        degrees) and ``dimension_labels``.
+
+    Raises
+    ------
+    SceneError
+        A scan that is not one system turned about one axis (helical, random or explicit
+        poses): use :func:`astra_vectors` (one row per projection) instead.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> from xray_viz.scan import Orbit, scan_geometry
+    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
+    >>> c = cil_geometry(g)
+    >>> c["create"], c["system"]["source_position"], c["angles"]["angles"]
+    ('create_Cone3D', [0.0, 0.0, 1000.0], [0.0, -90.0, -180.0, -270.0])
+    >>> c["panel"]
+    {'num_pixels': [256, 256], 'pixel_size': [0.5, 0.5], 'origin': 'top-left'}
+    """
+    angles, axis, center = geometry.get("angles_deg"), geometry.get("axis"), \
+        geometry.get("center")
+    poses = geometry["poses"]
+    if angles is None or axis is None or center is None:
+        raise SceneError(f"CIL's AcquisitionGeometry is one system turned about one axis; a "
+                         f"{geometry.get('orbit')!r} orbit has no angles: export it with "
+                         "astra_vectors (one row per projection)")
+    a = np.asarray(axis, np.float64)
+    c = np.asarray(center, np.float64)
+    first = {k: np.asarray(poses[0][k], np.float64) for k in ("source", "detector_center",
+                                                              "u", "v")}
+    steps = np.asarray(angles, np.float64) - float(angles[0])
+    for k, (pose, step) in enumerate(zip(poses, steps)):
+        R = rotation(a, float(step))
+        want = {"source": c + R @ (first["source"] - c),
+                "detector_center": c + R @ (first["detector_center"] - c),
+                "u": R @ first["u"], "v": R @ first["v"]}
+        worst = max(float(np.abs(np.asarray(pose[key], np.float64) - want[key]).max())
+                    for key in want)
+        if worst > tolerance:
+            raise SceneError(f"pose {k} is not the first pose turned by {step:g} degrees about "
+                             f"the axis (off by {worst:.3g}): a {geometry.get('orbit')!r} "
+                             "orbit has no CIL AcquisitionGeometry; use astra_vectors")
+    parallel = geometry["beam"] == "parallel"
+    system = {"detector_position": first["detector_center"].tolist(),
+              "detector_direction_x": first["u"].tolist(),
+              "detector_direction_y": first["v"].tolist(),
+              "rotation_axis_position": c.tolist(),
+              "rotation_axis_direction": (a / np.linalg.norm(a)).tolist(), "units": "mm"}
+    if parallel:
+        ray = first["detector_center"] - first["source"]
+        system = {"ray_direction": (ray / np.linalg.norm(ray)).tolist(), **system}
+    else:
+        system = {"source_position": first["source"].tolist(), **system}
+    w, h = geometry["detector"]["shape"]
+    return {"create": "create_Parallel3D" if parallel else "create_Cone3D", "system": system,
+            "panel": {"num_pixels": [int(w), int(h)],
+                      "pixel_size": [float(p) for p in geometry["detector"]["pitch_mm"]],
+                      "origin": "top-left"},
+            "angles": {"angles": (0.0 - steps + 0.0).tolist(), "angle_unit": "degree"},
+            "dimension_labels": ["angle", "vertical", "horizontal"]}
+
+
+def cil_acquisition_geometry(geometry):
+    """CIL's ``AcquisitionGeometry`` of a scan (:func:`cil_geometry`'s arguments given to
+    CIL). Needs CIL (``conda install -c conda-forge -c ccpi cil``: it is not on PyPI).
+
+    Raises
+    ------
+    ModuleNotFoundError
+        Without CIL, naming how to install it (:func:`cil_geometry` needs no CIL).
+    """
+    try:
+        from cil.framework import AcquisitionGeometry
+    except ModuleNotFoundError:
+        raise ModuleNotFoundError(
+            "CIL is not installed (it is on conda-forge, not PyPI: conda install -c "
+            "conda-forge -c ccpi cil); xray_viz.poses.cil_geometry gives its arguments "
+            "without it") from None
+    args = cil_geometry(geometry)
+    ag = getattr(AcquisitionGeometry, args["create"])(**args["system"])
+    ag.set_panel(**args["panel"])
+    ag.set_angles(**args["angles"])
+    ag.set_labels(args["dimension_labels"])
+    return ag
+
