@@ -375,3 +375,15 @@ def test_rtk_rows_are_the_poses_in_rtks_frame():
     oblique = {**pose, "source": [300.0, 0.0, 1000.0]}
     with pytest.raises(SceneError, match="poses\\[0\\].*oblique"):
         rtk_rows([oblique], R, c, parallel=True)
+
+
+def test_carm_in_a_scene_whose_axes_are_not_lps():
+    """A RAS scene (x right, y anterior, z superior): world_from_patient = diag(-1, -1, 1)."""
+    like = xray_viz.load_scene("sphere").acquisition
+    ras = np.diag([-1.0, -1.0, 1.0])
+    ap = carm_acquisition(like, sid=1000.0, sod=700.0, world_from_patient=ras)
+    assert np.abs(ap.source.position - [0.0, -700.0, 0.0]).max() < 1e-9    # posterior: -y
+    lat = carm_acquisition(like, lao=90.0, sid=1000.0, sod=700.0, world_from_patient=ras)
+    assert np.abs(lat.detector.center - [-300.0, 0.0, 0.0]).max() < 1e-9   # the left: -x
+    with pytest.raises(SceneError, match="rotation matrix"):
+        carm_acquisition(like, sid=1000.0, sod=700.0, world_from_patient=np.diag([1, 1, -1]))
