@@ -302,7 +302,7 @@ def test_from_projection_matrix_still_refuses_skewed_pixels():
 
 def _pose_orbit(kind):
     from xray_viz.orbit import Orbit
-    from xray_viz.scan import _pose
+    from xray_viz.poses import acquisition_pose as _pose
 
     acqs = list(_random_acquisitions(kind, n=3, seed=9))
     return acqs, Orbit("poses", poses=[_pose(a) for a in acqs])

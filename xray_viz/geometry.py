@@ -745,7 +745,7 @@ class Acquisition:
         if isinstance(angle, bool) or not isinstance(angle, (int, float, np.number)) \
                 or not math.isfinite(float(angle)):
             raise SceneError(f"rotation angle must be a finite number of degrees, got {angle!r}")
-        from xray_viz.poses import rotation
+        from xray_viz._rotation import rotation
 
         c = np.asarray(center, np.float64).reshape(3)
         rot = rotation(a, float(angle))

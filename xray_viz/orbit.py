@@ -31,8 +31,14 @@ import numpy as np
 
 from xray_viz._checks import vector3
 from xray_viz.errors import SceneError
-from xray_viz.geometry import Acquisition, detector_axes, tilted_normal
-from xray_viz.poses import apply_rotations as _apply, rotations as _rotations
+from xray_viz.geometry import Acquisition
+from xray_viz.poses import (  # noqa: F401  (check_pose, POSE_TOLERANCE: importable here as before)
+    POSE_TOLERANCE,
+    apply_rotations as _apply,
+    check_pose,
+    pose_acquisition,
+    rotations as _rotations,
+)
 
 __all__ = ["Orbit", "ORBITS", "SCAN_KEYS", "orbit_from_dict", "pose_acquisition", "check_pose",
            "read_poses", "RandomPoses", "RANDOM_KEYS"]
@@ -42,7 +48,6 @@ ORBITS = ("circular", "helical", "poses")
 SCAN_KEYS = ("orbit", "projections", "arc", "axis", "center", "pitch", "poses", "start")
 
 #: How far (unit vectors) a pose's u/v may be from the derived detector frame.
-POSE_TOLERANCE = 1e-9
 
 
 def _vector(value, name, where) -> np.ndarray:
@@ -403,55 +408,6 @@ class RandomPoses:
         return Acquisition(
             source=dataclasses.replace(base.source, position=src),
             detector=dataclasses.replace(base.detector, center=det, up=up))
-
-
-def check_pose(pose, *, where: str = "") -> tuple:
-    """``(source, detector_center, u, v)`` of a pose as float arrays (``u``, ``v`` unit).
-
-    Raises
-    ------
-    SceneError
-        If the pose is not a table of those four 3-vectors, ``u`` and ``v`` are not
-        perpendicular (to 1e-9 after normalising), or the detector plane they span is parallel
-        to the beam or faces away from the source.
-    """
-    keys = {"source", "detector_center", "u", "v"}
-    if not isinstance(pose, dict) or set(pose) != keys:
-        raise SceneError(f"{where}a pose is a table of source, detector_center, u and v, "
-                         f"got {pose!r}")
-    s, c, u, v = (_vector(pose[k], k, where) for k in ("source", "detector_center", "u", "v"))
-    if not (np.linalg.norm(u) > 0 and np.linalg.norm(v) > 0):
-        raise SceneError(f"{where}u and v must be non-zero vectors")
-    u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
-    if not abs(u @ v) <= POSE_TOLERANCE:
-        raise SceneError(f"{where}u {u.tolist()} and v {v.tolist()} must be perpendicular "
-                         f"(u . v = {u @ v:.3g})")
-    try:
-        tilted_normal(s, c, u, v)
-    except SceneError as exc:
-        raise SceneError(f"{where}{str(exc).removeprefix('[detector] ')}") from None
-    return s, c, u, v
-
-
-def _untilted(s, c, u, v) -> bool:
-    """``u``, ``v`` are the frame derived from ``s -> c`` with ``up = v`` (to POSE_TOLERANCE)."""
-    try:
-        _, ho, ve = detector_axes(s, c, v)
-    except SceneError:
-        return False
-    return np.abs(ho - u).max() <= POSE_TOLERANCE and np.abs(ve - v).max() <= POSE_TOLERANCE
-
-
-def pose_acquisition(base: Acquisition, pose, *, where: str = "") -> Acquisition:
-    """``base`` with the source and the detector placed as ``pose`` says (:func:`check_pose`):
-    an untilted detector centred on ``detector_center`` when ``u``, ``v`` are the frame
-    derived from the source and the centre, else a tilted one (its ``u``, ``v``); no offset
-    (the pose's centre is the middle of the pixel grid)."""
-    s, c, u, v = check_pose(pose, where=where)
-    tilt = {"u": None, "v": None} if _untilted(s, c, u, v) else {"u": u, "v": v}
-    return Acquisition(source=dataclasses.replace(base.source, position=s),
-                       detector=dataclasses.replace(base.detector, center=c, up=v,
-                                                    offset=(0.0, 0.0), **tilt))
 
 
 def read_poses(path) -> tuple:

@@ -172,14 +172,11 @@ def rtk_frame(geometry) -> tuple[np.ndarray, np.ndarray]:
     """
     ey = _unit(geometry.get("axis", (0.0, 0.0, 1.0)), "axis")
     from xray_viz._checks import vector3
+    from xray_viz.poses import rtk_axes
 
     center = vector3(geometry.get("center", (0.0, 0.0, 0.0)), "geometry center", units=" (mm)",
                      error=ReconstructionError)
-    ref = np.eye(3)[int(np.argmin(np.abs(ey) + 1e-12 * np.arange(3)))]
-    ez = ref - (ref @ ey) * ey
-    ez /= np.linalg.norm(ez)
-    ex = np.cross(ey, ez)
-    return np.array([ex, ey, ez]), center
+    return rtk_axes(ey), center
 
 
 def _poses(geometry):
@@ -223,16 +220,10 @@ def rtk_geometry(geometry):
     R, center = rtk_frame(geometry)
     parallel = geometry.get("beam", "cone") == "parallel"
     cone = rtk.ThreeDCircularProjectionGeometry.New()
-    for k, p in enumerate(_poses(geometry)):
-        s, d = R @ (p["source"] - center), R @ (p["detector_center"] - center)
-        u, v = R @ p["u"], R @ p["v"]
-        if parallel:     # a point source on the detector's normal, far enough: RTK's angles
-            n = np.cross(u, v)
-            n /= np.linalg.norm(n)
-            if abs(abs(float(n @ _unit(d - s, "ray"))) - 1.0) > 1e-9:
-                raise ReconstructionError(f"geometry poses[{k}]: a parallel beam onto a tilted "
-                                          "detector (rays oblique to it) has no RTK geometry")
-            s = d + n * max(1e3, 10 * np.linalg.norm(s - d))
+    from xray_viz.poses import rtk_rows
+
+    rows = rtk_rows(_poses(geometry), R, center, parallel=parallel, error=ReconstructionError)
+    for k, (s, d, u, v) in enumerate(rows):
         ok = cone.AddProjection([float(x) for x in s], [float(x) for x in d],
                                 [float(x) for x in u], [float(x) for x in v])
         if not ok:

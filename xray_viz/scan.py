@@ -33,8 +33,16 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import OutputError, SceneError
-from xray_viz.geometry import Acquisition
 from xray_viz.orbit import Orbit, orbit_from_dict
+from xray_viz.poses import (  # noqa: F401  (the exports: importable here as documented)
+    acquisition_pose,
+    astra_vectors,
+    pose_frames,
+    poses_from_astra,
+    poses_from_tigre,
+    projection_matrices,
+    tigre_geometry,
+)
 
 __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "Projections",
            "scan_geometry",
@@ -43,7 +51,7 @@ __all__ = ["Scan", "Orbit", "orbit_from_dict", "scan", "projection", "Projection
            "add_scan_parser", "scan_command", "SCAN_QUANTITIES", "flat_dark",
            "trim_memory", "warm_kernels", "tigre_geometry", "poses_from_tigre",
            "pose_table", "done_flags", "damaged_projections", "bodies_digest", "LAYOUT_VERSION",
-           "ARRAYS_LAYOUT_VERSION", "INLINE_POSES_MAX", "POSE_ROWS", "cil_geometry", "to_cil"]
+           "ARRAYS_LAYOUT_VERSION", "INLINE_POSES_MAX", "POSE_ROWS"]
 
 #: What a projection holds: ``-ln(I / I0)`` (default) or the detected intensity.
 SCAN_QUANTITIES = ("line-integral", "intensity")
@@ -64,11 +72,6 @@ PLUGIN_NAME = "xray_viz-scenes"
 
 # ---------------------------------------------------------------------------------- geometry
 
-def _unit(v) -> np.ndarray:
-    v = np.asarray(v, np.float64)
-    return v / np.linalg.norm(v)
-
-
 def projection_seed(seed: int | None, k: int) -> int | None:
     """The noise seed of projection ``k`` of a scan whose detector has ``seed`` (None: fresh
     randomness): distinct per projection, the same in every run and on every worker.
@@ -83,58 +86,13 @@ def projection_seed(seed: int | None, k: int) -> int | None:
     return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1, np.uint64)[0])
 
 
-def _pose(acq: Acquisition) -> dict:
-    f = acq.frame          # the pose's centre is the pixel grid's middle (offset included);
-    source = f.source if not f.parallel or f.plain else f.source + (f.middle - f.center)
-    return {"source": source.tolist(), "detector_center": f.middle.tolist(),   # a parallel
-            "u": f.ho.tolist(), "v": f.ve.tolist()}         # beam's source: on its middle ray
-
-
-def _frames(source, center, up):
-    """``(forward, ho, ve, sid)`` of many poses at once, ``(n, 3)`` arrays and ``(n,)``:
-    :func:`xray_viz.geometry.detector_axes` over rows."""
-    from xray_viz.geometry import UP_TOLERANCE
-
-    fl = source - center
-    sid = np.sqrt(np.einsum("ij,ij->i", fl, fl))
-    if not np.all(sid > 0):
-        raise SceneError("the source sits at the detector centre: FL = r0 - center is zero")
-    forward = -fl / sid[:, None]
-    ho = np.cross(forward, up)
-    norm = np.sqrt(np.einsum("ij,ij->i", ho, ho))
-    if not np.all(norm >= UP_TOLERANCE * np.sqrt(np.einsum("ij,ij->i", up, up))):
-        raise SceneError("[detector] up is parallel to the beam (source -> detector centre) "
-                         "for some poses; choose an up vector across the beam")
-    ho = ho / norm[:, None]
-    return forward, ho, np.cross(ho, forward), sid
-
-
-def _projection_matrices(source, center, forward, ho, ve, sid, *, shape, pitch,
-                         parallel) -> np.ndarray:
-    """``(n, 3, 4)``: :meth:`Acquisition.projection_matrix` of many poses at once."""
-    (w, h), (pu, pv) = shape, pitch
-    cx, cy = (w - 1) / 2, (h - 1) / 2
-    n = len(source)
-    out = np.zeros((n, 3, 4))
-    if parallel:
-        out[:, 0, :3], out[:, 1, :3] = ho / pu, ve / pv
-        out[:, 0, 3] = cx - np.einsum("ij,ij->i", ho, center) / pu
-        out[:, 1, 3] = cy - np.einsum("ij,ij->i", ve, center) / pv
-        out[:, 2, 3] = 1.0
-        return out
-    out[:, 0, :3] = (sid / pu)[:, None] * ho + cx * forward
-    out[:, 1, :3] = (sid / pv)[:, None] * ve + cy * forward
-    out[:, 2, :3] = forward
-    out[:, :, 3] = -np.einsum("nij,nj->ni", out[:, :, :3], source)
-    return out
-
-
-def pose_table(scene, orbit: Orbit):
+def pose_table(scene, orbit: Orbit, *, acquisitions=None):
     """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
     detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
     (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`), as are circular and helical ones
     (:meth:`~xray_viz.orbit.Orbit.pose_arrays`), for an untilted detector without offset;
-    explicit poses and other detectors pose by pose.
+    explicit poses and other detectors pose by pose (from ``acquisitions``, the orbit's
+    acquisitions when the caller has them already, e.g. :class:`Projections`'s).
 
     Examples
     --------
@@ -150,8 +108,8 @@ def pose_table(scene, orbit: Orbit):
             not getattr(base.frame, "plain", True):
         # pose by pose (explicit poses; a tilted or offset detector: the general frame and
         # matrix)
-        acqs = list(orbit.acquisitions(base))
-        poses = np.array([[_pose(a)[r] for r in POSE_ROWS] for a in acqs],
+        acqs = list(orbit.acquisitions(base)) if acquisitions is None else acquisitions
+        poses = np.array([[acquisition_pose(a)[r] for r in POSE_ROWS] for a in acqs],
                          np.float64).reshape(-1, 4, 3)
         mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
         return poses, mats
@@ -159,8 +117,8 @@ def pose_table(scene, orbit: Orbit):
         src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
     else:                                   # circular or helical: all angles at once
         src, det, up = orbit.pose_arrays(base)
-    forward, ho, ve, sid = _frames(src, det, up)
-    mats = _projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
+    forward, ho, ve, sid = pose_frames(src, det, up)
+    mats = projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
                                 pitch=scene.detector.pitch, parallel=base.parallel)
     return np.stack([src, det, ho, ve], axis=1), mats
 
@@ -188,9 +146,13 @@ def _per_projection_lists(poses, mats) -> tuple:
         return poses, np.asarray(mats, np.float64).tolist()
 
 
-def scan_geometry(scene, orbit: Orbit) -> dict:
+def scan_geometry(scene, orbit: Orbit, *, acquisitions=None) -> dict:
     """The geometry dict of a scan (the shared layout: angles, axis, SID, SOD, detector,
     per-projection poses and projection matrices), JSON-serialisable.
+
+    ``acquisitions`` (optional): the orbit's acquisitions, when the caller has built them
+    already (:attr:`Projections.acquisitions`): the poses are then read from them, not built
+    again.
 
     Random poses are built over all projections at once (:func:`pose_table`): 100,000 of them
     in about a second.
@@ -202,18 +164,19 @@ def scan_geometry(scene, orbit: Orbit) -> dict:
     >>> g["sid_mm"], g["sod_mm"], g["angles_deg"]
     (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
     """
-    out = _geometry_head(scene, orbit)
-    out["poses"], out["projection_matrices"] = _per_projection_lists(*pose_table(scene, orbit))
+    out = _geometry_head(scene, orbit, acquisitions=acquisitions)
+    out["poses"], out["projection_matrices"] = _per_projection_lists(
+        *pose_table(scene, orbit, acquisitions=acquisitions))
     return out
 
 
-def _geometry_head(scene, orbit: Orbit) -> dict:
+def _geometry_head(scene, orbit: Orbit, *, acquisitions=None) -> dict:
     """:func:`scan_geometry` with ``poses`` and ``projection_matrices`` left None (in their
     places): nothing per projection but the angles."""
     base = scene.acquisition
     det = scene.detector
     angles = orbit.angles()
-    first = orbit.acquisition(base, 0).frame
+    first = (acquisitions[0] if acquisitions else orbit.acquisition(base, 0)).frame
     if orbit.kind == "poses":
         axis = center = sod = None
     else:
@@ -238,281 +201,6 @@ def _geometry_head(scene, orbit: Orbit) -> dict:
         out["random"] = {**orbit.random.to_dict(), "axis": orbit.axis.tolist(),
                          "center": orbit.center.tolist()}
     return out
-
-
-def astra_vectors(geometry) -> np.ndarray:
-    """The scan's geometry as ASTRA's vector geometry: one row per projection, ``cone_vec``
-    ``(src, d, u, v)`` for a cone beam or ``parallel3d_vec`` ``(ray, d, u, v)`` for a parallel
-    beam (12 numbers, mm).
-
-    ``d`` is the detector centre, ``u`` the step from detector pixel (0, 0) to (0, 1) (one
-    column, along ``HO``) and ``v`` from (0, 0) to (1, 0) (one row: *down* the image, against
-    ``VE``), so that ASTRA's projection data are the stack as ``projections.transpose(1, 0, 2)``
-    (rows, angles, columns) with no flip.
-
-    Examples
-    --------
-    >>> import xray_viz
-    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=2, axis=[0, 1, 0]))
-    >>> (astra_vectors(g)[0].round(6) + 0.0).tolist()
-    [0.0, 0.0, 1000.0, 0.0, 0.0, -500.0, 0.5, 0.0, 0.0, 0.0, -0.5, 0.0]
-    """
-    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
-    rows = []
-    for pose in geometry["poses"]:
-        src, d = np.asarray(pose["source"], float), np.asarray(pose["detector_center"], float)
-        u, v = np.asarray(pose["u"], float) * pu, -np.asarray(pose["v"], float) * pv
-        first = src if geometry["beam"] == "cone" else _unit(d - src)
-        rows.append(np.concatenate([first, d, u, v]))
-    return np.asarray(rows, dtype=np.float64).reshape(-1, 12)
-
-
-def poses_from_astra(vectors, *, beam: str = "cone", sid: float | None = None) -> list[dict]:
-    """The per-projection poses (source, detector centre, unit ``u`` = HO, unit ``v`` = VE) of
-    ASTRA vectors (:func:`astra_vectors`); a parallel beam's source lies ``sid`` mm before
-    the detector centre along the ray (ASTRA's rows do not say where).
-
-    Raises
-    ------
-    SceneError
-        Rows of the wrong shape, or a parallel beam without ``sid``.
-    """
-    from xray_viz.errors import SceneError
-
-    rows = np.asarray(vectors, dtype=np.float64)
-    if rows.ndim != 2 or rows.shape[1] != 12 or not np.all(np.isfinite(rows)):
-        raise SceneError(f"ASTRA vectors must be finite rows of 12 numbers, got shape "
-                         f"{rows.shape}")
-    if beam != "cone" and sid is None:
-        raise SceneError("a parallel beam's ASTRA rows give no source position: pass sid= "
-                         "(mm from the source plane to the detector)")
-    poses = []
-    for r in rows:
-        first, d, u, v = r[:3], r[3:6], r[6:9], r[9:12]
-        src = first if beam == "cone" else d - float(sid) * _unit(first)
-        poses.append({"source": src.tolist(), "detector_center": d.tolist(),
-                      "u": _unit(u).tolist(), "v": (-_unit(v)).tolist()})
-    return poses
-
-
-def _tigre_rotation(alpha: float) -> np.ndarray:
-    """TIGRE's ``eulerZYZ`` with ``theta = psi = 0``: a turn by ``alpha`` radians about z."""
-    c, s = np.cos(alpha), np.sin(alpha)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def tigre_geometry(geometry, *, axis=None, center=None, tolerance: float = 1e-9) -> dict:
-    """The scan's geometry in TIGRE's conventions (``tigre.geometry`` fields, mm and radians).
-
-    TIGRE (``Common/CUDA/Siddon_projection.cu``, ``Python/tigre/utilities``) turns the source
-    ``(DSO, 0, 0)`` and the detector, centred at ``(-(DSD - DSO), offU, offV)`` with ``U`` along
-    +y and rows down -z, about its z axis by ``angles[:, 0]``, then subtracts ``offOrigin``.
-    Here TIGRE's z is the scan's rotation ``axis`` through ``center`` and its x the direction
-    from the axis to the source at angle 0 (``frame``): ``u`` (image columns) is TIGRE's U
-    and the image rows TIGRE's V from the top, so TIGRE's projections ``(angles, V, U)`` are
-    the stack as it is, no flip. Python-TIGRE's orders: ``nDetector``, ``dDetector``,
-    ``sDetector``, ``offDetector`` are ``(V, U)``, ``offOrigin`` is ``(z, y, x)``.
-
-    Parameters
-    ----------
-    geometry : dict
-        :func:`scan_geometry`.
-    axis, center : (3,) float, optional
-        The rotation axis (default the geometry's; needed for ``"poses"`` orbits).
-    tolerance : float
-        How far a pose's ``u`` may lean on the axis (TIGRE's detector turns about z only).
-
-    Returns
-    -------
-    dict
-        ``DSD``, ``DSO`` ``(n,)``; ``nDetector``, ``dDetector``, ``sDetector`` ``(2,)``;
-        ``offDetector`` ``(n, 2)``; ``offOrigin`` ``(n, 3)``; ``angles`` ``(n, 3)``
-        (ZYZ Euler angles, the last two 0); ``mode`` (``"cone"``/``"parallel"``); ``frame``
-        ``{"origin", "axes"}``: TIGRE's origin and x, y, z axes in scene coordinates.
-
-    Raises
-    ------
-    SceneError
-        A pose whose detector does not stand along the axis (``v`` not parallel to it: a
-        tilted pose would need TIGRE's ``rotDetector``), or no axis for a poses orbit.
-
-    Examples
-    --------
-    >>> import xray_viz
-    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
-    >>> t = tigre_geometry(g)
-    >>> t["DSO"].tolist(), t["DSD"].tolist()[:1], t["nDetector"].tolist(), t["mode"]
-    ([1000.0, 1000.0, 1000.0, 1000.0], [1500.0], [256, 256], 'cone')
-    >>> (t["angles"][:, 0].round(6)).tolist()
-    [0.0, 1.570796, 3.141593, 4.712389]
-    """
-    from xray_viz.poses import rotation as _rotation
-
-    axis = geometry.get("axis") if axis is None else axis
-    center = geometry.get("center") if center is None else center
-    if axis is None or center is None:
-        raise SceneError("TIGRE's geometry turns about an axis: give tigre_geometry(axis=..., "
-                         "center=...) for a poses orbit")
-    z, center = _unit(axis), np.asarray(center, np.float64)
-    poses = geometry["poses"]
-    s0 = np.asarray(poses[0]["source"], float) - center
-    theta0 = (geometry.get("angles_deg") or [0.0])[0]
-    ref = _rotation(z, -theta0) @ s0                     # the source at angle 0
-    x = ref - (ref @ z) * z
-    if not np.linalg.norm(x) > 1e-9:
-        raise SceneError("the source lies on the rotation axis: TIGRE's frame is undefined")
-    x = x / np.linalg.norm(x)
-    M = np.array([x, np.cross(z, x), z])                 # rows: TIGRE's x, y, z in the scene
-    n = len(poses)
-    dso, dsd = np.empty(n), np.empty(n)
-    off_det, off_orig, alpha = np.empty((n, 2)), np.empty((n, 3)), np.empty(n)
-    for k, pose in enumerate(poses):
-        s = M @ (np.asarray(pose["source"], float) - center)
-        c = M @ (np.asarray(pose["detector_center"], float) - center)
-        u, v = M @ np.asarray(pose["u"], float), M @ np.asarray(pose["v"], float)
-        if abs(u[2]) > tolerance or abs(v[2] - 1.0) > tolerance:
-            raise SceneError(f"pose {k}: the detector is tilted against the rotation axis "
-                             f"(v = {np.round(M.T @ v, 9).tolist()}, axis {z.tolist()}); "
-                             "TIGRE's geometry needs rotDetector for it, not supported")
-        alpha[k] = np.arctan2(-u[0], u[1])
-        R = _tigre_rotation(alpha[k])
-        sp, cp = R.T @ s, R.T @ c                        # in the turned frame
-        o = np.array([0.0, -sp[1], -sp[2]])             # the volume moved, not the source
-        dso[k], dsd[k] = sp[0], sp[0] - cp[0]
-        off_det[k] = [cp[2] - sp[2], cp[1] - sp[1]]      # (V, U)
-        off_orig[k] = (R @ o)[::-1]                      # (z, y, x)
-    w, h = geometry["detector"]["shape"]
-    pu, pv = (float(p) for p in geometry["detector"]["pitch_mm"])
-    return {"DSD": dsd, "DSO": dso, "nDetector": np.array([h, w]),
-            "dDetector": np.array([pv, pu]), "sDetector": np.array([h * pv, w * pu]),
-            "offDetector": off_det, "offOrigin": off_orig,
-            "angles": np.c_[np.mod(alpha, 2 * np.pi), np.zeros(n), np.zeros(n)],
-            "mode": "parallel" if geometry["beam"] == "parallel" else "cone",
-            "frame": {"origin": center.tolist(), "axes": M.tolist()}}
-
-
-def cil_geometry(geometry) -> dict:
-    """The scan's geometry as the arguments of CIL's ``AcquisitionGeometry`` (the Core
-    Imaging Library: gVirtualXray's tutorials reconstruct with it), mm and degrees.
-
-    ``create``: the keywords of ``AcquisitionGeometry.create_Cone3D`` (``source_position``)
-    or ``create_Parallel3D`` (``ray_direction``) with ``detector_position`` (the pixel grid's
-    middle), ``detector_direction_x`` (``u``, along a row), ``detector_direction_y`` (``v``,
-    up a column), ``rotation_axis_position`` (the orbit's centre) and
-    ``rotation_axis_direction``: minus the orbit's axis, since CIL turns the *object* by each
-    angle (its ASTRA plugin turns source and detector by ``-angle`` about that direction),
-    while xray_viz's orbit turns source and detector by ``+angle`` about its axis. ``angles``
-    for ``set_angles`` (degrees, ``initial_angle`` 0); ``panel`` for ``set_panel``:
-    ``num_pixels`` [W, H], ``pixel_size`` [pu, pv] and ``origin`` ``"top-left"`` (row 0 at the
-    top, as the stack is); ``dimension_labels`` the stack's own order, so the stack is CIL's
-    ``AcquisitionData`` array as it is. :func:`to_cil` builds the object where CIL is
-    installed (it is not on PyPI: conda's ``cil``).
-
-    Raises
-    ------
-    SceneError
-        An orbit CIL cannot describe: explicit or random poses, or a helical one.
-
-    Examples
-    --------
-    >>> import xray_viz
-    >>> g = scan_geometry(xray_viz.load_scene("sphere"), Orbit(projections=4, axis=[0, 1, 0]))
-    >>> c = cil_geometry(g)
-    >>> c["create"]["source_position"], c["create"]["rotation_axis_direction"], c["angles"]
-    ([0.0, 0.0, 1000.0], [-0.0, -1.0, -0.0], [0.0, 90.0, 180.0, 270.0])
-    """
-    if geometry.get("orbit") == "poses" or geometry.get("axis") is None:
-        raise SceneError("CIL's AcquisitionGeometry turns about one axis: a scan of explicit "
-                         "or random poses has no CIL geometry (use astra_vectors)")
-    if float(geometry.get("pitch_mm_per_turn") or 0.0) != 0.0:
-        raise SceneError("CIL's AcquisitionGeometry has no helical orbit (pitch_mm_per_turn "
-                         f"{geometry['pitch_mm_per_turn']:g}); use astra_vectors")
-    first = geometry["poses"][0]
-    source, centre = first["source"], first["detector_center"]
-    create = {"detector_position": [float(x) for x in centre],
-              "detector_direction_x": [float(x) for x in first["u"]],
-              "detector_direction_y": [float(x) for x in first["v"]],
-              "rotation_axis_position": [float(x) for x in geometry["center"]],
-              "rotation_axis_direction": [-float(x) for x in geometry["axis"]],
-              "units": "mm"}
-    if geometry["beam"] == "cone":
-        create["source_position"] = [float(x) for x in source]
-    else:
-        create["ray_direction"] = _unit(np.asarray(centre, float)
-                                        - np.asarray(source, float)).tolist()
-    w, h = geometry["detector"]["shape"]
-    return {"beam": geometry["beam"], "create": create,
-            "angles": [float(a) for a in geometry["angles_deg"]],
-            "panel": {"num_pixels": [int(w), int(h)],
-                      "pixel_size": [float(p) for p in geometry["detector"]["pitch_mm"]],
-                      "origin": "top-left"},
-            "dimension_labels": ["angle", "vertical", "horizontal"]}
-
-
-def to_cil(geometry):
-    """CIL's ``AcquisitionGeometry`` of a scan (:func:`cil_geometry`), built by CIL.
-
-    Raises
-    ------
-    SceneError
-        CIL is not installed (it is on conda, not PyPI), or the orbit has no CIL geometry.
-    """
-    g = cil_geometry(geometry)
-    try:
-        from cil.framework import AcquisitionGeometry
-    except ImportError:
-        raise SceneError("CIL is not installed (`conda install -c conda-forge -c ccpi cil`; "
-                         "it is not on PyPI): cil_geometry(geometry) gives its arguments") \
-            from None
-    make = (AcquisitionGeometry.create_Cone3D if g["beam"] == "cone"
-            else AcquisitionGeometry.create_Parallel3D)
-    ag = make(**g["create"])
-    ag.set_angles(g["angles"], angle_unit="degree")
-    ag.set_panel(**g["panel"])
-    ag.set_labels(g["dimension_labels"])
-    return ag
-
-
-def poses_from_tigre(tigre) -> list[dict]:
-    """The per-projection poses (source, detector centre, unit ``u``, ``v``) of a TIGRE
-    geometry (:func:`tigre_geometry`; ``frame`` places TIGRE's axes in the scene, default
-    the scene's own). Inverse of :func:`tigre_geometry`.
-
-    Raises
-    ------
-    SceneError
-        Euler angles other than a turn about z (``angles[:, 1:]`` not 0), or fields of
-        mismatched lengths.
-    """
-    angles = np.atleast_1d(np.asarray(tigre["angles"], np.float64))
-    angles = angles[:, None] if angles.ndim == 1 else angles
-    n = len(angles)
-    if angles.shape[1] == 3 and np.any(angles[:, 1:] != 0):
-        raise SceneError("TIGRE angles with theta/psi (a tilted orbit) are not supported: "
-                         "angles[:, 1:] must be 0")
-
-    def per(name, width):
-        value = np.asarray(tigre.get(name, np.zeros(width)), np.float64)
-        out = np.broadcast_to(value, (n,) if width == 0 else (n, width))
-        return out
-
-    try:
-        dso, dsd = per("DSO", 0), per("DSD", 0)
-        off_det, off_orig = per("offDetector", 2), per("offOrigin", 3)
-    except ValueError as exc:
-        raise SceneError(f"TIGRE geometry fields do not match {n} angles: {exc}") from None
-    frame = tigre.get("frame") or {"origin": [0.0, 0.0, 0.0], "axes": np.eye(3).tolist()}
-    origin, M = np.asarray(frame["origin"], float), np.asarray(frame["axes"], float)
-    poses = []
-    for k in range(n):
-        R = _tigre_rotation(angles[k, 0])
-        o = off_orig[k][::-1]
-        s = R @ np.array([dso[k], 0.0, 0.0]) - o
-        c = R @ np.array([-(dsd[k] - dso[k]), off_det[k][1], off_det[k][0]]) - o
-        poses.append({"source": (origin + M.T @ s).tolist(),
-                      "detector_center": (origin + M.T @ c).tolist(),
-                      "u": (M.T @ R[:, 1]).tolist(), "v": (M.T @ R[:, 2]).tolist()})
-    return poses
 
 
 def _physics(scene) -> dict:
@@ -549,7 +237,7 @@ def flat_dark(scene, geometry, quantity: str = "intensity"):
     >>> flat.shape, float(flat.max()), float(dark.max())
     ((256, 256), 1.0, 0.0)
     """
-    from xray_viz.orbit import pose_acquisition
+    from xray_viz.poses import pose_acquisition
     from xray_viz.physics.imaging import flat_field
 
     _check_quantity(quantity)
@@ -586,6 +274,8 @@ class Projections:
     ``Projections(scene, orbit)(k)`` is projection ``k``, ``(H, W)`` float32: the orbit's
     acquisition ``k`` (no scene is built), the noise seeded with :func:`projection_seed`
     ``(seed, k)``; bit for bit :func:`xray_viz.render` of the scene moved to that pose.
+    With ``keep=True`` the orbit's acquisitions are built once here and kept
+    (:attr:`acquisitions`), for :func:`scan_geometry` to read the poses from them.
 
     Examples
     --------
@@ -599,13 +289,17 @@ class Projections:
     """
 
     def __init__(self, scene, orbit: Orbit, *, quantity: str = "line-integral",
-                 engine: str = "fast"):
+                 engine: str = "fast", keep: bool = False):
         from xray_viz.render import check_memory, scene_projector, stages
 
         _check_quantity(quantity)
         self.projector = scene_projector(scene, engine)
         self.beam, self.model = stages(scene)
         self.base, self.orbit, self.quantity = scene.acquisition, orbit, quantity
+        #: With ``keep``: the orbit's acquisitions, built once, shared by the images and the
+        #: geometry export (``scan_geometry(..., acquisitions=)``); else None (each built
+        #: when its projection is rendered: bounded memory for large scans).
+        self.acquisitions = list(orbit.acquisitions(self.base)) if keep else None
         self.supersample = scene.detector.supersample
         check_memory(scene, supersample=self.supersample, engine=engine)
 
@@ -613,7 +307,8 @@ class Projections:
         """Projection ``k``, ``(H, W)`` float32."""
         from xray_viz.render import image
 
-        acq = self.orbit.acquisition(self.base, k)
+        acq = self.acquisitions[k] if self.acquisitions is not None \
+            else self.orbit.acquisition(self.base, k)
         seed = acq.detector.seed
         intensity, line_integral = image(
             self.projector, self.beam, self.model, acq, supersample=self.supersample,
@@ -737,8 +432,12 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
                      "memory bounded by the batch")
         geometry = scan_geometry(scene, orbit)
         out = np.empty((orbit.projections, h, w), np.float32)
+        # the stack is in memory anyway: the acquisitions are built once, for the images
+        # and the geometry (random poses: the geometry's arrays, built all at once)
+        project = Projections(scene, orbit, quantity=quantity, engine=engine,
+                              keep=orbit.random is None)
+        geometry = scan_geometry(scene, orbit, acquisitions=project.acquisitions)
         bar = _bar(orbit.projections, progress)
-        project = Projections(scene, orbit, quantity=quantity, engine=engine)
         for k in range(orbit.projections):
             out[k] = project(k)
             bar.update(1)
