@@ -102,10 +102,11 @@ def _request_guard(bound_host: str, *, proxied: bool = False):
     browsers use this machine's names) but the ``Origin`` must still be the page's own.
 
     ``proxied``: the page is served through jupyter-server-proxy (:mod:`xray_viz.viz.notebook`),
-    which connects from this machine with ``Host: 127.0.0.1:PORT`` but passes the browser's
-    ``Origin`` on - the notebook server's site, which the proxy has checked already (Jupyter's
-    own origin rules, its token or cookie). A foreign ``Origin`` is then accepted on a loopback
-    ``Host:`` only; the websocket still needs the per-run secret."""
+    which connects from this machine but passes the browser's ``Host:`` and ``Origin`` on - the
+    notebook server's site (``hub.example.org`` on JupyterHub), which the proxy has checked
+    already (Jupyter's own origin rules, its token or login cookie). Neither header is then
+    checked: the websocket's per-run secret, which only the notebook's output carries, is the
+    lock (what the page's HTML and scripts show is the installed trame packages, public)."""
     from aiohttp import web as aiohttp_web
 
     allowed = set(LOOPBACK_NAMES) if is_loopback(bound_host) else set()
@@ -117,6 +118,8 @@ def _request_guard(bound_host: str, *, proxied: bool = False):
 
     @aiohttp_web.middleware
     async def guard(request, handler):
+        if proxied:
+            return await handler(request)
         raw_host = request.headers.get("Host")
         if raw_host is None:
             return refuse("no Host header")
@@ -138,9 +141,7 @@ def _request_guard(bound_host: str, *, proxied: bool = False):
             own_port = sockname[1] if sockname else None
             name = (parts.hostname or "").rstrip(".")
             same = name in allowed if allowed else name == host
-            if proxied and is_loopback(host):
-                pass
-            elif parts.scheme not in ("http", "https") or not same or port != own_port:
+            if parts.scheme not in ("http", "https") or not same or port != own_port:
                 return refuse(f"Origin {origin[:80]!r} is another site than the viewer's page")
         return await handler(request)
 
