@@ -302,3 +302,31 @@ def test_proxy_prefix_from_the_environment(monkeypatch):
     monkeypatch.delenv("XRAY_VIZ_PROXY")
     assert proxy_prefix() == "/user/a/proxy/"           # detected: jupyter-server-proxy
     assert proxy_prefix(False) is None
+
+
+@needs_browser
+def test_still_picture_stays_when_no_server_answers(tmp_path):
+    """The output cell of a viewer whose server cannot be reached (neither through a proxy nor
+    directly: a closed port) keeps its still picture, says so, and shows no empty frame."""
+    import xray_viz
+    from xray_viz.viz.notebook import NotebookViewer
+    from xray_viz.viz.web import WebViewer
+
+    web = WebViewer(xray_viz.load_scene("sphere"), resolution=32, height=400)
+    try:
+        web.server._running_port = _free_port()          # nobody listens there
+        html_text = NotebookViewer(web, host="127.0.0.1", prefix="/nowhere/proxy/")._repr_html_()
+    finally:
+        web.close()
+    with browser_page() as page:
+        page.set_content("<html><body></body></html>")
+        _put_output(page, html_text)
+        note = page.locator(".xray-viz-note")
+        note.wait_for(state="visible", timeout=30_000)
+        text = note.inner_text()
+        frames = page.locator("iframe").count()
+        still = _still_picture(page)
+        shot = save_shot(page.locator("img.xray-viz-static"), tmp_path, "still-fallback")
+    assert "cannot be reached" in text and frames == 0
+    assert non_background(view_region(still, "3d")) > 0.02
+    assert non_background(view_region(shot, "radiograph")) > 0.1     # drawn on the page
