@@ -159,3 +159,33 @@ def test_non_loopback_bind_is_announced_loudly(monkeypatch):
         warnings.clear()
         web.serve(Fake(), host=host, port=8123, announce=lines.append)
         assert not warnings, (host, warnings)
+
+
+@pytest.mark.parametrize("proxied", [False, True])
+def test_guard_through_jupyter_server_proxy(proxied):
+    """jupyter-server-proxy passes the browser's Host and Origin on (the notebook server's
+    site, e.g. a JupyterHub's name): refused when serving directly, answered when the viewer
+    is proxied (the proxy checked them; the websocket's secret is the lock). Directly, the
+    page's own address is still answered."""
+    import asyncio
+
+    from aiohttp import web as aiohttp_web
+    from aiohttp.test_utils import make_mocked_request
+
+    from xray_viz.viz.web import _request_guard
+
+    guard = _request_guard("127.0.0.1", proxied=proxied)
+
+    async def handler(request):
+        return aiohttp_web.Response(text="page")
+
+    def status(headers):
+        request = make_mocked_request("GET", "/ws", headers=headers)
+        return asyncio.run(guard(request, handler)).status
+
+    hub = {"Host": "hub.example.org", "Origin": "https://hub.example.org",
+           "Upgrade": "websocket", "Connection": "Upgrade"}
+    assert status(hub) == (200 if proxied else 403)
+    assert status({"Host": "127.0.0.1:8888", "Origin": "http://127.0.0.1:8888"}) \
+        == (200 if proxied else 403)                   # the notebook's port, not the viewer's
+    assert status({"Host": "127.0.0.1:8888"}) == 200

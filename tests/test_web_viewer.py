@@ -223,20 +223,29 @@ def stop_process(proc, sig, *, timeout) -> None:
 ])
 def test_web_viewer_in_chromium(tmp_path, scene, resolution, integral):
     """The page shows the render window streamed from the server; a slider moves the source,
-    a click on the radiograph picks a pixel and draws its ray; nothing leaves 127.0.0.1;
+    a click on the radiograph picks a pixel and draws its ray; nothing leaves 127.0.0.1, the
+    console logs no error;
     Ctrl-C stops the server cleanly."""
     with web_server(scene, "--port", "0", "--resolution", str(resolution), "--size", "1400",
                     "700") as (proc, url):
         assert urlsplit(url).hostname == "127.0.0.1"
         with browser_page() as page:
+            errors = []
+            page.on("console", lambda m: m.type == "error" and errors.append(m.text))
+            page.on("response", lambda r: r.status >= 400
+                    and errors.append(f"{r.status} {r.request.method} {r.url}"))
             page.goto(url)
             result = drive_viewer(page, tmp_path, f"web-{scene}")
+            # one set of controls: the page's HTML sliders, not the VTK twins in the picture
+            assert page.locator("#xray-viz-controls input[type=range]").count() == 4
             remote = list(page.remote)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err[-3000:]
     assert "stopped" in out and "Traceback" not in err
     assert not remote, f"the page asked the web for {remote[:5]}"
+    # no console error (trame's client POSTed to /paraview/ without the URL's sessionURL: 405)
+    assert not errors, errors
     check_driven(result, (resolution, resolution), integral_near=integral)
 
 

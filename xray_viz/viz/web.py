@@ -95,11 +95,18 @@ def _split_host(value: str) -> tuple[str, int | None]:
     return name.rstrip("."), (int(port) if port.isdigit() else None)
 
 
-def _request_guard(bound_host: str):
+def _request_guard(bound_host: str, *, proxied: bool = False):
     """aiohttp middleware: refuse (403) a request whose ``Host:`` is not a name of the bound
     interface (DNS rebinding), and one whose ``Origin`` is another site (a foreign page's
     websocket or fetch). With a wildcard bind (``0.0.0.0``) any ``Host:`` is answered (remote
-    browsers use this machine's names) but the ``Origin`` must still be the page's own."""
+    browsers use this machine's names) but the ``Origin`` must still be the page's own.
+
+    ``proxied``: the page is served through jupyter-server-proxy (:mod:`xray_viz.viz.notebook`),
+    which connects from this machine but passes the browser's ``Host:`` and ``Origin`` on - the
+    notebook server's site (``hub.example.org`` on JupyterHub), which the proxy has checked
+    already (Jupyter's own origin rules, its token or login cookie). Neither header is then
+    checked: the websocket's per-run secret, which only the notebook's output carries, is the
+    lock (what the page's HTML and scripts show is the installed trame packages, public)."""
     from aiohttp import web as aiohttp_web
 
     allowed = set(LOOPBACK_NAMES) if is_loopback(bound_host) else set()
@@ -111,6 +118,8 @@ def _request_guard(bound_host: str):
 
     @aiohttp_web.middleware
     async def guard(request, handler):
+        if proxied:
+            return await handler(request)
         raw_host = request.headers.get("Host")
         if raw_host is None:
             return refuse("no Host header")
@@ -240,6 +249,11 @@ class WebViewer:
                                                  ["--authKey", self.secret])
         self.state = self.server.state
         self._specs = _slider_specs(self.viewer)
+        # one set of controls: the VTK sliders that the page's HTML row repeats are hidden
+        for key, *_ in self._specs:
+            widget = getattr(self.viewer, "sliders", {}).get(key)
+            if widget is not None:
+                widget.Off()
         self._syncing = False
         with self.state:
             for key, _, _, _, _, value in self._specs:
@@ -301,6 +315,19 @@ class WebViewer:
         if update is not None and self.server.protocol:
             update()
 
+    def snapshot(self, format: str = "PNG", **save_options) -> bytes:
+        """The render window as it is now, an image file's bytes (``"PNG"`` or ``"JPEG"``):
+        the page's first picture, and the notebook's static fallback."""
+        import io
+
+        from PIL import Image
+
+        self.viewer.plotter.render()
+        pixels = self.viewer.plotter.screenshot(None, return_img=True)
+        out = io.BytesIO()
+        Image.fromarray(pixels).convert("RGB").save(out, format=format, **save_options)
+        return out.getvalue()
+
     # ------------------------------------------------------------------ page
     def _build_ui(self) -> None:
         from trame.ui.html import DivLayout
@@ -327,8 +354,15 @@ class WebViewer:
             html.Div("{{ picked || 'click a pixel of the radiograph: its ray in 3D, mu(t) in "
                      "the chart' }}", id="xray-viz-picked",
                      style="font: 13px sans-serif; padding: 2px 8px; min-height: 1.3em")
-            with html.Div(style=f"width: 100%; height: {self.height}px; position: relative",
-                          id="xray-viz-view"):
+            # the first picture is there at once, under the stream's (which needs the
+            # websocket and a render first)
+            import base64
+
+            first = base64.b64encode(self.snapshot("JPEG", quality=85)).decode()
+            view_style = (f"width: 100%; height: {self.height}px; position: relative; "
+                          f"background: url(data:image/jpeg;base64,{first}) 0 0 / 100% 100% "
+                          "no-repeat")
+            with html.Div(style=view_style, id="xray-viz-view"):
                 view = vtk_widgets.VtkRemoteView(self.viewer.plotter.render_window,
                                                  ref="xray_viz_view", interactive_ratio=1,
                                                  still_quality=95, interactive_quality=80)
@@ -350,15 +384,27 @@ class WebViewer:
         bind (``0.0.0.0``), this machine's host name (what a remote browser would use)."""
         shown = socket.gethostname() if host in WILDCARD_HOSTS else host.strip("[]")
         shown = f"[{shown}]" if ":" in shown else shown
-        return f"http://{shown}:{self.server.port}/index.html?secret={self.secret}"
+        return f"http://{shown}:{self.server.port}{self.page_query()}"
 
-    def start(self, *, host=DEFAULT_HOST, port=0, exec_mode="main", on_ready=None):
+    def page_query(self, path: str = "/") -> str:
+        """``index.html?secret=...&sessionURL=...`` under the page's path ``path`` (``"/"``, or
+        a proxy's ``/prefix/proxy/PORT/``): the websocket's address is given relative to the
+        page's host (``USE_HOST``, the scheme following the page's), so that trame's client
+        does not first POST to a session manager (``/paraview/``, answered 405)."""
+        from urllib.parse import quote
+
+        session = quote(f"ws://USE_HOST{path}ws", safe="")
+        return f"{path}index.html?secret={self.secret}&sessionURL={session}"
+
+    def start(self, *, host=DEFAULT_HOST, port=0, exec_mode="main", on_ready=None,
+              proxied=False):
         """Start the trame server (``exec_mode="main"`` blocks until it stops; ``"task"``
         returns its asyncio task, for a running event loop such as a Jupyter kernel's).
 
         With ``"main"`` the server's own event loop drops the errors of messages to a page
-        whose connection is closing (:func:`_drop_closing_connections`)."""
-        guard = _request_guard(host)
+        whose connection is closing (:func:`_drop_closing_connections`). ``proxied``: the page
+        is also reached through jupyter-server-proxy (:func:`_request_guard`)."""
+        guard = _request_guard(host, proxied=proxied)
         self.server.controller.on_server_bind.add(
             lambda wslink_server: wslink_server.app.middlewares.append(guard))
         if exec_mode == "main":
