@@ -231,10 +231,10 @@ def test_scene_load_names_file_and_key_and_stays_fast(tmp_path):
                                          "spectrum": {"kvp": 80.0, "filters": {"Al": 2.5}}},
                        detector=parallel_detector(), name="good")
     # a fresh process: loading the scene neither imports SpekPy nor computes the spectrum
-    code = ("import sys, time, xray_viz; t = time.perf_counter(); "
+    # (what that saves in time is a benchmark's business, not a timed assertion's)
+    code = ("import sys, xray_viz; "
             f"xray_viz.load_scene({str(good)!r}); "
-            "print('spekpy' in sys.modules, time.perf_counter() - t)")
+            "print('spekpy' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True)
-    imported, seconds = run.stdout.split()
-    assert imported == "False" and float(seconds) < 0.5
+    assert run.stdout.split() == ["False"]

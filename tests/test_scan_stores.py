@@ -62,8 +62,9 @@ def test_a_damaged_chunk_flagged_done_is_rendered_again_on_resume(sphere, refere
     _damage(_chunk(store, 2), how)
     assert S.done_flags(__import__("zarr").open_group(str(store), mode="r"))[2]  # still flagged
     calls = []
-    real = S.projection
-    monkeypatch.setattr(S, "projection", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
+    real = S.Projections.__call__
+    monkeypatch.setattr(S.Projections, "__call__",
+                        lambda self, k: calls.append(k) or real(self, k))
     again = xray_viz.scan(sphere, ORBIT, store=store)
     assert calls == [2]
     assert np.array_equal(again.projections[:], reference)
@@ -110,8 +111,9 @@ def test_reconstruct_of_a_damaged_store_is_one_line(sphere, tmp_path, capsys):
 
 def _render_count(monkeypatch):
     calls = []
-    real = S.projection
-    monkeypatch.setattr(S, "projection", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
+    real = S.Projections.__call__
+    monkeypatch.setattr(S.Projections, "__call__",
+                        lambda self, k: calls.append(k) or real(self, k))
     return calls
 
 
