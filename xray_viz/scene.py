@@ -1036,29 +1036,21 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     detector.update(electronic_noise=det.electronic_noise, gain=det.gain)
     bodies = []
     for body in scene.bodies:
-        if getattr(body, "shape", None) is not None:        # a primitive: its table
+        if body.shape is not None:                           # a primitive: its table
             entry = {"name": body.name, "shape": _plain(dict(body.shape))}
-            if body.mu is not None:
-                entry["mu"] = body.mu
-            else:
-                entry["material"] = _plain(body.material)
-                if body.density is not None:
-                    entry["density"] = body.density
-            entry.update(_plain(dict(body.placement or {})))
-            bodies.append(entry)
-            continue
-        if body.source_file is None:
-            raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
-                             "Python): export it (body.mesh.export('NAME.ply')) and give the Body "
-                             "source_file= that file, to write the scene")
-        from xray_viz.meshes.io import MESH_SUFFIXES, split_node
+        else:
+            if body.source_file is None:
+                raise SceneError(f"body {body.name!r} has no mesh file (its mesh was built in "
+                                 "Python): export it (body.mesh.export('NAME.ply')) and give the "
+                                 "Body source_file= that file, to write the scene")
+            from xray_viz.meshes.io import MESH_SUFFIXES, split_node
 
-        mesh_file = str(split_node(body.source_file)[0])          # model.glb#NODE: the file
-        if not mesh_file.lower().endswith(MESH_SUFFIXES):
-            raise SceneError(f"body {body.name!r} was made from {Path(mesh_file).name}, not a "
-                             "mesh file: write its meshes with `xray-viz mesh FILE -o FOLDER` "
-                             "and refer to them, to write the scene")
-        entry = {"name": body.name, "mesh": _path_text(body.source_file, base)}
+            mesh_file = str(split_node(body.source_file)[0])      # model.glb#NODE: the file
+            if not mesh_file.lower().endswith(MESH_SUFFIXES):
+                raise SceneError(f"body {body.name!r} was made from {Path(mesh_file).name}, not "
+                                 "a mesh file: write its meshes with `xray-viz mesh FILE -o "
+                                 "FOLDER` and refer to them, to write the scene")
+            entry = {"name": body.name, "mesh": _path_text(body.source_file, base)}
         if body.mu is not None:
             entry["mu"] = body.mu
         else:
