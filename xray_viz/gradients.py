@@ -36,7 +36,7 @@ rigid C-arm) moves every ray instead: the relative motion is the bodies moved th
 Two implementations give the same numbers (to ~1e-13 relative, ``tests/test_gradients.py``):
 the reference takes every hit with its triangle from the NumPy tracer
 (:func:`xray_viz.tracing.hits.trace_rays`) and sweeps them by precedence; the default
-``engine="fast"`` runs a numba kernel (:mod:`xray_viz._gradient_kernels`) over the fast
+``engine="fast"`` runs a numba kernel (``xray_viz._gradient_kernels``) over the fast
 engine's path lengths when the moving bodies' bounding boxes are apart from every other
 body's and each pixel has one ray (then no other material surrounds their hits), and falls
 back to the reference otherwise.
@@ -336,7 +336,7 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
     supersample : int, optional
         Rays per pixel along each axis (default: the detector's).
     engine : {"fast", "numpy"}
-        ``"fast"``: the numba kernel of :mod:`xray_viz._gradient_kernels` over the fast
+        ``"fast"``: the numba kernel of ``xray_viz._gradient_kernels`` over the fast
         engine's path lengths where it applies (one ray per pixel; the moving bodies, or
         all of them for ``acquisition``, with bounding boxes apart from every other body's),
         the reference otherwise; ``"numpy"``: the reference, every hit from
