@@ -53,6 +53,7 @@ import xray_viz  # noqa: E402
 DOCS = Path(__file__).resolve().parent
 REPO = DOCS.parent
 GALLERY = DOCS / "walkthroughs"           # sphinx-gallery's output, and its cache (gitignored)
+EXAMPLES = DOCS / "examples"              # the same for the task examples (apps/examples)
 
 
 def _invalidate_stale_gallery() -> None:
@@ -70,13 +71,14 @@ def _invalidate_stale_gallery() -> None:
         if path.is_file() and "__pycache__" not in path.parts:
             digest.update(path.relative_to(REPO).as_posix().encode())
             digest.update(path.read_bytes())
-    stamp = GALLERY / ".sources.sha256"
-    if stamp.is_file() and stamp.read_text() == digest.hexdigest():
-        return
-    for md5 in GALLERY.glob("*.md5"):
-        md5.unlink()
-    GALLERY.mkdir(exist_ok=True)
-    stamp.write_text(digest.hexdigest())
+    for gallery in (GALLERY, EXAMPLES):
+        stamp = gallery / ".sources.sha256"
+        if stamp.is_file() and stamp.read_text() == digest.hexdigest():
+            continue
+        for md5 in gallery.glob("*.md5"):
+            md5.unlink()
+        gallery.mkdir(exist_ok=True)
+        stamp.write_text(digest.hexdigest())
 
 
 # -- API pages -------------------------------------------------------------------------------
@@ -232,12 +234,14 @@ numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False
 numpydoc_attributes_as_param_list = True
 
-# -- Walkthroughs gallery --------------------------------------------------------------------
+# -- Walkthroughs and examples galleries -----------------------------------------------------
+# Two galleries: the thesis walkthroughs (apps/walkthroughs/NN_*.py) and the task examples
+# (apps/examples/*.py, e.g. "Find the implant"), each with its own README.txt and index page.
 
 sphinx_gallery_conf = {
-    "examples_dirs": [str(REPO / "apps" / "walkthroughs")],
-    "gallery_dirs": ["walkthroughs"],
-    "filename_pattern": r"/\d\d_",          # execute every walkthrough
+    "examples_dirs": [str(REPO / "apps" / "walkthroughs"), str(REPO / "apps" / "examples")],
+    "gallery_dirs": ["walkthroughs", "examples"],
+    "filename_pattern": r"/(\d\d_)?[a-z]\w*\.py$",   # execute every walkthrough and example
     "ignore_pattern": r"__init__\.py",
     "within_subsection_order": "FileNameSortKey",
     "image_scrapers": ("xray_viz.walkthroughs.gallery_scraper", "matplotlib"),
@@ -322,7 +326,8 @@ html_theme_options = {
     "header_links_before_dropdown": 7,
     "footer_start": ["copyright"],
     "footer_end": ["sphinx-version"],
-    "secondary_sidebar_items": {"walkthroughs/[0-9]*": []},   # wide walkthrough pages
+    # wide walkthrough and example pages
+    "secondary_sidebar_items": {"walkthroughs/[0-9]*": [], "examples/[a-z]*": []},
 }
 html_sidebars = {page: [] for page in ("index", "getting_started", "scene_files", "physics", "benchmarks")}
 html_context = {"default_mode": "light"}

@@ -198,6 +198,28 @@ def test_gallery_index_lists_every_walkthrough(site):
         _check_png(_local(page, src), min_size=100)
 
 
+def test_examples_gallery_beside_the_walkthroughs(site):
+    """The task examples (apps/examples) are a gallery of their own: every script is listed on
+    its index and ran in the build; "Find the implant" shows its three figures (overlay before,
+    after, the loss curve) and found the stem (its printed mTRE below 0.1 mm)."""
+    assert site.returncode == 0, site.stderr[-3000:]
+    scripts = sorted(p.stem for p in (REPO / "apps" / "examples").glob("[a-z]*.py"))
+    assert "find_the_implant" in scripts
+    index = _parse(site.page("examples/index.html").read_text(encoding="utf-8"))
+    links = {a.get("href", "") for t, a in index.tags if t == "a"}
+    for name in scripts:
+        assert f"{name}.html" in links, name
+    page = site.page("examples/find_the_implant.html")
+    tags = _parse(page.read_text(encoding="utf-8"))
+    images = _figure_images(tags, "find_the_implant")
+    assert len(images) == 3, images
+    for src in images:
+        _check_png(_local(page, src))
+    text = "".join(tags.text)
+    assert "Traceback" not in text
+    assert float(re.search(r"mTRE fitted: ([\d.]+) mm", text).group(1)) < 0.1
+
+
 def test_walkthrough_notebooks_and_scripts_are_offered(site):
     import nbformat
 
