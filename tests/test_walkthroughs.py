@@ -301,7 +301,7 @@ def test_12_energy_balance_dose_and_four_images(runs):
     parts = [run.number(rf"{what} +([\d.]+) eV/history")
              for what in ("deposited in the bodies", "absorbed in the air", "escaped",
                           "reached the detector")]
-    assert sum(parts) == pytest.approx(emitted, rel=1e-9)             # the energy balance
+    assert sum(parts) == pytest.approx(emitted, abs=1.0)        # the balance, as printed
     assert abs(run.number(r"emitted - all the others = ([-\d.e+]+) eV")) < 1e-6 * emitted
     # 80 kVp with 2.5 mm Al: the mean energy emitted lies between 35 and 50 keV
     assert 35_000 < emitted < 50_000

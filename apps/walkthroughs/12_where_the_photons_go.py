@@ -102,17 +102,19 @@ for name in result.energy:
 images = result.images
 total = {k: v.sum() for k, v in images.items()}
 scatter = total["incoherent"] + total["coherent"] + total["multiple"]
-print("energy on the detector, eV per history: " + ", ".join(
-    f"{k} {v:.2f}" for k, v in total.items()))
+print("energy on the detector, eV per history:")
+for key, value in total.items():
+    print(f"  {key} {value:.2f}")
 print(f"scatter-to-primary ratio on this detector: {scatter / total['primary']:.2f}")
 plt = pyplot()
-fig, axes = plt.subplots(1, 4, figsize=(14, 3.8))
+fig, axes = plt.subplots(2, 2, figsize=(10, 8.5))
 extent = (-width / 2, width / 2, -height / 2, height / 2)
-for ax, key in zip(axes, ("primary", "incoherent", "coherent", "multiple")):
+for ax, key in zip(axes.ravel(), ("primary", "incoherent", "coherent", "multiple")):
     shown = ax.imshow(images[key], cmap="inferno", extent=extent, interpolation="nearest")
     ax.set_title(f"{key}: {total[key]:.2f} eV/history")
     ax.set_xlabel("u (mm)")
     fig.colorbar(shown, ax=ax, fraction=0.046, label="eV per history per pixel")
-axes[0].set_ylabel("v (mm)")
+for ax in axes[:, 0]:
+    ax.set_ylabel("v (mm)")
 fig.tight_layout()
 show_or_save_figure(fig, "four_images", walkthrough=WALKTHROUGH)
