@@ -104,7 +104,7 @@ def test_walkthrough_subcommand_lists_and_refuses_unknown():
     listed = _run("walkthrough", "--list")
     assert listed.returncode == 0, listed.stderr
     lines = listed.stdout.splitlines()
-    assert len(lines) == 11 and lines[0].split()[:2] == ["1", "01_parametric_ray"]
+    assert len(lines) == 12 and lines[0].split()[:2] == ["1", "01_parametric_ray"]
     bad = _run("walkthrough", "99")
     assert bad.returncode == 2
     assert "no walkthrough 99" in bad.stderr and "Traceback" not in bad.stderr

@@ -1,6 +1,6 @@
 """The walkthroughs: every script runs off-screen, writes non-blank PNGs and prints right numbers.
 
-All eleven scripts run once per session, two at a time (subprocesses with
+All twelve scripts run once per session, two at a time (subprocesses with
 ``PYVISTA_OFF_SCREEN=true`` and ``XRAY_VIZ_OUTPUT`` in a temporary folder); the tests below then
 check each one's output.
 """
@@ -37,6 +37,7 @@ EXPECTED_PNGS = {
     9: ["beam_hardening"],
     10: ["wrong_rays", "wrong_rays_3d"],
     11: ["repair", "error_and_time", "decimation_levels"],
+    12: ["scene_3d", "four_images"],
 }
 
 
@@ -90,12 +91,12 @@ def runs(tmp_path_factory) -> dict[int, Run]:
 
 def test_walkthroughs_are_listed_in_order():
     found = list_walkthroughs()
-    assert [n for n, _, _ in found] == list(range(1, 12))
+    assert [n for n, _, _ in found] == list(range(1, 13))
     assert all(title and not title.startswith("=") for _, _, title in found)
     assert set(EXPECTED_PNGS) == {n for n, _, _ in found}
 
 
-@pytest.mark.parametrize("n", range(1, 12))
+@pytest.mark.parametrize("n", range(1, 13))
 def test_walkthrough_runs_off_screen_and_writes_pngs(runs, n):
     run = runs[n]
     assert run.returncode == 0, f"walkthrough {n} failed:\n{run.stderr[-3000:]}"
@@ -294,6 +295,30 @@ def test_11_repair_and_decimation(runs):
 # The helpers and the command
 
 
+def test_12_energy_balance_dose_and_four_images(runs):
+    run = runs[12]
+    emitted = run.number(r"mean energy emitted ([\d.]+) eV")
+    parts = [run.number(rf"{what} +([\d.]+) eV/history")
+             for what in ("deposited in the bodies", "absorbed in the air", "escaped",
+                          "reached the detector")]
+    assert sum(parts) == pytest.approx(emitted, abs=1.0)        # the balance, as printed
+    assert abs(run.number(r"emitted - all the others = ([-\d.e+]+) eV")) < 1e-6 * emitted
+    # 80 kVp with 2.5 mm Al: the mean energy emitted lies between 35 and 50 keV
+    assert 35_000 < emitted < 50_000
+    water = re.search(r"water +([\d.]+) +([\d.]+) +([\d.]+)", run.stdout)
+    bone = re.search(r"bone +([\d.]+) +([\d.]+) +([\d.]+)", run.stdout)
+    assert water and bone
+    # the bodies' energies add up to the deposited total (to the printed rounding)
+    assert float(water[1]) + float(bone[1]) == pytest.approx(parts[0], abs=0.1)
+    assert float(bone[3]) > float(water[3]) > 0                 # dose: bone in the beam
+    images = dict(re.findall(r"(primary|incoherent|coherent|multiple) ([\d.]+)", run.stdout))
+    assert set(images) == {"primary", "incoherent", "coherent", "multiple"}
+    total = sum(float(v) for v in images.values())
+    assert total == pytest.approx(parts[3], rel=2e-3)           # the images hold the detector's
+    spr = run.number(r"scatter-to-primary ratio on this detector: ([\d.]+)")
+    assert 0.05 < spr < 1.0
+
+
 def test_unknown_walkthrough_is_a_one_line_error():
     with pytest.raises(WalkthroughNotFoundError) as info:
         walkthrough_path(99)
@@ -313,7 +338,7 @@ def test_walkthrough_command_lists(capsys):
     args = _parser().parse_args(["walkthrough", "--list"])
     assert args.func(args) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 11
+    assert len(lines) == 12
     assert lines[0].split()[:2] == ["1", "01_parametric_ray"]
     assert "Moller-Trumbore" in lines[5]
 

@@ -696,7 +696,7 @@ def stages(scene):
         from xray_viz.volume import with_volume_materials
 
         bodies = with_volume_materials(scene).bodies
-    return (Beam.of(scene.source, bodies, scene.detector),
+    return (Beam.of(scene.source, bodies, scene.detector, world=scene.world),
             DetectorModel.of(scene.detector))
 
 

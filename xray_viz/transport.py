@@ -270,7 +270,11 @@ class Transport:
     images, image_errors : dict of str to (H, W) float
         ``"primary"``, ``"incoherent"`` (one incoherent scattering), ``"coherent"`` (one
         coherent scattering), ``"multiple"``: the energy of the photons reaching each pixel,
-        eV per history.
+        eV per history. This is the energy *incident* on the detector plane: the scene's
+        detector model is not applied (no ``response``, ``scintillator`` absorption
+        efficiency, blur, gain or noise). To compare with a rendered image of an ideal
+        energy-integrating detector, divide the primary image by the energy each pixel would
+        receive in vacuum (:func:`xray_viz.render`'s ``intensity`` is that ratio).
     balance : dict of str to float
         eV per history: ``emitted``, ``deposited`` (bodies), ``world`` (the world medium),
         ``escaped``, ``detector``; ``emitted`` = the others' sum, to rounding.

@@ -96,7 +96,9 @@ Dosimetry (:mod:`~xray_viz.physics.dosimetry`): an air-kerma detector response, 
 (:func:`hvl`); photons per pixel from the tube's output per mAs (SpekPy), by the inverse square
 law, and the incident air kerma (free in air) at the nearest body surface and at the detector
 (:func:`air_kerma`). One attenuation data set, xraylib's, serves the bodies, the tube filters and
-the half-value layers; only the anode's self-absorption is SpekPy's own.
+the half-value layers; only the anode's self-absorption is SpekPy's own. A ``[world]`` medium
+attenuates each ray along its path outside the bodies (:class:`~xray_viz.physics.beam.Beam`'s
+``world``: the ray's length from the source to its pixel minus its paths in the bodies).
 
 Photon transport (:func:`xray_viz.transport`, a separate Monte Carlo on the same meshes and
 xraylib data): photoelectric absorption, incoherent scattering (Klein-Nishina x the incoherent

@@ -192,6 +192,13 @@ class Beam:
     heel : (HeelInterpolation, (N, K) float) or None
         The heel effect's interpolation and its grid spectra over the bins ``keep``, set by
         :meth:`at` when the source has ``heel`` on.
+    world : (K,) float or None
+        The world medium's linear attenuation (1/mm) at the bins ``keep`` (``[world]``,
+        :meth:`of`'s ``world``); None: vacuum. Each ray's path through the world is its length
+        from the source (a parallel beam: the plane through the source across the beam) to
+        its detector point minus its path lengths in the bodies: one more term of every sum.
+    acquisition : Acquisition or None
+        The pose :meth:`at` bound, for the rays' lengths when there is a world medium.
     """
 
     spectrum: object
@@ -202,11 +209,17 @@ class Beam:
     counts_photons: bool
     shape: tuple
     heel: tuple | None = None
+    world: np.ndarray | None = None
+    acquisition: object = None
 
     @classmethod
-    def of(cls, source, bodies, detector) -> Beam:
+    def of(cls, source, bodies, detector, *, world=None) -> Beam:
         """The beam of ``source`` through ``bodies`` as ``detector`` weighs it (its
-        ``response`` and ``scintillator``), at no pose yet (see :meth:`at`)."""
+        ``response`` and ``scintillator``), at no pose yet (see :meth:`at`).
+
+        ``world``: the scene's ``[world]`` medium (``{"material": ..., "density": ...}``, as
+        :class:`~xray_viz.scene.Scene` checks it), attenuating each ray along its path outside
+        the bodies; None (the default) is vacuum."""
         from xray_viz.physics.detector import absorption_efficiency
         from xray_viz.physics.spectra import source_spectrum
 
@@ -222,13 +235,22 @@ class Beam:
         else:
             u2 = u1.copy()                     # q = 1: the variance is the mean
         mu = body_mu(bodies, spectrum.energies[keep]) / MM_PER_CM          # (K, B) 1/mm
-        return cls(spectrum, keep, u1, u2, mu, counts, tuple(detector.shape))
+        mu_world = None
+        if world is not None:
+            from xray_viz.physics.materials import linear_attenuation
+
+            mu_world = np.asarray(linear_attenuation(
+                world["material"], spectrum.energies[keep], density=world.get("density")),
+                dtype=np.float64).reshape(-1) / MM_PER_CM
+        return cls(spectrum, keep, u1, u2, mu, counts, tuple(detector.shape), world=mu_world)
 
     def at(self, acquisition) -> Beam:
         """This beam at an :class:`~xray_viz.geometry.Acquisition`: with the heel effect
         (``[source] heel``) each pixel's weights from SpekPy's grid; otherwise the same beam."""
         from xray_viz.physics.heel import HeelInterpolation, heel_side
 
+        if self.world is not None:
+            self = replace(self, acquisition=acquisition, shape=tuple(acquisition.detector.shape))
         if heel_side(acquisition.source.heel) is None:
             return self if self.heel is None else replace(self, heel=None)
         interpolation = HeelInterpolation(acquisition)
@@ -263,6 +285,9 @@ class Beam:
         L = np.asarray(path_length, dtype=np.float64)
         keep, u1, u2, mu, heel = self.keep, self.u1, self.u2, self.mu, self.heel
         moments = [u1[keep]] + ([u2[keep]] if variance else [])
+        if self.world is not None:          # the world medium: one more column, one more body
+            L = np.column_stack([L, self.world_path(L, rows=rows)])
+            mu = np.column_stack([mu, self.world])
         if rows is not None or heel is not None:
             first_pixel, per_pixel = self._rays_per_pixel(rows, len(L))
         if out is None:
@@ -315,6 +340,40 @@ class Beam:
                 level = (levels[m][corners] * coef).sum(axis=1) / moments[m].sum()
                 dest[idx] = top + np.log(total / level)
         return outs
+
+    def world_path(self, path_length, *, rows=None) -> np.ndarray:
+        """Millimetres of each ray in the world medium: its length from the source (a parallel
+        beam: from the plane through the source across the beam) to its detector point
+        (:func:`~xray_viz.geometry.detector_rays`' ``t_max``) minus its path lengths in the
+        bodies (the columns of ``path_length``: each stretch counted once, for the body that
+        wins it), at least 0.
+
+        Parameters
+        ----------
+        path_length : (n_rays, n_bodies) float
+        rows : slice, range or (start, stop), optional
+            As :meth:`log_transmission`.
+
+        Returns
+        -------
+        (n_rays,) float
+
+        Raises
+        ------
+        SceneError
+            No pose bound (:meth:`at`).
+        """
+        from xray_viz.geometry import detector_rays
+
+        if self.acquisition is None:
+            raise SceneError("a beam through a [world] medium needs its pose for the rays' "
+                             "lengths: call Beam.at(acquisition) first")
+        L = np.asarray(path_length, dtype=np.float64)
+        _, per_pixel = self._rays_per_pixel(rows, len(L))
+        n = int(round(per_pixel ** 0.5))
+        t_max = detector_rays(self.acquisition, supersample=n, rows=rows).t_max
+        inside = L.sum(axis=1) if L.shape[1] else 0.0
+        return np.maximum(np.broadcast_to(t_max, (len(L),)) - inside, 0.0)
 
     def log_transmission(self, path_length, *, rows=None) -> np.ndarray:
         """``ln(I / I0)`` along each ray (:func:`xray_viz.physics.imaging.log_transmission`).

@@ -52,7 +52,8 @@ __all__ = ["body_mu", "log_transmission", "log_variance_transmission", "transmis
 
 def _beam_of(scene) -> Beam:
     """The scene's :class:`~xray_viz.physics.beam.Beam` at its acquisition."""
-    return Beam.of(scene.source, scene.bodies, scene.detector).at(scene.acquisition)
+    return Beam.of(scene.source, scene.bodies, scene.detector,
+                   world=scene.world).at(scene.acquisition)
 
 
 def _model(scene, i0=None) -> DetectorModel:
