@@ -1269,6 +1269,10 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
         from xray_viz.volume import HU_DENSITY, ct_volume
 
         vol = _read_for_voxels(path, where, hu=True)
+        try:
+            check_hounsfield(vol.data, path)
+        except MeshError as exc:
+            _fail(where, str(exc).removeprefix(f"{path}: "))
         if "ranges" in raw:
             table = []
             for (name, lo, hi), j in zip(ranges, sorted(entries)):
@@ -1281,9 +1285,12 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
         try:
             made = ct_volume(vol.data, vol.affine, name=_stem(path), ranges=table,
                              source_file=path)
-            return [dataclasses.replace(made, table=("ct", dict(raw)))]
         except SceneError as exc:
             _fail(where, str(exc))
+        if not made.classes.any():           # a blank image, exit 0, said nothing
+            _fail(where, "gives no body: no voxel falls in any of its HU ranges (all air?); "
+                         "check the file, or its ranges")
+        return [dataclasses.replace(made, table=("ct", dict(raw)))]
     median = raw.get("median", 1)
     min_voxels = raw.get("min_voxels", 27)
     for key, v in (("median", median), ("min_voxels", min_voxels)):
