@@ -73,7 +73,7 @@ def _invalidate_stale_gallery() -> None:
     stamp = GALLERY / ".sources.sha256"
     if stamp.is_file() and stamp.read_text() == digest.hexdigest():
         return
-    for md5 in GALLERY.glob("*.md5"):
+    for md5 in [*GALLERY.glob("*.md5"), *(DOCS / "examples").glob("*.md5")]:
         md5.unlink()
     GALLERY.mkdir(exist_ok=True)
     stamp.write_text(digest.hexdigest())
@@ -235,9 +235,9 @@ numpydoc_attributes_as_param_list = True
 # -- Walkthroughs gallery --------------------------------------------------------------------
 
 sphinx_gallery_conf = {
-    "examples_dirs": [str(REPO / "apps" / "walkthroughs")],
-    "gallery_dirs": ["walkthroughs"],
-    "filename_pattern": r"/\d\d_",          # execute every walkthrough
+    "examples_dirs": [str(REPO / "apps" / "walkthroughs"), str(REPO / "apps" / "examples")],
+    "gallery_dirs": ["walkthroughs", "examples"],
+    "filename_pattern": r"/(\d\d_|plot_)",   # execute every walkthrough and task example
     "ignore_pattern": r"__init__\.py",
     "within_subsection_order": "FileNameSortKey",
     "image_scrapers": ("xray_viz.walkthroughs.gallery_scraper", "matplotlib"),
