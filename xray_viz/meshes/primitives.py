@@ -4,16 +4,16 @@ A shape is a closed triangle mesh made by trimesh, centred on the origin (its bo
 centre) before the body's ``position``, ``rotation``, ``scale`` and ``units`` place it, as a
 mesh file's coordinates would be:
 
-=============  =================================  =========================================
-``kind``       keys (mm)                          mesh
-=============  =================================  =========================================
-``"box"``      ``size = [x, y, z]``               12 triangles, exact
-``"sphere"``   ``radius``, ``subdivisions`` (4)   icosphere: vertices on the sphere
-``"cylinder"`` ``radius``, ``height``,            axis along z; ``sections`` vertices on each
-               ``sections`` (64)                  circle (the polygon inscribed in it)
-``"cone"``     ``radius``, ``height``,            axis along z, apex at +height/2
-               ``sections`` (64)
-=============  =================================  =========================================
+==============  =================================  =========================================
+``kind``        keys (mm)                          mesh
+==============  =================================  =========================================
+``"box"``       ``size = [x, y, z]``               12 triangles, exact
+``"sphere"``    ``radius``, ``subdivisions`` (4)   icosphere: vertices on the sphere
+``"cylinder"``  ``radius``, ``height``,            axis along z; ``sections`` vertices on each
+                ``sections`` (64)                  circle (the polygon inscribed in it)
+``"cone"``      ``radius``, ``height``,            axis along z, apex at +height/2
+                ``sections`` (64)
+==============  =================================  =========================================
 
 Examples
 --------
