@@ -45,11 +45,10 @@ print(f"volume {mu.shape} (z, y, x), voxel {volume.spacing} mm, "
 # A projection and three slices through the middle of the volume: the two bones with their
 # marrow in soft tissue.
 nz, ny, nx = mu.shape
-fig, axes = plt.subplots(1, 4, figsize=(12, 3.6))
+fig, axes = plt.subplots(1, 4, figsize=(13, 4))
 axes[0].imshow(result.projections[0], cmap="gray_r")
 axes[0].set_title("projection 0 (line integral)")
-slices = {"z = middle": mu[nz // 2], "y = middle (axial)": mu[:, ny // 2],
-          "x = middle": mu[:, :, nx // 2]}
+slices = {"z = 0": mu[nz // 2], "axial, y = 0": mu[:, ny // 2], "x = 0": mu[:, :, nx // 2]}
 top = float(np.percentile(mu, 99.9))
 for ax, (name, sl) in zip(axes[1:], slices.items()):
     shown = ax.imshow(sl, cmap="gray", vmin=0.0, vmax=top, origin="lower")
