@@ -102,4 +102,4 @@ fig.colorbar(shown, ax=axes[1:], shrink=0.8, label="-ln(I/I0)")
 #   and their materials are the ``ranges`` key (see :doc:`../scene_files`).
 # * A metal implant saturates a PNG's default window: save the line integral (``.tiff``) or
 #   choose the window.
-# * Register the implant's pose to a radiograph: :mod:`xray_viz.register`.
+# * Register the implant's pose to a radiograph: ``xray_viz.register`` (see the README).
