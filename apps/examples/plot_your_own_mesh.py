@@ -27,7 +27,7 @@ folder = Path(tempfile.mkdtemp())
 part = trimesh.creation.annulus(r_min=12.0, r_max=25.0, height=15.0, sections=96)
 part.apply_transform(trimesh.transformations.rotation_matrix(0.6, (1.0, 0.0, 0.0)))
 assert part.is_watertight
-part.export(folder / "bracket.stl")
+part.export(folder / "washer.stl")
 
 # %%
 # Render it, framed, with a stated material
@@ -35,7 +35,7 @@ part.export(folder / "bracket.stl")
 # The framing is a :class:`~xray_viz.scene.Scene` like any other: change its detector or its
 # body's material before rendering. A 128 x 128 detector with four times the pitch keeps the
 # field of view of the default 512 x 512 and renders in a fraction of the time.
-scene = xray_viz.load_scene(folder / "bracket.stl")
+scene = xray_viz.load_scene(folder / "washer.stl")
 body = scene.bodies[0]
 print(f"{body.name}: {body.material}, {body.density} g/cm3; source at {scene.source.position}")
 doc = scene.to_dict(base=folder)
@@ -51,10 +51,10 @@ aluminium = scene_from_dict(doc, base_dir=folder)
 images = {name: xray_viz.render(s).line_integral
           for name, s in [("aluminium", aluminium), ("titanium", titanium)]}
 top = max(li.max() for li in images.values())           # one scale for both
-fig, axes = plt.subplots(1, 2, figsize=(8, 4))
+fig, axes = plt.subplots(1, 2, figsize=(9, 4))
 for ax, (name, li) in zip(axes, images.items()):
     shown = ax.imshow(li, cmap="gray_r", vmin=0.0, vmax=top)
-    ax.set_title(f"{name}: line integral, max {li.max():.2f}")
+    ax.set_title(f"{name}\nline integral, max {li.max():.2f}")
     ax.axis("off")
 fig.colorbar(shown, ax=axes, shrink=0.8, label="-ln(I/I0)")
 
@@ -65,6 +65,6 @@ fig.colorbar(shown, ax=axes, shrink=0.8, label="-ln(I/I0)")
 #
 # What to try next
 # ----------------
-# * ``xray-viz init --from bracket.stl -o scene.toml`` writes this scene as a commented file.
+# * ``xray-viz init --from washer.stl -o scene.toml`` writes this scene as a commented file.
 # * Turn the part: the ``rotation`` key of a ``[[body]]`` (see :doc:`../scene_files`).
 # * A polychromatic beam: ``[source] spectrum = {kvp = 80}`` (see :doc:`../physics`).
