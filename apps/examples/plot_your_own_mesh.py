@@ -4,7 +4,7 @@ Your own mesh
 
 Render a mesh file of your own without writing a scene: :func:`xray_viz.load_scene` given a mesh
 file frames a point source and a detector around it (the beam along -z) and reads the mesh in mm
-as aluminium at 60 keV, as ``xray-viz render part.stl`` does. Here the "part" is a bracket made
+as aluminium at 60 keV, as ``xray-viz render part.stl`` does. Here the "part" is a washer made
 with :mod:`trimesh` and saved as STL: a thick washer, tilted so that the beam crosses its
 wall at a slant.
 """
