@@ -220,6 +220,33 @@ def test_examples_gallery_beside_the_walkthroughs(site):
     assert float(re.search(r"mTRE fitted: ([\d.]+) mm", text).group(1)) < 0.1
 
 
+TASK_EXAMPLES = sorted(p.stem for p in (REPO / "apps" / "examples").glob("plot_*.py"))
+
+
+def test_tasks_gallery_is_a_second_section_beside_the_walkthroughs(site):
+    """Issue 43: the task examples are their own gallery (docs/examples), each run by the build
+    with its figures on its page; the walkthroughs' gallery still lists only the twelve."""
+    assert site.returncode == 0, site.stderr[-3000:]
+    assert len(TASK_EXAMPLES) >= 3
+    index = site.page("examples/index.html")
+    tags = _parse(index.read_text(encoding="utf-8"))
+    links = {a.get("href", "").split("#")[0] for t, a in tags.tags if t == "a"}
+    thumbs = [a["src"] for t, a in tags.tags if t == "img" and "_thumb" in a.get("src", "")]
+    assert {f"{name}.html" for name in TASK_EXAMPLES} <= links and len(thumbs) == len(TASK_EXAMPLES)
+    for name in TASK_EXAMPLES:
+        page = site.page(f"examples/{name}.html")
+        tags = _parse(page.read_text(encoding="utf-8"))
+        images = _figure_images(tags, name)
+        assert images, name
+        for src in images:
+            _check_png(_local(page, src))
+        text = "".join(tags.text)
+        assert "Traceback" not in text and "What to try next" in text, name
+    walk = _parse(site.page("walkthroughs/index.html").read_text(encoding="utf-8"))
+    assert not any("plot_" in a.get("href", "") for t, a in walk.tags if t == "a")
+    assert len(list_walkthroughs()) == 12
+
+
 def test_walkthrough_notebooks_and_scripts_are_offered(site):
     import nbformat
 

@@ -143,6 +143,7 @@ def _rtk():
                          "DisplacedDetectorForOffsetFieldOfViewImageFilter"):
                 getattr(rtk, name)                     # load the lazy modules here
             itk.image_from_array, itk.Matrix, itk.imwrite, itk.imread
+            itk.PyCommand, itk.ProgressEvent, itk.IterationEvent     # progress observers
     except ImportError as exc:      # pragma: no cover - the ct extra is installed in tests
         raise ReconstructionError(
             f"reconstruction needs RTK (itk-rtk), which is not installed ({exc}); "
@@ -574,7 +575,7 @@ def reconstruct(projections, geometry, *, voxel=None, shape=None, method: str = 
     fdk.SetGeometry(rgeo)
     fdk.GetRampFilter().SetTruncationCorrection(0.0)
     fdk.GetRampFilter().SetHannCutFrequency(float(hann))
-    _update(fdk, shape)
+    _update(fdk, shape, desc=f"reconstructing ({method})")
     mu = itk.array_from_image(fdk.GetOutput()).astype(np.float32) * np.float32(10.0)  # 1/cm
     return Volume(mu=mu, origin=origin, spacing=voxel, direction=np.eye(3), method=method)
 
@@ -697,13 +698,35 @@ def _mbirjax(p, geometry, voxel, shape, origin, iterations):
     return map_coordinates(recon, idx, order=1, mode="constant", cval=0.0)
 
 
-def _update(f, volume_shape=None):
+def _update(f, volume_shape=None, *, iterations=None, desc="reconstructing"):
     """``f.Update()``; RTK's refusal is one line, with a hint only where its cause is known:
     an image it cannot allocate (the volume's size, given ``volume_shape``), a detector it
     cannot weight (FDK: use an iterative method). An axis along the beam is refused before
-    RTK (:func:`_rows_across_axis`)."""
+    RTK (:func:`_rows_across_axis`).
+
+    The work runs as a :func:`xray_viz.progress.task` (a bar on the command line's stderr):
+    ``iterations`` steps counted on RTK's ``IterationEvent`` for an iterative filter (SART,
+    CG), else per cent of the filter's own ``GetProgress()`` on ITK's ``ProgressEvent``
+    (FDK reports it as it filters and back-projects). The observers are attached only when
+    the bars are on (:func:`xray_viz.progress.is_enabled`) and only read: the volume is the
+    same with or without them."""
+    from xray_viz import progress
+
+    itk, _ = _rtk()
+    total, unit = (int(iterations), "iteration") if iterations is not None else (100, "%")
     try:
-        f.Update()
+        with progress.task(desc, total=total, unit=unit) as t:
+            if iterations is not None:
+                event, step = itk.IterationEvent(), (lambda: t.advance())
+            else:
+                event, step = itk.ProgressEvent(), (
+                    lambda: t.update_to(max(t.n, min(100, int(f.GetProgress() * 100.0)))))
+            tag = f.AddObserver(event, step) if progress.is_enabled() else None
+            try:
+                f.Update()
+            finally:
+                if tag is not None:
+                    f.RemoveObserver(tag)
     except RuntimeError as exc:
         said = [ln for ln in str(exc).splitlines() if "ERROR" in ln] or str(exc).splitlines()
         text = said[-1].split("):", 1)[-1].strip() if said else type(exc).__name__
@@ -745,7 +768,7 @@ def _iterative(method, volume, image, rgeo, *, iterations, relaxation, volume_sh
     f.SetInput(0, volume)
     f.SetInput(1, image)
     f.SetGeometry(rgeo)
-    _update(f, volume_shape)
+    _update(f, volume_shape, iterations=n_iter, desc=f"reconstructing ({method})")
     return f.GetOutput()
 
 
@@ -791,7 +814,7 @@ def rtk_forward_project(values, affine, geometry) -> np.ndarray:
     f.SetInput(0, proj)
     f.SetInput(1, vol)
     f.SetGeometry(rtk_geometry(geometry))
-    _update(f)
+    _update(f, desc="forward projecting")
     return np.asarray(itk.array_from_image(f.GetOutput()))[:, ::-1, :].copy()
 
 
