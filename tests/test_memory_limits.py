@@ -163,7 +163,7 @@ def test_a_scan_stack_that_cannot_fit_is_refused_before_any_work(tmp_path, monke
 
     scene = xray_viz.load_scene("sphere")          # 256 x 256
     monkeypatch.setattr(_memory, "available_memory", lambda **kw: 100 * 256 * 256 * 4 - 1)
-    monkeypatch.setattr(S, "projection", lambda *a, **k: pytest.fail("rendered"))
+    monkeypatch.setattr(S.Projections, "__call__", lambda *a, **k: pytest.fail("rendered"))
     with pytest.raises(SceneError) as info:
         xray_viz.scan(scene, Orbit(projections=100, axis=[0, 1, 0]))
     msg = str(info.value)

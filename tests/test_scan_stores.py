@@ -149,17 +149,17 @@ def test_nexus_and_tiff_scans_write_as_they_render(tmp_path, suffix, monkeypatch
     out = tmp_path / f"scan{suffix}"
     n = 120
     seen = {}
-    real = S.projection
+    real = S.Projections.__call__
 
-    def spy(*a, **k):
-        if a[2] == n - 1:                            # the last one: what is on disk by now
+    def spy(self, k):
+        if k == n - 1:                               # the last one: what is on disk by now
             partial = [p for p in tmp_path.iterdir() if p.name.startswith(".scan")]
             seen["partial"] = partial
             seen["bytes"] = sum(f.stat().st_size for p in partial
                                 for f in ([p] if p.is_file() else p.iterdir()))
-        return real(*a, **k)
+        return real(self, k)
 
-    monkeypatch.setattr(S, "projection", spy)
+    monkeypatch.setattr(S.Projections, "__call__", spy)
     import shutil
     import tracemalloc
 
@@ -293,7 +293,7 @@ def test_a_nexus_or_tiff_scan_that_cannot_fit_on_disk_is_refused_before_any_work
 
     monkeypatch.setattr(S.os, "statvfs", lambda p: SimpleNamespace(f_bavail=10,
                                                                    f_frsize=4096))
-    monkeypatch.setattr(S, "projection", lambda *a, **k: pytest.fail("rendered"))
+    monkeypatch.setattr(S.Projections, "__call__", lambda *a, **k: pytest.fail("rendered"))
     out = tmp_path / f"x{suffix}"
     assert main(["scan", "sphere", "-o", str(out), "--projections", "20", "--axis", "0", "1",
                  "0"]) == 2

@@ -1163,9 +1163,10 @@ def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress)
         if kind == "nexus" else {}
     with opener(out, n=n, quantity=quantity, physics=_physics(scene), geometry=geometry,
                 tables=tables, **extra) as write:
+        project = Projections(scene, orbit, quantity=quantity, engine=engine)
         bar = _bar(n, progress)
         for k in range(n):
-            write(k, projection(scene, orbit, k, quantity=quantity, engine=engine))
+            write(k, project(k))
             bar.update(1)
             if (k + 1) % max(1, batch) == 0:
                 trim_memory()
@@ -1526,11 +1527,6 @@ def scan_command(args) -> int:
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
-    from xray_viz.output import check_room
-
-    h, w = scene.detector.shape[1], scene.detector.shape[0]
-    check_room(out if kind == "nexus" else out / "x.tiff", 4 * orbit.projections * h * w,
-               what=f"the stack of {orbit.projections} projections")   # before any work
     n = _scan_to_file(scene, orbit, out, kind, quantity=args.quantity, engine=args.engine,
                       batch=args.batch, progress=True)
     print(f"{out}: {n} projections, {args.quantity}")
