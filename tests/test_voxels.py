@@ -552,7 +552,7 @@ materials = { 1 = { mu = 0.1 }, 2 = { mu = 0.2, name = "two" }, 3 = { mu = 0.3 }
 
 
 def test_a_scene_with_a_ct_volume_writes_its_table_and_loads_back(tmp_path):
-    hu, affine = ct_hu(24)
+    hu, affine = ct_hu(32)                      # air in the corners: a CT in HU, as read
     write_ct(tmp_path, hu, affine)
     (tmp_path / "s.toml").write_text(SCENE.format(body="", extra=""))
     scene = xray_viz.load_scene(tmp_path / "s.toml")
