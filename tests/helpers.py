@@ -104,3 +104,29 @@ def ball_union_chord(origins, directions, balls) -> np.ndarray:
         total += np.clip(hi[:, k] - np.maximum(lo[:, k], reach), 0, None)
         reach = np.maximum(reach, hi[:, k])
     return total
+
+
+def run_on_a_terminal(argv, *, env=None, timeout=300):
+    """Run ``argv`` with stdin, stdout and stderr on a pseudo-terminal; (status, output)."""
+    import os
+    import pty
+    import subprocess
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, close_fds=True,
+                            env={**os.environ, **(env or {})})
+    os.close(slave)
+    chunks = []
+    try:
+        while True:
+            try:
+                data = os.read(master, 1 << 16)
+            except OSError:               # EIO: the child closed the terminal
+                break
+            if not data:
+                break
+            chunks.append(data)
+        status = proc.wait(timeout=timeout)
+    finally:
+        os.close(master)
+    return status, b"".join(chunks).decode("utf-8", "replace")

@@ -15,7 +15,6 @@ import doctest
 import json
 import logging
 import os
-import pty
 import re
 import subprocess
 import sys
@@ -31,6 +30,7 @@ import trimesh
 
 import xray_viz
 from xray_viz import cli, progress
+from helpers import run_on_a_terminal
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = Path(sys.executable).parent / "xray-viz"
@@ -300,28 +300,6 @@ def test_render_errors_and_help_are_the_whole_parser_s(capsys):
 
 
 # -- progress ------------------------------------------------------------------------------
-
-
-def run_on_a_terminal(argv, *, env=None, timeout=300):
-    """Run ``argv`` with stdin, stdout and stderr on a pseudo-terminal; (status, output)."""
-    master, slave = pty.openpty()
-    proc = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, close_fds=True,
-                            env={**os.environ, **(env or {})})
-    os.close(slave)
-    chunks = []
-    try:
-        while True:
-            try:
-                data = os.read(master, 1 << 16)
-            except OSError:               # EIO: the child closed the terminal
-                break
-            if not data:
-                break
-            chunks.append(data)
-        status = proc.wait(timeout=timeout)
-    finally:
-        os.close(master)
-    return status, b"".join(chunks).decode("utf-8", "replace")
 
 
 NOW = {"XRAY_VIZ_PROGRESS_DELAY": "0"}       # draw bars at once, however quick the job

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from helpers import run_on_a_terminal
+
 import xray_viz
 from xray_viz import cli
 from xray_viz.reconstruct import (ReconstructionError, reconstruct, reconstruct_file,
@@ -362,32 +364,6 @@ def test_cli_bad_input_is_one_line_and_writes_nothing(small_scan, tmp_path, caps
                                                           "partial.zarr"]
 
 
-def _on_a_terminal(argv, *, env, timeout=300):
-    """Run ``argv`` with stdout and stderr on a pseudo-terminal; (status, output)."""
-    import os
-    import pty
-    import subprocess
-
-    master, slave = pty.openpty()
-    proc = subprocess.Popen(argv, stdin=slave, stdout=slave, stderr=slave, close_fds=True,
-                            env={**os.environ, **env})
-    os.close(slave)
-    chunks = []
-    try:
-        while True:
-            try:
-                data = os.read(master, 1 << 16)
-            except OSError:               # EIO: the child closed the terminal
-                break
-            if not data:
-                break
-            chunks.append(data)
-        status = proc.wait(timeout=timeout)
-    finally:
-        os.close(master)
-    return status, b"".join(chunks).decode("utf-8", "replace")
-
-
 @pytest.mark.slow
 def test_cli_shows_reconstruction_progress_and_the_volume_is_unchanged(small_scan, tmp_path):
     """Issue 43: FDK reports its per cent and SART its iterations on the terminal's stderr;
@@ -403,7 +379,7 @@ def test_cli_shows_reconstruction_progress_and_the_volume_is_unchanged(small_sca
     grid = ["--voxel", "2", "--shape", "30", "28", "26"]
     cmd = [sys.executable, "-m", "xray_viz", "reconstruct", str(store)]
 
-    status, text = _on_a_terminal([*cmd, "-o", str(tmp_path / "fdk_tty.nii"), *grid], env=env)
+    status, text = run_on_a_terminal([*cmd, "-o", str(tmp_path / "fdk_tty.nii"), *grid], env=env)
     assert status == 0, text
     done = [int(n) for n in re.findall(r"reconstructing \(fdk\):\s+(\d+)%", text)]
     assert done and max(done) >= 90 and len(set(done)) >= 10, text     # it moved on
@@ -411,7 +387,7 @@ def test_cli_shows_reconstruction_progress_and_the_volume_is_unchanged(small_sca
     api = reconstruct(projs, geo, voxel=2.0, shape=(30, 28, 26))     # no observers, no bar
     assert np.array_equal(a, np.transpose(api.mu, (2, 1, 0)))
 
-    status, text = _on_a_terminal([*cmd, "-o", str(tmp_path / "sart.nii"), *grid, "--method",
+    status, text = run_on_a_terminal([*cmd, "-o", str(tmp_path / "sart.nii"), *grid, "--method",
                                    "sart", "--iterations", "2"], env=env)
     assert status == 0, text
     counts = {int(n) for n in re.findall(r"reconstructing \(sart\):.*?(\d)/2 ", text)}
