@@ -11,6 +11,8 @@ import trimesh
 import xraylib
 from scipy import stats
 
+from helpers import field_shares
+
 import xray_viz
 from xray_viz.scene import Body, Detector, Scene, Source
 from xray_viz.montecarlo import geometry as G
@@ -203,17 +205,7 @@ def test_primary_image_is_beer_lambert():
     n = 100_000
     result = xray_viz.transport(scene, n, seed=2)
     li = xray_viz.render(scene).line_integral          # the primary engines, same energy
-    # each pixel's share of the field's solid angle
-    from xray_viz.montecarlo.sources import rectangle_solid_angle, solid_angle
-    f = scene.acquisition.frame
-    whole = solid_angle(scene.acquisition)
-    (w, h), (pu, pv) = f.shape, f.pitch
-    share = np.empty((h, w))
-    for row in range(h):
-        for col in range(w):
-            centre = f.middle + ((col + 0.5) - w / 2) * pu * f.ho + (h / 2 - (row + 0.5)) * pv * f.ve
-            share[row, col] = rectangle_solid_angle(f.source, centre, f.ho, f.ve, pu / 2, pv / 2)
-    share /= whole
+    share = field_shares(scene.acquisition)      # each pixel's share of the field
     expected = 50_000.0 * share * np.exp(-li)
     got, err = result.images["primary"], result.image_errors["primary"]
     z = (got - expected) / err

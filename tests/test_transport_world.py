@@ -9,6 +9,8 @@ import pytest
 import trimesh
 import xraylib
 
+from helpers import field_shares
+
 import xray_viz
 from xray_viz.geometry import detector_rays
 from xray_viz.scene import Body, Detector, Scene, Source
@@ -91,8 +93,6 @@ def test_world_path_is_the_ray_minus_its_paths_in_the_bodies(kind):
 
 
 def test_transport_primary_with_a_world_is_the_render_within_its_error():
-    from xray_viz.montecarlo.sources import rectangle_solid_angle, solid_angle
-
     ball = trimesh.creation.icosphere(subdivisions=3, radius=30)
     slab = trimesh.creation.box(extents=[120, 120, 80])
     world = {"material": AIR, "density": 0.03}       # thin air would hide a missing term
@@ -106,15 +106,7 @@ def test_transport_primary_with_a_world_is_the_render_within_its_error():
     li_vacuum = xray_viz.render(scene.replace(world=None)).line_integral
     assert (li - li_vacuum).min() > 0.5           # the world takes more than e^-0.5
     result = xray_viz.transport(scene, 100_000, seed=3)
-    f = scene.acquisition.frame
-    whole = solid_angle(scene.acquisition)
-    (w, h), (pu, pv) = f.shape, f.pitch
-    share = np.empty((h, w))
-    for row in range(h):
-        for col in range(w):
-            centre = f.middle + ((col + 0.5) - w / 2) * pu * f.ho + (h / 2 - (row + 0.5)) * pv * f.ve
-            share[row, col] = rectangle_solid_angle(f.source, centre, f.ho, f.ve, pu / 2, pv / 2)
-    share /= whole
+    share = field_shares(scene.acquisition)
     expected = 50_000.0 * share * np.exp(-li)
     got, err = result.images["primary"], result.image_errors["primary"]
     seen = err > 0                       # a pixel behind the bone may score no primary
