@@ -59,4 +59,5 @@ bench: setup
 	bash benchmarks/run.sh
 
 clean:
-	rm -rf $(VENV) out build *.egg-info docs/walkthroughs docs/api/generated
+	rm -rf $(VENV) out build *.egg-info docs/walkthroughs docs/examples docs/api/generated \
+	  docs/api/backreferences docs/_readme

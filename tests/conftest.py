@@ -7,6 +7,8 @@ import sys
 # Mesh reports are not read from or kept on disk during tests (tests/test_report_cache.py turns
 # it on in a temporary folder): a test that changes the checker's behaviour must see it run.
 os.environ["XRAY_VIZ_CACHE_DIR"] = "off"
+# nor the bundled phantoms' reports shipped with the package (test_report_cache.py reads them)
+os.environ["XRAY_VIZ_SHIPPED_REPORTS"] = "off"
 
 # Read by PyVista at import and by VTK when it creates a render window.
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")

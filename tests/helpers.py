@@ -130,20 +130,3 @@ def run_on_a_terminal(argv, *, env=None, timeout=300):
     finally:
         os.close(master)
     return status, b"".join(chunks).decode("utf-8", "replace")
-
-
-def field_shares(acquisition):
-    """(H, W): each pixel's share of the solid angle of the field a point source emits into
-    (the transport's histories per pixel, in vacuum)."""
-    import numpy as np
-
-    from xray_viz.montecarlo.sources import rectangle_solid_angle, solid_angle
-
-    f = acquisition.frame
-    (w, h), (pu, pv) = f.shape, f.pitch
-    share = np.empty((h, w))
-    for row in range(h):
-        for col in range(w):
-            centre = f.middle + ((col + 0.5) - w / 2) * pu * f.ho + (h / 2 - (row + 0.5)) * pv * f.ve
-            share[row, col] = rectangle_solid_angle(f.source, centre, f.ho, f.ve, pu / 2, pv / 2)
-    return share / solid_angle(acquisition)

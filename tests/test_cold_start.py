@@ -15,7 +15,7 @@ import pytest
 import xray_viz
 from xray_viz.errors import SceneError
 from xray_viz.tracing import _numba_cache as C
-from xray_viz.tracing import _raster as R
+from xray_viz.tracing import _compile, _raster as R, _raster_calls as RC
 from xray_viz.tracing import fast
 from helpers import make_scene
 
@@ -32,8 +32,8 @@ def _every_path():
     """Renders that go through every kernel: one body (direct), one body by bands (single),
     several bodies (multi), a parallel beam and supersampling; and the meshes' spatial order
     by its kernel (a cold start orders them in NumPy instead)."""
-    R._kernel("_first_use_rank")
-    R.spatial_order(_sphere().vertices, _sphere().faces)
+    R.KERNELS.kernel("_first_use_rank")
+    RC.spatial_order(_sphere().vertices, _sphere().faces)
     fast.fast_path_lengths(xray_viz.load_scene("sphere"), cache=False)
     fast.fast_path_lengths(xray_viz.load_scene("nested_spheres"), supersample=2, cache=False)
     beam = make_scene(_sphere(), kind="parallel", pitch=1.5)
@@ -48,12 +48,36 @@ def _every_path():
 
 def test_every_kernel_has_exactly_its_one_explicit_signature():
     _every_path()
-    assert set(R._names()) == set(R.SIGNATURES)
+    assert set(R.KERNELS.names()) == set(R.SIGNATURES)
     for name, spec in R.SIGNATURES.items():
         disp = getattr(R, name)
         assert disp.signatures == [R._types(spec)], name
         assert not disp._can_compile, name      # nothing else can be compiled
 
+
+
+def test_one_compile_manager_and_plain_calls():
+    """The fast engine's kernels and the mesh checks' compile through one
+    :class:`~xray_viz.tracing._compile.KernelSet` each; ``_raster`` holds kernels (numba
+    dispatchers), their named tuples and data, and no Python function but the signature
+    parser, the depth key and the one kernel's source (``first_use_rank``, compiled as
+    ``_first_use_rank``); the calls are plain functions of ``_raster_calls``, not objects
+    swapped into a module's globals."""
+    import inspect
+
+    from xray_viz.meshes import _check_kernels as K
+
+    for module in (R, K):
+        assert isinstance(module.KERNELS, _compile.KernelSet)
+        assert set(module.KERNELS.signatures) == set(module.SIGNATURES)
+        assert all(module.KERNELS.kernels[n] is getattr(module, n) for n in module.SIGNATURES)
+    plain = sorted(n for n, v in vars(R).items()
+                   if inspect.isfunction(v) and v.__module__ == R.__name__)
+    assert plain == ["_types", "depth_key", "first_use_rank"]
+    for name in ("first_use_rank", "spatial_order", "project_vertices", "cull_triangles",
+                 "cull_and_bin", "raster_single", "raster_multi", "finish", "finish_chunks",
+                 "raster_direct", "reduce_chunks"):
+        assert inspect.isfunction(getattr(RC, name)) and getattr(RC, name).__module__ == RC.__name__
 
 HELPERS = ("_lowest_bit", "_plane", "_sample_ray", "_obliquity", "exact_cross_sign",
            "beyond_side", "_tie", "_clamped", "_axis_code", "_side_value", "_between_samples",
@@ -95,9 +119,9 @@ COLD_ORDER = """
 import hashlib, json, sys
 sys.path.insert(0, sys.argv[1])
 """ + LISTEN + """import test_cold_start as T
-from xray_viz.tracing import _raster as R, fast
+from xray_viz.tracing import _raster as R, _raster_calls as RC, fast
 if sys.argv[2] == "worker":       # as the command line: a background process compiles it
-    assert R.prepare(["order"], first=["order"]) == ["_first_use_rank"]
+    assert R.KERNELS.prepare(["order"], first=["order"]) == ["_first_use_rank"]
 L = fast.trace_once(T.make_scene(T._sphere(subdivisions=5), pitch=1.5))
 print(json.dumps({"compiled": compiled, "sha": hashlib.sha256(L.tobytes()).hexdigest()}))
 """
@@ -125,9 +149,35 @@ def test_a_cold_start_orders_the_meshes_in_numpy_with_the_kernels_bits(tmp_path)
     assert (tmp_path / "worker").is_dir() and again["compiled"] == []
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "worker"))
     check = subprocess.run([sys.executable, "-c", "from xray_viz.tracing import _raster as R; "
-                            "print(R._is_cached('_first_use_rank'))"], env=env, check=True,
+                            "print(R.KERNELS.is_cached('_first_use_rank'))"], env=env, check=True,
                            capture_output=True, text=True, timeout=300)
     assert check.stdout.split() == ["True"]
+
+
+@pytest.mark.parametrize("perspective", [True, False])
+@pytest.mark.parametrize("grid", [(512, 400), (20000, 30)])      # cell codes, or none
+def test_the_numpy_projection_of_a_cold_start_gives_the_kernels_bits(perspective, grid):
+    """On a cold start the command line projects the vertices in NumPy
+    (:func:`RC.project_vertices_numpy`) rather than compile ``_project_vertices`` first: the
+    same snapped coordinates, depths, cell codes, huge flags and depth range, bit for bit,
+    also for a vertex at the source, one behind it, a huge one and a NaN one; and the NumPy
+    twin is taken only while the kernel is neither compiled nor cached."""
+    rng = np.random.default_rng(1)
+    V = rng.normal(size=(5000, 3)) * 10
+    V[:5] = [[0.1, -0.2, -50.0], [1e30, 0, 0], [np.nan, 0, 0], [5, 5, -60], [0, 0, -50]]
+    V = np.ascontiguousarray(V.T)
+    frame = (np.array([0.1, -0.2, -50.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]),
+             np.array([0.0, 1.0, 0.0]), 37.3, 255.5, 37.3, 200.25, perspective)
+    out = []
+    for project in (RC.project_vertices, RC.project_vertices_numpy):
+        n = V.shape[1]
+        arrays = (np.empty((n, 2), np.int64), np.empty(n), np.empty(n, bool),
+                  np.empty(n, np.int32))
+        wmin, wmax, odd = project(V, *frame, *arrays[:3], *grid, arrays[3])
+        out.append((np.array([wmin, wmax]).view(np.int64).tolist(), odd,
+                    [a.tobytes() for a in arrays]))
+    assert out[0] == out[1] and out[0][1] and out[0][0][0] != out[0][0][1]
+    assert not RC._cold("_project_vertices")      # compiled here: the kernel from now on
 
 
 def test_arguments_of_other_types_are_normalised_not_compiled():
@@ -136,20 +186,20 @@ def test_arguments_of_other_types_are_normalised_not_compiled():
     ref = fast.trace_once(scene)
     v = np.asarray(scene.bodies[0].vertices, np.float64)
     f = np.asarray(scene.bodies[0].faces, np.int64)
-    assert R._faces(f, len(v)).dtype == np.uint32
-    np.testing.assert_array_equal(R._faces(f, len(v)), f)
+    assert RC._faces(f, len(v)).dtype == np.uint32
+    np.testing.assert_array_equal(RC._faces(f, len(v)), f)
     nW = nH = 64
     XY = np.empty((len(v), 2), np.int64)
     w, huge, K = np.empty(len(v)), np.empty(len(v), np.bool_), np.empty(len(v), np.int32)
     wide = np.zeros((6, len(v)))
     wide[::2] = v.T                              # a strided view: not C-contiguous
-    R.project_vertices(wide[::2], np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
-                       np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
-                       True, XY, w, huge, nW, nH, K)
+    RC.project_vertices(wide[::2], np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
+                        np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
+                        True, XY, w, huge, nW, nH, K)
     XY2, w2, huge2, K2 = XY.copy(), w.copy(), huge.copy(), K.copy()
-    R.project_vertices(v.T.copy(), np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
-                       np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
-                       True, XY2, w2, huge2, nW, nH, K2)
+    RC.project_vertices(v.T.copy(), np.array([0, 0, 1000.0]), np.array([0, 0, -1.0]),
+                        np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), 40.0, 31.5, 40.0, 31.5,
+                        True, XY2, w2, huge2, nW, nH, K2)
     for a, b in ((XY, XY2), (w, w2), (huge, huge2), (K, K2)):
         np.testing.assert_array_equal(a, b)
     assert len(R._project_vertices.signatures) == 1
@@ -159,7 +209,7 @@ def test_arguments_of_other_types_are_normalised_not_compiled():
 def test_more_than_2_to_the_31_vertices_is_refused_in_one_line():
     with pytest.raises(SceneError,
                        match=r"2\*\*31 - 1 vertices and triangles; use the NumPy engine"):
-        R._faces(np.zeros((1, 3), np.int64), 2**31)
+        RC._faces(np.zeros((1, 3), np.int64), 2**31)
 
 
 @pytest.mark.parametrize("pieces", [2, 3, 7])
@@ -176,15 +226,15 @@ def test_a_kernel_split_over_threads_gives_the_serial_result_bit_for_bit(monkeyp
     planes[:, 3] = 1e9
 
     def run(k):
-        monkeypatch.setattr(R, "_threads", lambda: k)
-        monkeypatch.setattr(R, "_MIN_ITEMS", 1)
+        monkeypatch.setattr(RC, "_threads", lambda: k)
+        monkeypatch.setattr(RC, "_MIN_ITEMS", 1)
         n = V.shape[1]
         XY, w = np.empty((n, 2), np.int64), np.empty(n)
         huge, K = np.empty(n, np.bool_), np.empty(n, np.int32)
-        R.project_vertices(V, r0, f, eu, ev, 200.0, 255.5, 200.0, 255.5, True, XY, w, huge,
-                           512, 512, K)
+        RC.project_vertices(V, r0, f, eu, ev, 200.0, 255.5, 200.0, 255.5, True, XY, w, huge,
+                            512, 512, K)
         status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)
-        R.cull_triangles(F, XY, w, huge, True, 1500.0, 512, 512, status, box, V, r0, planes)
+        RC.cull_triangles(F, XY, w, huge, True, 1500.0, 512, 512, status, box, V, r0, planes)
         return XY, w, huge, K, status, box * (status != 0)[:, None]
 
     serial, split = run(1), run(pieces)
@@ -209,13 +259,13 @@ def test_a_background_compile_is_announced_when_first_needed():
 
 PREPARE = """
 import json, sys
-""" + LISTEN + """from xray_viz.tracing import _raster as R
-started = R.prepare(["setup"])
-again = R.prepare(["setup"])             # already being compiled: nothing more
-names = R.compile_kernels(["setup"])
+""" + LISTEN + """from xray_viz.tracing import _raster as R, _raster_calls as RC
+started = R.KERNELS.prepare(["setup"])
+again = R.KERNELS.prepare(["setup"])             # already being compiled: nothing more
+names = R.KERNELS.compile(["setup"])
 hits = {n: sum(getattr(R, n).stats.cache_hits.values()) for n in names}
 print(json.dumps(dict(started=started, again=again, compiled=compiled, hits=hits,
-                      late=R.prepare(["setup"]))))
+                      late=R.KERNELS.prepare(["setup"]))))
 """
 
 
@@ -246,18 +296,18 @@ class Listener(event.Listener):
         pass
 event.register("numba:compile", Listener())
 import xray_viz
-from xray_viz.tracing import _raster as R, fast
+from xray_viz.tracing import _raster as R, _raster_calls as RC, fast
 first = ["setup", "banded", "multi"]                  # the frog's, as the command line
-started = R.prepare(first=first)
-worker = sorted(R._urgent)
+started = R.KERNELS.prepare(first=first)
+worker = sorted(R.KERNELS.urgent)
 scene = xray_viz.load_scene("default")
 scene = scene.replace(detector=dataclasses.replace(scene.detector, shape=(48, 40)))
 L = fast.trace_once(scene)
-for proc in {id(p): p for p in R._workers.values()}.values():
+for proc in {id(p): p for p in R.KERNELS.workers.values()}.values():
     proc.wait()                                       # its other kernels, into the cache
-print(json.dumps({"started": started, "mine": sorted(R._mine), "worker": worker,
+print(json.dumps({"started": started, "mine": sorted(R.KERNELS.mine), "worker": worker,
                   "compiled": compiled, "sha": hashlib.sha256(L.tobytes()).hexdigest(),
-                  "cached": [n for n in R.SIGNATURES if not R._is_cached(n)]}))
+                  "cached": [n for n in R.SIGNATURES if not R.KERNELS.is_cached(n)]}))
 """
 
 
@@ -275,7 +325,7 @@ def test_a_cold_start_shares_the_urgent_kernels_with_one_background_process(tmp_
     run = subprocess.run([sys.executable, "-c", SHARED], env=env, check=True,
                          capture_output=True, text=True, timeout=900)
     out = json.loads(run.stdout.splitlines()[-1])
-    urgent = set(R._names(["setup", "banded", "multi"]))
+    urgent = set(R.KERNELS.names(["setup", "banded", "multi"]))
     assert sorted(out["started"]) == sorted(R.SIGNATURES)
     assert out["mine"] and out["worker"] and set(out["mine"]) | set(out["worker"]) == urgent
     assert not set(out["mine"]) & set(out["worker"])
@@ -284,7 +334,10 @@ def test_a_cold_start_shares_the_urgent_kernels_with_one_background_process(tmp_
     gap = sum(cost[n] for n in out["worker"]) - sum(cost[n] for n in out["mine"])
     assert abs(gap - R._HEAD) <= max(cost[n] for n in urgent), gap     # balanced, head start
     kernels = {n: opt for n, opt in out["compiled"].items() if n in R.SIGNATURES}
-    assert kernels == {n: R._WORKER_OPT for n in out["mine"]}           # nothing else here
+    # this process's share, but for the projection, which it does in NumPy (the same bits)
+    # while the kernel is not cached: the background process caches it afterwards
+    assert "_project_vertices" in out["mine"]
+    assert kernels == {n: R._WORKER_OPT for n in out["mine"] if n != "_project_vertices"}
     assert out["cached"] == []
     scene = xray_viz.load_scene("default")
     scene = scene.replace(detector=dataclasses.replace(scene.detector, shape=(48, 40)))
@@ -295,8 +348,8 @@ def test_prepare_starts_nothing_when_only_other_scenes_kernels_are_missing(tmp_p
     """Kernels missing only outside ``first`` (a worker of an earlier command is compiling
     them): no second worker, and no compile notice (``_numba_cache`` is not told)."""
     code = ("import json; from xray_viz.tracing import _raster as R, _numba_cache as C; "
-            "print(json.dumps([R.prepare(['setup'], first=['multi']), C._background, "
-            "[R._is_cached(n) for n in R.PATHS['setup']]]))")
+            "print(json.dumps([R.KERNELS.prepare(['setup'], first=['multi']), C._background, "
+            "[R.KERNELS.is_cached(n) for n in R.PATHS['setup']]]))")
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", code], env=env, check=True,
                          capture_output=True, text=True, timeout=600)
@@ -382,8 +435,8 @@ exec(compile({worker!r}, "worker", "exec"))
 print(" ".join(sorted(m for m in sys.modules if m.startswith("xray_viz"))), flush=True)
 """
 IS_CACHED = """
-from xray_viz.tracing import _raster as R
-print(R._is_cached("_first_use_rank"), R._is_cached("_reduce_chunks"))
+from xray_viz.tracing import _raster as R, _raster_calls as RC
+print(R.KERNELS.is_cached("_first_use_rank"), R.KERNELS.is_cached("_reduce_chunks"))
 """
 
 
@@ -393,13 +446,13 @@ def test_a_worker_imports_only_the_engine_and_caches_for_the_parent(tmp_path):
     found in the cache by a process that imported xray_viz as usual."""
     root = os.path.dirname(os.path.dirname(R.__file__))
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
-    out = subprocess.run([sys.executable, "-c", WORKER_THEN.format(worker=R._WORKER), root,
-                          "_first_use_rank"], env=env, check=True, capture_output=True,
+    out = subprocess.run([sys.executable, "-c", WORKER_THEN.format(worker=_compile.WORKER), root,
+                          "xray_viz.tracing._raster", "", "10", "_first_use_rank"], env=env, check=True, capture_output=True,
                          text=True, timeout=600)
     said, modules = out.stdout.split("\n")[:2]
     assert said == "_first_use_rank"
-    assert modules.split() == ["xray_viz", "xray_viz.tracing", "xray_viz.tracing._numba_cache",
-                               "xray_viz.tracing._raster"]
+    assert modules.split() == ["xray_viz", "xray_viz.tracing", "xray_viz.tracing._compile",
+                               "xray_viz.tracing._numba_cache", "xray_viz.tracing._raster"]
     out = subprocess.run([sys.executable, "-c", IS_CACHED], env=env, check=True,
                          capture_output=True, text=True, timeout=600)
     assert out.stdout.split() == ["True", "False"]

@@ -45,7 +45,7 @@ DOCS = REPO / "docs"
 
 #: Modules the API reference must cover (issue 17), each with a page per public object.
 API_MODULES = [
-    "xray_viz", "xray_viz.scene", "xray_viz.geometry", "xray_viz.tracing",
+    "xray_viz", "xray_viz.scene", "xray_viz.scene_file", "xray_viz.geometry", "xray_viz.tracing",
     "xray_viz.tracing.intersect", "xray_viz.tracing.hits", "xray_viz.tracing.candidates",
     "xray_viz.tracing.fast", "xray_viz.tracing.engines", "xray_viz.tracing.reference",
     "xray_viz.attenuation", "xray_viz.physics",
@@ -248,6 +248,49 @@ def test_tasks_gallery_is_a_second_section_beside_the_walkthroughs(site):
     assert len(list_walkthroughs()) == 12
 
 
+def _example_text(site, name):
+    page = site.page(f"examples/{name}.html")
+    tags = _parse(page.read_text(encoding="utf-8"))
+    return page, tags, _plain("".join(tags.text))
+
+
+def test_drr_dataset_example_ran_on_dask_workers(site):
+    """Issue 43, "A DRR dataset with Dask": 36 DRRs rendered by two worker processes into a
+    Zarr store, read back; the workers' projection 5 equals this process's, bit for bit; the
+    montage is on the page."""
+    assert site.returncode == 0, site.stderr[-3000:]
+    page, tags, text = _example_text(site, "plot_drr_dataset_dask")
+    assert re.search(r"scheduler at tcp://127\.0\.0\.1:\d+, 2 workers", text), text[:2000]
+    assert "36 projections of 48 x 96, float32" in text
+    assert "projection 5 rendered here equals the worker's: True" in text
+    (image,) = _figure_images(tags, "plot_drr_dataset_dask")
+    _check_png(_local(page, image))
+
+
+def test_dose_example_prints_the_dose_table_with_its_errors(site):
+    """Issue 43, "Dose": the limb phantom's six bodies each with a dose and its standard error
+    (the energy balance closed), cortical bone absorbing more per gram than the muscle around
+    it (its calcium's photoelectric absorption), and the chart and the four images shown."""
+    from xray_viz import load_scene
+
+    assert site.returncode == 0, site.stderr[-3000:]
+    page, tags, text = _example_text(site, "plot_dose")
+    rows = {m[0]: [float(x) for x in m[1:]] for m in re.findall(
+        r"^ *(\w+) +([\d.]+) +([\d.]+) +([\d.]+) +([\d.]+) +[\d.]+%$", text, flags=re.M)}
+    assert sorted(rows) == sorted(b.name for b in load_scene("limb").bodies), text[-3000:]
+    for name, (energy, energy_error, dose, dose_error) in rows.items():
+        assert 0 < energy_error < 0.1 * energy and 0 < dose_error < 0.1 * dose, name
+        assert dose_error / dose == pytest.approx(energy_error / energy, rel=0.05), name
+    for bone in ("radius_bone", "ulna_bone"):
+        assert rows[bone][2] - 3 * rows[bone][3] > rows["muscle"][2] + 3 * rows["muscle"][3]
+    balance = float(re.search(r"emitted - all the others = ([-+.\de]+) eV", text).group(1))
+    assert abs(balance) < 1e-6
+    images = _figure_images(tags, "plot_dose")
+    assert len(images) == 2, images
+    for src in images:
+        _check_png(_local(page, src))
+
+
 def test_walkthrough_notebooks_and_scripts_are_offered(site):
     import nbformat
 
@@ -282,10 +325,18 @@ def _public_names(module_name):
     return module, [n for n in names if not inspect.ismodule(getattr(module, n))]
 
 
+#: The command line's plumbing (issue 43: out of the API reference): these modules, and in any
+#: module the parser builders and ``*_command`` functions.
+CLI_MODULES = ("xray_viz.cli", "xray_viz.convert", "xray_viz.scene_options",
+               "xray_viz.meshes.command", "xray_viz.montecarlo.command", "xray_viz.viz.command")
+CLI_NAMES = re.compile(r"add_\w+_parser|\w+_command|check_scheduler")
+
+
 @pytest.mark.parametrize("module_name", API_MODULES)
 def test_api_reference_has_a_page_per_public_object(site, module_name):
     """Each module's page exists, and each object of its ``__all__`` has a page generated from
-    its docstring - under the module that defines it, for a package's re-exports."""
+    its docstring - under the module that defines it, for a package's re-exports - except the
+    command line's parser builders and ``*_command`` functions, which have none."""
     assert site.returncode == 0, site.stderr[-3000:]
     api = site.page("api/generated")
     page = site.page("api/index.html") if module_name == "xray_viz" else api / f"{module_name}.html"
@@ -294,12 +345,74 @@ def test_api_reference_has_a_page_per_public_object(site, module_name):
     summary = _plain((inspect.getdoc(module) or "").split("\n")[0])
     assert summary[:24] in _plain("".join(_parse(page.read_text(encoding="utf-8")).text))
     for name in names:
+        if CLI_NAMES.fullmatch(name):
+            assert not (api / f"{module_name}.{name}.html").exists(), name
+            continue
         obj = getattr(module, name)
         owner = getattr(obj, "__module__", module_name) if (
             inspect.isclass(obj) or inspect.isfunction(obj)) else module_name
         qualname = getattr(obj, "__qualname__", name) if owner != module_name else name
         target = api / f"{owner}.{qualname}.html"
         assert target.is_file(), f"{module_name}.{name}: no page {target.name}"
+
+
+def test_cli_internals_are_not_in_the_api_reference(site):
+    """Issue 43: the command line's modules and its parser builders and ``*_command``
+    functions have no API pages, and no module page or table lists them; ``xray-viz --help``
+    documents the commands."""
+    assert site.returncode == 0, site.stderr[-3000:]
+    api = site.page("api/generated")
+    for module in CLI_MODULES:
+        assert not (api / f"{module}.html").exists(), module
+    pages = sorted(api.glob("*.html"))
+    assert len(pages) > 200
+    cli_pages = [p.name for p in pages if CLI_NAMES.fullmatch(p.stem.rsplit(".", 1)[-1])]
+    assert cli_pages == []
+    listed = set()
+    for page in [site.page("api/index.html"), *api.glob("xray_viz.*.html")]:
+        tags = _parse(page.read_text(encoding="utf-8"))
+        listed |= {a.get("href", "").split("#")[0].rsplit("/", 1)[-1]
+                   for t, a in tags.tags if t == "a"}
+    assert not {f"{m}.html" for m in CLI_MODULES} & listed
+    assert not [h for h in listed if CLI_NAMES.fullmatch(h.removesuffix(".html").rsplit(".", 1)[-1])]
+    # the library functions beside them keep their pages
+    for name in ("xray_viz.scan.scan", "xray_viz.scan.read_zarr", "xray_viz.transport.transport"):
+        assert (api / f"{name}.html").is_file(), name
+
+
+def _minigallery_links(site, page_name):
+    page = site.page(f"api/generated/{page_name}.html")
+    html = page.read_text(encoding="utf-8")
+    assert "Examples using this" in html, page_name
+    after = html.split("Examples using this", 1)[1]
+    return {_local(page, a["href"]).relative_to(site.html.resolve()).as_posix()
+            for t, a in _parse(after).tags if t == "a" and a.get("href", "").endswith(".html")
+            and ("examples/" in a["href"] or "walkthroughs/" in a["href"])}
+
+
+def test_api_pages_link_to_the_examples_using_them(site):
+    """Issue 43: an API page ends with the examples and walkthroughs that call the object,
+    under whatever name they call it (``xray_viz.render`` is ``xray_viz.render.render``); each
+    link is a page of the site, with its thumbnail."""
+    assert site.returncode == 0, site.stderr[-3000:]
+    render = _minigallery_links(site, "xray_viz.render.render")
+    assert {"examples/plot_your_own_mesh.html", "examples/plot_dicom_nifti_round_trip.html",
+            "walkthroughs/08_radiograph.html"} <= render, render
+    assert "examples/plot_dose.html" not in render
+    assert "examples/plot_dose.html" in _minigallery_links(site, "xray_viz.transport.transport")
+    scan = _minigallery_links(site, "xray_viz.scan.scan")
+    assert {"examples/plot_drr_dataset_dask.html", "examples/plot_ct_reconstruction.html"} <= scan
+    # a class's page: examples that make it or call its methods
+    assert "examples/plot_drr_dataset_dask.html" in _minigallery_links(
+        site, "xray_viz.orbit.RandomPoses")
+    for target in render | scan:
+        assert site.page(target).is_file(), target
+    page = site.page("api/generated/xray_viz.render.render.html")
+    thumbs = [a["src"] for t, a in _parse(page.read_text(encoding="utf-8")).tags
+              if t == "img" and "_thumb" in a.get("src", "")]
+    assert len(thumbs) >= len(render)
+    for src in thumbs:
+        _check_png(_local(page, src), min_size=100)
 
 
 def test_api_pages_render_numpydoc_sections(site):

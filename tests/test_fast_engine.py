@@ -401,7 +401,7 @@ def test_a_frame_hashes_each_mesh_once_and_a_change_in_place_is_still_seen(monke
 def _projected_ball():
     """A projected sphere of 20,480 faces on a 128 x 96 grid (every vertex between the source
     and detector planes): the arguments of the cull, and the cell codes."""
-    from xray_viz.tracing import _raster as R
+    from xray_viz.tracing import _raster_calls as RC
 
     ball = _sphere(20.0, 5)
     V = np.ascontiguousarray(ball.vertices.T, float)      # coordinate-major, as the kernels
@@ -414,8 +414,8 @@ def _projected_ball():
     n = V.shape[1]
     XY, w = np.empty((n, 2), np.int64), np.empty(n)
     huge, K = np.empty(n, np.bool_), np.empty(n, np.int32)
-    R.project_vertices(V, r0, f, eu, ev, 3000.0, 63.5, 3000.0, 47.5, True, XY, w, huge, 128,
-                       96, K)
+    RC.project_vertices(V, r0, f, eu, ev, 3000.0, 63.5, 3000.0, 47.5, True, XY, w, huge, 128,
+                        96, K)
     return F, XY, w, huge, V, r0, planes, K
 
 
@@ -424,15 +424,15 @@ def test_the_banded_cull_s_cell_code_pass_gives_the_same_status_and_list():
     first drops the triangles whose cell codes say they cover no sample: the same status and
     boxes as the full test of every triangle, and the list of kept triangles is the non-zero
     statuses in order."""
-    from xray_viz.tracing import _raster as R
+    from xray_viz.tracing import _raster_calls as RC
 
     F, XY, w, huge, V, r0, planes, K = _projected_ball()
     assert w.min() > 0 and w.max() < 1500.0 and not huge.any()
     out = []
     for depth_ok in (False, True):
         status, box = np.full(len(F), 9, np.int8), np.zeros((len(F), 4), np.int64)
-        kept = R.cull_triangles(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V, r0,
-                                planes, K=K, depth_ok=depth_ok)
+        kept = RC.cull_triangles(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V, r0,
+                                 planes, K=K, depth_ok=depth_ok)
         np.testing.assert_array_equal(kept, np.flatnonzero(status))
         out.append((status, box * (status != 0)[:, None]))
     np.testing.assert_array_equal(out[0][0], out[1][0])
@@ -448,13 +448,13 @@ def test_band_lists_hold_each_kept_triangle_in_every_band_its_rows_meet(monkeypa
     pieces' in turn, are in triangle order exactly the kept triangles whose sample rows meet
     its rows, however many pieces (a band height of 7 rows, not a power of two; the last
     band cut by the grid)."""
-    from xray_viz.tracing import _raster as R
+    from xray_viz.tracing import _raster_calls as RC
 
-    monkeypatch.setattr(R, "_threads", lambda: threads)
+    monkeypatch.setattr(RC, "_threads", lambda: threads)
     F, XY, w, huge, V, r0, planes, K = _projected_ball()
     status, box = np.full(len(F), 9, np.int8), np.full((len(F), 4), -1, np.int64)
-    band_start, tris = R.cull_and_bin(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V,
-                                      r0, planes, 7, K=K, depth_ok=True)
+    band_start, tris = RC.cull_and_bin(F, XY, w, huge, True, 1500.0, 128, 96, status, box, V,
+                                       r0, planes, 7, K=K, depth_ok=True)
     kept = np.flatnonzero(status)
     assert len(kept) > 1000
     assert band_start.shape == (threads, 15)       # 14 bands of 7 rows cover 96 rows
@@ -474,7 +474,7 @@ def test_bands_taken_by_any_number_of_threads_give_the_same_bits(monkeypatch):
     first (``fast._band_order``: by triangle entries, a permutation), so a thread that
     starts late takes fewer; the path lengths are the same bits for 1, 2, 3 and 5 threads,
     and when one thread starts a frame late (each band writes its own rays)."""
-    from xray_viz.tracing import _raster as R
+    from xray_viz.tracing import _raster_calls as RC
     from xray_viz.tracing import fast as fast_mod
 
     entries = np.array([0, 5, 900, 40, 1000, 3, 3, 77, 600, 0, 12])
@@ -486,7 +486,7 @@ def test_bands_taken_by_any_number_of_threads_give_the_same_bits(monkeypatch):
     out = []
     for k in (1, 2, 3, 5):          # the cull's pieces and the raster's threads
         monkeypatch.setattr(fast_mod.numba, "get_num_threads", lambda k=k: k)
-        monkeypatch.setattr(R, "_threads", lambda k=k: k)
+        monkeypatch.setattr(RC, "_threads", lambda k=k: k)
         out.append(fast_mod.trace_once(scene))
     assert out[0].shape[1] == 16 and out[0].max() > 10
     for L in out[1:]:
@@ -508,7 +508,7 @@ def test_bands_taken_by_any_number_of_threads_give_the_same_bits(monkeypatch):
         return real(piece, k)
 
     monkeypatch.setattr(fast_mod.numba, "get_num_threads", lambda: 2)
-    monkeypatch.setattr(R, "_threads", lambda: 2)
+    monkeypatch.setattr(RC, "_threads", lambda: 2)
     monkeypatch.setattr(_threads, "run_pieces", late)
     np.testing.assert_array_equal(fast_mod.trace_once(scene), out[0])
     assert seen.count(1) == seen.count(0) >= 3     # each kernel of the frame on both threads
@@ -550,16 +550,16 @@ def test_overlapping_pieces_of_one_body_give_their_union_with_or_without_culled_
 
 
 def test_one_body_of_one_piece_keeps_the_signed_sum_path(monkeypatch):
-    import xray_viz.tracing._raster as R
+    import xray_viz.tracing._raster_calls as RC
 
     calls = []
-    multi = R.raster_multi
+    multi = RC.raster_multi
 
     def spy(*args, **options):
         calls.append(1)
         return multi(*args, **options)
 
-    monkeypatch.setattr(R, "raster_multi", spy)
+    monkeypatch.setattr(RC, "raster_multi", spy)
     one = make_scene(_sphere(), pitch=1.5)
     apart = make_scene(_pieces(_sphere(10, 2, (-30, 0, 0)), _sphere(10, 2, (30, 0, 0))), pitch=1.5)
     for scene in (one, apart):

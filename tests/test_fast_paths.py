@@ -8,14 +8,14 @@ import pytest
 import trimesh
 
 from xray_viz.render import ENGINES
-from xray_viz.tracing import _raster as R
+from xray_viz.tracing import _raster as R, _raster_calls as RC
 from xray_viz.tracing.fast import _spatial_order, fast_path_lengths
 from helpers import make_scene
 
 
 def test_first_use_rank_is_a_permutation_in_order_of_first_use():
     faces = np.array([[5, 2, 7], [2, 0, 5], [1, 7, 0]])
-    rank = R.first_use_rank(faces.ravel(), 9)
+    rank = RC.first_use_rank(faces.ravel(), 9)
     assert sorted(rank.tolist()) == list(range(9))
     assert rank[[5, 2, 7, 0, 1]].tolist() == [0, 1, 2, 3, 4]
     assert rank[[3, 4, 6, 8]].tolist() == [5, 6, 7, 8]      # unused: after, in order
@@ -66,8 +66,8 @@ def test_compiled_spatial_order_is_the_numpy_one(case):
     else:                             # vertices used by no face
         v = rng.normal(size=(6000, 3))
         f = rng.integers(0, 5000, size=(3000, 3))
-    R._kernel("_first_use_rank")               # compiled (or loaded): the kernel's answer
-    got, want, ours = _spatial_order(v, f), _numpy_spatial_order(v, f), R.spatial_order_numpy(v, f)
+    R.KERNELS.kernel("_first_use_rank")               # compiled (or loaded): the kernel's answer
+    got, want, ours = _spatial_order(v, f), _numpy_spatial_order(v, f), RC.spatial_order_numpy(v, f)
     for a in (got, ours):
         np.testing.assert_array_equal(a[0], want[0])
         np.testing.assert_array_equal(a[1], want[1])
@@ -184,8 +184,8 @@ def test_projection_is_the_numpy_spelling_bit_for_bit(perspective, case):
     bx, by = (nW - 1) / 2, (nH - 1) / 2
     XY = np.full((n, 2), -7, np.int64)
     w, huge, K = np.full(n, -7.0), np.zeros(n, np.bool_), np.full(n, -7, np.int32)
-    got = R.project_vertices(V.T.copy(), r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
-                             nW, nH, K)
+    got = RC.project_vertices(V.T.copy(), r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
+                              nW, nH, K)
     XYn, wn, hn, Kn, want = _numpy_projection(V, r0, f, eu, ev, sx, bx, sy, by, perspective,
                                               nW, nH)
     np.testing.assert_array_equal(w.view(np.int64), wn.view(np.int64))
@@ -239,8 +239,8 @@ def test_the_vectorised_one_sample_passes_add_the_bits_of_the_scalar_path(case, 
     scene = make_scene(mesh, kind="parallel" if case == "parallel" else "point", pitch=pitch,
                        shape=(96, 80))
     calls = []
-    real = R.raster_direct
-    monkeypatch.setattr(R, "raster_direct", lambda *a: calls.append(a) or real(*a))
+    real = RC.raster_direct
+    monkeypatch.setattr(RC, "raster_direct", lambda *a: calls.append(a) or real(*a))
     fast_path_lengths(scene, supersample=2 if case == "supersampled" else 1, cache=False)
     (args,) = calls
     n_chunks, *rest = args
@@ -280,8 +280,8 @@ def test_the_finish_from_per_thread_sums_is_the_finish_of_their_reduction(perspe
     P00, Ex, Ey = np.array([-40.0, -30.0, -1500.0]), np.array([0.8, 0.1, 0.0]), np.array(
         [0.0, 0.9, 0.05])
     total, counted = np.empty((nH, nW)), np.empty((nH, nW))
-    R.reduce_chunks(S, None, FL, total)
-    R.reduce_chunks(S, N, FL, counted)
+    RC.reduce_chunks(S, None, FL, total)
+    RC.reduce_chunks(S, N, FL, counted)
     np.testing.assert_allclose(total, S.sum(0), rtol=1e-15, atol=1e-12)
     np.testing.assert_allclose(counted - total, N.sum(0) * FL, rtol=1e-13, atol=1e-11)
     assert np.count_nonzero(N.sum(0)) > 100
@@ -289,9 +289,9 @@ def test_the_finish_from_per_thread_sums_is_the_finish_of_their_reduction(perspe
         r0, r1 = H - y1 // n, H - y0 // n
         ray0, n_rays = r0 * W * n * n, (r1 - r0) * W * n * n
         got, want = np.full((n_rays, 1), np.nan), np.full((n_rays, 1), np.nan)
-        R.finish_chunks(S, FL, perspective, P00, Ex, Ey, n, W, H, got, y0, y1, ray0)
-        R.finish(total, np.zeros((1, 1, 1)), True, FL, perspective, P00, Ex, Ey, n, W, H, want,
-                 y0, y1, 0, ray0)
+        RC.finish_chunks(S, FL, perspective, P00, Ex, Ey, n, W, H, got, y0, y1, ray0)
+        RC.finish(total, np.zeros((1, 1, 1)), True, FL, perspective, P00, Ex, Ey, n, W, H, want,
+                  y0, y1, 0, ray0)
         np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
         assert np.count_nonzero(got == 0) >= 6 * (y1 - y0)        # six zero columns
         assert not np.signbit(got[got == 0]).any()

@@ -327,7 +327,7 @@ def test_frog():
 def test_library_size_and_package_data():
     root = phantoms._root()
     files = [p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts]
-    assert sum(p.stat().st_size for p in files) < 15e6
+    assert sum(p.stat().st_size for p in files) < 17.5e6   # the chest CT: 2.6 MB
     import tomllib
     from pathlib import Path
 
@@ -341,7 +341,7 @@ def test_library_size_and_package_data():
                 folder = root.joinpath(*parts[2:])
                 shipped |= {p for g in globs for p in folder.glob(g)}
         for p in files:
-            if p.suffix in (".toml", ".stl"):
+            if p.suffix in (".toml", ".stl", ".gz"):
                 assert p in shipped, p
 
 

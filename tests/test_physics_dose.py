@@ -574,12 +574,14 @@ def test_icru44_tissue_in_a_scene_and_in_suggestions(tmp_path):
 # honest scope
 
 
-def test_scatter_is_declared_not_modelled():
-    from xray_viz.physics import SCATTER_NOT_MODELLED
+def test_scatter_scope_says_what_each_image_includes():
+    from xray_viz.physics import SCATTER_SCOPE, scatter_scope
 
-    assert "scatter" in SCATTER_NOT_MODELLED and "never detected" in SCATTER_NOT_MODELLED
+    assert "not detected" in SCATTER_SCOPE[None] and "primary radiation only" in SCATTER_SCOPE[None]
+    assert "Monte Carlo" in scatter_scope("mc") and "kernel" in scatter_scope("kernel")
+    assert scatter_scope("none") == SCATTER_SCOPE[None]
     bench = (Path(__file__).resolve().parents[1] / "BENCHMARKS.md").read_text()
-    assert "## Scatter not modelled" in bench
+    assert "## Scatter in the images" in bench
 
 
 def test_dosimetry_docstring_examples():
@@ -596,7 +598,7 @@ def test_air_kerma_reaches_the_radiograph_and_the_dicom_header(tmp_path):
 
     import xray_viz
     from xray_viz.cli import main
-    from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED, air_kerma, hvl
+    from xray_viz.physics.dosimetry import SCATTER_SCOPE, air_kerma, hvl
     from xray_viz.physics.spectra import source_spectrum
 
     ball = tmp_path / "ball.stl"
@@ -610,7 +612,7 @@ def test_air_kerma_reaches_the_radiograph_and_the_dicom_header(tmp_path):
     scene = xray_viz.load_scene(scene_file)
     image = xray_viz.render(scene)
     kerma = air_kerma(scene)
-    assert image.air_kerma == kerma and image.scope == SCATTER_NOT_MODELLED
+    assert image.air_kerma == kerma and image.scope == SCATTER_SCOPE[None]
     out = tmp_path / "x.dcm"
     assert main(["render", str(scene_file), "-o", str(out)]) == 0
     ds = pydicom.dcmread(out)

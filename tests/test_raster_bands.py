@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import xray_viz
-from xray_viz.tracing import _raster as R
+from xray_viz.tracing import _raster as R, _raster_calls as RC
 from xray_viz.tracing import fast
 from xray_viz.tracing.reference import numpy_path_lengths
 
@@ -23,7 +23,7 @@ def test_lowest_bit_of_every_single_bit_and_of_mixed_masks():
 
 @pytest.mark.parametrize("precedence", [[3, 1, 1, -1, 5], [0, 0, 0], [2, 7, 7, 0, 1, 9]])
 def test_ranks_order_bodies_as_the_highest_precedence_then_lowest_index_rule(precedence):
-    rank, by_rank = R.body_ranks(precedence)
+    rank, by_rank = RC.body_ranks(precedence)
     inside_sets = [[0, 1, 2], [1, 2], [3], [0, 3, 4], list(range(len(precedence)))]
     for inside in inside_sets:
         inside = [q for q in inside if q < len(precedence)]
@@ -43,13 +43,13 @@ def test_fallback_for_many_bodies_is_bit_identical_and_agrees_with_numpy(monkeyp
         det, shape=(48, 40), pitch=(det.pitch[0] * det.shape[0] / 48,
                                     det.pitch[1] * det.shape[1] / 40)))
     fast_L = fast.trace_once(small)
-    ranks = R.body_ranks
+    ranks = RC.body_ranks
 
     def padded(precedence):                      # by_rank longer than 65: the loop path
         rank, by_rank = ranks(precedence)
         return rank, np.concatenate([by_rank, np.zeros(70, np.int64)])
 
-    monkeypatch.setattr(R, "body_ranks", padded)
+    monkeypatch.setattr(RC, "body_ranks", padded)
     np.testing.assert_array_equal(fast.trace_once(small), fast_L)
     ref = numpy_path_lengths(small)[0]
     assert np.abs(fast_L - ref).max() < 1e-9 * max(1.0, ref.max())

@@ -74,7 +74,12 @@ def test_off_and_unwritable_places_only_cost_time(tmp_path, monkeypatch):
     blocked = tmp_path / "file"
     blocked.write_text("not a folder")
     monkeypatch.setenv("XRAY_VIZ_CACHE_DIR", str(blocked))
-    assert repair.check_mesh(ball).watertight            # nothing written, no error
+    from xray_viz._cache import CacheWarning
+
+    with pytest.warns(CacheWarning, match="mesh reports are not cached") as said:
+        assert repair.check_mesh(ball).watertight        # nothing written, no error
+        assert repair.check_mesh(ball).watertight
+    assert len([w for w in said if "mesh reports" in str(w.message)]) == 1     # said once
 
 
 def test_a_scene_loads_from_stored_reports(cache):
@@ -120,3 +125,49 @@ def test_a_moved_body_is_tested_again(cache, monkeypatch):
     moved.apply_translation([9, 0, 0])                     # pokes out of big
     assert repair.containers([moved, big]) == [[], []]
     assert repair.containers([small, big]) == [[1], []]
+
+
+def test_the_bundled_phantoms_load_from_the_shipped_reports(monkeypatch):
+    """The reports shipped with the package (phantoms/mesh-reports.json) cover every mesh of
+    every bundled phantom under the running checker's keys, with the cache off: a load checks
+    nothing. Fails when the checker or a phantom changed without writing the file anew:
+    ``python -m xray_viz.meshes._report_cache``."""
+    monkeypatch.setenv("XRAY_VIZ_CACHE_DIR", "off")
+    monkeypatch.setenv("XRAY_VIZ_SHIPPED_REPORTS", "on")
+    calls = []
+    real = repair._check_mesh
+    monkeypatch.setattr(repair, "_check_mesh", lambda mesh: calls.append(1) or real(mesh))
+    from xray_viz import phantoms
+
+    tested = []
+    real_inside = repair._inside_of
+    monkeypatch.setattr(repair, "_inside_of", lambda meshes, b, cand, *a: tested.extend(cand)
+                        or real_inside(meshes, b, cand, *a))
+    for name in phantoms.names():
+        bodies = xray_viz.load_scene(name).bodies
+        bodies.reports
+        assert calls == [], f"{name}: a mesh without a shipped report"
+        bodies.precedence
+        assert tested == [], f"{name}: a pair of meshes without a shipped inside test"
+    assert len(_report_cache.shipped()) >= 16 and any(_report_cache.shipped_pairs().values())
+
+
+def test_the_shipped_reports_are_the_checkers_and_can_be_turned_off(monkeypatch):
+    """The frog's shipped reports equal what the checker says of its meshes now, and the
+    image rendered from them is the image rendered from checked meshes, bit for bit;
+    ``XRAY_VIZ_SHIPPED_REPORTS=off`` checks every mesh."""
+    monkeypatch.setenv("XRAY_VIZ_CACHE_DIR", "off")
+    monkeypatch.setenv("XRAY_VIZ_SHIPPED_REPORTS", "on")
+    shipped = xray_viz.load_scene("default")
+    reports = shipped.bodies.reports
+    monkeypatch.setenv("XRAY_VIZ_SHIPPED_REPORTS", "off")
+    calls = []
+    real = repair._check_mesh
+    monkeypatch.setattr(repair, "_check_mesh", lambda mesh: calls.append(1) or real(mesh))
+    checked = xray_viz.load_scene("default")
+    assert checked.bodies.reports == reports and len(calls) == len(checked.bodies) == 16
+    meshes = [b.mesh for b in shipped.bodies]
+    assert np.array_equal(shipped.bodies.precedence, checked.bodies.precedence)
+    assert any(repair.containers(meshes, cache=False))       # the frog has nested bodies
+    assert np.array_equal(xray_viz.render(shipped).intensity,
+                          xray_viz.render(checked).intensity)

@@ -94,7 +94,7 @@ def test_dask_scan_equals_the_serial_scan(cluster, tmp_path):
         timeout=120))
     assert len(warm) == 2
     for state in warm.values():
-        assert state["kernels"] == _raster.compile_kernels() and state["numba_threads"] == 1
+        assert state["kernels"] == _raster.KERNELS.compile() and state["numba_threads"] == 1
     threads = [client.submit(lambda: __import__("numba").get_num_threads(), workers=[w],
                              pure=False).result() for w in warm]
     assert threads == [1, 1]

@@ -85,7 +85,7 @@ BAD = [
      "unknown key 'rotaton' (did you mean 'rotation'?); known keys: density, material, mesh, mu, "
      "name, position, repair, rotation, scale, shape, units"),
     ("pitch = 2.0", "pitch = 2.0\npich = 2.0", "known keys: I0, center, electronic_noise, "
-     "falloff, focal_spot, gain, mtf, noise, offset, pitch, response, scintillator, seed, shape, "
+     "falloff, focal_spot, gain, grid, mtf, noise, offset, pitch, response, scintillator, seed, shape, "
      "size, supersample, u, up, v"),
 ]
 

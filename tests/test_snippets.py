@@ -39,6 +39,7 @@ def _sources() -> list[Path]:
     found = [ROOT / "README.md"] + sorted(
         p for p in docs.rglob("*") if p.suffix in (".md", ".rst") and p.is_file()
         and "_readme" not in p.parts and "walkthroughs" not in p.parts
+        and "examples" not in p.parts               # the galleries, written by a docs build
         and "generated" not in p.parts and "_build" not in p.parts)
     return found
 

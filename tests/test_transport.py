@@ -11,7 +11,7 @@ import trimesh
 import xraylib
 from scipy import stats
 
-from helpers import field_shares
+from xray_viz.montecarlo.sources import pixel_shares
 
 import xray_viz
 from xray_viz.scene import Body, Detector, Scene, Source
@@ -205,7 +205,7 @@ def test_primary_image_is_beer_lambert():
     n = 100_000
     result = xray_viz.transport(scene, n, seed=2)
     li = xray_viz.render(scene).line_integral          # the primary engines, same energy
-    share = field_shares(scene.acquisition)      # each pixel's share of the field
+    share = pixel_shares(scene.acquisition)      # each pixel's share of the field
     expected = 50_000.0 * share * np.exp(-li)
     got, err = result.images["primary"], result.image_errors["primary"]
     z = (got - expected) / err
@@ -332,3 +332,44 @@ def test_region_masses_of_nested_and_partly_overlapping_bodies():
     assert mm3[2] == pytest.approx(1000.0)                       # c: exact
     assert mm3[1] == pytest.approx(64000.0, rel=0.01)            # b wins the overlap
     assert mm3[0] == pytest.approx(64000.0 - 32000.0 - 1000.0, rel=0.01)   # a: less both
+
+
+def test_pixel_shares_add_up_to_the_field_and_flat_signal_is_the_vacuum_image():
+    from xray_viz.transport import flat_signal
+
+    scene = _scene(energy=50.0, shape=(6, 4), pitch=(15.0, 15.0))
+    share = pixel_shares(scene.acquisition)
+    assert share.shape == (4, 6) and share.sum() == pytest.approx(1.0, rel=1e-12)
+    assert np.allclose(share, share[::-1, :]) and np.allclose(share, share[:, ::-1])
+    # in vacuum the transport's primary image is the flat signal, within its errors
+    empty = scene.replace(bodies=())
+    result = xray_viz.transport(empty, 50_000, seed=4)
+    got, err = result.images["primary"], result.image_errors["primary"]
+    z = (got - flat_signal(empty)) / err
+    assert np.abs(z).max() < 5 and abs(z.mean()) * np.sqrt(z.size) < 4
+
+
+def test_a_face_in_the_detector_plane_loses_no_photon():
+    """A slab whose exit face lies in the detector plane: its crossing and the plane's are at
+    the same distance; the photon is still detected (primary = Beer-Lambert, and the scatter as
+    with a hair of air gap, within the errors)."""
+    def scene(gap):
+        slab = trimesh.creation.box(extents=[300, 300, 100])
+        slab.apply_translation([0, 0, -400 + 50 + gap])
+        return Scene(source=Source(position=[0, 0, 600], energy=60.0),
+                     detector=Detector(center=[0, 0, -400], shape=(8, 8), pitch=(16.0, 16.0)),
+                     bodies=(Body(name="water", mesh=slab, material="Water, Liquid"),))
+
+    touching = scene(0.0)
+    result = xray_viz.transport(touching, 60_000, seed=6)
+    li = xray_viz.render(touching).line_integral
+    expected = 60_000.0 * pixel_shares(touching.acquisition) * np.exp(-li)
+    got, err = result.images["primary"], result.image_errors["primary"]
+    z = (got - expected) / err
+    assert np.abs(z).max() < 5 and abs(z.mean()) * np.sqrt(z.size) < 4
+    apart = xray_viz.transport(scene(0.5), 60_000, seed=7)
+    scattered = [sum(r.images[k].sum() for k in ("incoherent", "coherent", "multiple"))
+                 for r in (result, apart)]
+    errs = [np.sqrt(sum((r.image_errors[k] ** 2).sum()
+                        for k in ("incoherent", "coherent", "multiple"))) for r in (result, apart)]
+    assert abs(scattered[0] - scattered[1]) < 4 * np.hypot(*errs)

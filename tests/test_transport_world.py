@@ -9,7 +9,7 @@ import pytest
 import trimesh
 import xraylib
 
-from helpers import field_shares
+from xray_viz.montecarlo.sources import pixel_shares
 
 import xray_viz
 from xray_viz.geometry import detector_rays
@@ -106,7 +106,7 @@ def test_transport_primary_with_a_world_is_the_render_within_its_error():
     li_vacuum = xray_viz.render(scene.replace(world=None)).line_integral
     assert (li - li_vacuum).min() > 0.5           # the world takes more than e^-0.5
     result = xray_viz.transport(scene, 100_000, seed=3)
-    share = field_shares(scene.acquisition)
+    share = pixel_shares(scene.acquisition)
     expected = 50_000.0 * share * np.exp(-li)
     got, err = result.images["primary"], result.image_errors["primary"]
     seen = err > 0                       # a pixel behind the bone may score no primary

@@ -98,7 +98,7 @@ def test_a_body_beyond_the_coordinate_limit(tmp_path, capsys):
 
 
 def test_vertices_merged_by_the_transform_are_refused():
-    from xray_viz.scene import _place_mesh, body_transform
+    from xray_viz.scene_file import _place_mesh, body_transform
 
     # two vertices one ulp apart at x = 20: distinct, but not once moved 1000 mm out
     v = np.array([[20.0, 0, 0], [np.nextafter(20.0, 30.0), 0, 0], [0, 20.0, 0], [0, 0, 20.0]])

@@ -336,17 +336,21 @@ def test_a_corrupt_cache_file_is_ignored_and_rewritten(tmp_path):
     assert V.label_surfaces(tmp_path / "seg.nii.gz", [1], max_error=1.0).cache_hit
 
 
-def test_unwritable_user_cache_falls_back_to_a_private_temporary_folder(tmp_path, monkeypatch):
+def test_an_unwritable_user_cache_is_off_with_one_warning(tmp_path, monkeypatch):
+    """The one rule of :mod:`xray_viz._cache`: a cache folder that cannot be written is off
+    (the volume is meshed, not cached), said once."""
+    from xray_viz._cache import CacheWarning
+
     blocked = tmp_path / "not-a-folder"
     blocked.write_text("a file where the cache folder would be")
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocked))
-    monkeypatch.setattr(V.tempfile, "gettempdir", lambda: str(tmp_path / "tmp"))
-    (tmp_path / "tmp").mkdir()
-    V._warned.clear()
-    with pytest.warns(V.VolumeCacheWarning, match="cannot be written"):
-        folder = V.cache_dir()
-    assert folder.parent.parent == tmp_path / "tmp"
-    assert (folder.parent.stat().st_mode & 0o777) == 0o700
+    write_nifti(tmp_path / "seg.nii.gz", label_map(nested=False))
+    with pytest.warns(CacheWarning, match="cannot be written") as said:
+        assert V.cache_dir() is None and V.cache_dir() is None
+        first = V.label_surfaces(tmp_path / "seg.nii.gz", [1], max_error=1.0)
+    assert first.cache_file is None and not first.cache_hit
+    notices = [str(w.message) for w in said if "meshed volumes" in str(w.message)]
+    assert len(notices) == 1 and "meshed volumes are not cached" in notices[0]
 
 
 # --------------------------------------------------------------------------------------------

@@ -568,7 +568,7 @@ def test_a_scene_with_a_ct_volume_writes_its_table_and_loads_back(tmp_path):
         built.to_toml()
 
 
-def test_the_viewer_draws_a_voxel_volume_as_its_box_and_a_slice():
+def test_the_viewer_draws_a_voxel_volume_as_its_box_and_slices():
     pytest.importorskip("pyvista")
     import trimesh
 
@@ -581,9 +581,9 @@ def test_the_viewer_draws_a_voxel_volume_as_its_box_and_a_slice():
     box = view.datasets["volume:ct:box"]
     np.testing.assert_allclose(np.sort(box.points, axis=0), np.sort(vol.corners, axis=0))
     assert box.n_lines == 12
-    assert float(view.datasets["volume:ct:slice"].point_data["weight"].max()) > 1.7   # bone
+    assert float(view.datasets["volume:ct:slice:k"].point_data["weight"].max()) > 1.7   # bone
     lo, hi = view.bodies_bounds
     np.testing.assert_allclose([lo, hi], vol.bounds)          # the volume is around the pin
     view.set_visible("bodies", False)
-    assert not view.plotter.actors["volume:ct:slice"].GetVisibility()
+    assert not view.plotter.actors["volume:ct:slice:k"].GetVisibility()
     view.plotter.close()

@@ -37,7 +37,7 @@ EXPECTED_PNGS = {
     9: ["beam_hardening"],
     10: ["wrong_rays", "wrong_rays_3d"],
     11: ["repair", "error_and_time", "decimation_levels"],
-    12: ["scene_3d", "four_images"],
+    12: ["scene_3d", "tracks_3d", "four_images"],
 }
 
 
@@ -317,6 +317,11 @@ def test_12_energy_balance_dose_and_four_images(runs):
     assert total == pytest.approx(parts[3], rel=2e-3)           # the images hold the detector's
     spr = run.number(r"scatter-to-primary ratio on this detector: ([\d.]+)")
     assert 0.05 < spr < 1.0
+    # the 300 tracks drawn: every way a photon ends, adding up to 300
+    tracks = dict(re.findall(r"(primary|scattered|escaped|absorbed) (\d+)",
+                             run.stdout.split("tracks: ")[1].splitlines()[0]))
+    assert set(tracks) == {"primary", "scattered", "escaped", "absorbed"}
+    assert sum(int(v) for v in tracks.values()) == 300
 
 
 def test_unknown_walkthrough_is_a_one_line_error():

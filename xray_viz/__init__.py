@@ -63,7 +63,8 @@ def __getattr__(name):
     elif where == "render":
         from xray_viz.render import Radiograph, render  # noqa: F401
     elif where == "scene":
-        from xray_viz.scene import Body, Detector, Scene, Source, load_scene  # noqa: F401
+        from xray_viz.scene import Body, Detector, Scene, Source  # noqa: F401
+        from xray_viz.scene_file import load_scene  # noqa: F401
     elif where == "scan":
         from xray_viz.scan import scan  # noqa: F401
     elif where == "transport":

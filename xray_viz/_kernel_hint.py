@@ -1,5 +1,5 @@
 """Which fast-engine kernels a scene file most likely needs first (for the command line's
-background compilation, :func:`xray_viz.tracing._raster.prepare`)."""
+background compilation, :meth:`xray_viz.tracing._compile.KernelSet.prepare`)."""
 
 from __future__ import annotations
 

@@ -12,6 +12,7 @@ couple of seconds, and never with ``-q``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 import textwrap
@@ -41,6 +42,7 @@ examples:
   xray-viz render scene.toml -o image.npy          float64 intensity array, as the API returns it
   xray-viz render scene.toml -o li.tiff --quantity line-integral
   xray-viz render limb -o limb.png --energy 40     a scene file's value, changed for one run
+  xray-viz render frog -o frog.tiff --scatter mc --histories 2000000   with the Monte Carlo's scatter
   xray-viz phantoms                                 list the bundled phantoms
   xray-viz show frog                                the interactive 3D viewer beside the radiograph
   xray-viz show sphere --screenshot view.png        the same view, off-screen, to a PNG
@@ -82,28 +84,51 @@ def _render_command(args) -> int:
                            f"line integral, e.g. 0.01), got {args.max_error}")
     if args.engine not in ENGINES:
         raise XrayVizError(f"unknown engine {args.engine!r}; choose one of {', '.join(ENGINES)}")
+    from xray_viz.render import scatter_arguments
+
+    scatter, _, _ = scatter_arguments(args)
     from xray_viz.output import check_target
 
     check_target(out)                 # a read-only target is refused before the render
     if ENGINES[args.engine].compiled:   # kernels missing from numba's cache: compiled meanwhile
         from xray_viz._kernel_hint import likely_paths
-        from xray_viz.tracing._raster import prepare
+        from xray_viz.tracing._raster import KERNELS
 
-        prepare(first=likely_paths(args.scene))
+        KERNELS.prepare(first=likely_paths(args.scene))
     with _compile_notice(args.engine):   # said when a kernel is first needed, if compiling
         scene = load_scene_with_overrides(args)
         h = scene.detector.shape[1]
         log.debug("rendering with engine %s, supersample %s", args.engine,
                   args.supersample or scene.detector.supersample)
-        with progress.task("rendering", total=h, unit="rows"):
+        with progress.task("rendering", total=h, unit="rows"), \
+                contextlib.ExitStack() as monte_carlo:
+            bar = []
+
+            def histories_done(done, total):        # the Monte Carlo's own bar, once it runs
+                if not bar:
+                    bar.append(monte_carlo.enter_context(progress.task(
+                        "scatter (Monte Carlo)", total=total, unit="histories")))
+                bar[0].update_to(done, total)
+
             image = xray_viz.render(scene, engine=args.engine, supersample=args.supersample,
-                                    max_error=args.max_error)
+                                    max_error=args.max_error, scatter=scatter,
+                                    histories=args.histories,
+                                    scatter_smoothing=args.scatter_smoothing,
+                                    progress=histories_done if scatter == "mc" else None)
     log.debug("timing (s): %s", {k: round(v, 4) for k, v in image.timing.items()})
     data = image.quantity(args.quantity)
     engine, total_ms = image.engine, image.timing["total"] * 1000
+    details = image.scatter_details
+    spr = None
+    if details is not None:
+        import numpy as np
+
+        spr = float(np.sum(image.scatter) / np.sum(image.primary))    # over the field
+    if details is not None:
+        details = {k: v for k, v in details.items() if k != "error"}
     del image                         # only the image written stays in memory while saving
     save_image(out, data, bright="low" if args.quantity == "intensity" else "high", scene=scene,
-               quantity=args.quantity)
+               quantity=args.quantity, scatter=details)
     w, h = scene.detector.shape
     n = len(scene.bodies)
     dose = ""
@@ -115,9 +140,10 @@ def _render_command(args) -> int:
                 if k.entrance_uGy is not None else "") + f"{k.detector_uGy:.4g} uGy at detector")
     nv = len(scene.volumes)
     vols = f", {nv} voxel volume{'s' * (nv > 1)}" if nv else ""
+    scattered = "" if spr is None else f", scatter {details['mode']}: SPR {spr:.3g} over the field"
     if not args.quiet:                # -q: nothing on success, as `cp` says nothing
         print(f"wrote {out} ({args.quantity}, {w}x{h}, {n} bod{'y' if n == 1 else 'ies'}{vols}, "
-              f"engine {engine}, {total_ms:.0f} ms{dose})")
+              f"engine {engine}, {total_ms:.0f} ms{dose}{scattered})")
     if ENGINES[args.engine].compiled:   # the compiled mesh checks, for the next runs
         from xray_viz.meshes import _check_kernels
 
@@ -281,21 +307,23 @@ def build_parser(*, only: str | None = None) -> argparse.ArgumentParser:
     _add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    from xray_viz.output import FORMATS
+    from xray_viz.output import FORMATS, suffixes
     from xray_viz.render import ENGINES, QUANTITIES
 
+    images = suffixes(image=True)
+    said = {FORMATS[k].holds: k for k in reversed(images)}     # each description once
     p = sub.add_parser(
         "render", help="render a scene's radiograph to an image file",
         description="Render a scene's radiograph and write it to OUT. The format follows OUT's "
-                    "suffix: " + "; ".join(f"{k} = {v}" for k, v in FORMATS.items() if k != ".tif")
+                    "suffix: " + "; ".join(f"{k} = {FORMATS[k]}" for k in images
+                                           if said[FORMATS[k].holds] == k)
                     + ".", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", metavar="SCENE",
                    help="a scene .toml file (or a gVirtualXray .json scene), or a bundled phantom "
                         "name (`xray-viz phantoms`)")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
-                   help="output file: .npy, .tiff, .png, .dcm (DICOM), .nii/.nii.gz (NIfTI) "
-                        "or .h5 (HDF5); all but .npy keep the pixel pitch and the scene's "
-                        "geometry (xray_viz.load_image reads them back)")
+                   help="output file: " + ", ".join(images) + "; all but .npy keep the pixel "
+                        "pitch and the scene's geometry (xray_viz.load_image reads them back)")
     p.add_argument("--quantity", choices=QUANTITIES, default="intensity",
                    help="what to write: intensity I = I0 exp(-line integral) (default), the "
                         "line integral sum(mu L), or the total path length in mm")
@@ -309,6 +337,9 @@ def build_parser(*, only: str | None = None) -> argparse.ArgumentParser:
                         "keeps every pixel's line integral -ln(I/I0) within E (e.g. 0.01, ~1%% "
                         "of the intensity) of the full-resolution render; the choice is printed "
                         "(per body with -v). Default: the meshes as they are")
+    from xray_viz.render import add_scatter_arguments
+
+    add_scatter_arguments(p, per="render")
     add_scene_overrides(p)
     p.set_defaults(func=_render_command)
     if only is None:

@@ -11,7 +11,7 @@ import json
 import os
 from pathlib import Path
 
-from xray_viz.errors import SceneError, SceneFileNotFoundError
+from xray_viz.errors import SceneError
 from xray_viz.meshes.gvxr import gvxr_to_dict, read_json, to_toml
 
 __all__ = ["add_convert_parser", "convert_command", "add_init_parser", "init_command"]
@@ -39,17 +39,12 @@ def convert_command(args, *, stdout=None) -> int:
     import sys
     import tomllib
 
-    from xray_viz.output import atomic_write, check_target
-    from xray_viz.scene import scene_from_dict
+    from xray_viz.output import atomic_write, scene_target
+    from xray_viz.scene_file import scene_from_dict
 
     out = sys.stdout if stdout is None else stdout
-    src, dst = Path(args.input), Path(args.output)
-    if dst.suffix.lower() != ".toml":
-        raise SceneError(f"{dst}: convert writes a TOML scene file; name it .toml")
-    folder = dst.parent if str(dst.parent) else Path(".")
-    if not folder.is_dir():
-        raise SceneFileNotFoundError(f"{dst}: folder {folder} does not exist; create it first")
-    check_target(dst)
+    src, dst = Path(args.input), scene_target(args.output, command="convert")
+    folder = dst.parent
     doc = gvxr_to_dict(read_json(src), base_dir=src.parent, file=src)
     scene = scene_from_dict(doc, base_dir=src.parent, file=src)   # every mesh and value checked
     for body in doc["body"]:
@@ -102,17 +97,13 @@ def init_command(args, *, stdout=None) -> int:
     import tomllib
 
     from xray_viz.errors import XrayVizError
-    from xray_viz.output import atomic_write, check_target
-    from xray_viz.scene import scene_from_dict
+    from xray_viz.output import atomic_write, check_target, scene_target
+    from xray_viz.scene_file import scene_from_dict
     from xray_viz.starter import is_mesh_file, scene_text
 
     out = sys.stdout if stdout is None else stdout
-    dst = Path(args.output)
-    if dst.suffix.lower() != ".toml":
-        raise SceneError(f"{dst}: init writes a TOML scene file; name it .toml")
-    folder = dst.parent if str(dst.parent) else Path(".")
-    if not folder.is_dir():
-        raise SceneFileNotFoundError(f"{dst}: folder {folder} does not exist; create it first")
+    dst = scene_target(args.output, command="init")
+    folder = dst.parent
     targets = [dst]
     if args.mesh is None:
         mesh = folder / f"{dst.stem}-part.stl"

@@ -44,6 +44,17 @@ class SceneFileNotFoundError(XrayVizError, FileNotFoundError):
     """A file named by the user (scene, mesh, spectrum) does not exist."""
 
 
+class ScatterModelWarning(UserWarning):
+    """A scene outside what a fast scatter model was fitted for (the message names the
+    quantity and its value): its scatter is an extrapolation
+    (:mod:`xray_viz.scatter_kernel`)."""
+
+
+class CacheWarning(UserWarning):
+    """A folder of the disk cache cannot be written: that kind of data is not cached (the
+    results are the same, computed again)."""
+
+
 class WriteInterrupted(SystemExit):
     """A termination signal (SIGTERM, SIGHUP) arrived while an output file was being written.
 

@@ -132,7 +132,7 @@ def move_bodies(scene, transforms: dict):
     import trimesh
 
     from xray_viz.bodies import Bodies
-    from xray_viz.scene import _compose_placement
+    from xray_viz.scene_file import _compose_placement
 
     names = scene.body_names
     unknown = [n for n in transforms if n not in names]

@@ -200,11 +200,11 @@ class LevelOfDetail:
 
 def cache_dir() -> Path | None:
     """The folder of the stored decimations (``lod/`` beside the mesh reports), or None when
-    caching is off (``XRAY_VIZ_CACHE_DIR=off``)."""
-    from xray_viz.meshes import _report_cache
+    caching is off (``xray_viz._cache.cache_dir``: ``XRAY_VIZ_CACHE_DIR=off``, or a folder
+    that cannot be written)."""
+    from xray_viz import _cache
 
-    folder = _report_cache.cache_dir()
-    return None if folder is None else folder.parent / "lod"
+    return _cache.cache_dir("lod", what="decimations")
 
 
 @lru_cache(maxsize=1)

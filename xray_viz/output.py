@@ -18,6 +18,7 @@ import stat
 import tempfile
 import threading
 import warnings
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,21 +28,69 @@ from xray_viz.errors import OutputError, WriteInterrupted, one_line, reader_reas
 
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
-           "format_of", "FORMATS", "UNITS", "window_range", "OUTLIER_FRACTION"]
+           "format_of", "FORMATS", "SUFFIX_FORMATS", "Format", "suffixes", "UNITS", "window_range", "OUTLIER_FRACTION"]
 
-#: Output suffixes and what they hold.
-FORMATS = {
-    ".npy": "the float64 array exactly as the API returns it",
-    ".tiff": "float32 TIFF, pixel pitch and scene geometry in its tags",
-    ".tif": "float32 TIFF, pixel pitch and scene geometry in its tags",
-    ".png": "16-bit grey PNG, attenuation bright, windowed to the data; pitch (pHYs), window "
-            "and geometry in its chunks",
-    ".dcm": "DICOM DX image, 16-bit, values by Real World Value Mapping, geometry of the scene",
-    ".nii": "NIfTI-1, float64, the detector's pixel positions (mm) as its affine, geometry",
-    ".nii.gz": "gzipped NIfTI-1, as .nii",
-    ".h5": "HDF5 (NeXus-style), float64, pixel size and geometry",
-    ".hdf5": "HDF5, as .h5",
+@dataclasses.dataclass(frozen=True)
+class Format:
+    """One file format of :data:`FORMATS`: what a file of its suffix is and holds."""
+
+    #: The format (``"npy"``, ``"tiff"``, ``"png"``, ``"dicom"``, ``"nifti"``, ``"hdf5"``,
+    #: ``"zarr"``, ``"nexus"``, ``"tiff-folder"``): what the writers and readers dispatch on.
+    name: str
+    #: What a file holds (the command line's help).
+    holds: str
+    #: An image format (:func:`save_image`, :func:`load_image`).
+    image: bool = False
+    #: The projection stack ``xray-viz scan -o`` writes for this suffix (``"zarr"``,
+    #: ``"nexus"``, ``"tiff"``: a folder of TIFF files), or None.
+    stack: str | None = None
+    #: ``(module, how to install it)`` when the format needs an optional library.
+    library: tuple | None = None
+
+    def __str__(self) -> str:
+        return self.holds
+
+
+_TIFF = ("tifffile", "pip install tifffile")
+_NIFTI = ("nibabel", "pip install 'xray_viz[volumes]'")
+_HDF5 = ("h5py", "pip install 'xray_viz[ct]'")
+#: The one table from a file's suffix (:func:`format_of`) to its format: images (what
+#: :func:`save_image` writes and :func:`load_image` reads) and projection stacks (what
+#: ``xray-viz scan -o`` writes; no suffix: a folder of TIFF files).
+SUFFIX_FORMATS = {
+    ".npy": Format("npy", "the float64 array exactly as the API returns it", image=True),
+    ".tiff": Format("tiff", "float32 TIFF, pixel pitch and scene geometry in its tags",
+                    image=True, library=_TIFF),
+    ".tif": Format("tiff", "float32 TIFF, pixel pitch and scene geometry in its tags",
+                   image=True, library=_TIFF),
+    ".png": Format("png", "16-bit grey PNG, attenuation bright, windowed to the data; pitch "
+                   "(pHYs), window and geometry in its chunks", image=True),
+    ".dcm": Format("dicom", "DICOM DX image, 16-bit, values by Real World Value Mapping, "
+                   "geometry of the scene", image=True),
+    ".nii": Format("nifti", "NIfTI-1, float64, the detector's pixel positions (mm) as its "
+                   "affine, geometry", image=True, library=_NIFTI),
+    ".nii.gz": Format("nifti", "gzipped NIfTI-1, as .nii", image=True, library=_NIFTI),
+    ".h5": Format("hdf5", "HDF5 (NeXus-style), float64, pixel size and geometry", image=True,
+                  stack="nexus", library=_HDF5),
+    ".hdf5": Format("hdf5", "HDF5, as .h5", image=True, stack="nexus", library=_HDF5),
+    ".zarr": Format("zarr", "Zarr store of a projection stack", stack="zarr"),
+    ".nxs": Format("nexus", "HDF5 NeXus NXtomo projection stack", stack="nexus"),
+    "": Format("tiff-folder", "a folder of TIFF files, one per projection", stack="tiff"),
 }
+#: The image formats of :data:`SUFFIX_FORMATS` (a view of it): suffix -> :class:`Format`.
+FORMATS = {k: f for k, f in SUFFIX_FORMATS.items() if f.image}
+
+
+def suffixes(*, image: bool = False, stack: bool = False) -> list:
+    """The suffixes of :data:`SUFFIX_FORMATS` of images (``image=True``) or projection
+    stacks.
+
+    Examples
+    --------
+    >>> suffixes(image=True)[:3], suffixes(stack=True)
+    (['.npy', '.tiff', '.tif'], ['.h5', '.hdf5', '.zarr', '.nxs', ''])
+    """
+    return [k for k, f in SUFFIX_FORMATS.items() if (image and f.image) or (stack and f.stack)]
 
 
 def to_uint16(image, *, bright="high") -> np.ndarray:
@@ -123,6 +172,32 @@ def _write_protected(path: Path, st: os.stat_result) -> bool:
     if st.st_gid == os.getegid() or st.st_gid in os.getgroups():
         return not mode & stat.S_IWGRP
     return not mode & stat.S_IWOTH
+
+
+def scene_target(path, *, command: str) -> Path:
+    """Check ``-o`` of a command that writes a TOML scene file (``convert``, ``init``,
+    ``register``): a ``.toml`` name in an existing folder that may be written
+    (:func:`check_target`); returns ``path`` as a :class:`~pathlib.Path`.
+
+    Raises
+    ------
+    SceneError
+        Not a ``.toml`` name.
+    SceneFileNotFoundError
+        Its folder does not exist.
+    OutputError
+        See :func:`check_target`.
+    """
+    from xray_viz.errors import SceneError, SceneFileNotFoundError
+
+    dst = Path(path)
+    if dst.suffix.lower() != ".toml":
+        raise SceneError(f"{dst}: {command} writes a TOML scene file; name it .toml")
+    folder = dst.parent if str(dst.parent) else Path(".")
+    if not folder.is_dir():
+        raise SceneFileNotFoundError(f"{dst}: folder {folder} does not exist; create it first")
+    check_target(dst)
+    return dst
 
 
 def check_target(path) -> Path:
@@ -447,23 +522,31 @@ def format_of(path) -> str:
     return ".nii.gz" if path.name.lower().endswith(".nii.gz") else path.suffix.lower()
 
 
-def check_format(path) -> str:
-    """The output format of ``path`` (:func:`format_of`) if it is one of :data:`FORMATS`.
+def check_format(path, *, stack: bool = False) -> str:
+    """The format of ``path`` (:func:`format_of`) if :data:`SUFFIX_FORMATS` has it as an
+    image (or, with ``stack``, as a projection stack).
 
     Raises
     ------
     OutputError
-        An unknown suffix: the message lists the known ones.
+        An unknown suffix: one line listing the known ones.
+
+    Examples
+    --------
+    >>> check_format("a.NII.GZ"), check_format("scan.zarr", stack=True)
+    ('.nii.gz', '.zarr')
     """
     suffix = format_of(path)
-    if suffix not in FORMATS:
-        known = ", ".join(FORMATS)
+    known = suffixes(image=not stack, stack=stack)
+    if suffix not in known:
+        names = ", ".join(k or "no suffix (a folder)" for k in known)
         raise OutputError(f"{path}: unknown output format {suffix or '(none)'!r}; use one of "
-                          f"{known}")
+                          f"{names}")
     return suffix
 
 
-def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path:
+def save_image(path, image, *, bright="high", scene=None, quantity=None,
+               scatter=None) -> Path:
     """Save an (H, W) image; the format follows the suffix (see :data:`FORMATS`), in any case
     (``.NPY``, ``.Tiff``).
 
@@ -517,6 +600,11 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         energy, see :func:`dicom_dataset`).
     quantity : str, optional
         What the image holds (``"intensity"``, ``"line-integral"``, ``"path-length"``).
+    scatter : dict, optional
+        The scatter the image includes (``mode``: ``"mc"`` or ``"kernel"``; ``histories``,
+        ``seed``, ``smoothing_mm``), recorded in the JSON's ``"scatter"`` (with its ``scope``,
+        :func:`~xray_viz.physics.dosimetry.scatter_scope`) and DICOM's ``ImageComments``.
+        None: the primary alone (no ``"scatter"`` key; DICOM's comments say so).
 
     Returns
     -------
@@ -549,34 +637,36 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
     """
     path = Path(path)
     suffix = check_format(path)
+    fmt = FORMATS[suffix]
     image = np.asarray(image)
-    if suffix == ".npy":
+    if fmt.name == "npy":
         atomic_write(path, lambda tmp: _write_npy(tmp, image),
                      verify=lambda tmp: _check_npy(tmp, image))
         return path
     if image.ndim != 2:
         raise OutputError(f"{path}: {suffix} output needs an (H, W) image, got shape "
                           f"{image.shape}")
-    if suffix == ".dcm":
+    if fmt.name == "dicom":
         if scene is None:
             raise OutputError(f"{path}: DICOM output needs the scene for its geometry: "
                               "save_image(path, image, scene=scene)")
         with warnings.catch_warnings(record=True) as caught:   # said with the file's name
             warnings.simplefilter("always")
-            ds = dicom_dataset(image, scene, bright=bright, quantity=quantity)
+            ds = dicom_dataset(image, scene, bright=bright, quantity=quantity, scatter=scatter)
         for w in caught:
             warnings.warn(f"{path}: {str(w.message).removeprefix('DICOM: ')}", w.category,
                           stacklevel=2)
         atomic_write(path, lambda tmp: _dcmwrite(tmp, ds), verify=lambda tmp: _check_dicom(tmp, ds))
         return path
-    meta = image_metadata(scene, quantity=quantity)
-    if suffix in (".tif", ".tiff"):
-        _need(path, "tifffile", "pip install tifffile")
+    meta = image_metadata(scene, quantity=quantity, scatter=scatter)
+    if fmt.library:
+        _need(path, *fmt.library)
+    if fmt.name == "tiff":
         data = image.astype(np.float32)
         _seal(meta, data)
         atomic_write(path, lambda tmp: _write_tiff(tmp, data, meta),
                      verify=lambda tmp: _check_tiff(tmp, data, meta))
-    elif suffix == ".png":
+    elif fmt.name == "png":
         data, bad = _window(image, bright=bright)
         if bad:
             warnings.warn(_nonfinite_message(bad, data.size, f"{path}: "), RuntimeWarning,
@@ -585,15 +675,13 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None) -> Path
         _seal(meta, data)
         atomic_write(path, lambda tmp: _write_png(tmp, data, meta),
                      verify=lambda tmp: _check_png(tmp, data, meta))
-    elif suffix in (".nii", ".nii.gz"):
-        _need(path, "nibabel", "pip install 'xray_viz[volumes]'")
+    elif fmt.name == "nifti":
         data = image.astype(np.float64)
         affine = _detector_affine(scene, image.shape)
         _seal(meta, data)
         atomic_write(path, lambda tmp: _write_nifti(tmp, data, affine, meta),
                      verify=lambda tmp: _check_nifti(tmp, data, affine, meta))
-    else:                                    # .h5, .hdf5
-        _need(path, "h5py", "pip install 'xray_viz[ct]'")
+    else:                                    # hdf5
         data = image.astype(np.float64)
         _seal(meta, data)
         check_room(path, data.nbytes + (1 << 16), what="the HDF5 image")
@@ -710,7 +798,16 @@ def _version() -> str:
         return "unknown"
 
 
-def image_metadata(scene=None, *, quantity=None) -> dict:
+def _scatter_meta(scatter) -> dict:
+    """The JSON of the scatter an image includes: its plain values and ``scope``."""
+    from xray_viz.physics.dosimetry import scatter_scope
+
+    keep = {k: (int(v) if k in ("histories", "seed") else v) for k, v in dict(scatter).items()
+            if k in ("mode", "histories", "seed", "smoothing_mm")}
+    return {**keep, "scope": scatter_scope(keep.get("mode"))}
+
+
+def image_metadata(scene=None, *, quantity=None, scatter=None) -> dict:
     """What :func:`save_image` records beside the pixels, as a JSON-ready dict.
 
     Keys: ``"xray_viz"`` (the version), ``"quantity"``, ``"units"`` (UCUM, see :data:`UNITS`),
@@ -719,7 +816,9 @@ def image_metadata(scene=None, *, quantity=None) -> dict:
     keV or the spectrum table, mAs; ``detector``: centre, up, shape, pitch, response, focal
     spot; ``sid_mm``, ``sod_mm``, ``magnification``, see :mod:`xray_viz.physics.imaging`) and
     ``"scene_toml"`` (:meth:`~xray_viz.scene.Scene.to_toml`); the last three are ``None``
-    without a scene, ``"scene_toml"`` also when the scene cannot be written as a file.
+    without a scene, ``"scene_toml"`` also when the scene cannot be written as a file. With
+    ``scatter`` (see :func:`save_image`) also ``"scatter"``: ``mode``, ``histories`` and
+    ``seed`` where given, and ``scope``, what the image includes.
 
     Examples
     --------
@@ -733,6 +832,8 @@ def image_metadata(scene=None, *, quantity=None) -> dict:
     meta = {"xray_viz": _version(), "quantity": quantity,
             "units": UNITS.get(quantity, ("1", "no units"))[0], "pitch_mm": None,
             "geometry": None, "scene_toml": None}
+    if scatter is not None:
+        meta["scatter"] = _scatter_meta(scatter)
     if scene is None:
         return meta
     from xray_viz._toml import plain
@@ -1085,7 +1186,7 @@ def _ds(value: float) -> str:
     return text if len(text) <= 16 else f"{value:.6e}"
 
 
-def dicom_dataset(image, scene, *, bright="high", quantity=None):
+def dicom_dataset(image, scene, *, bright="high", quantity=None, scatter=None):
     """A DICOM Digital X-Ray (for presentation) dataset of an image and its scene's geometry.
 
     Pixel data are 16-bit unsigned integers spanning the finite values of the image. The DX
@@ -1115,6 +1216,10 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
       spectrum (its end point). A monochromatic beam has no tube potential: it has no ``KVP``,
       and its photon energy is in ``ImageComments`` ("beam: monochromatic 60 keV").
     * ``FocalSpots`` (mm) when a focal spot is set.
+    * With ``[detector] grid``: ``Grid = FOCUSED``, ``GridAbsorbingMaterial``,
+      ``GridSpacingMaterial``, ``GridThickness`` (of the absorbing strips, mm), ``GridPitch``
+      (mm), ``GridAspectRatio`` (the ratio as ``r x 1000 : 1000``) and ``GridFocalDistance``
+      (mm).
 
     Grey scale: ``PhotometricInterpretation = "MONOCHROME2"`` with
     ``PresentationLUTShape = "IDENTITY"`` (high values white) or, with ``bright="low"``,
@@ -1240,6 +1345,15 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
         ds.KVP = _ds(spectrum.kvp if spectrum.kvp is not None else spectrum.max_energy)
     if scene.detector.focal_spot > 0:
         ds.FocalSpots = _ds(scene.detector.focal_spot)
+    grid = scene.detector.grid
+    if grid is not None:                  # the X-Ray Grid module's attributes (DICOM PS3.3)
+        ds.Grid = ["FOCUSED"]
+        ds.GridAbsorbingMaterial = grid.strip_material
+        ds.GridSpacingMaterial = grid.interspace_material
+        ds.GridThickness = _ds(grid.strip_thickness)              # the lead's, mm
+        ds.GridPitch = _ds(grid.period)                           # mm
+        ds.GridAspectRatio = [str(int(round(grid.ratio * 1000))), "1000"]
+        ds.GridFocalDistance = _ds(grid.focus_distance)
     exposure = ""
     if getattr(scene.source, "mas", None) is not None:
         from xray_viz.physics.dosimetry import air_kerma, hvl
@@ -1256,11 +1370,17 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None):
                     + (f"{kerma.entrance_uGy:.4g} uGy at the nearest body surface, "
                        if kerma.entrance_uGy is not None else "")
                     + f"{kerma.detector_uGy:.4g} uGy at the detector")
-    from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED
+    from xray_viz.physics.dosimetry import scatter_scope
 
+    scope = scatter_scope(None)
+    if scatter is not None:
+        info = _scatter_meta(scatter)
+        runs = "".join(f", {k.replace('_mm', '')} {info[k]}{' mm' * k.endswith('_mm')}"
+                       for k in ("histories", "seed", "smoothing_mm") if k in info)
+        scope = f"scatter {info['mode']}{runs}: {info['scope']}"
     ds.ImageComments = (f"{quantity or 'image'}; beam: {spectrum.description}; "
                         f"detector response: {scene.detector.response}; SID {sid:g} mm, "
-                        f"SOD {sod:g} mm{exposure}; {SCATTER_NOT_MODELLED}")[:10240]
+                        f"SOD {sod:g} mm{exposure}; {scope}")[:10240]
     return ds
 
 
@@ -1343,6 +1463,9 @@ class ImageMetadata:
         ``bright="high"``, swapped with ``"low"``), ``bright``, ``step`` (the quantisation step).
     version : str or None
         The xray_viz version that wrote the file.
+    scatter : dict or None
+        The scatter the image includes (``mode``, ``histories``, ``seed``, ``scope``: see
+        :func:`image_metadata`); None for the primary alone or a file that does not say.
     """
 
     format: str
@@ -1353,9 +1476,10 @@ class ImageMetadata:
     scene_toml: str | None = None
     window: dict | None = None
     version: str | None = None
+    scatter: dict | None = None
 
     def scene(self):
-        """The scene of the embedded scene file (:func:`~xray_viz.scene.scene_from_dict`).
+        """The scene of the embedded scene file (:func:`~xray_viz.scene_file.scene_from_dict`).
 
         Mesh paths in it are absolute: it loads where those files are.
 
@@ -1369,7 +1493,7 @@ class ImageMetadata:
                               "save_image(..., scene=scene)")
         import tomllib
 
-        from xray_viz.scene import scene_from_dict
+        from xray_viz.scene_file import scene_from_dict
 
         try:
             doc = tomllib.loads(self.scene_toml)
@@ -1406,7 +1530,8 @@ def _metadata(fmt: str, meta: dict | None) -> ImageMetadata:
     return ImageMetadata(format=fmt, quantity=meta.get("quantity"), units=meta.get("units"),
                          pitch=None if pitch is None else (float(pitch[0]), float(pitch[1])),
                          geometry=meta.get("geometry"), scene_toml=meta.get("scene_toml"),
-                         window=meta.get("window"), version=meta.get("xray_viz"))
+                         window=meta.get("window"), version=meta.get("xray_viz"),
+                         scatter=meta.get("scatter"))
 
 
 def _dicom_metadata(ds) -> ImageMetadata:
@@ -1493,20 +1618,22 @@ def load_image(path, *, with_metadata=False):
 
 def _read_image(path: Path, suffix: str):
     """``(image, ImageMetadata)`` of one file (:func:`load_image`)."""
-    if suffix == ".npy":
+    fmt = FORMATS[suffix]
+    if fmt.library:
+        _need(path, *fmt.library)
+    if fmt.name == "npy":
         image, meta = np.load(path), ImageMetadata(".npy")
-    elif suffix == ".dcm":
+    elif fmt.name == "dicom":
         import pydicom
 
         ds = pydicom.dcmread(path)
         image, meta = dicom_values(ds), _dicom_metadata(ds)
-    elif suffix in (".tif", ".tiff"):
-        _need(path, "tifffile", "pip install tifffile")
+    elif fmt.name == "tiff":
         image, raw = _read_tiff(path)
         _check_seal(path, suffix, image, raw,
                     "xray_viz" not in (raw or {}) and _text_of(path, suffix))
         meta = _metadata(suffix, raw)
-    elif suffix == ".png":
+    elif fmt.name == "png":
         from PIL import Image
 
         with Image.open(path) as im:
@@ -1517,13 +1644,11 @@ def _read_image(path: Path, suffix: str):
         if raw is None and dpi and all(d > 0 for d in dpi):
             raw = {"pitch_mm": [25.4 / d for d in dpi]}
         meta = _metadata(suffix, raw)
-    elif suffix in (".nii", ".nii.gz"):
-        _need(path, "nibabel", "pip install 'xray_viz[volumes]'")
+    elif fmt.name == "nifti":
         image, _, raw = _read_nifti(path)
         _check_seal(path, suffix, image, raw, "xray_viz" not in raw and _text_of(path, suffix))
         meta = _metadata(suffix, raw)
-    else:
-        _need(path, "h5py", "pip install 'xray_viz[ct]'")
+    else:                                    # hdf5
         image, raw = _read_hdf5(path)
         _check_seal(path, suffix, image, raw, raw is None and _text_of(path, suffix))
         meta = _metadata(suffix, raw)
@@ -1533,8 +1658,9 @@ def _read_image(path: Path, suffix: str):
 def _text_of(path, suffix) -> bool:
     """Whether the file holds a text meant as xray_viz's metadata (for :func:`_check_seal`,
     when it did not parse): read again only on that path."""
+    name = FORMATS[suffix].name
     try:
-        if suffix in (".tif", ".tiff"):
+        if name == "tiff":
             import tifffile
 
             with tifffile.TiffFile(path) as tif:           # written by xray_viz
@@ -1542,12 +1668,12 @@ def _text_of(path, suffix) -> bool:
                 software = page.tags.get("Software")
                 return _looks_ours(page.description) or bool(
                     software and str(software.value).startswith("xray_viz"))
-        if suffix == ".png":
+        if name == "png":
             from PIL import Image
 
             with Image.open(path) as im:
                 return "xray_viz" in getattr(im, "text", {})
-        if suffix in (".nii", ".nii.gz"):
+        if name == "nifti":
             import nibabel as nib
 
             header = nib.load(path).header

@@ -498,16 +498,11 @@ def register_command(args, *, stdout=None) -> int:
     import tomllib
     from pathlib import Path
 
-    from xray_viz.output import atomic_write, check_target
-    from xray_viz.scene import load_scene, scene_from_dict
+    from xray_viz.output import atomic_write, scene_target
+    from xray_viz.scene_file import load_scene, scene_from_dict
     out_stream = sys.stdout if stdout is None else stdout
-    dst = Path(args.output)
-    if dst.suffix.lower() != ".toml":
-        raise SceneError(f"-o {dst}: register writes a scene file; name it .toml")
-    folder = dst.parent if str(dst.parent) else Path(".")
-    if not folder.is_dir():
-        raise SceneError(f"-o {dst}: folder {folder} does not exist; create it first")
-    check_target(dst)
+    dst = scene_target(args.output, command="register")
+    folder = dst.parent
     if args.max_iterations < 1:
         raise SceneError(f"--max-iterations must be >= 1, got {args.max_iterations}")
     scene = load_scene(args.scene)

@@ -44,10 +44,19 @@ from xray_viz.tracing.engines import ENGINES, Projector
 from xray_viz.tracing.hits import Hits
 
 __all__ = ["Radiograph", "render", "stages", "scene_projector", "image", "ENGINES", "QUANTITIES", "BAND_BYTES", "memory_needed",
-           "check_memory", "available_memory"]
+           "check_memory", "available_memory", "SCATTER_MODES", "ScatterSource",
+           "SCATTER_QUANTITIES"]
+
+#: The values of ``render(..., scatter=)`` (and ``xray-viz render --scatter``, where None is
+#: ``none``).
+SCATTER_MODES = (None, "mc", "kernel")
 
 #: Names accepted by ``--quantity`` and :meth:`Radiograph.quantity`.
 QUANTITIES = ("intensity", "line-integral", "path-length")
+
+#: The views of a radiograph rendered with scatter (:meth:`Radiograph.quantity`): the
+#: detected total (the intensity), its noise-free primary and scatter parts, and their ratio.
+SCATTER_QUANTITIES = ("total", "primary", "scatter", "spr")
 
 #: Bytes of path lengths (``rays x bodies x 8``) that one band of a render holds at most (but
 #: always at least one pixel row): the band size of :func:`render`.
@@ -90,6 +99,21 @@ class Radiograph:
     lod : LevelOfDetail or None
         What ``render(..., max_error=...)`` chose per body (:mod:`xray_viz.lod`); None
         without ``max_error``. :attr:`scene` is then the scene with the reduced meshes.
+    primary : (H, W) float or None
+        With ``render(..., scatter="mc" | "kernel")``: the noise-free mean primary signal, in
+        the units of :attr:`intensity` (the flat field ``gain I0 F A`` times the
+        transmission; before the focal-spot blur and the MTF). None without scatter.
+    scatter : (H, W) float or None
+        With ``scatter=``: the noise-free mean scatter signal in the units of
+        :attr:`intensity` (the flat field times the scatter relative to it), >= 0; the
+        detected :attr:`intensity` reads ``primary + scatter`` (through the blur and the
+        noise) and :attr:`line_integral` is the total's, ``-ln((P + S) / flat)``. None
+        without scatter (the image is then the primary alone, bit for bit as before).
+    scatter_details : dict or None
+        With ``scatter=``: ``mode`` (``"mc"`` or ``"kernel"``); for ``"mc"`` also
+        ``histories``, ``seed``, ``error``, the (H, W) standard error of :attr:`scatter`
+        (the three scattered images' errors added in quadrature, through the smoothing if
+        any), and with ``scatter_smoothing`` ``smoothing_mm``.
     """
 
     intensity: np.ndarray
@@ -103,14 +127,31 @@ class Radiograph:
     supersample: int = 1
     _path_length: np.ndarray | None = field(repr=False, default=None)
     lod: object = field(repr=False, default=None)
+    primary: np.ndarray | None = field(repr=False, default=None)
+    scatter: np.ndarray | None = field(repr=False, default=None)
+    scatter_details: dict | None = field(repr=False, default=None)
+
+    @property
+    def spr(self) -> np.ndarray | None:
+        """(H, W) the scatter-to-primary ratio ``scatter / primary`` (noise-free), or None
+        without scatter; ``inf`` where the primary underflows to 0 under some scatter, 0
+        where both are 0."""
+        if self.scatter is None:
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = self.scatter / self.primary
+        ratio[(self.scatter == 0) & (self.primary == 0)] = 0.0
+        return ratio
 
     @property
     def scope(self) -> str:
-        """What the image leaves out, for anyone who uses it as data: scattered radiation
-        (:data:`xray_viz.physics.dosimetry.SCATTER_NOT_MODELLED`)."""
-        from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED
+        """What the image includes, for anyone who uses it as data: the primary radiation
+        alone, or with the scatter of the model asked for
+        (:func:`xray_viz.physics.dosimetry.scatter_scope`)."""
+        from xray_viz.physics.dosimetry import scatter_scope
 
-        return SCATTER_NOT_MODELLED
+        mode = None if self.scatter_details is None else self.scatter_details["mode"]
+        return scatter_scope(mode)
 
     @property
     def air_kerma(self):
@@ -150,14 +191,29 @@ class Radiograph:
         return self._path_length
 
     def quantity(self, name: str) -> np.ndarray:
-        """The (H, W) image of ``"intensity"``, ``"line-integral"`` or ``"path-length"``."""
-        if name == "intensity":
+        """The (H, W) image of ``"intensity"``, ``"line-integral"`` or ``"path-length"``; of a
+        radiograph rendered with scatter also ``"total"`` (the intensity: what the detector
+        read), ``"primary"``, ``"scatter"`` and ``"spr"`` (:data:`SCATTER_QUANTITIES`)."""
+        if name in ("intensity", "total"):
+            if name == "total" and self.scatter is None:
+                self._refuse_scatter_view(name)
             return self.intensity
+        if name in SCATTER_QUANTITIES:
+            if self.scatter is None:
+                self._refuse_scatter_view(name)
+            return self.spr if name == "spr" else getattr(self, name)
         if name in ("line-integral", "line_integral"):
             return self.line_integral
         if name in ("path-length", "path_length"):
             return self.total_path_length
-        raise SceneError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}")
+        raise SceneError(f"unknown quantity {name!r}; choose one of {', '.join(QUANTITIES)}"
+                         + (f", {', '.join(SCATTER_QUANTITIES)}" if self.scatter is not None
+                            else ""))
+
+    @staticmethod
+    def _refuse_scatter_view(name):
+        raise SceneError(f"quantity {name!r} needs a radiograph rendered with scatter: "
+                         "render(scene, scatter='mc', histories=...) or scatter='kernel'")
 
     def display(self, quantity: str = "intensity") -> np.ndarray:
         """The (H, W) image as shown by :meth:`plot` and in a notebook, 0 (black) to 1
@@ -176,7 +232,7 @@ class Radiograph:
         finite = np.isfinite(a)
         lo, hi = (a[finite].min(), a[finite].max()) if finite.any() else (0.0, 0.0)
         scaled = (np.where(finite, a, hi) - lo) / (hi - lo) if hi > lo else np.zeros_like(a)
-        if quantity == "intensity":
+        if quantity in ("intensity", "total", "primary"):
             scaled = 1.0 - scaled
             scaled[~finite] = 1.0
         return np.clip(scaled, 0.0, 1.0)
@@ -187,6 +243,7 @@ class Radiograph:
         Parameters
         ----------
         quantity : {"intensity", "line-integral", "path-length"}
+            Or, rendered with scatter, ``"total"``, ``"primary"``, ``"scatter"``, ``"spr"``.
         ax : matplotlib.axes.Axes, optional
             Where to draw (default: a new figure's axes).
         colorbar : bool
@@ -210,13 +267,16 @@ class Radiograph:
             extent = (-w * pu / 2, w * pu / 2, -h * pv / 2, h * pv / 2)
             ax.set_xlabel("u (mm)")
             ax.set_ylabel("v (mm)")
-        shown = ax.imshow(a, cmap="gray_r" if quantity == "intensity" else "gray",
-                          extent=extent, interpolation="nearest")
+        cmap = ("gray_r" if quantity in ("intensity", "total", "primary")
+                else "viridis" if quantity in ("scatter", "spr") else "gray")
+        shown = ax.imshow(a, cmap=cmap, extent=extent, interpolation="nearest")
         ax.set_title(f"{quantity} ({w} x {h}, engine {self.engine})")
         if colorbar:
             ax.figure.colorbar(shown, ax=ax,
                                label={"intensity": "I / I0", "line-integral": "sum mu L",
-                                      "line_integral": "sum mu L"}.get(quantity, "mm"))
+                                      "line_integral": "sum mu L", "total": "I / I0",
+                                      "primary": "I / I0", "scatter": "I / I0",
+                                      "spr": "scatter / primary"}.get(quantity, "mm"))
         return shown
 
     def _repr_png_(self) -> bytes:
@@ -308,9 +368,10 @@ class _LogBlocks:
 
 
 def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, total=None,
-               per_body=None, keep_hits=False, progress=None):
+               per_body=None, keep_hits=False, progress=None, weighted=None):
     """Trace the projector's bodies at the acquisition band by band into the (H, W) images
-    given (any may be None; ``log_t`` and ``log_v`` need the ``beam`` at the acquisition).
+    given (any may be None; ``log_t`` and ``log_v`` need the ``beam`` at the acquisition;
+    ``weighted = (w, out)``: ``out`` (H, W) receives each pixel's mean ``L @ w``).
 
     ``progress(rows_done, rows)`` is called after each band (default:
     :func:`xray_viz.progress.rows`, the command line's progress bar; a no-op elsewhere).
@@ -341,6 +402,11 @@ def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, 
             # ln(I / I0) of every ray, averaged (in I) over each pixel's n x n rays, in the
             # log domain.
             blocks.add(r0, r1, L)
+        if weighted is not None:
+            lw = np.einsum("ij,j->i", L, weighted[0])     # no BLAS threads to wait for
+            weighted[1][r0:r1] = (lw if nn == 1 else lw.reshape(-1, nn).mean(axis=1)).reshape(
+                r1 - r0, w)
+            del lw
         if (total is not None and nn > 1) or per_body is not None:
             # (pixels, bodies): the mean over each pixel's rays (one ray: the same numbers).
             mean = L if nn == 1 else L.reshape((r1 - r0) * w, nn, nb).mean(axis=1)
@@ -489,8 +555,11 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
     Returns
     -------
     dict
-        ``images`` (the (H, W) images and the detector model's temporaries), ``path_lengths``,
-        ``bands`` (a few bands of path lengths), ``meshes`` and ``total``.
+        ``images`` (the (H, W) images and the detector model's temporaries), ``path_lengths``
+        (a column per body and per voxel volume's class), ``bands`` (a few bands of path
+        lengths), ``meshes``, ``volumes`` (what tracing the voxel volumes allocates: each
+        volume's copy in the detector's axis order; the grids themselves are already loaded)
+        and ``total``.
 
     Examples
     --------
@@ -502,16 +571,20 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
     w, h = scene.detector.shape
     pixels = w * h
-    nb = len(scene.bodies)
+    volumes = tuple(scene.volumes)
+    nb = len(scene.bodies) + sum(len(v.names) for v in volumes)   # the path lengths' columns
     projector = Projector(scene.bodies, engine)
     rows = h if keep_hits else min(h, _band_rows(projector, scene.acquisition, n))
     per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if keep_hits else projector.ray_bytes)
+    if volumes:     # the voxel traversal's rays: directions and ends (24 + 8 bytes a ray)
+        per_ray += 32
     need = {
         "images": pixels * _image_bytes_per_pixel(scene) if images else 0,
         "path_lengths": pixels * nb * 8 if path_lengths else 0,
         # A band's path lengths, their per-pixel means and the per-ray log-transmissions.
         "bands": 3 * rows * w * n * n * per_ray,
         "meshes": _mesh_bytes(scene),
+        "volumes": sum(v.layout_bytes(scene.acquisition.frame.ho) for v in volumes),
     }
     need["total"] = sum(need.values())
     return need
@@ -548,6 +621,17 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
 
     w, h = scene.detector.shape
     nb = len(scene.bodies)
+    volumes = tuple(scene.volumes)
+    if need["volumes"] and need["volumes"] >= max(need["images"], need["path_lengths"]):
+        names = ", ".join(repr(str(v.source_file.name if v.source_file else v.name))
+                          for v in volumes)
+        raise SceneError(
+            f"the voxel volume{'s' * (len(volumes) > 1)} {names} need about "
+            f"{_gib(need['volumes'])} more to be traced (a copy of the grid in the detector's "
+            f"axis order; {_gib(need['total'])} in all, {describe(available)}): crop or "
+            "downsample the CT, or turn the detector so that its rows run along the grid's "
+            "last axis")
+    nb += sum(len(v.names) for v in volumes)
     what = [name for name, key in (("the output images", "images"),
                                    (f"the path lengths of {nb} bod{'y' if nb == 1 else 'ies'}",
                                     "path_lengths")) if need[key]]
@@ -565,7 +649,9 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
 
 def render(scene, *, engine: str = "fast", supersample: int | None = None,
            keep_hits: bool = False, path_lengths: bool = False,
-           max_error: float | None = None) -> Radiograph:
+           max_error: float | None = None, scatter: str | None = None,
+           histories: int | None = None, scatter_smoothing: float | None = None,
+           progress=None) -> Radiograph:
     """Render the radiograph of a scene.
 
     Parameters
@@ -593,6 +679,26 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         (:mod:`xray_viz.lod`: a measured estimate, with the budget shared by overlapping
         bodies; the pixel-scale sampling error is not part of it). The choice is in
         :attr:`Radiograph.lod`. None (default): the meshes as they are.
+    scatter : {None, "mc", "kernel"}
+        Scattered radiation in the image (:class:`ScatterSource`). None (default): the
+        primary alone, today's images bit for bit. ``"mc"``: the photon Monte Carlo of
+        :func:`xray_viz.transport` on the scene's meshes (``histories`` photons, seeded with
+        the detector's ``seed``, 0 where it has none); ``"kernel"``: the fast scatter model
+        ``xray_viz.scatter_kernel.KernelModel``, its amplitude from each pixel's path lengths
+        through the bodies' materials. The detector reads primary plus scatter
+        (:meth:`~xray_viz.physics.detector_model.DetectorModel.read`); the parts are in
+        :attr:`Radiograph.primary`, :attr:`Radiograph.scatter` and :attr:`Radiograph.spr`.
+    histories : int, optional
+        Photons the Monte Carlo emits into the field (``scatter="mc"`` only, required there;
+        the scatter's relative error falls as ``1 / sqrt(histories)``).
+    scatter_smoothing : float, optional
+        ``scatter="mc"`` only: smooth the Monte Carlo's scatter with a Gaussian of this
+        standard deviation (mm at the detector; its standard error goes along), for a
+        coarse Monte Carlo whose pixels receive few scattered photons. Scatter varies on the
+        scale of centimetres; a blur far below that changes its mean little. None (default):
+        the Monte Carlo's pixels as they are.
+    progress : callable, optional
+        ``progress(done, total)`` during the Monte Carlo (histories).
 
     Returns
     -------
@@ -602,7 +708,9 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     ------
     SceneError
         For an unknown engine, a supersampling that is not a whole number >= 1, or a job whose
-        output cannot fit in the memory available (:func:`check_memory`).
+        output cannot fit in the memory available (:func:`check_memory`); an unknown
+        ``scatter``, ``scatter="mc"`` without ``histories`` (or histories not > 0), histories
+        without ``scatter="mc"``.
 
     Notes
     -----
@@ -620,6 +728,8 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     """
     projector = scene_projector(scene, engine)           # an unknown engine is refused here
     n = check_supersample(scene.detector.supersample if supersample is None else supersample)
+    source = ScatterSource.of(scene, scatter, histories=histories, progress=progress,
+                              smoothing=scatter_smoothing)
     lod = None
     if max_error is not None:
         from xray_viz.lod import level_of_detail
@@ -630,9 +740,12 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     model.blur_sigmas(scene.acquisition, scene.bodies)   # a focal spot wider than the detector
     check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths,
                  keep_hits=keep_hits)
+    parts = {}
     intensity, line_integral, total, per_body, hits, timing = _image(
         projector, beam, model, scene.acquisition, n, seed=scene.detector.seed,
-        path_lengths=path_lengths, keep_hits=keep_hits)
+        path_lengths=path_lengths, keep_hits=keep_hits, scatter=source,
+        scatter_seed=None if source is None else source.seed(scene.detector.seed),
+        parts=parts)
     return Radiograph(
         intensity=intensity,
         line_integral=line_integral,
@@ -645,6 +758,9 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
         supersample=n,
         _path_length=per_body,
         lod=lod,
+        primary=parts.get("primary"),
+        scatter=parts.get("scatter"),
+        scatter_details=parts.get("details"),
     )
 
 
@@ -700,7 +816,8 @@ def stages(scene):
             DetectorModel.of(scene.detector))
 
 
-def image(projector, beam, model, acquisition, *, supersample: int = 1, seed=None):
+def image(projector, beam, model, acquisition, *, supersample: int = 1, seed=None,
+          scatter=None, scatter_seed=None):
     """The detected image of one acquisition: ``(intensity, line_integral)``, ``(H, W)``.
 
     ``model.read(beam.log_transmission(projector.path_lengths(acquisition)), seed=seed)``,
@@ -716,6 +833,11 @@ def image(projector, beam, model, acquisition, *, supersample: int = 1, seed=Non
     supersample : int
     seed : int, optional
         The noise's seed.
+    scatter : ScatterSource, optional
+        Scatter added to the primary (:meth:`ScatterSource.of`, built once); None: the
+        primary alone.
+    scatter_seed : int, optional
+        The Monte Carlo's seed (``scatter`` of mode ``"mc"``).
 
     Examples
     --------
@@ -727,13 +849,16 @@ def image(projector, beam, model, acquisition, *, supersample: int = 1, seed=Non
     True
     """
     n = check_supersample(supersample)
-    intensity, line_integral, *_ = _image(projector, beam, model, acquisition, n, seed=seed)
+    intensity, line_integral, *_ = _image(projector, beam, model, acquisition, n, seed=seed,
+                                          scatter=scatter, scatter_seed=scatter_seed)
     return intensity, line_integral
 
 
 def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
-           keep_hits=False):
-    """:func:`image`, with the total and per-body path lengths, the hits and the timing."""
+           keep_hits=False, scatter=None, scatter_seed=None, parts=None):
+    """:func:`image`, with the total and per-body path lengths, the hits and the timing;
+    with ``scatter``, ``parts`` (a dict) receives ``primary``, ``scatter`` and ``details``
+    (see :class:`Radiograph`)."""
     beam = beam.at(acquisition)
     w, h = acquisition.detector.shape
     t0 = time.perf_counter()
@@ -741,17 +866,241 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
     # the variance's sum of an energy-integrating detector's noise (see detect_log)
     log_v = np.empty((h, w)) if model.needs_variance(beam) else None
     total = np.empty((h, w))
+    # the kernel model reads each pixel's path lengths per body weighted by their materials'
+    # scattering (mm of water), summed band by band
+    weights = scattering = None
+    if (scatter is not None and scatter.mode == "kernel"
+            and projector.columns == len(projector.bodies)):
+        weights = scatter.kernel.path_weights(acquisition, projector.bodies)
+        scattering = np.empty((h, w))
     per_body = np.empty((h, w, projector.columns)) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
                                         log_v=log_v, total=total, per_body=per_body,
-                                        keep_hits=keep_hits)
+                                        keep_hits=keep_hits,
+                                        weighted=None if weights is None else (weights,
+                                                                               scattering))
     t1 = time.perf_counter()
     _check_transmission(log_t)
+    s = None
+    if scatter is not None:
+        s, details = scatter(log_t, acquisition, projector.bodies, seed=scatter_seed,
+                             scattering=scattering)
+        if parts is not None:
+            flat = model.flat_field(beam=beam, acquisition=acquisition)
+            parts["primary"] = flat * np.exp(log_t)
+            parts["scatter"] = flat * s
+            if "error" in details:
+                details["error"] = flat * details["error"]
+            parts["details"] = details
     # log_t is not used again: the line integral is written over it
     intensity, line_integral = model.read(log_t, beam=beam, acquisition=acquisition,
                                           bodies=projector.bodies, seed=seed,
-                                          log_variance=log_v, overwrite=True)
+                                          log_variance=log_v, overwrite=True, scatter=s)
     del log_t, log_v
     t2 = time.perf_counter()
     timing = {"trace": t_trace, "image": t_bands + (t2 - t1), "total": t2 - t0}
     return intensity, line_integral, total, per_body, hits, timing
+
+
+# ------------------------------------------------------------------------------------------
+# scatter
+
+
+class ScatterSource:
+    """Where a render's scatter comes from, built once per scene (a scan's projections share
+    it): ``source(log_t, acquisition, bodies, seed=)`` gives ``(s, details)``, ``s`` the
+    (H, W) mean scatter reading relative to the flat field (the units of ``exp(log_t)``, the
+    primary's transmission) at that acquisition.
+
+    ``"mc"``: ``(incoherent + coherent + multiple) / flat_signal`` of
+    :func:`xray_viz.transport` of the scene at the acquisition (its seed given per call);
+    ``"kernel"``: ``KernelModel.of(scene).scatter(log_t, acquisition, bodies,
+    scattering=)`` of ``xray_viz.scatter_kernel``, built here once (the render passes each
+    pixel's path lengths per body weighted by the model's ``path_weights``, summed while it
+    traces, when its projector has one column per body: the model's amplitude then sees
+    the materials).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> ScatterSource.of(xray_viz.load_scene("sphere"), None) is None
+    True
+    """
+
+    def __init__(self, scene, mode, histories=None, progress=None, smoothing=None):
+        self.scene, self.mode, self.histories, self.progress = scene, mode, histories, progress
+        #: The Gaussian blur (standard deviation, mm at the detector) of the Monte Carlo's
+        #: scatter, or None.
+        self.smoothing = smoothing
+        self.kernel = None
+        if mode == "kernel":
+            from xray_viz.scatter_kernel import KernelModel
+
+            self.kernel = KernelModel.of(scene)
+
+    @classmethod
+    def of(cls, scene, scatter, *, histories=None, progress=None, smoothing=None):
+        """The source of ``render(scene, scatter=, histories=, scatter_smoothing=)``, or None
+        for ``scatter=None`` (the options checked by :meth:`options` and
+        :meth:`check_smoothing`)."""
+        mode, n = cls.options(scene, scatter, histories)
+        smoothing = cls.check_smoothing(mode, smoothing)
+        return None if mode is None else cls(scene, mode, n, progress, smoothing)
+
+    @staticmethod
+    def check_smoothing(mode, smoothing):
+        """``smoothing`` (mm) as a float, or None; only with ``mode == "mc"``.
+
+        Raises
+        ------
+        SceneError
+            Not a finite number >= 0, or given without the Monte Carlo.
+        """
+        if smoothing is None:
+            return None
+        if mode != "mc":
+            raise SceneError(f"scatter smoothing ({smoothing!r} mm) is for scatter='mc' only: "
+                             "leave it out or ask for scatter='mc'")
+        try:
+            value = float(smoothing)
+        except (TypeError, ValueError):
+            value = float("nan")
+        if isinstance(smoothing, bool) or not (value >= 0 and np.isfinite(value)):
+            raise SceneError(f"scatter smoothing must be a number of mm >= 0 (the Gaussian's "
+                             f"standard deviation at the detector, e.g. 5), got {smoothing!r}")
+        return value or None
+
+    @staticmethod
+    def options(scene, scatter, histories):
+        """``(mode, histories)`` checked: ``mode`` None (also for ``"none"``), ``"mc"`` or
+        ``"kernel"``; ``histories`` an int for ``"mc"``, else None.
+
+        Raises
+        ------
+        SceneError
+            An unknown ``scatter``; ``"mc"`` without ``histories``, or with histories that are
+            not a whole number > 0; ``histories`` without ``"mc"``.
+        """
+        if scatter is not None and not isinstance(scatter, str):
+            raise SceneError(f"scatter must be None, 'mc' or 'kernel', got {scatter!r}")
+        if scatter == "none":
+            scatter = None
+        if scatter not in SCATTER_MODES:
+            raise SceneError(f"unknown scatter {scatter!r}: choose none (the primary alone), "
+                             "mc (the photon Monte Carlo, with histories) or kernel (the fast "
+                             "scatter model)")
+        if scatter != "mc":
+            if histories is not None:
+                raise SceneError(f"histories = {histories!r} is for scatter='mc' (the Monte "
+                                 f"Carlo) only, not scatter={scatter!r}: leave it out or ask "
+                                 "for scatter='mc'")
+            return scatter, None
+        if histories is None:
+            raise SceneError("scatter='mc' needs histories, the photons the Monte Carlo "
+                             "emits, e.g. histories=1000000 (the scatter's relative error "
+                             "falls as 1/sqrt(histories))")
+        from xray_viz.transport import _check_histories
+
+        n = _check_histories(histories)
+        return "mc", n
+
+    @staticmethod
+    def seed(detector_seed):
+        """The Monte Carlo's seed for a detector's noise seed: the same, or 0 for None."""
+        return 0 if detector_seed is None else int(detector_seed)
+
+    def __call__(self, log_t, acquisition, bodies, *, seed=None, scattering=None):
+        """``(s, details)`` at ``acquisition``: see the class. ``scattering`` ((H, W) mm of
+        water, optional): each pixel's path lengths weighted by ``self.kernel.path_weights``;
+        the kernel model's amplitude then sees the bodies' materials (``KernelModel.scatter``'s
+        option of that name)."""
+        if self.mode == "kernel":
+            s = np.asarray(self.kernel.scatter(log_t, acquisition, bodies,
+                                               scattering=scattering), dtype=np.float64)
+            return s, {"mode": "kernel"}
+        from xray_viz.transport import flat_signal, transport
+
+        scene = self.scene
+        if acquisition is not scene.acquisition:
+            scene = scene.replace(acquisition=acquisition)
+        seed = 0 if seed is None else int(seed)
+        result = transport(scene, self.histories, seed=seed, progress=self.progress)
+        flat = flat_signal(scene)
+        keys = ("incoherent", "coherent", "multiple")
+        s = sum(result.images[k] for k in keys) / flat
+        variance = sum(result.image_errors[k] ** 2 for k in keys) / flat ** 2
+        details = {"mode": "mc", "histories": result.histories, "seed": seed}
+        if self.smoothing:
+            from xray_viz.physics.detector_model import _convolve, gaussian_kernel
+
+            px, py = acquisition.detector.pitch
+            kernels = (gaussian_kernel(self.smoothing / py), gaussian_kernel(self.smoothing / px))
+            s = np.maximum(_convolve(s, kernels), 0.0)
+            # the mean of independent pixels weighted by k: variance weighted by k^2
+            variance = _convolve(variance, tuple(k * k for k in kernels))
+            details["smoothing_mm"] = self.smoothing
+        details["error"] = np.sqrt(np.maximum(variance, 0.0))
+        return s, details
+
+
+#: What one Monte Carlo run covers, per command (the help texts' and errors' word).
+_SCATTER_PER = {"render": "the image", "projection": "each projection",
+                "view": "each render of the view"}
+
+
+def add_scatter_arguments(parser, *, per: str) -> None:
+    """``--scatter {none,mc,kernel}``, ``--histories N`` and ``--scatter-smoothing MM``, as
+    ``xray-viz render``, ``scan`` and ``show`` take them; ``per`` names what one Monte Carlo
+    run covers (``"render"``, ``"projection"`` or ``"view"``). Checked by
+    :func:`scatter_arguments`."""
+    what = _SCATTER_PER[per]
+    parser.add_argument(
+        "--scatter", choices=("none", "mc", "kernel"), default="none",
+        help=f"scattered radiation in {what}: none (default: the primary beam alone, "
+             "scattered photons removed but not detected), mc (the photon Monte Carlo on the "
+             "scene's bodies, with --histories; slow, its error falls as 1/sqrt(histories)) "
+             "or kernel (the fast scatter kernel model, calibrated on the Monte Carlo). The "
+             "detector reads primary plus scatter"
+             + ("; every slider move renders again (mc is slow), and the radiograph can be "
+                "shown as the total, its primary, its scatter or the scatter-to-primary ratio "
+                "(key k, or --radiograph)" if per == "view" else ""))
+    parser.add_argument(
+        "--histories", type=int, default=None, metavar="N",
+        help=f"photons the Monte Carlo emits for {what} with --scatter mc (required there; "
+             "e.g. 1000000 for a 256 x 256 detector), seeded from the detector's seed (0 "
+             "without one)")
+    parser.add_argument(
+        "--scatter-smoothing", type=float, default=None, metavar="MM",
+        help="with --scatter mc: smooth the Monte Carlo's scatter with a Gaussian of MM mm "
+             "(standard deviation at the detector; scatter varies over centimetres), for few "
+             "histories per pixel. Default: no smoothing")
+
+
+def scatter_arguments(args) -> tuple[str | None, int | None, float | None]:
+    """``(scatter, histories, smoothing)`` of :func:`add_scatter_arguments`'s options:
+    ``scatter`` None for ``none``.
+
+    Raises
+    ------
+    SceneError
+        One line: ``--scatter mc`` without ``--histories``, histories <= 0, ``--histories`` or
+        ``--scatter-smoothing`` without ``--scatter mc``, a smoothing < 0 or not finite.
+    """
+    mode = args.scatter
+    scatter = None if mode == "none" else mode
+    histories, smoothing = args.histories, args.scatter_smoothing
+    if histories is not None and histories <= 0:
+        raise SceneError(f"--histories must be > 0 (the photons the Monte Carlo emits, e.g. "
+                           f"1000000), got {histories}")
+    if scatter == "mc" and histories is None:
+        raise SceneError("--scatter mc needs --histories N, the photons the Monte Carlo "
+                           "emits (e.g. --histories 1000000; the scatter's error falls as "
+                           "1/sqrt(N))")
+    for name, value in (("--histories", histories), ("--scatter-smoothing", smoothing)):
+        if scatter != "mc" and value is not None:
+            raise SceneError(f"{name} is for --scatter mc only (got --scatter "
+                               f"{mode}): leave it out or add --scatter mc")
+    if smoothing is not None and not 0 <= smoothing < float("inf"):
+        raise SceneError(f"--scatter-smoothing must be a number of mm >= 0 (e.g. 5), got "
+                           f"{smoothing}")
+    return scatter, histories, smoothing

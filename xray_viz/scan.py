@@ -203,9 +203,15 @@ def _geometry_head(scene, orbit: Orbit, *, acquisitions=None) -> dict:
     return out
 
 
-def _physics(scene) -> dict:
+def _physics(scene, scatter=None, histories=None, smoothing=None) -> dict:
     src, det = scene.source, scene.detector
     out = {"I0": det.i0, "response": det.response, "noise": det.noise, "seed": det.seed}
+    if scatter not in (None, "none"):          # only then: the stores of before stay the same
+        out["scatter"] = {"mode": scatter}
+        if histories is not None:
+            out["scatter"]["histories"] = int(histories)
+        if smoothing:
+            out["scatter"]["smoothing_mm"] = float(smoothing)
     if src.spectrum is not None:
         try:
             out["spectrum"] = scene.to_dict()["source"]["spectrum"]
@@ -274,6 +280,10 @@ class Projections:
     ``Projections(scene, orbit)(k)`` is projection ``k``, ``(H, W)`` float32: the orbit's
     acquisition ``k`` (no scene is built), the noise seeded with :func:`projection_seed`
     ``(seed, k)``; bit for bit :func:`xray_viz.render` of the scene moved to that pose.
+    With ``scatter`` (``"mc"`` with ``histories``, or ``"kernel"``: see
+    :func:`xray_viz.render`) each projection has its scatter, the Monte Carlo seeded with
+    :func:`projection_seed` ``(seed, k)`` (``seed`` 0 for a detector without one): bit for
+    bit the render of the scene moved to that pose with that detector seed.
     With ``keep=True`` the orbit's acquisitions are built once here and kept
     (:attr:`acquisitions`), for :func:`scan_geometry` to read the poses from them.
 
@@ -289,10 +299,15 @@ class Projections:
     """
 
     def __init__(self, scene, orbit: Orbit, *, quantity: str = "line-integral",
-                 engine: str = "fast", keep: bool = False):
-        from xray_viz.render import check_memory, scene_projector, stages
+                 engine: str = "fast", keep: bool = False, scatter=None, histories=None,
+                 scatter_smoothing=None):
+        from xray_viz.render import ScatterSource, check_memory, scene_projector, stages
 
         _check_quantity(quantity)
+        #: Where the scatter comes from (:class:`~xray_viz.render.ScatterSource`, built once:
+        #: the kernel model once for every projection), or None.
+        self.scatter = ScatterSource.of(scene, scatter, histories=histories,
+                                        smoothing=scatter_smoothing)
         self.projector = scene_projector(scene, engine)
         self.beam, self.model = stages(scene)
         self.base, self.orbit, self.quantity = scene.acquisition, orbit, quantity
@@ -310,9 +325,13 @@ class Projections:
         acq = self.acquisitions[k] if self.acquisitions is not None \
             else self.orbit.acquisition(self.base, k)
         seed = acq.detector.seed
+        mc_seed = None
+        if self.scatter is not None:          # the Monte Carlo's, per projection
+            mc_seed = projection_seed(self.scatter.seed(seed), k)
         intensity, line_integral = image(
             self.projector, self.beam, self.model, acq, supersample=self.supersample,
-            seed=None if seed is None else projection_seed(seed, k))
+            seed=None if seed is None else projection_seed(seed, k), scatter=self.scatter,
+            scatter_seed=mc_seed)
         return np.asarray(intensity if self.quantity == "intensity" else line_integral,
                           dtype=np.float32)
 
@@ -384,7 +403,9 @@ def _orbit_of(scene, orbit) -> Orbit:
 
 
 def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "fast",
-         store=None, client=None, batch: int = 8, progress: bool = False) -> Scan:
+         store=None, client=None, batch: int = 8, progress: bool = False,
+         scatter: str | None = None, histories: int | None = None,
+         scatter_smoothing: float | None = None) -> Scan:
     """Scan a scene: render every projection of an orbit.
 
     Parameters
@@ -404,6 +425,16 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         Projections per Dask task.
     progress : bool
         A progress bar (tqdm) on stderr.
+    scatter : {None, "mc", "kernel"}
+        Scatter in every projection, as :func:`xray_viz.render`'s ``scatter`` (the stages
+        and the kernel model built once; the Monte Carlo per projection, seeded with
+        :func:`projection_seed` ``(seed, k)``, ``seed`` 0 for a detector without one). The
+        scan's physics record it (a store resumes only the same scatter).
+    histories : int, optional
+        Photons per projection for ``scatter="mc"`` (required there).
+    scatter_smoothing : float, optional
+        mm: the Gaussian smoothing of each projection's Monte Carlo scatter, as
+        :func:`xray_viz.render`'s.
 
     Returns
     -------
@@ -423,6 +454,11 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
     ((3, 24, 32), 'float32')
     """
     _check_quantity(quantity)
+    from xray_viz.render import ScatterSource
+
+    scatter, histories = ScatterSource.options(scene, scatter, histories)  # before any work
+    scatter_smoothing = ScatterSource.check_smoothing(scatter, scatter_smoothing)
+    mc = {"scatter": scatter, "histories": histories, "scatter_smoothing": scatter_smoothing}
     orbit = _orbit_of(scene, orbit)
     if client is not None and store is None:
         raise SceneError("scan(client=...) writes a Zarr store: give store= (a path)")
@@ -435,7 +471,7 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         # the stack is in memory anyway: the acquisitions are built once, for the images
         # and the geometry (random poses: the geometry's arrays, built all at once)
         project = Projections(scene, orbit, quantity=quantity, engine=engine,
-                              keep=orbit.random is None)
+                              keep=orbit.random is None, **mc)
         geometry = scan_geometry(scene, orbit, acquisitions=project.acquisitions)
         bar = _bar(orbit.projections, progress)
         for k in range(orbit.projections):
@@ -443,9 +479,11 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
             bar.update(1)
         bar.close()
         flat, dark = flat_dark(scene, geometry, quantity)
-        return Scan(out, geometry, quantity, _physics(scene), scene, flat=flat, dark=dark)
+        return Scan(out, geometry, quantity,
+                    _physics(scene, scatter, histories, scatter_smoothing), scene,
+                    flat=flat, dark=dark)
     _scan_to_store(scene, orbit, store, quantity=quantity, engine=engine, client=client,
-                   batch=batch, progress=progress)
+                   batch=batch, progress=progress, **mc)
     return read_zarr(store, scene=scene, lazy=True, verify=False)   # verified as resumed
 
 
@@ -472,21 +510,26 @@ def _pose_dict(row) -> dict:
 
 
 def _scan_to_store(scene, orbit, store, *, quantity, engine, client, batch,
-                   progress) -> tuple[int, int]:
+                   progress, scatter=None, histories=None,
+                   scatter_smoothing=None) -> tuple[int, int]:
     """Fill the missing projections of a Zarr store; ``(filled, total)``. Memory: one
     projection per worker (the stack is never held), the poses as arrays."""
     geometry, tables = _store_geometry(scene, orbit)
     group = open_store(store, scene=scene, quantity=quantity, geometry=geometry,
-                       _tables=tables)
+                       _tables=tables,
+                       physics=_physics(scene, scatter, histories, scatter_smoothing))
     del geometry, tables
     _repair_done(group, store)            # what a resume skips is verified, not trusted
     todo = [int(k) for k in np.flatnonzero(~done_flags(group))]
     if client is not None:
         _scan_dask(client, scene, orbit, store, todo, quantity=quantity, engine=engine,
-                   batch=batch, progress=progress)
+                   batch=batch, progress=progress, scatter=scatter, histories=histories,
+                   scatter_smoothing=scatter_smoothing)
     else:
         bar = _bar(len(todo), progress)
-        project = Projections(scene, orbit, quantity=quantity, engine=engine) if todo else None
+        project = Projections(scene, orbit, quantity=quantity, engine=engine,
+                              scatter=scatter, histories=histories,
+                              scatter_smoothing=scatter_smoothing) if todo else None
         for i, k in enumerate(todo):
             _write_projection(group, k, project(k))
             bar.update(1)
@@ -538,7 +581,7 @@ def _canonical(doc) -> str:
     return json.dumps(doc, sort_keys=True)
 
 
-def _attrs(scene, quantity, geometry, arrays: bool = False) -> dict:
+def _attrs(scene, quantity, geometry, arrays: bool = False, physics=None) -> dict:
     try:
         text = scene.to_toml()
     except SceneError:
@@ -546,7 +589,8 @@ def _attrs(scene, quantity, geometry, arrays: bool = False) -> dict:
     return {"version": ARRAYS_LAYOUT_VERSION if arrays else LAYOUT_VERSION,
             "quantity": quantity, "units": "1" if quantity == "line-integral" else "photons",
             "geometry": _geometry_attr(geometry) if arrays else geometry,
-            "physics": _physics(scene), "scene": text, "bodies": bodies_digest(scene)}
+            "physics": _physics(scene) if physics is None else physics, "scene": text,
+            "bodies": bodies_digest(scene)}
 
 
 def bodies_digest(scene) -> str:
@@ -615,7 +659,7 @@ def _geometry_from_store(group, geometry) -> dict:
 
 
 def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=None,
-               _tables=None):
+               _tables=None, physics=None):
     """The Zarr v3 group of a scan at ``path``: created (whole, or not at all) if missing,
     otherwise opened for resuming after checking that it holds the same scan.
 
@@ -644,7 +688,7 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
     if path.exists():
         try:
             return _open_existing(zarr, path, scene=scene, geometry=geometry,
-                                  quantity=quantity, tables=_tables)
+                                  quantity=quantity, tables=_tables, physics=physics)
         except OutputError:
             raise
         except Exception as exc:               # damaged metadata: any of zarr's errors
@@ -652,10 +696,10 @@ def open_store(path, *, scene, geometry, quantity="line-integral", pose_arrays=N
                               "is damaged or not a store: remove it or choose another -o") \
                 from None
     return _create_store(zarr, path, scene=scene, geometry=geometry, quantity=quantity,
-                         pose_arrays=pose_arrays, tables=_tables)
+                         pose_arrays=pose_arrays, tables=_tables, physics=physics)
 
 
-def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
+def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None, physics=None):
     """The group of an existing store holding the same scan, its arrays checked
     (``tables``: the per-projection arrays where ``geometry`` has no lists)."""
     n = geometry["projections"]
@@ -669,7 +713,7 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
         "per_projection_arrays" in old["geometry"]
     if not arrays:
         geometry = _with_lists(geometry, tables)
-    new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays)))
+    new = json.loads(_canonical(_attrs(scene, quantity, geometry, arrays, physics)))
     same = isinstance(old, dict) and all(
         _canonical(old.get(k)) == _canonical(new[k])
         for k in ("version", "quantity", "geometry", "physics", "scene")
@@ -698,12 +742,13 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None):
     return group
 
 
-def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays, tables=None):
+def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays, tables=None,
+                  physics=None):
     """A new store at ``path``, made whole in a temporary folder and renamed."""
     n = geometry["projections"]
     if not pose_arrays:
         geometry = _with_lists(geometry, tables)
-    attrs = _attrs(scene, quantity, geometry, pose_arrays)
+    attrs = _attrs(scene, quantity, geometry, pose_arrays, physics)
     w, h = geometry["detector"]["shape"]
     tmp = path.with_name(f".{path.name}.partial-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -864,7 +909,7 @@ def _write_projection(group, k, image) -> None:
 def write_zarr(result: Scan, path) -> None:
     """Write a :class:`Scan` held in memory as a complete Zarr store (see :func:`open_store`)."""
     group = open_store(path, scene=result.scene, quantity=result.quantity,
-                       geometry=result.geometry)
+                       geometry=result.geometry, physics=result.physics)
     for k in np.flatnonzero(~done_flags(group)):
         _write_projection(group, int(k), result.projections[k])
 
@@ -1140,7 +1185,8 @@ def _check_disk(out, nbytes: int) -> None:
                           "another -o")
 
 
-def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress) -> int:
+def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress,
+                  scatter=None, histories=None, scatter_smoothing=None) -> int:
     """Render a scan straight into a NeXus file or a TIFF folder (``kind``), projection by
     projection as they come: memory is one projection, the geometry is built as arrays
     (:func:`pose_table`, no per-projection dicts), the first projections are on disk while
@@ -1161,9 +1207,12 @@ def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress)
     opener = _nexus_writer if kind == "nexus" else _tiff_writer
     extra = {"shape": tuple(scene.detector.shape), "flush_every": batch} \
         if kind == "nexus" else {}
-    with opener(out, n=n, quantity=quantity, physics=_physics(scene), geometry=geometry,
-                tables=tables, **extra) as write:
-        project = Projections(scene, orbit, quantity=quantity, engine=engine)
+    with opener(out, n=n, quantity=quantity,
+                physics=_physics(scene, scatter, histories, scatter_smoothing),
+                geometry=geometry, tables=tables, **extra) as write:
+        project = Projections(scene, orbit, quantity=quantity, engine=engine,
+                              scatter=scatter, histories=histories,
+                              scatter_smoothing=scatter_smoothing)
         bar = _bar(n, progress)
         for k in range(n):
             write(k, project(k))
@@ -1228,7 +1277,7 @@ def warm_kernels(engine: str = "fast") -> list:
         return []
     from xray_viz.tracing import _raster
 
-    return _raster.compile_kernels()
+    return _raster.KERNELS.compile()
 
 
 def _scene_plugin(engine: str = "fast"):
@@ -1281,7 +1330,7 @@ def _load_scene_text(text: str, digest: str):
     every task."""
     import tomllib
 
-    from xray_viz.scene import scene_from_dict
+    from xray_viz.scene_file import scene_from_dict
 
     cache = _worker_scenes()
     if cache is not None and digest in cache:
@@ -1301,7 +1350,8 @@ def _load_scene_text(text: str, digest: str):
 
 
 def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: str,
-                 quantity: str = "line-integral", engine: str = "fast") -> list[int]:
+                 quantity: str = "line-integral", engine: str = "fast", scatter=None,
+                 histories=None, scatter_smoothing=None) -> list[int]:
     """A Dask task: render projections ``indices`` of a scan and write each into the Zarr
     ``store`` (chunk, then ``done`` flag). Projections already flagged are skipped.
 
@@ -1316,7 +1366,8 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
     scene = _load_scene_text(scene_text, digest)
     group = zarr.open_group(store, mode="r+")
     wrote = []
-    project = Projections(scene, orbit, quantity=quantity, engine=engine)
+    project = Projections(scene, orbit, quantity=quantity, engine=engine, scatter=scatter,
+                          histories=histories, scatter_smoothing=scatter_smoothing)
     try:
         for k in indices:
             k = int(k)
@@ -1329,7 +1380,8 @@ def render_batch(scene_text: str, digest: str, orbit: Orbit, indices, *, store: 
     return wrote
 
 
-def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, progress):
+def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, progress,
+               scatter=None, histories=None, scatter_smoothing=None):
     import uuid
 
     from distributed import as_completed
@@ -1346,6 +1398,8 @@ def _scan_dask(client, scene, orbit, store, todo, *, quantity, engine, batch, pr
     store = str(Path(store).resolve())
     futures = [client.submit(render_batch, text, digest, orbit, todo[i:i + batch],
                              store=store, quantity=quantity, engine=engine,
+                             scatter=scatter, histories=histories,
+                             scatter_smoothing=scatter_smoothing,
                              key=f"xray-viz-scan-{run}-{i}", retries=2)
                for i in range(0, len(todo), batch)]
     sizes = {f.key: len(todo[i * batch:(i + 1) * batch]) for i, f in enumerate(futures)}
@@ -1398,6 +1452,9 @@ def add_scan_parser(subparsers) -> None:
                    help="an existing Dask scheduler, e.g. tcp://host:8786")
     p.add_argument("--batch", type=int, default=8, metavar="N",
                    help="projections per Dask task (default %(default)s)")
+    from xray_viz.render import add_scatter_arguments
+
+    add_scatter_arguments(p, per="projection")
     p.set_defaults(func=scan_command)
 
 
@@ -1482,16 +1539,20 @@ def check_scheduler(address: str, *, timeout: float | None = None) -> str:
 
 def scan_command(args) -> int:
     """``xray-viz scan``: see :func:`add_scan_parser`."""
-    from xray_viz.scene import load_scene
+    from xray_viz.scene_file import load_scene
+
+    from xray_viz.output import SUFFIX_FORMATS, format_of, suffixes
 
     out = Path(args.output)
-    kind = {".zarr": "zarr", ".nxs": "nexus", ".h5": "nexus", ".hdf5": "nexus",
-            "": "tiff"}.get(out.suffix.lower())
-    if kind is None:
+    if format_of(out) not in suffixes(stack=True):   # output.SUFFIX_FORMATS: the one table
         raise SceneError(f"-o {out}: end it in .zarr (Zarr store), .nxs/.h5 (NeXus) or give a "
                          "folder name without a suffix (TIFF stack)")
+    kind = SUFFIX_FORMATS[format_of(out)].stack
     if args.workers < 1:
         raise SceneError(f"--workers must be >= 1, got {args.workers}")
+    from xray_viz.render import scatter_arguments
+
+    scatter, _, _ = scatter_arguments(args)
     if kind != "zarr" and (args.workers > 1 or args.scheduler):
         raise SceneError("--workers/--scheduler write a Zarr store: give -o NAME.zarr")
     if args.scheduler:
@@ -1521,14 +1582,18 @@ def scan_command(args) -> int:
                     client = stack.enter_context(Client(cluster))
             filled, total = _scan_to_store(scene, orbit, out, quantity=args.quantity,
                                            engine=args.engine, client=client,
-                                           batch=args.batch, progress=True)
+                                           batch=args.batch, progress=True,
+                                           scatter=scatter, histories=args.histories,
+                                           scatter_smoothing=args.scatter_smoothing)
         # complete, or one line saying what is not (its chunks were verified as it resumed)
         _check_complete(out)
         print(f"{out}: {total} projections ({filled} rendered now), "
               f"{scene.detector.shape[1]} x {scene.detector.shape[0]} pixels, {args.quantity}")
         return 0
     n = _scan_to_file(scene, orbit, out, kind, quantity=args.quantity, engine=args.engine,
-                      batch=args.batch, progress=True)
+                      batch=args.batch, progress=True, scatter=scatter,
+                      histories=args.histories,
+                      scatter_smoothing=args.scatter_smoothing)
     print(f"{out}: {n} projections, {args.quantity}")
     return 0
 

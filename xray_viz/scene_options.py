@@ -206,7 +206,7 @@ def _scene_file(name) -> Path:
 
 
 def _parse(doc, path):
-    from xray_viz.scene import scene_from_dict
+    from xray_viz.scene_file import scene_from_dict
 
     return scene_from_dict(doc, base_dir=path.parent, file=path)
 
@@ -257,7 +257,7 @@ def load_scene_with_overrides(args):
 def _load_with_file_overrides(args):
     """The scene ``args.scene`` with the overrides of :func:`add_scene_overrides` applied.
 
-    Each override edits the parsed scene file before :func:`xray_viz.scene.scene_from_dict`
+    Each override edits the parsed scene file before :func:`xray_viz.scene_file.scene_from_dict`
     checks it, so it is checked, and changes the scene, exactly as the key it sets would in
     the file. A value the file's checks refuse is reported with the option that gave it.
 
@@ -328,3 +328,4 @@ def _log_scene(scene):
               "noise %s, seed %s", scene.path, len(scene.bodies), src.kind,
               src.position.tolist(), beam, w, h, list(scene.detector.pitch),
               scene.detector.noise, scene.detector.seed)
+

@@ -56,11 +56,11 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.errors import SceneError
-from xray_viz.tracing.voxels import check_affine, classify, voxel_sums
+from xray_viz.tracing.voxels import INTERPOLATIONS, check_affine, classify, voxel_sums
 
 __all__ = ["VoxelVolume", "VoxelMaterial", "ct_volume", "label_volume", "HU_DENSITY",
            "volume_path_lengths", "with_volume_materials", "mesh_intervals",
-           "VolumeOverlapWarning", "TRACE_MODES", "imaged_centre"]
+           "VolumeOverlapWarning", "TRACE_MODES", "INTERPOLATIONS", "imaged_centre"]
 
 #: The values of ``trace`` in a ``[[ct]]`` or ``[[labels]]`` table.
 TRACE_MODES = ("voxels", "meshes")
@@ -122,6 +122,10 @@ class VoxelVolume:
     materials : tuple of VoxelMaterial
     source_file : Path or None
     table : (str, dict) or None
+    interpolation : {"nearest", "trilinear"}
+        How the voxels are traced (:func:`xray_viz.tracing.voxels.voxel_sums`): each voxel's
+        weight over its whole voxel (the default), or the trilinear interpolation between
+        voxel centres of each class's weights, integrated exactly.
     """
 
     name: str
@@ -133,9 +137,13 @@ class VoxelVolume:
     #: ``(kind, table)``: the scene file's ``[[ct]]`` or ``[[labels]]`` table it was read from
     #: (``Scene.to_dict`` writes it back); None for a volume built in Python.
     table: tuple | None = field(repr=False, default=None)
+    interpolation: str = "nearest"
 
     def __post_init__(self):
         where = f"{self.source_file or self.name}"
+        if self.interpolation not in INTERPOLATIONS:
+            raise SceneError(f"{where}: interpolation must be one of {list(INTERPOLATIONS)}, "
+                             f"got {self.interpolation!r}")
         object.__setattr__(self, "affine", check_affine(self.affine, where=where))
         c = np.asarray(self.classes)
         if c.ndim != 3 or c.dtype != np.uint8:
@@ -181,6 +189,25 @@ class VoxelVolume:
         idx = np.asarray(points, dtype=np.float64) @ inv[:3, :3].T + inv[:3, 3]
         return np.all((idx >= -0.5) & (idx <= np.asarray(self.shape) - 0.5), axis=-1)
 
+    def _permutation(self, across):
+        """The axis order :meth:`layout` gives for ``across``; None: the grid as it is."""
+        if across is None:
+            return None
+        inv = np.linalg.inv(self.affine[:3, :3])
+        a = np.abs(inv @ np.asarray(across, dtype=np.float64) * 1.0)
+        last = int(np.argmax(a))
+        if last == 2:
+            return None
+        return tuple(x for x in range(3) if x != last) + (last,)
+
+    def layout_bytes(self, across=None) -> int:
+        """Bytes that :meth:`layout` would allocate for ``across``: its copy of the classes
+        and weights, 0 when the grid is used as it is or the copy is already kept."""
+        perm = self._permutation(across)
+        if perm is None or perm in self._layouts:
+            return 0
+        return int(self.classes.nbytes + self.weights.nbytes)
+
     def layout(self, across=None):
         """``(affine, classes, weights)`` with the grid's axes in the order that suits rays
         whose neighbours (in ray order) lie along ``across`` (a world direction: the
@@ -189,14 +216,9 @@ class VoxelVolume:
         rounding: the inverse affine of the permuted grid rounds differently, ~1e-13
         relative). One such copy is kept on the
         volume (another 5 bytes a voxel); None: the grid as it is."""
-        if across is None:
+        perm = self._permutation(across)
+        if perm is None:
             return self.affine, self.classes, self.weights
-        inv = np.linalg.inv(self.affine[:3, :3])
-        a = np.abs(inv @ np.asarray(across, dtype=np.float64) * 1.0)
-        last = int(np.argmax(a))
-        if last == 2:
-            return self.affine, self.classes, self.weights
-        perm = tuple(x for x in range(3) if x != last) + (last,)
         kept = self._layouts.get(perm)
         if kept is None:
             affine = self.affine.copy()
@@ -212,7 +234,8 @@ class VoxelVolume:
         ``across``: the world direction between neighbouring rays (:meth:`layout`)."""
         affine, classes, weights = self.layout(across)
         return voxel_sums(origins, directions, t_max, affine, classes, weights,
-                          n_classes=len(self.materials), intervals=intervals)
+                          n_classes=len(self.materials), intervals=intervals,
+                          interpolation=self.interpolation)
 
 
 def _hu_field(hu, where):

@@ -34,14 +34,15 @@ cache.
 from __future__ import annotations
 
 import math
-import threading
 import typing
 
 import numpy as np
 from numba import njit
 from numba.core import types as _nt
 
-from xray_viz.tracing import _numba_cache  # where the kernels are cached
+# Imported before the kernels are defined: it gives them their disk cache.
+from xray_viz.tracing import _numba_cache  # noqa: F401
+from xray_viz.tracing._compile import KernelSet
 
 _EPSIL = 0.000001
 #: Fewest faces per thread of the self-intersection sweep (below, one thread).
@@ -489,7 +490,7 @@ def _grid(vertices, faces, *, finish=True):
     hi = np.empty((m, 3))
     glo = np.empty(3)
     dims = np.zeros(3, np.int64)
-    inv, total = _kernel("_grid_boxes")(vertices, faces, lo, hi, glo, dims)
+    inv, total = KERNELS.kernel("_grid_boxes")(vertices, faces, lo, hi, glo, dims)
     if dims[0] == 0:
         z = np.zeros(1, np.int64)
         return z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, dims, 0, np.zeros((0, 3),
@@ -504,7 +505,7 @@ def _grid(vertices, faces, *, finish=True):
     plo = np.empty((m, 3))
     phi = np.empty((m, 3))
     clo = np.empty((m, 3), np.int64)
-    _kernel("_grid_place")(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi, clo)
+    KERNELS.kernel("_grid_place")(faces, lo, hi, glo, inv, dims, start, face_id, pface, plo, phi, clo)
     del lo, hi
     placed = _Placed(plo, phi, clo, face_id, dims, pface, glo, float(inv), int(total),
                      n_buckets)
@@ -521,7 +522,7 @@ def _grid_finish(placed):
         return placed
     p = placed
     m, n_buckets = len(p.face_id), p.n_buckets
-    kernel = _kernel("_grid_entries")
+    kernel = KERNELS.kernel("_grid_entries")
     k = _pieces(m)
     cut = [m * j // k for j in range(k + 1)]
     counts = np.zeros((k, n_buckets), np.int64)
@@ -781,47 +782,31 @@ SIGNATURES = {
     "_volume_terms": (_F2, _I2, _F1w),                    # vertices, faces, terms (out)
 }
 
-_lock = threading.Lock()
-_compiled: set = set()
-
-
-def _kernel(name: str):
-    """The dispatcher of kernel ``name``, its one specialisation compiled or loaded."""
-    disp = globals()[name]
-    if name not in _compiled:
-        with _lock:
-            if name not in _compiled:
-                disp.compile(SIGNATURES[name])
-                disp.disable_compile()
-                _compiled.add(name)
-    return disp
+#: The kernels above, each compiled for its one signature on first use
+#: (:mod:`xray_viz.tracing._compile`).
+KERNELS = KernelSet(__name__, {"_grid_boxes": _grid_boxes, "_grid_place": _grid_place,
+                               "_grid_entries": _grid_entries,
+                               "_sweep_buckets": _sweep_buckets, "_edge_facts": _edge_facts,
+                               "_volume_terms": _volume_terms}, SIGNATURES)
 
 
 def compile_kernels() -> list:
     """Compile (or load from numba's cache) every kernel of this module; returns their names
     (for a background process filling the cache)."""
-    for name in SIGNATURES:
-        _kernel(name)
-    return list(SIGNATURES)
+    return KERNELS.compile()
 
 
 def is_ready() -> bool:
     """Whether every kernel is compiled in this process or in numba's cache (using them then
     costs no compilation)."""
-    for name, sig in SIGNATURES.items():
-        if name in _compiled:
-            continue
-        disp = globals()[name]
-        is_cached = getattr(getattr(disp, "_cache", None), "is_cached", None)
-        if not (is_cached and is_cached(sig, disp.targetctx)):
-            return False
-    return True
+    return KERNELS.is_ready()
 
 
 def prepare(*, nice: int = 10) -> bool:
     """Start compiling the kernels into numba's cache in a background process, unless they are
     ready (:func:`is_ready`), another process is already compiling them into the same cache,
-    or there is no cache to share them through; returns whether one started.
+    or there is no cache to share them through; returns whether one started
+    (:meth:`~xray_viz.tracing._compile.KernelSet.fill_cache`).
 
     Until they are cached, :mod:`xray_viz.meshes.repair` answers with NumPy and pymeshlab,
     so nothing waits for this process: ``xray-viz render`` calls this once its image is
@@ -833,33 +818,7 @@ def prepare(*, nice: int = 10) -> bool:
         Added to the background process's niceness (``os.nice``), so that it yields the
         processor to whatever runs next.
     """
-    import os
-    import subprocess
-    import sys
-    import time
-
-    disp = _grid_boxes
-    cache = getattr(disp, "_cache", None)
-    if is_ready() or not isinstance(cache, _numba_cache.KernelCache):
-        return False
-    # one compiling process per cache: a marker beside the cache files, taken with O_EXCL,
-    # left to the worker to remove; one older than 10 minutes is from a process that died
-    marker = os.path.join(cache._cache_path, "meshes-check-kernels.compiling")
-    try:
-        os.makedirs(cache._cache_path, exist_ok=True)
-        if os.path.exists(marker) and time.time() - os.path.getmtime(marker) > 600:
-            os.unlink(marker)
-        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
-    except OSError:
-        return False
-    code = (f"import os, warnings; os.nice({int(nice)}) if hasattr(os, 'nice') else None; "
-            "warnings.simplefilter('ignore')\n"
-            "try:\n    from xray_viz.meshes import _check_kernels as K; K.compile_kernels()\n"
-            f"finally:\n    os.unlink({marker!r})")
-    subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
-                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                     start_new_session=True)
-    return True
+    return KERNELS.fill_cache(nice=nice)
 
 
 def _checked_faces(faces, n_vertices) -> np.ndarray:
@@ -884,7 +843,7 @@ def edge_facts(faces, n_vertices):
     f = _checked_faces(faces, n_vertices)
     m, nv = len(f), int(n_vertices)
     labels = np.empty(m, np.int64)
-    boundary, watertight, winding, n = _kernel("_edge_facts")(
+    boundary, watertight, winding, n = KERNELS.kernel("_edge_facts")(
         f, nv, labels, np.zeros(nv + 1, np.int64), np.empty(nv, np.int64),
         np.empty(3 * m, np.int64), np.empty(3 * m, np.int64), np.empty(m, np.int64))
     return int(boundary), bool(watertight), bool(winding), labels, int(n)
@@ -904,7 +863,7 @@ def volume(vertices, faces) -> float:
     v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = _checked_faces(faces, len(v))
     terms = np.empty(len(f))
-    _kernel("_volume_terms")(v, f, terms)
+    KERNELS.kernel("_volume_terms")(v, f, terms)
     with np.errstate(all="ignore"):
         return float(np.sum(terms) / 6.0)
 
@@ -1010,7 +969,7 @@ def self_intersections(vertices, faces, labels=None, *, started=None) -> np.ndar
         start, n_buckets = grid[0], len(grid[0]) - 1
         if grid[7][0] == 0:
             return flags
-        sweep = _kernel("_sweep_buckets")
+        sweep = KERNELS.kernel("_sweep_buckets")
         # one range of buckets per thread, of about equal numbers of entries
         k = _pieces(len(f))
         cut = [0, *np.searchsorted(start, [start[-1] * j // k for j in range(1, k)]).tolist(),

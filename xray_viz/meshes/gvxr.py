@@ -2,7 +2,7 @@
 
 gVXR's ``json2gvxr`` module sets up a simulation from a JSON file with a ``Source``, a
 ``Detector`` and ``Samples``; lengths carry their unit, ``[x, y, z, "mm"]``. This module turns
-such a file into the dictionary that :func:`xray_viz.scene.scene_from_dict` takes (the TOML
+such a file into the dictionary that :func:`xray_viz.scene_file.scene_from_dict` takes (the TOML
 scene format), so that ``xray-viz render scene.json`` renders it and
 ``xray-viz convert scene.json -o scene.toml`` writes the equivalent scene file.
 
@@ -29,15 +29,22 @@ What maps (gVXR -> xray-viz):
 ``["Mixture", "Ti90Al6V4"]`` / ``[Z, w, ...]``     a mixture by mass fraction (needs ``Density``)
 ``["Compound", "H2O"]``                            ``material = "H2O"`` (needs ``Density``)
 ``["mu", value]``                                  ``mu`` (1/cm)
+``["HU", n]``                                      the tissue class of ``round(n)`` and its
+                                                   density (:func:`hu_material`); a
+                                                   ``Density`` replaces the density
+``Samples[].Cube [size, unit]``                    ``shape = { kind = "box" }`` (a cube)
+``Cuboid`` / ``Parallelepiped [x, y, z, unit]``    ``shape = { kind = "box", size = [x, y, z] }``
+``Cylinder [sectors, height, radius, unit]``       ``shape = { kind = "cylinder" }``, ``sections``
+                                                   = sectors, axis along y (gVXR's); the
+                                                   rotation that turns the z-axis shape onto y
+                                                   comes first in ``rotation``
 ``Samples[].Transform``                            ``position``, ``rotation``, ``scale`` (the
                                                    transforms composed as gVXR's node matrix,
                                                    ``M = T1 @ T2 @ ...``)
 ================================================  ==============================================
 
 No equivalent, an error (one line naming the key): a beam of several energies or from a text
-file or GATE macro, ``["HU", value]`` materials, primitive samples other than ``Cube`` (a
-``Cube`` is a ``shape = { kind = "box" }`` body; ``Cuboid``, ``Cylinder``: save them as mesh
-files), ``MoveToCentre``, a ``SceneGraph``, the detector's
+file or GATE macro, a ``Step Wedge`` sample, ``MoveToCentre``, a ``SceneGraph``, the detector's
 ``Energy response`` and ``LSF``, a ``RightVector`` that would mirror the image, and a
 ``Transform`` that shears. Ignored: ``WindowSize``, ``File format version``, colours,
 ``Opacity``, ``Type`` (inner/outer: the innermost body wins anyway), the normal-flipping flags
@@ -75,7 +82,8 @@ import numpy as np
 from xray_viz.errors import SceneError, SceneFileNotFoundError, excerpt
 from xray_viz.poses import rotation
 
-__all__ = ["gvxr_to_dict", "read_json", "not_toml", "to_toml", "GvxrWarning", "LENGTH_UNITS"]
+__all__ = ["gvxr_to_dict", "read_json", "not_toml", "to_toml", "GvxrWarning", "LENGTH_UNITS",
+           "hu_material", "AIR_HU", "AIR"]
 
 #: gVXR's length units, in mm.
 LENGTH_UNITS = {
@@ -105,6 +113,11 @@ _SAMPLE_KEYS = ("Label", "Path", "Unit", "Material", "Density", "Transform", "Ty
                 "invertNormal", "invertNormals", "invertNormalVectors", "Cube", "Cuboid",
                 "Parallelepiped", "Cylinder")
 _PRIMITIVES = ("Cube", "Cuboid", "Parallelepiped", "Cylinder")
+#: Below this Hounsfield value a ``["HU", n]`` sample is air (the lowest class of the CT
+#: tables, :data:`xray_viz.volume.HU_DENSITY`, starts here).
+AIR_HU = -950
+#: The material and density (g/cm3) of air (-1000 HU by the definition of the scale).
+AIR = ("Air, Dry (near sea level)", 1.205e-3)
 
 
 class GvxrWarning(UserWarning):
@@ -259,10 +272,12 @@ def _material(ctx, sample, where) -> dict:
         if density is not None:
             ctx.fail(w, "gives a Density with a linear attenuation coefficient (mu)")
         return {"mu": mu}
-    if kind == "HU":
-        ctx.fail(w, "a Hounsfield value has no equivalent in xray-viz (it is not a material at "
-                    "every energy); give the tissue as a material and Density, or [\"mu\", "
-                    "value] in 1/cm")
+    if kind == "HU":            # gvxr.setHounsfieldValue(label, round(n)), then any Density
+        hu = _number(ctx, value, w)
+        out = hu_material(hu)
+        if density is not None:
+            out["density"] = density
+        return out
     if kind == "ELEMENT":
         symbol = _symbol(ctx, value, w)
         return {"material": symbol,
@@ -296,7 +311,39 @@ def _material(ctx, sample, where) -> dict:
         if density is None:
             ctx.fail(where, "a mixture needs a 'Density' (g/cm3)")
         return {"material": fractions, "density": density}
-    ctx.fail(w, f"unknown material kind {excerpt(m[0])}; use Element, Mixture, Compound or mu")
+    ctx.fail(w, f"unknown material kind {excerpt(m[0])}; use Element, Mixture, Compound, HU "
+                "or mu")
+
+
+def hu_material(hu: float) -> dict:
+    """A Hounsfield value's ``{"material", "density"}``, as a gVXR ``["HU", n]`` sample.
+
+    gVXR rounds ``n`` to a whole number and looks it up in Schneider, Bortfeld and Schlegel's
+    (2000) tissue tables; here the rounded value falls in one of the tissue classes that CT
+    volumes traced as voxels use (:data:`xray_viz.volume.HU_DENSITY`: lung, adipose, soft
+    tissue, cancellous and cortical bone, from Schneider's HU ranges) and takes that class's
+    material at the density of its HU-density line (``1 + HU / 1000`` below 120 HU, Schneider's
+    ``1.017 + 0.592e-3 HU`` above): the same density as gVXR's, a coarser composition. Below
+    :data:`AIR_HU` the sample is air (:data:`AIR`).
+
+    Examples
+    --------
+    >>> hu_material(40.4)
+    {'material': 'Tissue, Soft (ICRP)', 'density': 1.04}
+    >>> hu_material(1200)
+    {'material': 'Bone, Cortical (ICRP)', 'density': 1.7274}
+    >>> hu_material(-1000)["material"]
+    'Air, Dry (near sea level)'
+    """
+    from xray_viz.volume import HU_DENSITY
+
+    n = int(round(float(hu)))
+    if n < AIR_HU:
+        return {"material": AIR[0], "density": AIR[1]}
+    for _name, low, high, material, (a, b) in HU_DENSITY:
+        if low <= n < high:
+            return {"material": material, "density": _clean(a + b * n)}
+    raise AssertionError(f"HU_DENSITY leaves {n} HU out")     # pragma: no cover - it spans all
 
 
 def _transform(ctx, transforms, where) -> np.ndarray:
@@ -422,7 +469,7 @@ def _beam(ctx, beam, source: dict, detector: dict):
 
 
 def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
-    """A parsed gVXR JSON document -> the dictionary :func:`~xray_viz.scene.scene_from_dict`
+    """A parsed gVXR JSON document -> the dictionary :func:`~xray_viz.scene_file.scene_from_dict`
     takes (mesh paths relative to ``base_dir``, as in the JSON file).
 
     Parameters
@@ -550,31 +597,27 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
         if not isinstance(label, str) or not label.strip():
             ctx.fail(where, f"Label must be a non-empty string, got {label!r}")
         where = f"Samples #{k} ({label!r})"
-        cube = sample.get("Cube")
-        for p in _PRIMITIVES:
-            if p in sample and p != "Cube":
-                ctx.fail(where, f"the primitive '{p}' has no equivalent; save it as a mesh "
-                                "file (e.g. with trimesh.creation) and give its 'Path', or "
-                                "give a Cube")
-        if cube is not None:         # gvxr.makeCube(label, size, unit): centred on the origin
-            if not isinstance(cube, list) or len(cube) != 2:
-                ctx.fail(f"{where} Cube", f"must be [size, \"unit\"], got "
-                                          f"{excerpt(json.dumps(cube))}")
-            size = _number(ctx, cube[0], f"{where} Cube") * _length_unit(ctx, cube[1],
-                                                                          f"{where} Cube")
-            if not size > 0:
-                ctx.fail(f"{where} Cube", f"size must be > 0, got {size:g} mm")
-            body = {"name": label, "shape": {"kind": "box", "size": [_clean(size)] * 3}}
+        primitives = [p for p in _PRIMITIVES if p in sample]
+        if len(primitives) > 1 or (primitives and "Path" in sample):
+            ctx.fail(where, f"gives {' and '.join(primitives + ['Path'] * ('Path' in sample))}: "
+                            "give one shape (a primitive or a mesh file's Path)")
+        turn = np.eye(4)            # a primitive's own orientation, before the Transform
+        if primitives:
+            body = {"name": label, "shape": _primitive(ctx, primitives[0], sample[primitives[0]],
+                                                       f"{where} {primitives[0]}")}
+            if primitives[0] == "Cylinder":       # gVXR's axis is y, the shape's z
+                turn[:3, :3] = rotation([1.0, 0.0, 0.0], -90.0)
         elif "Path" not in sample or not isinstance(sample["Path"], str):
-            ctx.fail(where, "has no 'Path' (the mesh file)")
+            ctx.fail(where, "has no 'Path' (the mesh file) nor a primitive (Cube, Cuboid, "
+                            "Cylinder)")
         else:
             body = {"name": label, "mesh": sample["Path"]}
-        unit = sample.get("Unit", "mm") if cube is None else "mm"   # a Cube's own unit
+        unit = "mm" if primitives else sample.get("Unit", "mm")   # a primitive's own unit
         factor = _length_unit(ctx, unit, f"{where} Unit")
         body.update(_material(ctx, sample, where))
         m = _transform(ctx, sample["Transform"], f"{where} Transform") \
             if "Transform" in sample else np.eye(4)
-        placement = _placement(ctx, m, f"{where} Transform")
+        placement = _placement(ctx, m @ turn, f"{where} Transform")
         if unit.lower() in _BODY_UNITS:
             if _BODY_UNITS[unit.lower()] != "mm":
                 body["units"] = _BODY_UNITS[unit.lower()]
@@ -588,6 +631,35 @@ def gvxr_to_dict(doc, *, base_dir=".", file=None) -> dict:
         if scan is not None:
             out["scan"] = scan
     return out
+
+
+def _primitive(ctx, kind, value, where) -> dict:
+    """A gVXR primitive sample's shape table (mm): ``Cube [size, unit]``, ``Cuboid`` or
+    ``Parallelepiped [x, y, z, unit]`` (``gvxr.makeCuboid``), ``Cylinder [sectors, height,
+    radius, unit]`` (``gvxr.makeCylinder``), each centred on the origin."""
+    forms = {"Cube": "[size, \"unit\"]", "Cuboid": "[x, y, z, \"unit\"]",
+             "Parallelepiped": "[x, y, z, \"unit\"]",
+             "Cylinder": "[sectors, height, radius, \"unit\"]"}
+    n = {"Cube": 2, "Cuboid": 4, "Parallelepiped": 4, "Cylinder": 4}[kind]
+    if not isinstance(value, list) or len(value) != n or not isinstance(value[-1], str):
+        ctx.fail(where, f"must be {forms[kind]}, got {excerpt(json.dumps(value))}")
+    factor = _length_unit(ctx, value[-1], where)
+    numbers = value[1:-1] if kind == "Cylinder" else value[:-1]
+    lengths = [_number(ctx, x, where) * factor for x in numbers]
+    if not all(x > 0 for x in lengths):
+        ctx.fail(where, f"lengths must be > 0, got {', '.join(f'{x:g}' for x in lengths)} mm")
+    if kind == "Cube":
+        return {"kind": "box", "size": [_clean(lengths[0])] * 3}
+    if kind in ("Cuboid", "Parallelepiped"):
+        return {"kind": "box", "size": [_clean(x) for x in lengths]}
+    sectors = value[0]
+    if isinstance(sectors, bool) or not isinstance(sectors, (int, float)) \
+            or not float(sectors).is_integer() or not 3 <= sectors <= 4096:
+        ctx.fail(where, f"the number of sectors must be a whole number from 3 to 4096, got "
+                        f"{excerpt(json.dumps(sectors))}")
+    height, radius = lengths
+    return {"kind": "cylinder", "radius": _clean(radius), "height": _clean(height),
+            "sections": int(sectors)}
 
 
 def read_json(path):

@@ -595,7 +595,7 @@ def containers(meshes, *, bounds=None, reports=None, cache: bool = True) -> list
     from xray_viz.meshes import _report_cache
 
     keys = None
-    if cache and _report_cache.cache_dir() is not None:
+    if cache and (_report_cache.cache_dir() is not None or _report_cache.shipped_pairs()):
         try:
             keys = [_report_cache.mesh_key(np.asarray(m.vertices), np.asarray(m.faces))
                     for m in meshes]

@@ -55,12 +55,10 @@ Cache
     voxels as read (every file of a multi-file format counts: the data file of a ``.mhd`` or
     detached ``.nhdr``, every slice of a DICOM series), the affine and every parameter: a
     second load reads it instead. The cache
-    folder is ``$XRAY_VIZ_CACHE_DIR/volumes`` if that variable is set (``off`` turns the
-    cache off), else the user cache folder
-    (``platformdirs.user_cache_dir("xray_viz")``: ``$XDG_CACHE_HOME/xray_viz`` or
-    ``~/.cache/xray_viz`` on Linux) + ``/volumes``, else a private per-user folder
-    ``<tmp>/xray_viz-cache-<uid>`` (mode 0700, as the kernel cache does), else nowhere (one
-    warning). Cache files hold arrays only (``.npz``, read with ``allow_pickle=False``); a file
+    folder is ``volumes/`` in the one cache of ``xray_viz._cache``
+    (``$XRAY_VIZ_CACHE_DIR`` if set, ``off`` turns the cache off, else the user cache folder,
+    ``platformdirs.user_cache_dir("xray_viz")``: ``$XDG_CACHE_HOME/xray_viz`` or
+    ``~/.cache/xray_viz`` on Linux); a folder that cannot be written is off (one warning). Cache files hold arrays only (``.npz``, read with ``allow_pickle=False``); a file
     that cannot be read is ignored and rewritten. Deleting the cache is always safe.
 
 Examples
@@ -82,7 +80,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import tempfile
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -90,8 +87,8 @@ from pathlib import Path
 
 import numpy as np
 
-from xray_viz.errors import MaterialError, MeshError, SceneError, SceneFileNotFoundError, \
-    XrayVizError, reader_reason
+from xray_viz.errors import CacheWarning, MaterialError, MeshError, SceneError, \
+    SceneFileNotFoundError, XrayVizError, reader_reason
 from xray_viz.meshes._volume_files import (  # noqa: F401 (re-exported)
     DICOM_SEG_SUFFIXES,
     ITK_SUFFIXES,
@@ -143,9 +140,9 @@ SCHNEIDER_2000 = (
 
 #: Keys of a ``[[labels]]`` table, of one of its ``materials`` entries, of a ``[[ct]]`` table
 #: and of one of its ``ranges``.
-LABELS_KEYS = ("file", "materials", "max_error", "trace")
+LABELS_KEYS = ("file", "materials", "max_error", "trace", "interpolation")
 MATERIAL_KEYS = ("mu", "material", "density", "name")
-CT_KEYS = ("file", "ranges", "max_error", "median", "min_voxels", "trace")
+CT_KEYS = ("file", "ranges", "max_error", "median", "min_voxels", "trace", "interpolation")
 RANGE_KEYS = ("hu", "mu", "material", "density", "name")
 
 
@@ -154,8 +151,9 @@ class LabelSkippedWarning(UserWarning):
     skipped (no body made)."""
 
 
-class VolumeCacheWarning(UserWarning):
-    """The volume mesh cache is somewhere unusual, or cannot be written."""
+class VolumeCacheWarning(CacheWarning):
+    """A meshed volume could not be written to the cache (its folder:
+    :class:`xray_viz.errors.CacheWarning`)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -731,7 +729,8 @@ def _mesh_labels(labels: np.ndarray, affine, wanted, names, max_error) -> list[L
 
 
 def cache_dir() -> Path | None:
-    """Where meshed volumes are cached (see the module's docstring), or None.
+    """Where meshed volumes are cached (see the module's docstring), or None
+    (``xray_viz._cache.cache_dir``: the one rule).
 
     Examples
     --------
@@ -746,48 +745,9 @@ def cache_dir() -> Path | None:
     >>> if old is None: del os.environ["XRAY_VIZ_CACHE_DIR"]
     ... else: os.environ["XRAY_VIZ_CACHE_DIR"] = old
     """
-    def usable(p: Path) -> bool:
-        try:
-            p.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryFile(dir=p):
-                pass
-            return True
-        except OSError:
-            return False
+    from xray_viz import _cache
 
-    env = os.environ.get("XRAY_VIZ_CACHE_DIR")
-    if env is not None and env.strip().lower() in ("0", "off", "no", "false", "none"):
-        return None                         # caching turned off (the test suite does)
-    if env:
-        if usable(Path(env) / "volumes"):
-            return Path(env) / "volumes"
-        _warn_cache(f"XRAY_VIZ_CACHE_DIR={env} cannot be written; meshed volumes are cached "
-                    "elsewhere")
-    try:
-        import platformdirs
-
-        user = Path(platformdirs.user_cache_dir("xray_viz", appauthor=False)) / "volumes"
-    except ImportError:  # pragma: no cover - platformdirs comes with the volumes extra
-        base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),
-                                                                 ".cache")
-        user = Path(base) / "xray_viz" / "volumes"
-    if usable(user):
-        return user
-    from xray_viz.tracing._numba_cache import private_dir
-
-    uid = os.getuid() if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
-    tmp = Path(tempfile.gettempdir()) / f"xray_viz-cache-{uid}"
-    try:
-        private_dir(str(tmp))
-        if usable(tmp / "volumes"):
-            _warn_cache(f"{user} cannot be written; meshed volumes are cached in {tmp}/volumes "
-                        "(set XRAY_VIZ_CACHE_DIR to choose)")
-            return tmp / "volumes"
-    except OSError:
-        pass
-    _warn_cache(f"no writable cache folder ({user}, {tmp}); meshed volumes are not cached "
-                "(set XRAY_VIZ_CACHE_DIR to a writable folder)")
-    return None
+    return _cache.cache_dir("volumes", what="meshed volumes")
 
 
 _warned: set = set()
@@ -1159,6 +1119,16 @@ def _trace_mode(raw, where, table):
                          f"{'y' if len(extra) > 1 else 'ies'} to trace = \"meshes\" (the "
                          "default for [[ct]] is \"voxels\"); remove "
                          f"{'them' if len(extra) > 1 else 'it'} or set trace = \"meshes\"")
+        interpolation = raw.get("interpolation", "nearest")
+        from xray_viz.volume import INTERPOLATIONS
+
+        if interpolation not in INTERPOLATIONS:
+            _fail(where, "interpolation must be \"nearest\" (each voxel's value over its "
+                         "voxel, the default) or \"trilinear\" (interpolated between voxel "
+                         f"centres), got {interpolation!r}")
+    elif "interpolation" in raw:
+        _fail(where, "'interpolation' only applies to trace = \"voxels\" (meshes have no "
+                     "voxels); remove it or set trace = \"voxels\"")
     return mode
 
 
@@ -1215,7 +1185,8 @@ def _labels_bodies(raw, k, base_dir, file, cache, body):
                           LabelSkippedWarning, stacklevel=4)
         made = label_volume(vol.data, vol.affine, entries, name=_stem(path), source_file=path,
                             names={v: e["name"] for v, e in entries.items() if "name" in e})
-        return [dataclasses.replace(made, table=("labels", dict(raw)))]
+        return [dataclasses.replace(made, table=("labels", dict(raw)),
+                                    interpolation=raw.get("interpolation", "nearest"))]
     max_error = _max_error(raw, where)
     try:
         meshes = label_surfaces(path, sorted(entries), max_error=max_error, cache=cache,
@@ -1290,7 +1261,8 @@ def _ct_bodies(raw, k, base_dir, file, cache, body):
         if not made.classes.any():           # a blank image, exit 0, said nothing
             _fail(where, "gives no body: no voxel falls in any of its HU ranges (all air?); "
                          "check the file, or its ranges")
-        return [dataclasses.replace(made, table=("ct", dict(raw)))]
+        return [dataclasses.replace(made, table=("ct", dict(raw)),
+                                    interpolation=raw.get("interpolation", "nearest"))]
     median = raw.get("median", 1)
     min_voxels = raw.get("min_voxels", 27)
     for key, v in (("median", median), ("min_voxels", min_voxels)):

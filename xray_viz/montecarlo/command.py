@@ -18,8 +18,9 @@ def add_dose_parser(subparsers) -> None:
     """Register ``xray-viz dose`` on an argparse sub-parser collection."""
     p = subparsers.add_parser(
         "dose", help="photon Monte Carlo: energy and dose per body, scatter at the detector",
-        description="Transport photons from the scene's source through its bodies (and its "
-                    "[world] medium) and print the energy deposited in each body's region, "
+        description="Transport photons from the scene's source through its bodies, its "
+                    "voxel volumes ([[ct]] / [[labels]] traced as voxels: one row per class) "
+                    "and its [world] medium, and print the energy deposited in each region, "
                     "eV per history with its standard error, and the dose in Gy when [source] "
                     "gives mas. The same --seed gives the same numbers on any --workers.")
     p.add_argument("scene", metavar="SCENE", help="a scene .toml file or a bundled phantom")
@@ -74,7 +75,7 @@ def dose_command(args) -> int:
     import contextlib
 
     from xray_viz import progress
-    from xray_viz.scene import load_scene
+    from xray_viz.scene_file import load_scene
     from xray_viz.transport import transport
 
     if args.histories <= 0:

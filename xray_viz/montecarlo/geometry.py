@@ -25,8 +25,9 @@ import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache
 
 __all__ = ["BVH", "build_bvh", "MAX_TIES", "LEAF_SIZE"]     # and the numba kernels below
 
-#: Leaves hold at most this many triangles.
-LEAF_SIZE = 4
+#: Leaves hold at most this many triangles: one (a flat node box around one triangle rejects
+#: most rays by its slabs alone; see BENCHMARKS.md, "Photon transport: speed").
+LEAF_SIZE = 1
 #: Most crossings at one ``t`` kept (bodies sharing a surface point).
 MAX_TIES = 16
 _ERRBOUND = 4.0 * np.finfo(np.float64).eps
@@ -63,7 +64,8 @@ class BVH:
 
 
 def build_bvh(triangles, triangle_body) -> BVH:
-    """Build the hierarchy: median splits of the centroids along the widest axis.
+    """Build the hierarchy: median splits of the centroids along their widest axis, down to
+    leaves of :data:`LEAF_SIZE` triangles, one level of nodes at a time (NumPy).
 
     Parameters
     ----------
@@ -85,40 +87,65 @@ def build_bvh(triangles, triangle_body) -> BVH:
     tri_hi = tri.max(axis=1)
     cen = 0.5 * (tri_lo + tri_hi)
     order = np.arange(n)
-    lo, hi, child, start, count = [], [], [], [], []
     scale = float(np.abs(tri).max()) if n else 1.0
     pad = 64 * np.finfo(float).eps * max(scale, 1.0)
+    size = max(2 * n - 1, 1)
+    lo, hi = np.zeros((size, 3)), np.zeros((size, 3))
+    child = np.full((size, 2), -1, np.int64)
+    start, count = np.zeros(size, np.int64), np.zeros(size, np.int64)
 
-    def new_node(s, e):
-        idx = order[s:e]
-        lo.append(tri_lo[idx].min(axis=0) - pad if e > s else np.zeros(3))
-        hi.append(tri_hi[idx].max(axis=0) + pad if e > s else np.zeros(3))
-        child.append([-1, -1])
-        start.append(s)
-        count.append(e - s)
-        return len(lo) - 1
+    def ranges(s, e, values, ufunc):
+        """``ufunc`` over ``values[s_k:e_k]`` for each range (non-empty, in increasing
+        order), as rows."""
+        at = np.ravel([s, e], order="F")
+        out = np.empty((len(s), values.shape[1]))
+        for k in range(values.shape[1]):            # 1D columns: reduceat is slow on 2D
+            col = np.concatenate([values[:, k], values[:1, k]])
+            out[:, k] = ufunc.reduceat(col, at)[::2]
+        return out
 
-    root = new_node(0, n)
-    todo = [(root, 0, n)]
-    while todo:
-        node, s, e = todo.pop()
-        if e - s <= LEAF_SIZE:
-            continue
-        c = cen[order[s:e]]
-        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
-        mid = (s + e) // 2
-        part = np.argpartition(c[:, axis], mid - s)
-        order[s:e] = order[s:e][part]
-        left = new_node(s, mid)
-        right = new_node(mid, e)
-        child[node] = [left, right]
-        count[node] = 0
-        todo.append((left, s, mid))
-        todo.append((right, mid, e))
+    def boxes(nodes, s, e):
+        lo[nodes] = ranges(s, e, tri_lo[order], np.minimum) - pad
+        hi[nodes] = ranges(s, e, tri_hi[order], np.maximum) + pad
+        start[nodes] = s
+        count[nodes] = e - s
+
+    # level by level (vectorised over a level's nodes): each node's triangles split at their
+    # centroids' median along the centroids' widest axis
+    nodes, seg_s, seg_e = np.array([0]), np.array([0]), np.array([n])
+    used = 1
+    if n:
+        boxes(nodes, seg_s, seg_e)
+    while len(nodes):
+        split = seg_e - seg_s > LEAF_SIZE
+        nodes, seg_s, seg_e = nodes[split], seg_s[split], seg_e[split]
+        if not len(nodes):
+            break
+        c = cen[order]
+        axis = np.argmax(ranges(seg_s, seg_e, c, np.maximum)
+                         - ranges(seg_s, seg_e, c, np.minimum), axis=1)
+        length = seg_e - seg_s
+        seg = np.repeat(np.arange(len(nodes)), length)
+        idx = np.arange(length.sum()) - np.repeat(np.cumsum(length) - length, length) \
+            + np.repeat(seg_s, length)
+        key = c[idx, axis[seg]]
+        perm = np.lexsort((key, seg))
+        order[idx] = order[idx[perm]]
+        mid = (seg_s + seg_e) // 2
+        left = used + 2 * np.arange(len(nodes))
+        right = left + 1
+        used += 2 * len(nodes)
+        child[nodes, 0], child[nodes, 1] = left, right
+        boxes(left, seg_s, mid)
+        boxes(right, mid, seg_e)
+        count[nodes] = 0
+        # the next level in order of position (reduceat's ranges: no work between them)
+        nodes = np.ravel([left, right], order="F")
+        seg_s = np.ravel([seg_s, mid], order="F")
+        seg_e = np.ravel([mid, seg_e], order="F")
+    lo, hi, child, start, count = lo[:used], hi[:used], child[:used], start[:used], count[:used]
     tri = tri[order]
-    return BVH(lo=np.array(lo, float).reshape(-1, 3), hi=np.array(hi, float).reshape(-1, 3),
-               child=np.array(child, np.int64).reshape(-1, 2),
-               start=np.array(start, np.int64), count=np.array(count, np.int64),
+    return BVH(lo=lo, hi=hi, child=child, start=start, count=count,
                v0=np.ascontiguousarray(tri[:, 0]), v1=np.ascontiguousarray(tri[:, 1]),
                v2=np.ascontiguousarray(tri[:, 2]),
                body=np.asarray(triangle_body, np.int64)[order])

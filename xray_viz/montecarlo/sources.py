@@ -19,7 +19,7 @@ import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache
 
 from xray_viz.montecarlo.rng import uniform
 
-__all__ = ["field", "solid_angle", "rectangle_solid_angle", "FIELD_SIZE"]  # and two kernels
+__all__ = ["field", "solid_angle", "rectangle_solid_angle", "pixel_shares", "FIELD_SIZE"]  # and two kernels
 
 #: Entries of the array :func:`field` returns.
 FIELD_SIZE = 24
@@ -66,16 +66,50 @@ def rectangle_solid_angle(point, middle, u, v, half_u, half_v) -> float:
     >>> bool(np.isclose(omega, 4 * np.pi / 6))          # a face of a cube from its centre
     True
     """
-    c = [middle + a * half_u * u + b * half_v * v - point
+    return float(_rectangles(np.asarray(point, float), np.asarray(middle, float)[None, :],
+                             np.asarray(u, float), np.asarray(v, float), half_u, half_v)[0])
+
+
+def _rectangles(point, middles, u, v, half_u, half_v) -> np.ndarray:
+    """:func:`rectangle_solid_angle` of the rectangles centred at ``middles`` (N, 3)."""
+    c = [middles + (a * half_u) * u + (b * half_v) * v - point
          for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    n = [np.linalg.norm(r, axis=-1) for r in c]
 
-    def tri(r1, r2, r3):
-        n1, n2, n3 = (np.linalg.norm(r) for r in (r1, r2, r3))
-        num = r1 @ np.cross(r2, r3)
-        den = n1 * n2 * n3 + (r1 @ r2) * n3 + (r1 @ r3) * n2 + (r2 @ r3) * n1
-        return 2.0 * math.atan2(abs(num), den)
+    def dot(i, j):
+        return np.einsum("...k,...k->...", c[i], c[j])
 
-    return tri(c[0], c[1], c[2]) + tri(c[0], c[2], c[3])
+    def tri(i, j, k):
+        num = np.einsum("...k,...k->...", c[i], np.cross(c[j], c[k]))
+        den = n[i] * n[j] * n[k] + dot(i, j) * n[k] + dot(i, k) * n[j] + dot(j, k) * n[i]
+        return 2.0 * np.arctan2(np.abs(num), den)
+
+    return tri(0, 1, 2) + tri(0, 2, 3)
+
+
+def pixel_shares(acquisition) -> np.ndarray:
+    """(H, W): each pixel's share of the photons emitted into the field, in vacuum (the
+    transport's histories per pixel): its solid angle over the field's for a point source,
+    its area over the field's for a parallel beam. Sums to 1.
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> share = pixel_shares(xray_viz.load_scene("sphere").acquisition)
+    >>> share.shape, round(float(share.sum()), 12), bool(share[128, 128] > share[0, 0])
+    ((256, 256), 1.0, True)
+    """
+    f = acquisition.frame
+    (w, h), (pu, pv) = f.shape, f.pitch
+    if f.parallel:
+        return np.full((h, w), 1.0 / (w * h))
+    cols = (np.arange(w) + 0.5) - w / 2
+    rows = h / 2 - (np.arange(h) + 0.5)
+    ho, ve = np.asarray(f.ho, float), np.asarray(f.ve, float)
+    middles = (np.asarray(f.middle, float)[None, None, :] + (cols * pu)[None, :, None] * ho
+               + (rows * pv)[:, None, None] * ve)
+    omega = _rectangles(np.asarray(f.source, float), middles, ho, ve, pu / 2, pv / 2)
+    return omega / solid_angle(acquisition)
 
 
 def solid_angle(acquisition) -> float:

@@ -12,16 +12,18 @@ the detector's energy and each detector pixel (a photon reaches the detector at 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Tallies", "BATCH", "GROUP", "run_group", "n_groups"]
+__all__ = ["Tallies", "BATCH", "GROUP", "TRACK_VERTICES", "run_group", "n_groups"]
 
 #: Histories per batch (one random stream each).
 BATCH = 1 << 14
 #: Batches per group (one Dask task each).
 GROUP = 16
+#: Most vertices kept of a recorded track (longer ones keep their first and their end).
+TRACK_VERTICES = 256
 
 
 @dataclass
@@ -33,6 +35,8 @@ class Tallies:
     img: np.ndarray
     img_sq: np.ndarray
     totals: np.ndarray
+    #: Recorded tracks ``(vertices (k, 3), end)``, in history order (``transport(tracks=N)``).
+    tracks: list = field(default_factory=list)
 
     @classmethod
     def zeros(cls, n_regions: int, shape) -> "Tallies":
@@ -47,6 +51,7 @@ class Tallies:
         self.img += other.img
         self.img_sq += other.img_sq
         self.totals += other.totals
+        self.tracks.extend(other.tracks)
 
 
 def n_groups(histories: int, batch: int = BATCH) -> int:
@@ -63,10 +68,22 @@ def _batch(problem: dict, index: int, n_hist: int) -> Tallies:
     state = batch_states(p["seed"], 1, first=index)[0]
     b = p["bvh"]
     tb = p["tables"]
+    # voxel volumes and tracks (see run_batch)
+    vg = p["voxels"]
+    n_trk = max(0, min(p.get("tracks", 0) - index * p["batch"], n_hist))
+    trk_xyz = np.zeros((n_trk, TRACK_VERTICES, 3))
+    trk_n = np.zeros(n_trk, np.int64)
+    trk_end = np.zeros(n_trk, np.int64)
     run_batch(n_hist, state, p["field"], p["energies"], p["cdf"], p["world_lo"], p["world_hi"],
               b.lo, b.hi, b.child, b.start, b.count, b.v0, b.v1, b.v2, b.body, p["rank_order"],
+              vg["inv"], vg["dims"], vg["start"], vg["classes"], vg["weights"], vg["region0"],
+              vg["displace"], vg["majorant"], trk_xyz, trk_n, trk_end,
               tb.mu, tb.ln_e0, tb.d_ln_e, tb.sf, tb.ff2_cum, tb.dx,
-              t.dep, t.img, t.img_sq, t.totals)
+              t.dep, t.img, t.img_sq, t.totals, p["response"], p["grid"])
+    if n_trk:
+        from xray_viz.montecarlo.loop import TRACK_ENDS
+
+        t.tracks = [(trk_xyz[k, :trk_n[k]].copy(), TRACK_ENDS[trk_end[k]]) for k in range(n_trk)]
     return t
 
 

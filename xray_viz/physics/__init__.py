@@ -20,6 +20,8 @@
   focal-spot blur, noise, line integrals.
 * :mod:`~xray_viz.physics.detector` - the scintillator's absorption efficiency, the detector
   blur (MTF), the order of noise and gain.
+* :mod:`~xray_viz.physics.grid` - the anti-scatter grid (:class:`~xray_viz.physics.grid.Grid`):
+  transmission by energy and angle (Day & Dance 1983), IEC 60627 figures of merit.
 * :mod:`~xray_viz.physics.heel` - the heel effect: SpekPy's off-axis spectra across the field.
 
 The ``[source]`` keys of the physics (beside ``position`` and ``kind``)::
@@ -51,6 +53,11 @@ The ``[detector]`` keys of a scene file::
                             # (mm, LSF), presampled = true (default: includes the pixel aperture)
     electronic_noise = 0.0  # photon-equivalents rms, Gaussian, per pixel; needs noise = true
     gain = 1.0              # detected units per photon-equivalent (scales the intensity)
+    grid = { ratio = 10, frequency = 60 }   # an anti-scatter grid (lines per cm), with
+                            # strip_material = "Pb", strip_thickness = 0.036 (mm),
+                            # interspace_material = "Al", focus_distance = 1000.0 (mm) and
+                            # strip_density / interspace_density (g/cm3) by default
+                            # (:mod:`~xray_viz.physics.grid`); none by default
 
 and in ``[source]``::
 
@@ -100,8 +107,8 @@ the half-value layers; only the anode's self-absorption is SpekPy's own. A ``[wo
 attenuates each ray along its path outside the bodies (:class:`~xray_viz.physics.beam.Beam`'s
 ``world``: the ray's length from the source to its pixel minus its paths in the bodies).
 
-Photon transport (:func:`xray_viz.transport`, a separate Monte Carlo on the same meshes and
-xraylib data): photoelectric absorption, incoherent scattering (Klein-Nishina x the incoherent
+Photon transport (:func:`xray_viz.transport`, a separate Monte Carlo on the same meshes, voxel
+volumes and xraylib data): photoelectric absorption, incoherent scattering (Klein-Nishina x the incoherent
 scattering function S, free-electron energies: no Doppler broadening) and coherent scattering
 (Thomson x F^2) in the bodies and the ``[world]`` medium, cut-off 1 keV; energy per body, dose
 with ``mas``, and the detector image split into primary, single incoherent, single coherent
@@ -112,12 +119,12 @@ detector plane).
 
 What is NOT modelled
 --------------------
-* Scattered radiation in the rendered images (Compton and Rayleigh photons reaching the
-  detector: the photon transport above computes it separately), anti-scatter grids.
-  Scattered photons are removed from the beam (they are part of ``mu``) but never detected
-  (:data:`SCATTER_NOT_MODELLED`; BENCHMARKS.md, "Scatter not modelled", estimates how much
-  signal that is: at 80 kVp without a grid, 1-40 % of the primary for the bundled phantoms,
-  0.24 of it behind 2 cm of water and 3.2 times it behind 20 cm, in a 30 x 30 cm field).
+* Scattered radiation in an image rendered without ``scatter=``: scattered photons are then
+  removed from the beam (they are part of ``mu``) but not detected (:data:`SCATTER_SCOPE`;
+  BENCHMARKS.md, "Scatter in the images": at 80 kVp without a grid, 1-40 % of the primary
+  for the bundled phantoms, 0.24 of it behind 2 cm of water and 3.2 times it behind 20 cm,
+  in a 30 x 30 cm field). ``render(scene, scatter="mc")`` adds the photon transport's
+  scatter, ``scatter="kernel"`` the kernel model's.
 * The heel effect for a CSV or monochromatic spectrum (it needs SpekPy's tube model), and
   the heel effect's own dependence on the focal spot's size and shape.
 * Depth-dependent focal-spot blur (one kernel for the object plane, not per body depth), the
@@ -134,8 +141,8 @@ What is NOT modelled
   effective dose).
 """
 
-from xray_viz.physics.dosimetry import SCATTER_NOT_MODELLED, air_kerma, hvl
+from xray_viz.physics.dosimetry import SCATTER_SCOPE, air_kerma, hvl, scatter_scope
 
 __all__ = ["beam", "detector", "detector_model", "dosimetry", "heel", "imaging", "materials",
            "spectra", "hvl",
-           "air_kerma", "SCATTER_NOT_MODELLED"]
+           "air_kerma", "SCATTER_SCOPE", "scatter_scope"]

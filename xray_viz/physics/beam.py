@@ -170,7 +170,9 @@ class Beam:
     Each bin's photons (fluence ``phi_k``, summing to 1) score ``q_k`` each in the detector
     (``q = E / <E>`` energy-integrating, 1 counting; :func:`detector_weights` gives
     ``phi_k q_k``, so that an ideal detector's flat field reads 1 per photon) and are absorbed
-    with probability ``eta_k`` (:func:`~xray_viz.physics.detector.absorption_efficiency`). The
+    with probability ``eta_k`` (:func:`~xray_viz.physics.detector.absorption_efficiency`,
+    times the anti-scatter grid's primary transmission at the bin,
+    :meth:`~xray_viz.physics.grid.Grid.primary_transmission`, with ``[detector] grid``). The
     signal is ``sum_k u1_k T_k`` per incident photon and, a compound Poisson sum, its variance
     ``sum_k u2_k T_k``, with ``u1_k = phi_k q_k eta_k`` and ``u2_k = phi_k q_k^2 eta_k``.
 
@@ -215,7 +217,12 @@ class Beam:
     @classmethod
     def of(cls, source, bodies, detector, *, world=None) -> Beam:
         """The beam of ``source`` through ``bodies`` as ``detector`` weighs it (its
-        ``response`` and ``scintillator``), at no pose yet (see :meth:`at`).
+        ``response``, ``scintillator`` and ``grid``), at no pose yet (see :meth:`at`).
+
+        The grid's transmission is its focused one at every pixel, ``Tp(E)``: the source is
+        taken at the grid's focus, above the detector's middle (off focus the strips cut the
+        primary off towards the edges; the transport, :func:`xray_viz.transport`, models it
+        photon by photon).
 
         ``world``: the scene's ``[world]`` medium (``{"material": ..., "density": ...}``, as
         :class:`~xray_viz.scene.Scene` checks it), attenuating each ray along its path outside
@@ -226,6 +233,11 @@ class Beam:
         spectrum = source_spectrum(source)
         dw = detector_weights(spectrum, detector.response)
         eta = absorption_efficiency(detector.scintillator, spectrum.energies)
+        grid = detector.grid
+        if grid is not None:
+            # the grid passes each bin's primary photons with its focused transmission: a
+            # thinning, so the signal's and the variance's weights both take the factor
+            eta = eta * grid.primary_transmission(spectrum.energies)
         keep = dw > 0
         u1 = dw * eta
         counts = detector.response == "counting" or len(spectrum) == 1

@@ -289,8 +289,18 @@ class DetectorModel:
         return self.gain * self.i0 * fall * np.broadcast_to(A, (h, w))
 
     def read(self, log_transmission, *, beam, acquisition, bodies, seed=None, rng=None,
-             log_variance=None, overwrite=False):
+             log_variance=None, overwrite=False, scatter=None):
         """The detector's reading of ``ln(I / I0)`` per pixel.
+
+        With ``scatter`` (the scattered radiation's mean reading relative to the flat field,
+        the units of ``exp(log_transmission)``) the detector reads the total, primary plus
+        scatter: its log transmission ``ln(exp(log_transmission) + scatter)`` goes through
+        the focal-spot blur, the quantum noise, the MTF and the electronic noise as the
+        primary alone does, and the line integral is the total's (scatter lowers the
+        contrast). The scatter's noise variance is taken with the unattenuated beam's
+        variance-to-mean ratio (``ln(exp(log_variance) + scatter)``): exact for a counting
+        detector; for an energy-integrating detector it overstates the variance of the
+        scattered photons a little (they have lost energy).
 
         Parameters
         ----------
@@ -312,6 +322,10 @@ class DetectorModel:
         overwrite : bool
             ``log_transmission`` (a float64 array the caller no longer needs) may receive a
             noise-free, unblurred line integral.
+        scatter : (H, W) float, optional
+            The mean scatter reading relative to the flat field (>= 0), added to the
+            primary's before the focal-spot blur. None: the primary alone (the same numbers
+            as without it, bit for bit).
 
         Returns
         -------
@@ -319,6 +333,14 @@ class DetectorModel:
             See :func:`xray_viz.physics.imaging.detect_log`.
         """
         log_t = np.asarray(log_transmission, dtype=np.float64)
+        if scatter is not None:
+            s = np.asarray(scatter, dtype=np.float64)
+            if s.shape != log_t.shape or not np.all(np.isfinite(s) & (s >= 0)):
+                raise SceneError(f"the scatter image must be finite, >= 0 and of shape "
+                                 f"{log_t.shape}, got shape {s.shape}")
+            if log_variance is not None:
+                log_variance = np.log(np.exp(np.asarray(log_variance, dtype=np.float64)) + s)
+            log_t = np.log(np.exp(log_t) + s)          # the total's, a new array
         i0, gain = self.i0, self.gain
         A, B = beam.levels()
         mtf = self.mtf_kernels

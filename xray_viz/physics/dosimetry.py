@@ -35,10 +35,11 @@ the unattenuated photons per pixel follow from it by the inverse square law and 
 (:func:`photons_per_pixel`), and :func:`air_kerma` reports the incident air kerma (free in air,
 no backscatter) at the body surface nearest to the focal spot and at the detector.
 
-What is not modelled
---------------------
-:data:`SCATTER_NOT_MODELLED`: scattered radiation never reaches the detector in this simulator
-(see BENCHMARKS.md, "Scatter not modelled", for what fraction of the signal it would be).
+What an image includes
+----------------------
+:data:`SCATTER_SCOPE` (:func:`scatter_scope`): a render is the primary radiation alone unless
+scatter is asked for (``render(scene, scatter="mc" | "kernel")``); see BENCHMARKS.md,
+"Scatter in the images".
 
 Examples
 --------
@@ -57,17 +58,41 @@ from xray_viz.errors import SpectrumError
 from xray_viz.physics._air import (AIR_K_EDGE_KEV, KEV_TO_JOULE, MUEN_AIR_NIST,  # noqa: F401
                                    _half_value_layers, air_mass_energy_absorption)
 
-__all__ = ["MUEN_AIR_NIST", "AIR_K_EDGE_KEV", "KEV_TO_JOULE", "SCATTER_NOT_MODELLED",
+__all__ = ["MUEN_AIR_NIST", "AIR_K_EDGE_KEV", "KEV_TO_JOULE", "SCATTER_SCOPE", "scatter_scope",
            "air_mass_energy_absorption", "kerma_weights", "air_kerma_per_mas",
            "HalfValueLayers", "hvl", "photons_per_pixel", "centre_pixel_photons", "AirKerma",
            "air_kerma"]
 
-#: What the simulator leaves out, for result metadata (``Radiograph``) and documentation.
-SCATTER_NOT_MODELLED = (
-    "primary radiation only: scattered photons (Compton and Rayleigh) are removed from the beam "
-    "but never detected; at 80 kVp without a grid scatter would add 1-40 % of the primary "
-    "signal for the bundled phantoms and about 3 times the primary behind 20 cm of water in a "
-    "30 x 30 cm field (see BENCHMARKS.md, 'Scatter not modelled')")
+#: What an image includes, by its ``scatter`` mode (None, ``"mc"``, ``"kernel"``), for result
+#: metadata (``Radiograph.scope``, the files' descriptions) and documentation.
+SCATTER_SCOPE = {
+    None: ("primary radiation only: scattered photons (Compton and Rayleigh) are removed from "
+           "the beam but not detected (render with scatter='mc' or 'kernel' to add them); at "
+           "80 kVp without a grid scatter adds 1-40 % of the primary signal for the bundled "
+           "phantoms and about 3 times the primary behind 20 cm of water in a 30 x 30 cm "
+           "field (see BENCHMARKS.md, 'Scatter in the images')"),
+    "mc": ("primary plus scatter from the photon Monte Carlo (xray_viz.transport) on the "
+           "scene's meshes: photoelectric absorption, incoherent (Klein-Nishina x S) and "
+           "coherent (Thomson x F^2) scattering, single and multiple, to a 1 keV cut-off, "
+           "no fluorescence; its statistical error falls as 1/sqrt(histories) (see "
+           "BENCHMARKS.md, 'Scatter in the images')"),
+    "kernel": ("primary plus scatter from the scatter kernel model "
+               "(xray_viz.scatter_kernel), calibrated on the photon Monte Carlo; its error "
+               "against the Monte Carlo is in BENCHMARKS.md, 'Scatter kernel model'"),
+}
+
+
+def scatter_scope(mode=None) -> str:
+    """What an image rendered with ``scatter=mode`` includes (:data:`SCATTER_SCOPE`).
+
+    Examples
+    --------
+    >>> scatter_scope(None).startswith("primary radiation only")
+    True
+    """
+    if mode == "none":
+        mode = None
+    return SCATTER_SCOPE[mode]
 
 def kerma_weights(spectrum) -> np.ndarray:
     """Air-kerma weight of each bin, ``phi_k E_k (mu_en/rho)_air(E_k)``, normalised to sum 1.

@@ -678,7 +678,7 @@ def spectrum_from_dict(spec, *, base_dir=None) -> dict:
     -----
     A tube spectrum is only computed (~0.2 s, plus ~0.7 s to import SpekPy) when first used,
     by :func:`source_spectrum`; validating it here costs microseconds, so
-    :func:`~xray_viz.scene.load_scene` stays fast. The one error left to that point is a
+    :func:`~xray_viz.scene_file.load_scene` stays fast. The one error left to that point is a
     filtration that absorbs the whole spectrum.
 
     Examples

@@ -372,7 +372,7 @@ def on_first_compile(callback):
     A kernel loaded from the cache is not compiled, so nothing is called on a warm cache.
     ``cache_path`` is where numba will cache the kernel (see :func:`cache_path`), None if the
     kernels are not cached. Kernels compiled for this process by background processes
-    (:func:`xray_viz.tracing._raster.prepare`) count: ``callback`` is called when this process
+    (:meth:`xray_viz.tracing._compile.KernelSet.prepare`) count: ``callback`` is called when this process
     first needs one of their kernels (:func:`needs_background`), inside the context.
 
     Parameters

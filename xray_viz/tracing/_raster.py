@@ -11,20 +11,25 @@ Vertices are coordinate-major, ``V`` of shape ``(3, n_vertices)`` (x, y and z ea
 as the per-mesh set-up (:func:`spatial_order`) writes them: the projection's loops then read
 them with plain vector loads (``benchmarks/notes/kernels.md``); a triangle's plane reads its
 three vertices' coordinates from the three rows.
+
+This module holds the kernels, the named tuples they take and their one signature each
+(:data:`SIGNATURES`, compiled through :data:`KERNELS`, :mod:`xray_viz.tracing._compile`); the
+engine calls them through :mod:`xray_viz.tracing._raster_calls`, which normalises the
+arguments and splits each kernel's range over the library's threads.
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
-import threading
+from typing import NamedTuple
 
 import numba
 import numpy as np
 from numba import njit
 from numba.extending import intrinsic
 
-from xray_viz.tracing import _numba_cache  # where the kernels below are cached
+# Imported before the kernels are defined: it gives them their disk cache.
+from xray_viz.tracing import _numba_cache  # noqa: F401
 
 # An old TBB (Open3D brings one) makes numba warn when it tries its TBB threading layer first;
 # OpenMP or numba's own work queue serve these kernels equally well. A user's choice wins.
@@ -570,6 +575,129 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     return lo, n, tris
 
 
+class Bands(NamedTuple):
+    """The bands of sample rows :func:`_raster_bands` rasters, and each band's triangles
+    (:func:`cull_and_bin`). A band is ``height`` whole rows of the fine grid."""
+
+    #: ``(k,) int64``: the bands to raster, in the order the threads take them (longest first).
+    order: np.ndarray
+    #: ``(pieces, n_bands + 1) int64``: band ``b``'s triangles of the cull's piece ``c`` are
+    #: ``tris[start[c, b]:start[c, b + 1]]``; over the pieces in turn, triangle order.
+    start: np.ndarray
+    #: ``(m,) uint32``: triangle indices (into :class:`Triangles`), listed by band.
+    tris: np.ndarray
+    #: Sample rows per band.
+    height: int
+    #: Sample rows of the fine grid (``n H``).
+    nH: int
+    #: Sample columns of the fine grid (``n W``).
+    nW: int
+
+
+class Triangles(NamedTuple):
+    """The bodies' triangles as the cull left them (:func:`_cull_triangles`,
+    :func:`project_vertices`); ``T`` triangles over ``n`` vertices."""
+
+    #: ``(T,) int8``: SKIP, +-SMALL or +-GIANT (times the orientation: + enters a body).
+    status: np.ndarray
+    #: ``(T, 4) int64``: the sample box ``X0, X1, Y0, Y1`` (inclusive) each covers.
+    box: np.ndarray
+    #: ``(T, 3) uint32``: vertex indices (:func:`_faces`).
+    F: np.ndarray
+    #: ``(n, 2) int64``: the vertices projected and snapped (fixed point, ``ONE`` a step).
+    XY: np.ndarray
+    #: ``(3, n) float64``: the vertices, coordinate-major (:func:`_vertices`).
+    V: np.ndarray
+    #: ``(n,) float64``: each vertex's depth (mm along the frame's forward axis).
+    w: np.ndarray
+    #: ``(T,) int32``: the body of each triangle.
+    body: np.ndarray
+
+
+class Grid(NamedTuple):
+    """The detector's fine grid in space: where sample (X, Y) is (``P00 + X Ex + Y Ey``) and
+    how deep the detector is."""
+
+    #: Depth of the detector (mm along the frame's forward axis): hits beyond it are dropped.
+    FL: float
+    #: A point source (True) or a parallel beam.
+    perspective: bool
+    #: ``(3,) float64``: sample (0, 0) on the detector.
+    P00: np.ndarray
+    #: ``(3,) float64``: one fine-grid step along X (``HO`` / (n W)).
+    Ex: np.ndarray
+    #: ``(3,) float64``: one fine-grid step along Y (``VE`` / (n H)).
+    Ey: np.ndarray
+
+
+class Frame(NamedTuple):
+    """Where the rays come from and go: the source and the detector's grid (:func:`_plane`)."""
+
+    #: ``(3,) float64``: the source (a point source) or a point on the beam (parallel).
+    origin: np.ndarray
+    #: ``(3,) float64``: a parallel beam's direction (unused for a point source).
+    f: np.ndarray
+    #: The detector's fine grid.
+    grid: Grid
+
+
+class Projected(NamedTuple):
+    """One mesh's vertices projected and snapped by :func:`_project_vertices`; ``T``
+    triangles over ``n`` vertices."""
+
+    #: ``(T, 3) uint32``: vertex indices (:func:`_faces`).
+    F: np.ndarray
+    #: ``(n, 2) int64``: the vertices projected and snapped (fixed point, ``ONE`` a step).
+    XY: np.ndarray
+    #: ``(n,) float64``: each vertex's depth (mm along the frame's forward axis).
+    w: np.ndarray
+    #: ``(n,) bool``: a vertex too far out to be snapped.
+    huge: np.ndarray
+    #: ``(3, n) float64``: the vertices, coordinate-major (:func:`_vertices`).
+    V: np.ndarray
+    #: ``(n,) int32``: each vertex's cell code (:func:`_axis_code`).
+    K: np.ndarray
+
+
+class DepthSums(NamedTuple):
+    """One body's output: per sample the signed depths and the crossings, for :func:`_finish`
+    (the rows of the bands rastered, a window)."""
+
+    #: ``(rows, nW) float64``: ``S[Y - row0, X] += sign * depth`` (exits +, entries -).
+    S: np.ndarray
+    #: ``(rows, nW) int32``: ``N[Y - row0, X] += 1`` per entry, ``-1`` per exit.
+    N: np.ndarray
+    #: The fine-grid row of ``S[0]`` and ``N[0]``.
+    row0: int
+
+
+class Rays(NamedTuple):
+    """A window of the detector's rays in image order (:func:`_sample_ray`): their lengths."""
+
+    #: ``(rays, bodies) float64``: lengths (mm) of the rays ``ray0 ..`` of the window.
+    L: np.ndarray
+    #: The first ray of ``L``.
+    ray0: int
+    #: Sub-rays per pixel side.
+    n: int
+    #: Detector pixels across.
+    W: int
+    #: Detector pixels down.
+    H: int
+
+
+class Sweep(NamedTuple):
+    """Several bodies' output: each ray's length in the body of highest precedence
+    (:func:`body_ranks`)."""
+
+    #: ``(bodies,) int64``: each body's precedence rank (0 wins; -1 never wins).
+    rank: np.ndarray
+    #: ``(ranks,) int64``: the body of each rank.
+    by_rank: np.ndarray
+    #: The rays written.
+    rays: Rays
+
+
 @intrinsic
 def _claim(typingctx, counter):
     """``counter[0]``, then ``counter[0] += 1``, atomically (one ``lock xadd``): the threads
@@ -588,11 +716,11 @@ def _claim(typingctx, counter):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, status, box, F, XY,
-                  V, w, origin, f, tri_body, FL, single, S, N, row0, rank, by_rank, perspective,
-                  P00, Ex, Ey, n, W, H, L, ray0, claim):
-    """The banded raster, one body (``single``) or several: bands ``order[k]``, ``lo <= k <
-    hi``, each taken in turn (``k = lo + claim[0]``, the counter advanced atomically:
+def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
+    """The banded raster, one body (``single``: into ``sums``) or several (into ``sweep``):
+    bands ``bands.order[k]``, ``lo <= k < hi`` (:class:`Bands`, :class:`Triangles`,
+    :class:`Frame`, :class:`DepthSums`, :class:`Sweep`; the output not written is a
+    dummy), each taken in turn (``k = lo + claim[0]``, the counter advanced atomically:
     :func:`_claim`) by every thread rastering these bands with the same ``claim``, which
     starts at 0: a thread that starts late or runs slow takes fewer bands, none waits for
     another at the end (with ``order`` longest first, a greedy list schedule).
@@ -625,6 +753,13 @@ def _raster_bands(lo, hi, order, band_start, band_tris, band_height, nH, nW, sta
     zeroed). A sample's hits and their order do not depend on which bands are rastered
     together, nor on which thread rasters a band.
     """
+    order, band_start, band_tris, band_height, nH, nW = bands
+    status, box, F, XY, V, w, tri_body = tris
+    origin, f, grid = frame
+    FL, perspective, P00, Ex, Ey = grid
+    S, N, row0 = sums
+    rank, by_rank, rays = sweep
+    L, ray0, n, W, H = rays
     nb = rank.shape[0]
     few = by_rank.shape[0] <= 65           # ranks fit the bits of a uint64
     p0, p1, p2 = P00[0], P00[1], P00[2]
@@ -891,35 +1026,25 @@ def _lowest_bit(x):
     return _DEBRUIJN_INDEX[(iso * _DEBRUIJN) >> np.uint64(58)]
 
 
-def body_ranks(precedence):
-    """``(rank, by_rank)``: each body's place in the order of the banded sweep's winners
-    (precedence descending, then index ascending; -1 for a precedence below 0, which never
-    wins), and the body of each place (and one more entry, unused)."""
-    precedence = np.asarray(precedence, np.int64)
-    order = [q for q in sorted(range(len(precedence)), key=lambda q: (-precedence[q], q))
-             if precedence[q] > -1]
-    rank = np.full(len(precedence), -1, np.int64)
-    rank[order] = np.arange(len(order))
-    return rank, np.array(order + [0], np.int64)
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
-def _finish(lo, hi, S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0,
-            ray0):
+def _finish(lo, hi, S, N, Lf, single, grid, rays, s_row0):
     """Fine grid -> rays in image order, depth units -> mm along each ray.
 
     One body (``single``): the depth span of sample (X, Y) is ``sum_c S[c, Y - s_row0, X]``
     over the per-thread accumulators (one when ``S`` is a sum already), plus
     ``sum_c N[c, ...] * FL`` when ``N`` has chunks (as :func:`_reduce_chunks`). Several
-    bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows ``y0 <= Y < y1`` are done (a window
-    of whole pixel rows), into ``L[ray - ray0]``: every ray of those rows is written (``L``
-    need not arrive zeroed).
+    bodies: ``Lf[Y - s_row0, X, q]``. Only the fine rows ``lo <= Y < hi`` are done (a window
+    of whole pixel rows), into ``rays.L[ray - rays.ray0]`` (:class:`Rays`; the samples'
+    places: :class:`Grid`): every ray of those rows is written (``L`` need not arrive
+    zeroed).
 
     Sample (X, Y), ``X = n i + c``, ``Y = n j + (n - 1 - r)``, is ray
     ``((H - 1 - j) W + i) n n + r n + c`` (:func:`_sample_ray`, here kept incrementally). A
     point-source ray's length is its depth span times ``|D| / FL`` (D from the source to the
     sample's detector point).
     """
+    FL, perspective, P00, Ex, Ey = grid
+    L, ray0, n, W, H = rays
     nb = L.shape[1]
     n_chunks = S.shape[0]
     counts = N.shape[0] != 0
@@ -1056,8 +1181,7 @@ _BLOCK = 1024
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
-                  depth_ok, S, err, K, planes):
+def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, err):
     """One body, in one sweep over the triangles: cull, cover, depth and accumulate.
 
     Triangles are split into ``n_chunks`` contiguous chunks; chunk ``c`` accumulates into its
@@ -1089,6 +1213,9 @@ def _raster_direct(lo, hi, n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex
     indices that it adds for signed ones (a compare and select each, which slows the gathers
     of the cell codes most; ``benchmarks/notes/kernels.md``).
     """
+    F, XY, w, huge, V, K = mesh
+    r0, f, grid = frame
+    FL, perspective, P00, Ex, Ey = grid
     T = F.shape[0]
     per = (T + n_chunks - 1) // n_chunks
     r0x, r0y, r0z = r0[0], r0[1], r0[2]
@@ -1362,33 +1489,47 @@ def _reduce_chunks(lo, hi, S, N, FL, out):
 
 
 # --------------------------------------------------------------------------------------------
-# Explicit signatures, compiled on first use, and the threads.
+# Explicit signatures.
 #
-# Each kernel above has exactly one specialisation, ``SIGNATURES[name]``: it is compiled (or
-# loaded from numba's cache) the first time the engine needs it, then the dispatcher compiles
-# nothing else (:meth:`Dispatcher.disable_compile`), so no argument type can cost another
-# compilation. The functions below normalise their arguments to those types (inputs made
-# C-contiguous of the signature's dtype, without a copy when they already are; an input
-# signature type is read-only, which accepts writable arrays too).
-#
-# The kernels are serial and release the GIL (``nogil=True``); the functions below split the
-# loop that was a ``prange`` into one contiguous range per thread (``numba.get_num_threads()``
-# of them, as the ``parallel=True`` kernels had) and run them on a pool of threads. Every
-# iteration writes its own outputs, as before, so the results do not depend on the split (bit
-# for bit). Serial kernels compile in about a third of the time of ``parallel=True`` ones.
+# Each kernel above has exactly one specialisation, ``SIGNATURES[name]``: :data:`KERNELS`
+# compiles it (or loads it from numba's cache) the first time the engine needs it, then the
+# dispatcher compiles nothing else, so no argument type can cost another compilation
+# (:mod:`xray_viz.tracing._compile`). :mod:`xray_viz.tracing._raster_calls` normalises the
+# arguments to those types and splits each kernel's range over the library's threads.
 
 from numba.core import types as _nt  # noqa: E402
+
+from xray_viz.tracing._compile import KernelSet  # noqa: E402
 
 _SCALARS = {"i8": _nt.int64, "f8": _nt.float64, "b1": _nt.boolean}
 _DTYPES = {"i8": _nt.int64, "i4": _nt.int32, "u4": _nt.uint32, "i1": _nt.int8,
            "f8": _nt.float64, "b1": _nt.boolean}
 
 
+#: Field types of the named tuples the kernels take (see :func:`_types`).
+TUPLES = {
+    "Bands": (Bands, "i8[1]r i8[2]r u4[1]r i8 i8 i8"),
+    "Triangles": (Triangles, "i1[1]r i8[2]r u4[2]r i8[2]r f8[2]r f8[1]r i4[1]r"),
+    "Grid": (Grid, "f8 b1 f8[1]r f8[1]r f8[1]r"),
+    "Frame": (Frame, "f8[1]r f8[1]r Grid"),
+    "Projected": (Projected, "u4[2]r i8[2]r f8[1]r b1[1]r f8[2]r i4[1]r"),
+    "DepthSums": (DepthSums, "f8[2] i4[2] i8"),
+    "Rays": (Rays, "f8[2] i8 i8 i8 i8"),
+    "Sweep": (Sweep, "i8[1]r i8[1]r Rays"),
+}
+
+
 def _types(spec: str) -> tuple:
     """Numba types of a compact spec: ``i8`` (int64), ``f8``, ``b1`` scalars; ``f8[2]`` a
-    writable C-contiguous 2-d float64 array (an output); ``f8[2]r`` one that is only read."""
+    writable C-contiguous 2-d float64 array (an output); ``f8[2]r`` one that is only read;
+    a name of :data:`TUPLES`, that named tuple (its fields' arrays must have exactly these
+    flags: numba converts no named tuple; :func:`_ro` makes an input read-only)."""
     out = []
     for tok in spec.split():
+        if tok in TUPLES:
+            cls, fields = TUPLES[tok]
+            out.append(_nt.BaseTuple.from_types(_types(fields), cls))
+            continue
         if "[" not in tok:
             out.append(_SCALARS[tok])
             continue
@@ -1405,17 +1546,13 @@ SIGNATURES = {
                          "b1[1] i8 i8 i4[1]",
     "_cull_triangles": "i8 i8 u4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
                        "f8[2]r i4[1]r b1 i8[1] i8[1]r i8[1]",
-    "_raster_bands": "i8 i8 i8[1]r i8[2]r u4[1]r i8 i8 i8 i1[1]r i8[2]r u4[2]r i8[2]r f8[2]r "
-                     "f8[1]r f8[1]r f8[1]r i4[1]r f8 b1 f8[2] i4[2] i8 i8[1]r i8[1]r b1 f8[1]r "
-                     "f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8[1]",
-    "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 f8 b1 f8[1]r f8[1]r f8[1]r i8 i8 i8 f8[2] i8 i8 i8 "
-               "i8",
-    "_raster_direct": "i8 i8 i8 u4[2]r i8[2]r f8[1]r b1[1]r f8[2]r b1 f8[1]r f8[1]r f8[1]r "
-                      "f8[1]r f8[1]r f8 i8 i8 b1 f8[3] i8[1] i4[1]r f8[2]r",
+    "_raster_bands": "i8 i8 Bands Triangles Frame b1 DepthSums Sweep i8[1]",
+    "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 Grid Rays i8",
+    "_raster_direct": "i8 i8 i8 Projected Frame i8 i8 b1 f8[2]r f8[3] i8[1]",
     "_reduce_chunks": "i8 i8 f8[3]r i4[3]r f8 f8[2]",
 }
 
-#: Kernels each engine path needs (what :func:`compile_kernels` compiles for a scene).
+#: Kernels each engine path needs (what ``KERNELS.compile(paths)`` compiles for a scene).
 PATHS = {
     "setup": ("_project_vertices",),
     # (a cold start orders the meshes in NumPy: spatial_order_numpy; compiled for later runs)
@@ -1426,66 +1563,6 @@ PATHS = {
     "multi": ("_raster_bands",),
 }
 
-_ready: set = set()
-_compile_lock = threading.Lock()
-
-
-def _kernel(name: str):
-    """The dispatcher of kernel ``name``, with its one specialisation compiled or loaded."""
-    disp = globals()[name]
-    if name not in _ready:
-        with _compile_lock:
-            if name not in _ready:
-                if name in _workers:
-                    _numba_cache.needs_background()      # the compile notice, if not said
-                _wait(name)          # a background process compiling it into the cache
-                with _opt_level(_WORKER_OPT if name in _mine else None):
-                    disp.compile(_types(SIGNATURES[name]))
-                disp.disable_compile()
-                _ready.add(name)
-    return disp
-
-
-@contextlib.contextmanager
-def _opt_level(level):
-    """Inside: numba compiles at LLVM optimisation ``level`` (its ``config.OPT``), unless
-    ``level`` is None or the environment sets ``NUMBA_OPT`` (the user's choice wins)."""
-    if level is None or "NUMBA_OPT" in os.environ:
-        yield
-        return
-    from numba.core import config
-
-    old, config.OPT = config.OPT, config._OptLevel(level)
-    try:
-        yield
-    finally:
-        config.OPT = old
-
-
-def compile_kernels(paths=None) -> list:
-    """Compile (or load from the cache) the kernels of the engine ``paths`` (keys of
-    :data:`PATHS`; default all), in this thread; returns their names.
-
-    Examples
-    --------
-    >>> from xray_viz.tracing import _raster
-    >>> names = _raster.compile_kernels(["setup", "order"])
-    >>> [len(getattr(_raster, n).signatures) for n in names]
-    [1, 1]
-    """
-    names = _names(paths)
-    for name in names:
-        _kernel(name)
-    return names
-
-
-def _names(paths=None) -> list:
-    names = []
-    for p in (PATHS if paths is None else paths):
-        names += [n for n in PATHS[p] if n not in names]
-    return names
-
-
 #: Compile CPU seconds of each kernel beyond what a process pays for its first compile
 #: (``benchmarks/compile_profile.py --opt 1``, one process per kernel, less the ~0.5 s of
 #: numba's start that ``_reduce_chunks`` is nearly all of; 2026-12-05, the Xeon VM, after the
@@ -1495,26 +1572,6 @@ def _names(paths=None) -> list:
 _COSTS = {("_first_use_rank",): 0.6, ("_project_vertices",): 1.05, ("_cull_triangles",): 1.0,
           ("_raster_bands",): 2.5,
           ("_raster_direct",): 3.8, ("_reduce_chunks",): 0.05, ("_finish",): 0.75}
-#: Kernel name -> the background process compiling it into numba's cache.
-_workers: dict = {}
-#: A worker compiles its kernels in turn, and names each on its output once it is cached (a
-#: closed output - this process gone - does not stop it). It imports numba and this module
-#: only: ``xray_viz`` and ``xray_viz.tracing`` are bare packages there (their ``__init__``,
-#: which imports the whole library, is not run; the kernels' module and file are the same, so
-#: they are cached under the same keys). ``argv``: the package's folder, the urgent kernels
-#: (those the parent needs), ``--``, the others, compiled at a lower priority (``nice``) so
-#: that they take no processor from the parent and the urgent kernels.
-_WORKER = ("import os, sys, types, warnings\nwarnings.simplefilter('ignore')\n"
-           "root = sys.argv[1]\n"
-           "for name, sub in (('xray_viz', ''), ('xray_viz.tracing', 'tracing')):\n"
-           "    m = types.ModuleType(name)\n    m.__path__ = [os.path.join(root, sub)]\n"
-           "    sys.modules[name] = m\n"
-           "from xray_viz.tracing import _raster as R\n"
-           "for n in sys.argv[2:]:\n"
-           "    if n == '--':\n        os.nice(10) if hasattr(os, 'nice') else None\n"
-           "        continue\n"
-           "    R._kernel(n)\n"
-           "    try:\n        print(n, flush=True)\n    except OSError:\n        pass\n")
 #: LLVM optimisation level of the workers' compiles (``NUMBA_OPT``, numba's default 3), unless
 #: the environment sets one: level 1 compiles the kernels in less time, and the kernels
 #: trace as fast and give the same bits (measured on the bundled phantoms:
@@ -1522,494 +1579,19 @@ _WORKER = ("import os, sys, types, warnings\nwarnings.simplefilter('ignore')\n"
 #: cached (numba: "uses dynamic globals"). The cache does not record the level: a kernel
 #: compiled by the process itself (no cache to share) is compiled at the process's level.
 _WORKER_OPT = 1
-#: Kernel names each worker has said are cached.
-_done: dict = {}
 
-
-def _is_cached(name: str) -> bool:
-    disp = globals()[name]
-    cache = getattr(disp, "_cache", None)
-    is_cached = getattr(cache, "is_cached", None)
-    return bool(is_cached and is_cached(_types(SIGNATURES[name]), disp.targetctx))
-
-
-def prepare(paths=None, *, workers: int | None = None, first=None) -> list:
-    """Start compiling the kernels of ``paths`` (keys of :data:`PATHS`; default all) that
-    numba's cache lacks, in a background process, and return their names.
-
-    Meant for a process that has something else to do first (the command line loads the
-    scene meanwhile). By default one background process is started, and this process keeps a
-    share of the urgent kernels (those of the paths ``first``, the ones the scene most likely
-    needs; default all) to compile itself when it first needs them: the background process
-    takes the costliest (by :data:`_COSTS`) until its share is the larger by :data:`_HEAD`, the
-    head start it has while this process loads the scene. Then both processors compile what
-    the image waits for, and neither runs two compiles at once (each would be slower on 2
-    processors). With ``workers`` given, every kernel goes to that many background processes
-    instead, shared out by cost. A background process compiles its urgent kernels first, then
-    the others at a lower priority, and last this process's share (by then most likely cached:
-    they are loaded), so that the cache ends up with every kernel; this process loads each of
-    them from the cache when first needed, after waiting for the process compiling it. At exit
-    this process waits for a background process still compiling an urgent kernel if it used a
-    kernel, and stops them if it used none; one left with only other kernels goes on alone,
-    filling the cache for later processes. Nothing starts when every kernel is cached, when
-    only kernels outside ``first`` are missing (a background process of an earlier process is
-    most likely compiling them: starting another would compile them twice, and say so), or
-    when there is no cache to share them through (they are compiled in this process when
-    needed, as without :func:`prepare`). :func:`xray_viz.tracing._numba_cache.on_first_compile`
-    is told.
-
-    Examples
-    --------
-    >>> from xray_viz.tracing import _raster
-    >>> _raster.prepare(["setup"]) in ([], ["_project_vertices"])   # [] once it is cached
-    True
-    >>> _raster.compile_kernels(["setup"])          # waits for it (or loads it)
-    ['_project_vertices']
-    """
-    import subprocess
-    import sys
-
-    names = [n for n in _names(paths)
-             if n not in _ready and n not in _workers and n not in _mine]
-    missing = [n for n in names if not _is_cached(n)]
-    if not missing or not isinstance(getattr(globals()[missing[0]], "_cache", None),
-                                     _numba_cache.KernelCache):
-        return []
-    urgent = set(_names(first)) if first is not None else set(missing)
-    if not urgent.intersection(missing):
-        # only other kinds of scene lack kernels: an earlier process's worker is most likely
-        # compiling them now; they are compiled here if this process needs them after all
-        return []
-    units = [([n for n in unit if n in missing], cost) for unit, cost in
-             sorted(_COSTS.items(), key=lambda kv: -kv[1])]        # costliest first
-    kept = []                            # this process's share of the urgent kernels
-    if workers is None:
-        groups = [[]]
-        ours = [(u, c) for u, c in units if u and u[0] in urgent]
-        share, load = (sum(c for _, c in ours) + _HEAD) / 2, 0.0
-        for unit, cost in ours:
-            if not groups[0] or load + cost <= share + 1e-9:
-                groups[0] += unit
-                load += cost
-            else:
-                kept += unit
-        groups[0] += [n for u, _ in units for n in u if n not in urgent]
-    else:
-        n_workers = max(1, min(workers, len(missing)))
-        groups = [[] for _ in range(n_workers)]
-        load = [0.0] * n_workers
-        for pass_ in (True, False):          # the urgent kernels first, shared out by cost
-            for unit, cost in units:
-                todo = [n for n in unit if (n in urgent) == pass_]
-                if todo:
-                    k = load.index(min(load))
-                    groups[k] += todo
-                    load[k] += cost
-    _urgent.update(n for n in missing if n in urgent and n not in kept)
-    _mine.update(kept)
-    need = [n for n in _names(first) if n in _urgent] if first is not None else missing
-    _numba_cache.background_compile(globals()[missing[0]])
-    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = dict(os.environ)
-    env.setdefault("NUMBA_OPT", str(_WORKER_OPT))      # the user's choice wins
-    for group in groups:
-        if group:
-            urgent_first = [n for n in need if n in group]      # in the order of first use
-            rest = [n for n in group if n not in urgent_first] + kept
-            kept = []                    # (to the first background process only)
-            proc = subprocess.Popen([sys.executable, "-c", _WORKER, root, *urgent_first,
-                                     *(["--", *rest] if rest else [])],
-                                    stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                    stderr=subprocess.DEVNULL, text=True, env=env)
-            for n in group:
-                _workers[n] = proc
-    if not _atexit_set:
-        import atexit
-
-        atexit.register(_finish_workers)
-        _atexit_set.append(True)
-    return missing
-
-
-#: Seconds of compiling that the background process of :func:`prepare` takes on beyond this
+#: Seconds of compiling that the background process of ``KERNELS.prepare`` takes on beyond this
 #: process's share: its head start while this process loads the scene (~2 s for ``default``,
 #: of which this process's import of numba and first load from the cache, ~0.5 s, is paid
 #: anyway; ``benchmarks/notes/coldstart.md``, eighth pass).
 _HEAD = 1.5
-#: Kernels :func:`prepare` left to this process, compiled when first needed at the background
-#: processes' optimisation level (:data:`_WORKER_OPT`).
-_mine: set = set()
-_atexit_set: list = []
-#: Kernels whose worker this process waits for at exit (when it used a kernel).
-_urgent: set = set()
 
 
-def _wait(name: str) -> None:
-    """Wait until the worker compiling ``name`` says it is cached (or ends): then it is loaded
-    from the cache (compiled here if the worker failed)."""
-    proc = _workers.pop(name, None)
-    if proc is None:
-        return
-    done = _done.setdefault(id(proc), set())
-    while name not in done:
-        line = proc.stdout.readline()
-        if not line:
-            proc.wait()
-            break
-        done.add(line.strip())
-
-
-def _finish_workers() -> None:
-    """At exit: stop the workers if this process used no kernel; else wait for those still
-    compiling an urgent kernel (see :func:`prepare`) and leave the others to finish alone."""
-    if not _ready:
-        for proc in {id(p): p for p in _workers.values()}.values():
-            proc.terminate()
-            proc.wait()
-    else:
-        for name in [n for n in _workers if n in _urgent]:
-            _wait(name)
-        _detached.extend(_workers.values())     # left running: kept referenced to the end
-    _workers.clear()
-
-
-_detached: list = []
-
-
-#: Least vertices or triangles (rows, for the per-row kernels) given to a thread.
-_MIN_ITEMS = 4096
-_MIN_ROWS = 16
-
-
-def _threads() -> int:
-    """Threads to split a kernel's range over: the library's count (numba's setting,
-    ``NUMBA_NUM_THREADS`` / ``numba.set_num_threads``, as the ``parallel=True`` kernels used)."""
-    from xray_viz._threads import count
-
-    return count()
-
-
-def _cuts(lo, hi, min_each=1) -> list:
-    """Bounds of the contiguous pieces of ``range(lo, hi)``, one per thread (at most one per
-    ``min_each`` items): piece j is ``cut[j] .. cut[j + 1] - 1``."""
-    k = min(_threads(), max(1, (hi - lo) // max(1, min_each)))
-    return [lo + (hi - lo) * j // k for j in range(k + 1)]
-
-
-def _split(name, lo, hi, args, min_each=1, cuts=None, each=None):
-    """Run kernel ``name`` over ``range(lo, hi)`` in one contiguous piece per thread (or the
-    pieces ``cuts[j] .. cuts[j + 1] - 1`` given, one per thread), with ``args`` and, when
-    ``each`` is given, ``each(j)``'s arguments of piece j after them; returns what each
-    piece returned, in order."""
-    kernel = _kernel(name)
-    cut = _cuts(lo, hi, min_each) if cuts is None else list(cuts)
-    k = len(cut) - 1
-
-    def piece(j):
-        return kernel(cut[j], cut[j + 1], *args, *(each(j) if each else ()))
-    if k <= 1:
-        return [piece(0)]
-    from xray_viz._threads import run_pieces
-
-    return run_pieces(piece, k)
-
-
-def _in(a, dtype):
-    return np.ascontiguousarray(a, dtype=dtype)
-
-
-def _faces(F, n_vertices):
-    """Faces as the kernels take them: C-contiguous uint32 (a view of int32 faces, no copy).
-
-    Unsigned, so that numba indexes the vertex arrays with them without the fix-up of a
-    negative index it adds for a signed one (a compare and a select per access;
-    ``benchmarks/notes/kernels.md``); at most
-    2**31 - 1 vertices and triangles, so that the int32 and uint32 views agree."""
-    if len(F) >= 2**31 or (F.dtype != np.int32 and n_vertices >= 2**31):
-        from xray_viz.errors import SceneError
-
-        what = f"{len(F)} triangles" if len(F) >= 2**31 else f"{n_vertices} vertices"
-        raise SceneError(f"{what}: the fast engine indexes at most 2**31 - 1 vertices and "
-                         "triangles; use the NumPy engine (engine='numpy')")
-    if F.dtype != np.int32:
-        F = F.astype(np.int32)
-    return np.ascontiguousarray(F).view(np.uint32)
-
-
-_f8 = np.float64
-
-
-def _vertices(V):
-    """Vertices as the kernels take them: coordinate-major ``(3, n)`` C-contiguous float64
-    (what :func:`spatial_order` gives; no copy then)."""
-    V = _in(V, _f8)
-    if V.ndim != 2 or V.shape[0] != 3:
-        raise ValueError(f"vertices of shape {V.shape}: the kernels take them coordinate-major, "
-                         "(3, n_vertices); pass the transpose of an (n, 3) array")
-    return V
-
-
-def first_use_rank(flat_faces, n_vertices):
-    rank = np.empty(int(n_vertices), np.int64)
-    z = np.zeros(0, np.int64)
-    _kernel("_first_use_rank")(np.zeros((0, 3)), _in(flat_faces, np.int64), False, rank,
-                               np.zeros((3, 0)), np.zeros(0, np.int32), z, z, z, z,
-                               np.zeros((0, 0), np.int64))
-    return rank
-
-
-def spatial_order(V, F):
-    """``(V', F')``: the vertices (coordinate-major, ``(3, n)``: the kernels' layout) and int32
-    faces of a mesh (``V`` of shape ``(n, 3)``) in spatial order (see :func:`_first_use_rank`):
-    faces along the Morton order, vertices in order of first use.
-
-    By the compiled kernel (compiled here if no background process of :func:`prepare` is
-    compiling it, or loaded from numba's cache), except while a background process of this
-    one is compiling it (a cold start: the image would wait ~1.2 s for it): then by
-    :func:`spatial_order_numpy`, which gives the same arrays."""
-    if (_workers.get("_first_use_rank") is not None and "_first_use_rank" not in _ready
-            and not _is_cached("_first_use_rank")):
-        return spatial_order_numpy(V, F)
-    V = _in(V, _f8)
-    F = _in(F, np.int64).reshape(-1)
-    nv = len(V)
-    Vout = np.empty((3, nv))
-    Fout = np.empty(len(F), np.int32)
-    _kernel("_first_use_rank")(V, F, True, np.empty(nv, np.int64), Vout, Fout,
-                               np.empty(nv, np.int64), np.empty(nv, np.int64),
-                               np.empty(max(nv, len(F) // 3), np.int64),
-                               np.zeros(nv + 1, np.int64), np.zeros((3, 1025), np.int64))
-    return Vout, Fout.reshape(-1, 3)
-
-
-def spatial_order_numpy(V, F):
-    """:func:`spatial_order` in NumPy: the same arrays, from the same Morton codes (the same
-    floating-point steps), stable argsorts in place of the kernel's radix and counting sorts,
-    and the first use of each vertex from :func:`numpy.unique`.
-
-    Examples
-    --------
-    >>> import numpy as np, trimesh
-    >>> m = trimesh.creation.icosphere(subdivisions=4)
-    >>> v, f = spatial_order_numpy(m.vertices, m.faces)
-    >>> v.shape == (3, len(m.vertices))
-    True
-    >>> bool(np.isclose(trimesh.Trimesh(v.T, f).volume, m.volume)), f.dtype.name
-    (True, 'int32')
-    >>> bool(np.all(np.diff(np.unique(f, return_index=True)[1]) > 0))   # first use order
-    True
-    """
-    V = _in(V, _f8)
-    tri = _in(F, np.int64).reshape(-1, 3)
-    nv = len(V)
-    if nv == 0:
-        return np.zeros((3, 0)), tri.astype(np.int32)
-    lo, hi = V.min(axis=0), V.max(axis=0)
-    x = ((V - lo) / np.maximum(hi - lo, 1e-300) * 1023).astype(np.uint64).astype(np.int64)
-    x &= 1023                                   # bits b -> 3 b (the kernel's magic masks)
-    x = (x | (x << 16)) & 0x30000FF
-    x = (x | (x << 8)) & 0x300F00F
-    x = (x | (x << 4)) & 0x30C30C3
-    x = (x | (x << 2)) & 0x9249249
-    code = x[:, 0] | (x[:, 1] << 1) | (x[:, 2] << 2)
-    morton = np.argsort(code, kind="stable")    # the vertices in Morton order
-    place = np.empty(nv, np.int64)
-    place[morton] = np.arange(nv)
-    flat = tri[np.argsort(place[tri].min(axis=1), kind="stable")].reshape(-1)
-    seen, first = np.unique(flat, return_index=True)
-    unused = np.ones(nv, bool)
-    unused[seen] = False
-    new = np.concatenate([seen[np.argsort(first)], morton[unused[morton]]])
-    rank = np.empty(nv, np.int64)
-    rank[new] = np.arange(nv)
-    return np.ascontiguousarray(V[new].T), rank[flat].astype(np.int32).reshape(-1, 3)
-
-
-def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
-    """:func:`_project_vertices` over every vertex (``V`` coordinate-major, ``(3, n)``); returns
-    ``(wmin, wmax, odd)`` of them all (the least and largest depth, NaN depths left out:
-    ``(inf, -inf)`` when none is left)."""
-    V = _vertices(V)
-    parts = _split("_project_vertices", 0, V.shape[1],
-                   (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx),
-                    float(bx), float(sy), float(by), bool(perspective), XY, w, huge, int(nW),
-                    int(nH), K), _MIN_ITEMS)
-    kmin, kmax = min(p[0] for p in parts), max(p[1] for p in parts)
-    if kmin > kmax:
-        return np.inf, -np.inf, any(p[2] for p in parts)
-    wmin, wmax = depth_key(np.array([kmin, kmax], np.int64).view(np.float64)).view(np.float64)
-    return float(wmin), float(wmax), any(p[2] for p in parts)
-
-
-def _band_of(nH, band_height):
-    """The band of each of the ``nH`` sample rows (bands of ``band_height`` rows)."""
-    return np.arange(max(int(nH), 1), dtype=np.int64) // int(band_height)
-
-
-def _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, K, depth_ok,
-          band_of):
-    """:func:`_cull_triangles` over every triangle, one contiguous piece per thread: ``(kept,
-    starts, sizes, counts, lists)``, piece c's kept triangles ``kept[starts[c]:starts[c] +
-    sizes[c]]``, ``counts[c, b]`` of them in band b (``band_of``: :func:`_band_of`) and its
-    band lists ``lists[c]``."""
-    V = _vertices(V)
-    F = _faces(F, V.shape[1])
-    if K is None:
-        K, depth_ok = np.zeros(0, np.int32), False
-    T = F.shape[0]
-    kept = np.empty(T, np.int64)
-    cut = _cuts(0, T, _MIN_ITEMS)
-    counts = np.empty((len(cut) - 1, int(band_of[-1]) + 1), np.int64)
-    parts = _split("_cull_triangles", 0, T,
-                   (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
-                    V, _in(r0, _f8), _in(planes, _f8), _in(K, np.int32),
-                    bool(depth_ok), kept, band_of), cuts=cut, each=lambda j: (counts[j],))
-    starts = np.array([a for a, _, _ in parts], np.int64)
-    sizes = np.array([n for _, n, _ in parts], np.int64)
-    return kept, starts, sizes, counts, [lists for _, _, lists in parts]
-
-
-def cull_triangles(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, *,
-                   K=None, depth_ok=False):
-    """:func:`_cull_triangles` over every triangle; returns the triangles of non-zero status
-    other than an error, in order (int64). ``K`` and ``depth_ok``: the cell codes and the
-    depth check of :func:`project_vertices` (without them, no first pass)."""
-    kept, starts, sizes, _, _ = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V,
-                                      r0, planes, K, depth_ok, _band_of(nH, max(int(nH), 1)))
-    return np.concatenate([kept[a:a + n] for a, n in zip(starts, sizes)])
-
-
-def cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
-                 band_height, *, K=None, depth_ok=False):
-    """:func:`cull_triangles` and the lists ``(band_start, band_tris)`` of the kept triangles
-    whose sample rows ``box[t, 2] .. box[t, 3]`` meet each band of ``band_height`` rows: each
-    piece of the cull (one per thread) lists its own triangles by band, and band ``b``'s list
-    is ``band_tris[band_start[c, b]:band_start[c, b + 1]]`` over the pieces ``c`` in turn,
-    which is triangle order. ``band_tris`` holds triangle indices (uint32, as :func:`_faces`:
-    fewer than 2**31 triangles). Not meaningful if a status is an error (the caller refuses
-    the scene). Too many triangles are refused by :func:`_faces`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> start = np.array([[0, 2, 3], [3, 3, 5]])          # 2 pieces, 2 bands
-    >>> tris = np.array([4, 7, 7, 90, 91])
-    >>> [[int(t) for c in range(2) for t in tris[start[c, b]:start[c, b + 1]]] for b in range(2)]
-    [[4, 7], [7, 90, 91]]
-    """
-    band_of = _band_of(nH, band_height)
-    _, _, _, counts, lists = _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0,
-                                   planes, K, depth_ok, band_of)
-    band_start = np.zeros((len(lists), counts.shape[1] + 1), np.int64)
-    np.cumsum(counts, axis=1, out=band_start[:, 1:])
-    band_start += np.cumsum([0] + [len(t) for t in lists[:-1]])[:, None]
-    tris = lists[0] if len(lists) == 1 else np.concatenate(lists)
-    return band_start, tris
-
-
-def _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-               r0, f, tri_body, FL):
-    return (_in(order, np.int64), _in(band_start, np.int64), _in(band_tris, np.uint32),
-            int(band_height), int(nH), int(nW), _in(status, np.int8), _in(box, np.int64),
-            _faces(F, 0), _in(XY, np.int64), _vertices(V), _in(w, _f8), _in(r0, _f8),
-            _in(f, _f8), _in(tri_body, np.int32), float(FL))
-
-
-def _claimed(args):
-    """:func:`_raster_bands` on the library's threads (:func:`_threads`, at most one per
-    band), which take the bands ``args[0]`` in turn from one shared counter."""
-    from xray_viz._threads import run_pieces
-
-    kernel = _kernel("_raster_bands")
-    n = len(args[0])
-    claim = np.zeros(1, np.int64)
-    run_pieces(lambda j: kernel(0, n, *args, claim), max(1, min(_threads(), n)))
-
-
-def raster_single(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                  r0, f, tri_body, FL, perspective, P00, Ex, Ey, S, N, row0):
-    args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
-                      w, r0, f, tri_body, FL)
-    _claimed(args + (True, S, N, int(row0), np.zeros(1, np.int64), np.zeros(1, np.int64),
-                     bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), 1, 1, 1,
-                     np.zeros((1, 1)), 0))
-
-
-def raster_multi(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V, w,
-                 r0, f, tri_body, FL, precedence, perspective, P00, Ex, Ey, n, W, H, L, ray0):
-    args = _band_args(order, band_start, band_tris, band_height, nH, nW, status, box, F, XY, V,
-                      w, r0, f, tri_body, FL)
-    rank, by_rank = body_ranks(precedence)
-    _claimed(args + (False, np.zeros((1, 1)), np.zeros((1, 1), np.int32), 0, rank, by_rank,
-                     bool(perspective), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n),
-                     int(W), int(H), L, int(ray0)))
-
-
-#: The crossing counts of depth sums that need none (:func:`_raster_direct`'s).
-_NO_COUNTS = np.zeros((0, 1, 1), np.int32)
-
-
-def finish(S, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0):
-    _finish_rows(_in(S, _f8)[None], _NO_COUNTS, Lf, single, FL, perspective,
-                 P00, Ex, Ey, n, W, H, L, y0, y1, s_row0, ray0)
-
-
-def finish_chunks(S, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, ray0):
-    """:func:`finish` of one body from the per-thread accumulators ``S`` of
-    :func:`raster_direct` (summed as :func:`reduce_chunks` does, without storing the sum)."""
-    _finish_rows(_in(S, _f8), _NO_COUNTS, np.zeros((1, 1, 1)), True, FL, perspective,
-                 P00, Ex, Ey, n, W, H, L, y0, y1, 0, ray0)
-
-
-def _finish_rows(S, N, Lf, single, FL, perspective, P00, Ex, Ey, n, W, H, L, y0, y1, s_row0,
-                 ray0):
-    _split("_finish", int(y0), int(y1),
-           (S, N, _in(Lf, _f8), bool(single), float(FL), bool(perspective),
-            _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), int(n), int(W), int(H), L, int(y0),
-            int(y1), int(s_row0), int(ray0)), _MIN_ROWS)
-
-
-def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, FL, nW, nH,
-                  depth_ok, S, err, K, planes):
-    _split("_raster_direct", 0, int(n_chunks),
-           (int(n_chunks), _faces(F, V.shape[1]), XY, w, huge, _vertices(V), bool(perspective),
-            _in(r0, _f8), _in(P00, _f8), _in(Ex, _f8), _in(Ey, _f8), _in(f, _f8), float(FL),
-            int(nW), int(nH), bool(depth_ok), S, err, K, _in(planes, _f8)))
-
-
-def reduce_chunks(S, N, FL, out):
-    """``out = sum_c S[c] (+ N[c] * FL)``: ``N`` None for :func:`raster_direct`'s sums."""
-    N = _NO_COUNTS if N is None else _in(N, np.int32)
-    _split("_reduce_chunks", 0, S.shape[1], (_in(S, _f8), N, float(FL), out), _MIN_ROWS)
-
-
-class _Entry:
-    """A kernel's entry point: normalises the arguments, then runs the kernel (over its range,
-    split over threads). The numba dispatcher's attributes (``_cache``, ``overloads``,
-    ``signatures``, ``stats``, ``py_func``) are read through, so the entry can be asked as the
-    dispatcher would."""
-
-    def __init__(self, kernel: str, call):
-        self._kernel_name = kernel
-        self._call = call
-        self.__name__ = call.__name__
-        self.__doc__ = globals()[kernel].py_func.__doc__
-
-    def __call__(self, *args, **options):
-        return self._call(*args, **options)
-
-    def __getattr__(self, attr):
-        return getattr(globals()[self.__dict__["_kernel_name"]], attr)
-
-    def __repr__(self):
-        return f"<xray_viz kernel entry {self.__name__} ({self._kernel_name})>"
-
-
-for _name, _kern in (("first_use_rank", None), ("spatial_order", "_first_use_rank"),
-                     ("project_vertices", None),
-                     ("cull_triangles", "_cull_triangles"), ("cull_and_bin", "_cull_triangles"),
-                     ("raster_single", "_raster_bands"), ("raster_multi", "_raster_bands"),
-                     ("finish", None), ("finish_chunks", "_finish"), ("raster_direct", None),
-                     ("reduce_chunks", None)):
-    globals()[_name] = _Entry(_kern or "_" + _name, globals()[_name])
-del _name, _kern
+#: The kernels above, each compiled for its one signature on first use; background compiles.
+KERNELS = KernelSet(
+    __name__,
+    {"_first_use_rank": _first_use_rank, "_project_vertices": _project_vertices,
+     "_cull_triangles": _cull_triangles, "_raster_bands": _raster_bands, "_finish": _finish,
+     "_raster_direct": _raster_direct, "_reduce_chunks": _reduce_chunks},
+    {name: _types(spec) for name, spec in SIGNATURES.items()},
+    paths=PATHS, costs=_COSTS, worker_opt=_WORKER_OPT, head=_HEAD)

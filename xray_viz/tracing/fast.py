@@ -87,7 +87,7 @@ import numpy as np
 
 from xray_viz.errors import SceneError
 from xray_viz.geometry import check_supersample
-from xray_viz.tracing._raster import FRAC_BITS
+from xray_viz.tracing._raster import ERR_STRADDLE, FRAC_BITS
 
 __all__ = ["fast_path_lengths", "trace_once", "trace_rows", "clear_caches", "visible_bodies",
            "FRAC_BITS"]
@@ -130,11 +130,11 @@ def _spatial_order(v, f):
     numbered in order of first use by those faces, so that the per-call passes over triangles
     and vertices touch memory nearly in sequence (``benchmarks/notes/kernels.md``); the vertices
     coordinate-major, ``(3, n)`` (the kernels' layout; small meshes keep their order). Projection
-    independent: done once per mesh, in compiled code (:func:`xray_viz.tracing._raster.
+    independent: done once per mesh, in compiled code (:func:`xray_viz.tracing._raster_calls.
     spatial_order`: a radix sort of the vertices' Morton codes, a counting sort of the faces)."""
     if len(v) < 4096 or len(v) >= 2**31:
         return np.ascontiguousarray(v.T), f
-    from xray_viz.tracing._raster import spatial_order
+    from xray_viz.tracing._raster_calls import spatial_order
 
     return spatial_order(v, f)
 
@@ -501,7 +501,7 @@ class _Plan:
     """
 
     def __init__(self, scene, n, window):
-        from xray_viz.tracing import _raster as R
+        from xray_viz.tracing import _raster_calls as R
 
         bodies, acq = _split(scene)
         self.R = R
@@ -636,9 +636,9 @@ def _setup(R, F, XY, w, huge, V, perspective, r0, FL, nW, nH, sides, status, box
     """Cull the triangles (their ``status`` and sample ``box``) and bin those that cover
     samples by bands of ``band_height`` detector rows: ``(band_start, band_tris)``. The
     rasters compute each triangle's plane where they raster it. ``K``, ``depth_ok``: see
-    :func:`_raster.cull_triangles`."""
+    :func:`_raster_calls.cull_triangles`."""
     bands = R.cull_and_bin(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, sides,
                            band_height, K=K, depth_ok=depth_ok)
-    if not depth_ok and status.min() <= R.ERR_STRADDLE:
-        _refuse(*where, B, int(np.flatnonzero(status <= R.ERR_STRADDLE)[0]), r0, w, F)
+    if not depth_ok and status.min() <= ERR_STRADDLE:
+        _refuse(*where, B, int(np.flatnonzero(status <= ERR_STRADDLE)[0]), r0, w, F)
     return bands

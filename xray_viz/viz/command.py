@@ -83,6 +83,11 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--view", choices=("side", "bodies"), default="side",
                    help="starting camera: the whole set-up from the side (default), or a "
                         "close-up of the bodies with the detector behind them (keys v and b)")
+    p.add_argument("--volume-style", choices=("slices", "volume"), default="slices",
+                   help="how a voxel volume ([[ct]] or [[labels]] traced as voxels) is drawn: "
+                        "three orthogonal slices in an HU window (default), or a volume "
+                        "rendering with air transparent, soft tissue faint and bone opaque "
+                        "(key x switches)")
     p.add_argument("--web", action="store_true",
                    help="serve the viewer as a web page (a trame server; needs the jupyter "
                         "extra) instead of opening a window: for a browser on this machine, or "
@@ -92,6 +97,13 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
                         "machine only; 0.0.0.0 for every interface)")
     p.add_argument("--port", type=int, default=None, metavar="N",
                    help="with --web: the port (default: 0, any free port; the URL is printed)")
+    add_dose_arguments(p)
+    from xray_viz.render import add_scatter_arguments
+
+    add_scatter_arguments(p, per="view")
+    p.add_argument("--radiograph", choices=("total", "primary", "scatter", "spr"),
+                   default=None, help="with --scatter: the view of the radiograph to start "
+                                      "with (default: total)")
     from xray_viz.scene_options import add_scene_overrides
 
     add_scene_overrides(p)
@@ -140,13 +152,25 @@ def show_command(args) -> int:
     if args.resolution is not None and args.resolution > MAX_RESOLUTION:
         raise XrayVizError(f"--resolution {args.resolution}: too large; the preview can be at "
                            f"most {MAX_RESOLUTION} pixels along the detector's longer side")
+    from xray_viz.render import scatter_arguments
+
+    scatter, histories, smoothing = scatter_arguments(args)
+    if getattr(args, "radiograph", None) is not None and scatter is None:
+        raise XrayVizError(f"--radiograph {args.radiograph} needs --scatter mc or kernel: "
+                           "without scatter the radiograph is the primary alone")
     from xray_viz.viz.rays import select_pixels
 
     scene = load_scene_with_overrides(args)
+    if args.volume_style != "slices" and not scene.volumes:
+        raise XrayVizError(f"--volume-style {args.volume_style}: {args.scene} has no voxel "
+                           "volume ([[ct]] or [[labels]] with trace = \"voxels\"); leave the "
+                           "option out")
     try:
         select_pixels(scene.detector.shape, args.rays)
     except ValueError as exc:
         raise XrayVizError(f"--rays: {exc}") from None
+    if getattr(args, "dose", None) is not None:
+        return dose_window(args, scene, (w, h), out)
     if args.web:
         return _serve_web(args, scene, (w, h))
     if args.host is not None or args.port is not None:
@@ -160,9 +184,14 @@ def show_command(args) -> int:
 
     with _compile_notice("fast"), progress.task("opening the viewer", unit="rows"):
         viewer = Viewer(scene, rays=args.rays, resolution=args.resolution,
-                        texture=args.texture, window_size=(w, h), off_screen=out is not None)
+                        texture=args.texture, window_size=(w, h), off_screen=out is not None,
+                        scatter=scatter, histories=histories, scatter_smoothing=smoothing)
+    if getattr(args, "volume_style", "slices") != "slices":
+        viewer.set_volume_style(args.volume_style)
     if args.view == "bodies":
         viewer.view_bodies()
+    if getattr(args, "radiograph", None) is not None:
+        viewer.set_quantity(args.radiograph)
     if out is None:
         viewer.show()
         return 0
@@ -171,6 +200,45 @@ def show_command(args) -> int:
     sw, sh = viewer.scene.detector.shape               # the preview's, at --resolution
     print(f"wrote {out} ({w}x{h} window: 3D scene left, {sw}x{sh} radiograph right, render "
           f"{viewer.radiograph.timing['total'] * 1000:.0f} ms)")
+    return 0
+
+
+def add_dose_arguments(p) -> None:
+    """``show``'s ``--dose N`` (issue 38): the transport's window (its seed: ``--seed``)."""
+    p.add_argument("--dose", type=int, default=None, metavar="N",
+                   help="run the photon transport with N histories (seed: --seed, default 0) "
+                        "and show its four detector images (primary, single incoherent, single "
+                        "coherent, multiple) and the energy and dose per body as a table, "
+                        "instead of the 3D scene")
+
+
+def dose_window(args, scene, window_size, out) -> int:
+    """``show --dose N``: :func:`xray_viz.transport` of the scene, shown by
+    :func:`xray_viz.viz.dose_view.plot_transport` (or saved with ``--screenshot``)."""
+    if args.web:
+        raise XrayVizError("--dose and --web do not go together yet: use --dose with a window "
+                           "or --screenshot, or `xray-viz dose` for the table alone")
+    if out is None:
+        require_display("--screenshot OUT.png to save the transport's window off-screen")
+    else:
+        _use_egl_if_headless()
+    import xray_viz
+    from xray_viz import progress
+    from xray_viz.viz.dose_view import plot_transport
+
+    seed = 0 if getattr(args, "seed", None) is None else int(args.seed)
+    with progress.task(f"transport of {args.dose} histories", unit="histories"):
+        result = xray_viz.transport(scene, args.dose, seed=seed)
+    name = Path(str(scene.path)).stem if getattr(scene, "path", None) else "scene"
+    plotter = plot_transport(result, window_size=window_size, off_screen=out is not None,
+                             title=f"{name}: photon transport, seed {seed}").plotter
+    if out is None:
+        plotter.show()
+        return 0
+    plotter.screenshot(str(out))
+    plotter.close()
+    print(f"wrote {out} (transport of {result.histories} histories: four detector images and "
+          f"the energy per body)")
     return 0
 
 
@@ -186,9 +254,16 @@ def _serve_web(args, scene, window_size) -> int:
     with _compile_notice("fast"), progress.task("opening the viewer", unit="rows"):
         viewer = web.WebViewer(scene, rays=args.rays, resolution=args.resolution,
                                texture=args.texture, window_size=window_size,
-                               height=window_size[1])
+                               height=window_size[1],
+                               scatter=None if args.scatter == "none" else args.scatter,
+                               histories=args.histories,
+                               scatter_smoothing=args.scatter_smoothing)
+    if getattr(args, "volume_style", "slices") != "slices":
+        viewer.viewer.set_volume_style(args.volume_style)
     if args.view == "bodies":
         viewer.viewer.view_bodies()
+    if args.radiograph is not None:
+        viewer.viewer.set_quantity(args.radiograph)
 
     return web.serve(viewer, host=host, port=port,
                      announce=functools.partial(print, flush=True))

@@ -239,7 +239,7 @@ def show(scene, *, host="127.0.0.1", port=0, height=700, backend="auto", proxy=N
     XrayVizError
         Outside a notebook, when there is no display to open a window on.
     """
-    from xray_viz.scene import load_scene
+    from xray_viz.scene_file import load_scene
 
     if isinstance(scene, (str, bytes)) or hasattr(scene, "__fspath__"):
         scene = load_scene(scene)

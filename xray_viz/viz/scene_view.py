@@ -119,11 +119,12 @@ def quantity_title(quantity: str, scene=None) -> str:
     >>> quantity_title("path-length")
     'path length (mm)'
     """
-    if quantity == "intensity":
+    if quantity in ("intensity", "total", "primary", "scatter"):
         i0 = getattr(getattr(scene, "detector", None), "i0", 1.0)
-        return "I / I0" if i0 == 1 else "I (photons)"
-    return {"line-integral": "line integral",
-            "path-length": "path length (mm)"}.get(quantity, quantity)
+        unit = "I / I0" if i0 == 1 else "I (photons)"
+        return unit if quantity == "intensity" else f"{quantity} {unit}"
+    return {"line-integral": "line integral", "path-length": "path length (mm)",
+            "spr": "scatter / primary"}.get(quantity, quantity)
 
 
 def window_level_limits(image, *, window=None, level=None) -> tuple[float, float]:
@@ -246,6 +247,8 @@ class SceneView:
     view_box: tuple = camera.SIDE_VIEW_BOX
     bodies_view_box: tuple | None = None
     camera_view: str = "side"
+    # how voxel volumes are drawn: "slices" or "volume" (set_volume_style)
+    volume_style: str = "slices"
     _camera_set: bool = False
     #: Texts of fixed pixel size, by name: (actor, font size at the reference window).
     _fixed_texts: dict = field(default_factory=dict)
@@ -323,10 +326,10 @@ class SceneView:
         return actor
 
     def _group_names(self, group):
-        if group == "bodies":
+        if group == "bodies":     # a volume's box, and its parts of the current style
             return tuple(f"body:{b.name}" for b in self.scene.bodies) + tuple(
                 f"volume:{v.name}{part}" for v in getattr(self.scene, "volumes", ())
-                for part in (":box", ":slice"))
+                for part in (":box",) + VOLUME_PARTS[self.volume_style])
         return GROUPS[group]
 
     def set_visible(self, group: str, visible: bool) -> None:
@@ -393,33 +396,103 @@ class SceneView:
             drawn[name] = key
         self._drawn_bodies = drawn
         self.material_colors = labels
-        for vol in getattr(self.scene, "volumes", ()):
+        volumes = getattr(self.scene, "volumes", ())
+        names = {v.name for v in volumes}
+        for name in [n for n in self.plotter.actors if n.startswith("volume:")]:
+            if name.split(":")[1] not in names:           # a volume no longer in the scene
+                self.plotter.remove_actor(name, render=False)
+                self.datasets.pop(name, None)
+        for vol in volumes:
             self._draw_volume(vol)
 
     def _draw_volume(self, vol):
-        """A voxel volume (issue 40): its grid's box and its middle slice across the last
-        index axis, coloured by the voxels' weights (densities, g/cm3, for a CT)."""
-        import pyvista as pv
-
+        """A voxel volume (issue 40): its grid's box, and either three orthogonal slices
+        through its middle (:func:`volume_slices`), a CT's in the HU window
+        :attr:`volume_window`, a label map's by class, or a volume rendering
+        (:meth:`_draw_volume_rendering`), as :attr:`volume_style` says. The other style's
+        actors, once drawn, are kept hidden."""
         c = vol.corners                       # corner order: i, then j, then k (bits 2, 1, 0)
         edges = [(a, b) for a in range(8) for b in range(a + 1, 8)
                  if bin(a ^ b).count("1") == 1]
         lines = np.hstack([[2, a, b] for a, b in edges])
         self._add(f"volume:{vol.name}:box", pv.PolyData(c, lines=lines), group="bodies",
                   color="black", line_width=1)
-        ni, nj, nk = vol.shape
-        step = max(1, max(ni, nj) // 256)     # at most 256 x 256 points drawn
-        i, j = np.meshgrid(np.arange(0, ni, step), np.arange(0, nj, step), indexing="ij")
-        k = nk // 2
-        idx = np.stack([i, j, np.full_like(i, k)], axis=-1).reshape(-1, 3).astype(float)
-        pts = idx @ vol.affine[:3, :3].T + vol.affine[:3, 3]
-        grid = pv.StructuredGrid()
-        grid.points = pts
-        grid.dimensions = (i.shape[1], i.shape[0], 1)
-        grid.point_data["weight"] = np.asarray(vol.weights[::step, ::step, k],
-                                               dtype=np.float64).ravel()
-        self._add(f"volume:{vol.name}:slice", grid, group="bodies", scalars="weight",
-                  cmap="gray", show_scalar_bar=False, opacity=0.8)
+        shown = self.is_visible("bodies")
+        for style, parts in VOLUME_PARTS.items():
+            if style != self.volume_style:
+                for part in parts:
+                    actor = self.plotter.actors.get(f"volume:{vol.name}{part}")
+                    if actor is not None:
+                        actor.SetVisibility(False)
+        if self.volume_style == "volume":
+            self._draw_volume_rendering(vol)
+            actor = self.plotter.actors.get(f"volume:{vol.name}:render")
+            if actor is not None:
+                actor.SetVisibility(shown)
+            return
+        ct = _is_ct(vol)
+        width, level = getattr(self, "volume_window", VOLUME_WINDOW)
+        for axis, grid in volume_slices(vol).items():
+            if ct:
+                self._add(f"volume:{vol.name}:slice:{axis}", grid, group="bodies",
+                          scalars="hu", cmap="gray", clim=hu_window_limits(width, level),
+                          show_scalar_bar=False, opacity=OPACITY_SLICE)
+            else:
+                self._add(f"volume:{vol.name}:slice:{axis}", grid, group="bodies",
+                          scalars="class", cmap="tab10", clim=(0, max(1, len(vol.names))),
+                          show_scalar_bar=False, opacity=OPACITY_SLICE)
+
+    def _draw_volume_rendering(self, vol):
+        """The volume rendering of a voxel volume (:func:`volume_grid`, at most
+        :data:`VOLUME_RENDER_VOXELS` voxels), a CT's HU through :data:`CT_OPACITY` and
+        :data:`CT_COLORS`, a label map's classes each a faint colour; drawn once per volume
+        (moving the source keeps it)."""
+        name = f"volume:{vol.name}:render"
+        drawn = self.__dict__.setdefault("_drawn_volumes", {})
+        if drawn.get(name) is vol and name in self.plotter.actors:
+            return
+        grid, matrix = volume_grid(vol)
+        self.plotter.subplot(*self.subplot_3d)
+        ct = _is_ct(vol)
+        scalars = "hu" if ct else "class"
+        actor = self.plotter.add_volume(grid, scalars=scalars, name=name, opacity="linear",
+                                        show_scalar_bar=False, reset_camera=False,
+                                        render=False, pickable=False,
+                                        opacity_unit_distance=1.0, user_matrix=matrix)
+        opacity, colors = (CT_OPACITY, CT_COLORS) if ct else _label_transfer(vol)
+        actor.prop.SetScalarOpacity(_piecewise(opacity))
+        actor.prop.SetColor(_color_function(colors))
+        if ct:
+            actor.prop.SetInterpolationTypeToLinear()
+        else:                                          # classes are not interpolated
+            actor.prop.SetInterpolationTypeToNearest()
+        self.datasets[name] = grid
+        drawn[name] = vol
+
+    def set_volume_style(self, style: str) -> None:
+        """Draw the voxel volumes as ``"slices"`` (three orthogonal slices in an HU window,
+        the default) or as a ``"volume"`` rendering (air transparent, soft tissue faint, bone
+        opaque: ``CT_OPACITY`` of this module); the meshes are drawn as before either way."""
+        if style not in VOLUME_PARTS:
+            raise SceneError(f"volume style must be one of {', '.join(VOLUME_PARTS)}, got "
+                             f"{style!r}")
+        self.volume_style = style
+        for vol in getattr(self.scene, "volumes", ()):
+            self._draw_volume(vol)
+
+    def set_volume_window(self, window: float, level: float) -> None:
+        """Show the CT volumes' slices in the HU window ``level +- window / 2`` (default
+        ``VOLUME_WINDOW``, soft tissue)."""
+        if not (np.isfinite(window) and np.isfinite(level) and window > 0):
+            raise SceneError(f"volume window must be a width > 0 and a level in HU, got "
+                             f"{window!r}, {level!r}")
+        self.volume_window = (float(window), float(level))
+        for vol in getattr(self.scene, "volumes", ()):
+            if _is_ct(vol):
+                for axis in "ijk":
+                    actor = self.plotter.actors.get(f"volume:{vol.name}:slice:{axis}")
+                    if actor is not None:
+                        actor.GetMapper().SetScalarRange(*hu_window_limits(window, level))
 
     def _draw_source(self):
         marker = shapes.source_marker(self.viewport.r0, radius=0.4 * self.size_scale)
@@ -656,8 +729,12 @@ class SceneView:
 
     @property
     def cmap(self) -> str:
-        """Grey map of the image: reversed for intensity, so attenuation is bright."""
-        return "gray_r" if self.quantity == "intensity" else "gray"
+        """Colour map of the image: grey reversed for intensity (and the total and primary of
+        a render with scatter), so attenuation is bright; grey for line integrals and path
+        lengths; a colour map for the smooth scatter and the scatter-to-primary ratio."""
+        if self.quantity in ("scatter", "spr"):
+            return "viridis"
+        return "gray_r" if self.quantity in ("intensity", "total", "primary") else "gray"
 
     def _text(self, text, position, name, *, font_size=FONT_SIZES["text"], justify="left", vertical="top",
               color="black"):
@@ -844,6 +921,214 @@ class SceneView:
                                   render=False, pickable=False)
             self.plotter.subplot(*self.subplot_3d)
         return sel
+
+
+
+# ------------------------------------------------------------------------------------------
+# voxel volumes (issue 40): three orthogonal slices
+
+#: The CT slices' default HU window (width, level): soft tissue (W 400, L 40).
+VOLUME_WINDOW = (400.0, 40.0)
+#: Opacity of a volume's slices (the bodies inside show through).
+OPACITY_SLICE = 0.85
+#: Points drawn along a slice's side, at most.
+SLICE_POINTS = 256
+
+
+#: The actors of a volume drawn in each style (:meth:`SceneView.set_volume_style`), after
+#: ``volume:<name>``; its ``:box`` is drawn in both.
+VOLUME_PARTS = {"slices": (":slice:i", ":slice:j", ":slice:k"), "volume": (":render",)}
+
+#: At most this many voxels go to the volume rendering (2**23, 32 MB of float32): a larger
+#: grid is shown every n-th voxel along each axis (:func:`volume_grid`).
+VOLUME_RENDER_VOXELS = 2 ** 23
+
+#: The CT volume rendering's opacity per mm of ray (VTK's scalar opacity at unit distance) at
+#: HU points (the HU of the slices, :func:`voxel_hu`), linear between: air and lung
+#: transparent, fat and soft tissue faint, bone (and contrast-filled vessels) from faint to
+#: nearly opaque.
+CT_OPACITY = ((-1000.0, 0.0), (-300.0, 0.0), (-100.0, 0.002), (100.0, 0.006),
+              (180.0, 0.03), (400.0, 0.5), (1000.0, 0.85), (3000.0, 0.95))
+
+#: The CT volume rendering's colours (RGB, 0 to 1) at HU points, linear between: soft tissue
+#: red-brown, bone ivory to white.
+CT_COLORS = ((-1000.0, (0.0, 0.0, 0.0)), (-100.0, (0.75, 0.45, 0.35)),
+             (100.0, (0.85, 0.35, 0.3)), (250.0, (0.95, 0.88, 0.75)),
+             (1000.0, (1.0, 1.0, 0.97)), (3000.0, (1.0, 1.0, 1.0)))
+
+#: A label map's classes in the volume rendering: opacity per mm of each non-empty class.
+LABEL_OPACITY = 0.02
+
+
+def _piecewise(points):
+    """A ``vtkPiecewiseFunction`` through ``(x, y)`` points."""
+    from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
+
+    f = vtkPiecewiseFunction()
+    for x, y in points:
+        f.AddPoint(float(x), float(y))
+    return f
+
+
+def _color_function(points):
+    """A ``vtkColorTransferFunction`` through ``(x, (r, g, b))`` points."""
+    from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
+
+    f = vtkColorTransferFunction()
+    for x, rgb in points:
+        f.AddRGBPoint(float(x), *(float(c) for c in rgb))
+    return f
+
+
+def _label_transfer(vol):
+    """A label map's opacity and colour points: class 0 transparent, each class a step of
+    :data:`LABEL_OPACITY` in its ``tab10`` colour (as on the slices)."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab10"]
+    n = max(1, len(vol.materials))
+    opacity, colors = [(0.0, 0.0), (0.5, 0.0)], [(0.0, (0.0, 0.0, 0.0))]
+    for k in range(1, n + 1):
+        opacity += [(k - 0.49, LABEL_OPACITY), (k + 0.49, LABEL_OPACITY)]
+        colors += [(float(k), tuple(cmap(k / n)[:3]))]
+    return opacity, colors
+
+
+def volume_grid(vol, *, max_voxels: int = VOLUME_RENDER_VOXELS):
+    """A voxel volume as a ``pyvista.ImageData`` for the volume rendering, and the matrix
+    that places it in the scene.
+
+    The grid's points are the voxel centres (every ``step``-th along each axis when the volume
+    has more than ``max_voxels`` voxels: ``step`` is the smallest whole number that brings it
+    under), its spacing the voxels' sizes in mm, its origin 0; the matrix (the actor's user
+    matrix) is the affine's direction cosines and its origin, so that grid point ``p`` lands at
+    ``matrix @ p = affine @ (step * index)``. Point data: ``hu`` (:func:`voxel_hu`, float32)
+    and ``class``.
+
+    Parameters
+    ----------
+    vol : VoxelVolume
+    max_voxels : int
+        At most this many voxels in the grid.
+
+    Returns
+    -------
+    grid : pyvista.ImageData
+    matrix : (4, 4) numpy.ndarray
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from xray_viz.volume import ct_volume
+    >>> vol = ct_volume(np.zeros((40, 30, 20)), np.diag([2.0, 1.0, 3.0, 1.0]), name="ct")
+    >>> grid, matrix = volume_grid(vol, max_voxels=5000)
+    >>> grid.dimensions, grid.spacing
+    ((20, 15, 10), (4.0, 2.0, 6.0))
+    >>> grid.point_data["hu"].max()
+    np.float32(0.0)
+    """
+    shape = np.asarray(vol.shape)
+    step = 1
+    while int(np.prod(-(-shape // step))) > max_voxels:
+        step += 1
+    take = (slice(None, None, step),) * 3
+    a = np.asarray(vol.affine, dtype=np.float64)
+    spacing = np.linalg.norm(a[:3, :3], axis=0)
+    matrix = np.eye(4)
+    matrix[:3, :3] = a[:3, :3] / spacing
+    matrix[:3, 3] = a[:3, 3]
+    classes = np.asarray(vol.classes[take])
+    hu = voxel_hu(vol.weights[take], classes).astype(np.float32)
+    grid = pv.ImageData(dimensions=hu.shape, spacing=tuple(step * spacing), origin=(0, 0, 0))
+    grid.point_data["hu"] = hu.ravel(order="F")
+    grid.point_data["class"] = classes.ravel(order="F").astype(np.float32)
+    return grid, matrix
+
+
+def hu_window_limits(window: float, level: float) -> tuple:
+    """``(low, high)`` HU of a window of ``window`` HU about ``level``.
+
+    Examples
+    --------
+    >>> hu_window_limits(400.0, 40.0)
+    (-160.0, 240.0)
+    """
+    return (float(level) - float(window) / 2, float(level) + float(window) / 2)
+
+
+def _is_ct(vol) -> bool:
+    """A CT traced by voxel densities (its classes' materials at 1 g/cm3), not a label map."""
+    table = getattr(vol, "table", None)
+    if table is not None:
+        return table[0] == "ct"
+    return all(m.density == 1.0 or m.mu is not None for m in vol.materials) and bool(
+        np.any(np.asarray(vol.weights) != 1.0))
+
+
+def voxel_hu(weights, classes) -> np.ndarray:
+    """HU shown for a CT's voxels: the density through the water line of the Hounsfield
+    scale, ``HU = 1000 (rho - 1)`` (the CT's own calibration below 120 HU; bone, whose HU
+    rise faster with density, shows lower than its HU: 1200 HU as about 730), and -1000 for
+    empty voxels (air).
+
+    Examples
+    --------
+    >>> voxel_hu(np.array([1.04, 0.26, 0.0]), np.array([3, 1, 0], np.uint8)).tolist()
+    [40.0, -740.0, -1000.0]
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    hu = np.round(1000.0 * (w - 1.0), 6)
+    return np.where(np.asarray(classes) > 0, hu, -1000.0)
+
+
+def volume_slices(vol, *, index=None, max_points: int = SLICE_POINTS) -> dict:
+    """Three orthogonal slices of a voxel volume as PyVista grids in scene mm.
+
+    Parameters
+    ----------
+    vol : VoxelVolume
+    index : (int, int, int), optional
+        The voxel the three slices pass through (default: the middle one).
+    max_points : int
+        At most this many points along a slice's side (every n-th voxel).
+
+    Returns
+    -------
+    dict
+        ``{"i": grid, "j": grid, "k": grid}``: the slice across each index axis, each a
+        ``pyvista.StructuredGrid`` at the voxel centres with point data ``weight`` (the
+        voxel's weight: a CT's density, g/cm3), ``class`` and ``hu`` (:func:`voxel_hu`).
+    """
+    import pyvista as pv
+
+    shape = vol.shape
+    centre = [n // 2 for n in shape] if index is None else [int(x) for x in index]
+    out = {}
+    for axis, name in enumerate("ijk"):
+        others = [a for a in range(3) if a != axis]
+        step = max(1, -(-max(shape[a] for a in others) // max_points))
+        ranges = [np.arange(0, shape[a], step) for a in others]
+        u, v = np.meshgrid(*ranges, indexing="ij")
+        idx = np.zeros(u.shape + (3,))
+        idx[..., others[0]] = u
+        idx[..., others[1]] = v
+        idx[..., axis] = centre[axis]
+        take = [slice(None)] * 3
+        take[axis] = centre[axis]
+        take[others[0]] = slice(None, None, step)
+        take[others[1]] = slice(None, None, step)
+        weights = np.asarray(vol.weights[tuple(take)], dtype=np.float64)
+        classes = np.asarray(vol.classes[tuple(take)])
+        grid = pv.StructuredGrid()
+        # points in Fortran order of (u, v): VTK's structured order, u fastest
+        pts = idx.transpose(1, 0, 2).reshape(-1, 3) @ vol.affine[:3, :3].T + vol.affine[:3, 3]
+        grid.points = pts
+        grid.dimensions = (u.shape[0], u.shape[1], 1)
+        grid.point_data["weight"] = weights.T.ravel()
+        grid.point_data["class"] = classes.T.ravel().astype(np.float64)
+        grid.point_data["hu"] = voxel_hu(weights, classes).T.ravel()
+        out[name] = grid
+    return out
 
 
 def plot_scene(scene, *, plotter=None, rays="grid 7", radiograph=None, quantity="intensity",

@@ -9,6 +9,7 @@ Every widget calls a plain method (:meth:`Viewer.set_source_distance`,
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 from collections.abc import Mapping
@@ -31,15 +32,18 @@ KEYS = {
     "h": ("hits", "hit points"),
     "o": ("vectors", "HO/VE/FL/LHC arrows"),
     "m": ("frustum", "frustum"),
+    "x": ("volume-style", "volume slices/rendering"),
     "v": ("view-side", "side view"),
     "b": ("view-bodies", "bodies close-up"),
     "i": ("screenshot", "screenshot"),
 }
 
 
-def help_text() -> str:
-    """The on-screen key help: a few short lines (it sits above the 3D view)."""
-    toggles = [f"{k} {d}" for k, (a, d) in KEYS.items() if not a.startswith(("view", "scr"))]
+def help_text(*, volumes: bool = False) -> str:
+    """The on-screen key help: a few short lines (it sits above the 3D view); the voxel
+    volumes' key (slices or a volume rendering) only for a scene with ``volumes``."""
+    toggles = [f"{k} {d}" for k, (a, d) in KEYS.items()
+               if not a.startswith(("view", "scr")) and (volumes or a != "volume-style")]
     others = [f"{k} {d}" for k, (a, d) in KEYS.items() if a.startswith(("view", "scr"))]
     return ("toggle: " + "  ".join(toggles[:3]) + "\n" + "  ".join(toggles[3:])
             + "\n" + "  ".join(others) + "  q quit"
@@ -108,6 +112,15 @@ class Viewer:
         Default ``pyvista.OFF_SCREEN``.
     widgets : bool
         Add the sliders, check boxes and key bindings.
+    scatter : {None, "mc", "kernel"}
+        Render with scatter (:func:`xray_viz.render`'s ``scatter``; every change of the
+        controls renders again, so ``"mc"`` is slow): the radiograph can then be shown as the
+        detected total, its primary and scatter parts or their ratio (:meth:`set_quantity`;
+        the key ``k`` cycles through them).
+    histories : int, optional
+        The Monte Carlo's photons for ``scatter="mc"``.
+    scatter_smoothing : float, optional
+        mm: the Gaussian smoothing of the Monte Carlo's scatter (:func:`xray_viz.render`).
 
     Examples
     --------
@@ -122,7 +135,8 @@ class Viewer:
     """
 
     def __init__(self, scene, *, rays="grid 7", resolution=None, texture=False,
-                 window_size=(1400, 700), off_screen=None, widgets=True):
+                 window_size=(1400, 700), off_screen=None, widgets=True, scatter=None,
+                 histories=None, scatter_smoothing=None):
         self.base_scene = scene
         vp = viewport(scene.source.position, scene.detector)
         self.axis = -vp.forward                          # unit(FL): detector centre -> source
@@ -150,12 +164,17 @@ class Viewer:
         self._listeners = []
         self._shots = itertools.count()
         self.scene = self._build_scene()
-        from xray_viz.render import render
+        from xray_viz.render import ScatterSource, render
 
-        self._render = render
-        self.radiograph = render(self.scene)
+        #: ``"mc"``, ``"kernel"`` or None: what the renders include.
+        self.scatter, histories = ScatterSource.options(scene, scatter, histories)
+        smoothing = ScatterSource.check_smoothing(self.scatter, scatter_smoothing)
+        self._render = functools.partial(render, scatter=self.scatter, histories=histories,
+                                         scatter_smoothing=smoothing)
+        self.radiograph = self._render(self.scene)
         self.view = plot_scene(self.scene, rays=rays, radiograph=self.radiograph,
-                               texture=texture, window_size=window_size, off_screen=off_screen)
+                               texture=texture, window_size=window_size, off_screen=off_screen,
+                               quantity="intensity" if self.scatter is None else "total")
         self.plotter = self.view.plotter
         if widgets:
             self.view.slider_band = SLIDER_BAND
@@ -278,6 +297,41 @@ class Viewer:
         self.resolution = int(round(pixels))
         self.update()
 
+    @property
+    def quantities(self) -> tuple:
+        """What the radiograph can be shown as: ``("intensity",)``, or with scatter
+        ``("total", "primary", "scatter", "spr")`` (:meth:`set_quantity`)."""
+        from xray_viz.render import SCATTER_QUANTITIES
+
+        return ("intensity",) if self.scatter is None else SCATTER_QUANTITIES
+
+    def set_quantity(self, quantity: str) -> None:
+        """Show the radiograph as ``quantity`` (one of :attr:`quantities`; with scatter the
+        detected ``"total"``, the noise-free ``"primary"`` and ``"scatter"`` in the
+        intensity's units, or ``"spr"``, their ratio); the window and level follow the new
+        image's range.
+
+        Raises
+        ------
+        SceneError
+            A quantity the radiograph does not have (a scatter view without scatter).
+        """
+        if quantity not in self.quantities:
+            raise SceneError(f"cannot show the radiograph as {quantity!r}: choose one of "
+                             f"{', '.join(self.quantities)}" + (
+                                 "" if self.scatter is not None else
+                                 " (open the viewer with scatter='mc' or 'kernel' for the "
+                                 "primary, scatter and SPR views)"))
+        self.view.quantity = quantity
+        self.view.window = self.view.level = None
+        self._update_status()
+        self._notify()
+
+    def _next_quantity(self) -> None:
+        q = self.quantities
+        now = self.view.quantity if self.view.quantity in q else q[-1]
+        self.set_quantity(q[(q.index(now) + 1) % len(q)])
+
     def set_window(self, window: float) -> None:
         """Grey-level window of the radiograph (a width in the image's units: ``I / I0``, or
         photons when the detector's ``I0`` is set); the level stays (the middle of the
@@ -383,6 +437,15 @@ class Viewer:
         self.view.set_visible(group, visible)
         self._notify()
 
+    def set_volume_style(self, style: str | None = None) -> None:
+        """Draw the voxel volumes as ``"slices"`` or a ``"volume"`` rendering
+        (:meth:`~xray_viz.viz.scene_view.SceneView.set_volume_style`); None switches to the other one (key ``x``)."""
+        if style is None:
+            style = "volume" if self.view.volume_style == "slices" else "slices"
+        self.view.set_volume_style(style)
+        self.plotter.render()
+        self._notify()
+
     def view_side(self) -> None:
         """Camera: the whole set-up from the side (key ``v``)."""
         self.view.view_side()
@@ -478,7 +541,7 @@ class Viewer:
         cols = SLIDER_COLUMNS                # three sliders a row
         window, level = self.view.window_level
         w_rng, l_rng, wl_fmt = window_level_ranges(self.radiograph.quantity(self.view.quantity))
-        unit = "I / I0" if self.view.quantity_title == "I / I0" else "photons"
+        unit = "photons" if self.view.quantity_title.endswith("(photons)") else "I / I0"
         specs = [
             ("source_distance", self.set_source_distance, (0.3 * fl0, 3.0 * fl0), fl0,
              "source distance (mm)", "%.0f"),
@@ -527,6 +590,9 @@ class Viewer:
             self.view.fixed_text(label, f"check-{group}", label.GetTextProperty().GetFontSize())
             self.checkboxes[group] = (box, label)
         self._place_checkboxes()
+        if self.scatter is not None:                  # total -> primary -> scatter -> SPR
+            pl.clear_events_for_key("k")
+            pl.add_key_event("k", self._next_quantity)
         for key, (action, _) in KEYS.items():
             pl.clear_events_for_key(key)              # pyvista binds "b" and "v" itself
             if action == "screenshot":
@@ -535,9 +601,12 @@ class Viewer:
                 pl.add_key_event(key, self.view_side)
             elif action == "view-bodies":
                 pl.add_key_event(key, self.view_bodies)
+            elif action == "volume-style":
+                pl.add_key_event(key, self.set_volume_style)
             else:
                 pl.add_key_event(key, lambda a=action: self.toggle(a))
-        self.view._text(help_text(), (0.985, 0.985), "help", font_size=8, justify="right")
+        self.view._text(help_text(volumes=bool(getattr(self.scene, "volumes", ()))),
+                        (0.985, 0.985), "help", font_size=8, justify="right")
         pl.enable_point_picking(self.on_pick, left_clicking=True, picker="cell",
                                 show_message=False, show_point=False, tolerance=0.0)
         for actor in self.plotter.renderers[0].actors.values():

@@ -1,0 +1,616 @@
+"""A fast scatter model: scatter kernel superposition calibrated on the transport.
+
+The scatter a detector pixel receives is the sum, over the pixels of the irradiated field, of
+each pixel's *scatter source* spread by a kernel, as in the scatter kernel superposition of
+Ohnesorge, Flohr and Klingenbeck-Regn (Med Phys 26:13, 1999) and of Sun and Star-Lack (Phys Med
+Biol 55:6695, 2010)::
+
+    S(x) = sum_x' T(x') A(tau(x')) K(x - x'; tau(x'), gap)
+
+in the units of the flat field (those of ``exp(log_transmission)`` and of
+``Transport.images[k] / flat_signal(scene)``), with
+
+- ``T`` the primary transmission of the pixel (``exp(log_transmission)``) and ``tau`` its
+  water-equivalent thickness (mm): the thickness of water whose transmission, weighed by this
+  scene's spectrum and detector (:class:`~xray_viz.physics.beam.Beam`), is ``T``;
+- with each pixel's path lengths per body (``scatter(..., path_lengths=)``, which
+  ``render(scatter="kernel")`` passes), the amplitude is read instead at the pixel's
+  *scatter-equivalent* water thickness ``tau_s = sum_b L_b mu_s,b / mu_s,water``: the water
+  that scatters as much toward the detector, while ``T`` stays the transmission as traced and
+  ``tau`` (the kernel's spread) its water-equivalent thickness. ``mu_s`` is the incoherent
+  plus coherent part of the attenuation of each body's material at ``E`` (xraylib's
+  ``DCS_Compt + DCS_Rayl``), counting only the photons scattered within the cone the detector
+  subtends from the bodies' exit side (:meth:`KernelModel.cone`, :meth:`KernelModel.
+  scattering_coefficients`). A body of high Z absorbs more by the photoelectric effect and
+  scatters less per unit of attenuation than water (20 mm of cortical bone attenuates like
+  about 55 mm of water at 90 kVp but scatters like about 37 mm), and more of its scatter is
+  coherent, which is forward-peaked: far from a small detector, most of the scatter detected
+  is coherent (about 90 % of it for the aluminium step wedge 490 mm above its detector), and
+  aluminium then scatters toward the detector 4.7 times as much as water per mm, not the 2.6
+  times of the whole cross sections. This is the material-dependent amplitude of Sun and
+  Star-Lack's kernels in a simple form with no new parameter (the water fit read at another
+  thickness; single-scatter acceptance, the multiple scatter taken to follow it): it took
+  the 20 mm bone layer from 19 % high to 3 % (median) and the step wedge from 30 % low to 12 %
+  (BENCHMARKS.md). Small bodies (the limb, the frog) stay 18-28 % high: a matter of their
+  shape, not of their material;
+- ``A(tau, E)`` the scatter-to-primary ratio of an infinite slab of that thickness (the
+  amplitude factor), ``ln A = a0 + a1 ln(tau / 100 mm) + a2 (tau / 100 mm - 1)
+  + a3 ln(E / 50 keV) + a4 (tau / 100 mm) ln(E / 50 keV)``: Sun and Star-Lack's
+  ``c T^alpha (ln 1/T)^beta`` written in the water-equivalent thickness, the spectrum entering
+  by ``E``, the mean energy of the source's photons after 100 mm of water;
+- a pixel ``d`` mm from the edge of the bodies' shadow sends less: ``1 - b exp(-d / (c tau))``
+  of it (the scatter sent sideways leaves a body narrower than the field);
+- ``K`` the scatter's spread, two components (Sun and Star-Lack's two-component kernel form):
+  a forward-peaked one and a broad one (``fraction`` of the scatter). Each is the footprint
+  on the detector of photons leaving a *virtual source* ``h_i = gap + s_i tau M`` mm above it
+  with intensity ``cos^n_i`` of their angle per unit solid angle,
+  ``(n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2))`` per unit area
+  (:meth:`KernelModel.gap_kernel`): the scatter leaves the body as if from a point inside it,
+  ``s_i tau`` above its exit side (magnified to the detector plane, ``M`` the
+  source-to-detector over the source-to-exit distance), then crosses the air ``gap``
+  between the bodies' exit side and the detector, so that the spread in the body and across
+  the gap add, and the photons far out arrive obliquely (what an anti-scatter grid weighs).
+
+The sum is evaluated by FFT on a coarse grid (at most :data:`COARSE` cells along a side) for a
+few groups of thickness (:data:`GROUPS`, each with its own kernel) and interpolated back to the
+pixels. The parameters are fitted by least squares on the transport's scatter images of water
+slabs (``benchmarks/calibrate_scatter_kernel.py``) and stored in
+``xray_viz/data/scatter_kernel.json`` with the ranges of the fit: a scene outside them (its
+spectrum's energy, a water-equivalent thickness, the field size or the air gap) gets a
+:class:`~xray_viz.errors.ScatterModelWarning` naming the quantity and its value.
+
+Examples
+--------
+>>> import numpy as np, xray_viz
+>>> scene = xray_viz.load_scene("nested_spheres")
+>>> model = KernelModel.of(scene)
+>>> log_t = -xray_viz.render(scene).line_integral
+>>> s = model.scatter(log_t, scene.acquisition, scene.bodies)
+>>> s.shape, bool(np.all(s >= 0)), bool(s.max() < 1)
+((256, 256), True, True)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from xray_viz.errors import SceneError, ScatterModelWarning
+
+__all__ = ["KernelModel", "KernelParameters", "load_parameters", "PARAMETERS_FILE",
+           "PARAMETER_NAMES", "RANGE_NAMES", "COARSE", "GROUPS", "TOLERANCE"]
+
+#: The calibration shipped with the package.
+PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
+
+#: The fitted parameters, in the order of :attr:`KernelParameters.values`.
+PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
+                   "n2", "b_edge", "c_edge")
+
+#: The ranges of the fit: ``[low, high]`` each.
+RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
+
+#: The model's stated error: the relative error of its scatter (and SPR) over blocks of a
+#: few mm against the transport, inside the fitted ranges, for water and, given the path
+#: lengths per body, bone layers in water (BENCHMARKS.md, "Scatter kernel model": 3 %
+#: median, 4.5-6.5 % 90th percentile on slabs it was not fitted on). Small bodies and
+#: aluminium far from the detector miss it (see there).
+TOLERANCE = 0.10
+
+#: Cells of the coarse grid along the detector's longer side, at most.
+COARSE = 64
+
+#: Upper edges (mm of water) of the groups of thickness that share a kernel.
+GROUPS = (20.0, 45.0, 75.0, 110.0, 150.0, 200.0, 260.0, 330.0, np.inf)
+
+#: Step of the look-up table in ``ln(1 / T)``.
+LOOKUP_STEP = 5e-4
+
+#: Water-equivalent thicknesses tabulated for the inversion of the transmission (mm).
+_TAU = np.concatenate([np.linspace(0.0, 50.0, 501), np.linspace(50.5, 1000.0, 1900)])
+
+
+@dataclass(frozen=True)
+class KernelParameters:
+    """A calibration of the kernel model.
+
+    Attributes
+    ----------
+    values : dict of str to float
+        :data:`PARAMETER_NAMES`.
+    ranges : dict of str to (float, float)
+        :data:`RANGE_NAMES`: what the fit covered.
+    meta : dict
+        Date, commit, histories, cases, residuals of the fit (free form).
+    """
+
+    values: dict
+    ranges: dict
+    meta: dict
+
+    def to_dict(self) -> dict:
+        """The JSON document :func:`load_parameters` reads."""
+        return {"parameters": {k: float(self.values[k]) for k in PARAMETER_NAMES},
+                "ranges": {k: [float(v) for v in self.ranges[k]] for k in RANGE_NAMES},
+                "meta": self.meta}
+
+
+def load_parameters(path=None) -> KernelParameters:
+    """Read a calibration file (default :data:`PARAMETERS_FILE`).
+
+    Raises
+    ------
+    SceneError
+        The file is missing, not JSON, or lacks a parameter or range (one line naming it).
+    """
+    path = Path(PARAMETERS_FILE if path is None else path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SceneError(f"scatter kernel calibration {path} not found: regenerate it with "
+                         "benchmarks/calibrate_scatter_kernel.py") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise SceneError(f"scatter kernel calibration {path} is not readable JSON "
+                         f"({type(exc).__name__}): regenerate it with "
+                         "benchmarks/calibrate_scatter_kernel.py") from None
+    if not isinstance(doc, dict):
+        raise SceneError(f"scatter kernel calibration {path}: expected a JSON object")
+    values, ranges = {}, {}
+    params = doc.get("parameters")
+    for name in PARAMETER_NAMES:
+        v = params.get(name) if isinstance(params, dict) else None
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise SceneError(f"scatter kernel calibration {path}: parameters.{name} must be a "
+                             f"finite number, got {v!r}")
+        values[name] = float(v)
+    rng = doc.get("ranges")
+    for name in RANGE_NAMES:
+        v = rng.get(name) if isinstance(rng, dict) else None
+        ok = (isinstance(v, list) and len(v) == 2
+              and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                      and math.isfinite(x) for x in v) and v[0] <= v[1])
+        if not ok:
+            raise SceneError(f"scatter kernel calibration {path}: ranges.{name} must be "
+                             f"[low, high] numbers, got {v!r}")
+        ranges[name] = (float(v[0]), float(v[1]))
+    if values["a1"] <= 0 or not 0 <= values["fraction"] <= 1 or not 0 <= values["b_edge"] <= 1:
+        raise SceneError(f"scatter kernel calibration {path}: needs a1 > 0 and fraction and "
+                         f"b_edge in [0, 1], got a1 = {values['a1']}, fraction = "
+                         f"{values['fraction']}, b_edge = {values['b_edge']}")
+    meta = doc.get("meta", {})
+    return KernelParameters(values, ranges, meta if isinstance(meta, dict) else {})
+
+
+def _warn(message):
+    warnings.warn(message, ScatterModelWarning, stacklevel=3)
+
+
+class KernelModel:
+    """The scatter kernel superposition model of one scene's beam (spectrum and detector).
+
+    Build it with :meth:`of`; :meth:`scatter` gives the scatter image of an acquisition.
+
+    Attributes
+    ----------
+    parameters : KernelParameters
+    energy_kev : float
+        Mean energy of the source's photons after 100 mm of water (the spectrum's variable).
+    """
+
+    def __init__(self, tau, log_t_water, energy_kev, parameters, *, grid=None,
+                 grid_primary=1.0):
+        self._tau, self._minus_log_t = tau, -log_t_water
+        self.energy_kev = float(energy_kev)
+        self.parameters = parameters
+        self.grid, self.grid_primary = grid, float(grid_primary)
+
+    @classmethod
+    def of(cls, scene, *, parameters=None) -> KernelModel:
+        """The model of ``scene``'s source and detector (its bodies come with each call).
+
+        Parameters
+        ----------
+        scene : Scene
+        parameters : KernelParameters, optional
+            Default :func:`load_parameters`.
+
+        Raises
+        ------
+        SceneError
+            No detector, or the calibration file is malformed (:func:`load_parameters`).
+
+        Warns
+        -----
+        ScatterModelWarning
+            The spectrum's energy outside the fitted range, a detector response other than
+            ``"energy"``.
+
+        Notes
+        -----
+        A detector ``grid`` (:class:`~xray_viz.physics.grid.Grid`: ``transmission(energies,
+        tan_angle)``, ``primary_transmission(energies)``) weighs each component's spread
+        across the air gap by the grid's transmission at the angle a photon arrives at (the
+        offset across the strips, along the detector's ``u`` axis, over the gap; at
+        :attr:`energy_kev`), and divides the scatter by the grid's primary transmission:
+        the scatter relative to the flat field behind the grid. Derived from the kernel's
+        angular model, not fitted on the transport's grid scoring.
+        """
+        from xray_viz.physics.beam import Beam, MM_PER_CM
+        from xray_viz.physics.materials import linear_attenuation
+
+        det = getattr(scene, "detector", None)
+        if det is None:
+            raise SceneError("the scatter kernel needs the scene's detector (its response "
+                             "weighs the spectrum): add a [detector] table")
+        if parameters is None:
+            parameters = load_parameters()
+        beam = Beam.of(scene.source, (), det)
+        e = beam.spectrum.energies[beam.keep]
+        u1 = beam.u1[beam.keep]
+        mu = np.asarray(linear_attenuation("Water, Liquid", e), float) / MM_PER_CM   # 1/mm
+        with np.errstate(divide="ignore"):
+            log_w = np.log(u1) - np.log(u1.sum())
+        work = log_w[None, :] - _TAU[:, None] * mu[None, :]
+        top = work.max(axis=1)
+        log_t_water = top + np.log(np.exp(work - top[:, None]).sum(axis=1))
+        phi = beam.spectrum.weights[beam.keep] * np.exp(-100.0 * mu)
+        energy = float(phi @ e / phi.sum())
+        lo, hi = parameters.ranges["energy_kev"]
+        if not lo <= energy <= hi:
+            _warn(f"scatter kernel: the spectrum's mean energy after 100 mm of water, "
+                  f"{energy:.1f} keV, is outside the fitted {lo:g}-{hi:g} keV")
+        response = getattr(det, "response", "energy")
+        if response != "energy":
+            _warn(f"scatter kernel: fitted for an energy-integrating detector, the scene's "
+                  f"response is {response!r}")
+        grid = getattr(det, "grid", None)
+        grid_primary = 1.0
+        if grid is not None:
+            # the primary's transmission through the grid as the detector without it weighs
+            # the beam: the flat field behind the grid over the one without
+            from dataclasses import replace
+
+            bare = Beam.of(scene.source, (), replace(det, grid=None))
+            w0 = bare.u1[bare.keep]
+            grid_primary = float(w0 @ np.asarray(grid.primary_transmission(e), float)
+                                 / w0.sum())
+        return cls(_TAU, log_t_water, energy, parameters, grid=grid,
+                   grid_primary=grid_primary)
+
+    def water_thickness(self, log_transmission) -> np.ndarray:
+        """Water-equivalent thickness (mm) of each transmission ``ln T``: the water of the
+        same spectrum-weighted transmission.
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> model = KernelModel.of(xray_viz.load_scene("sphere"))      # 60 keV
+        >>> mu = 0.020588                                              # water, 1/mm, about
+        >>> round(float(model.water_thickness(-mu * 100.0)), 0)
+        100.0
+        """
+        return np.interp(-np.asarray(log_transmission, float), self._minus_log_t, self._tau)
+
+    def _lookup(self):
+        """``(tau, T A(tau), group)`` on the uniform grid of ``ln(1 / T)``, step
+        :data:`LOOKUP_STEP`, up to the water table's end (cached per parameters)."""
+        if getattr(self, "_table_params", None) is not self.parameters:
+            grid = np.arange(0.0, self._minus_log_t[-1] + LOOKUP_STEP, LOOKUP_STEP)
+            tau = np.interp(grid, self._minus_log_t, self._tau)
+            q = np.exp(-grid) * self.amplitude(tau)
+            q[tau <= 0] = 0.0
+            group = np.searchsorted(np.asarray(GROUPS), tau, side="left")
+            self._table, self._table_params = (tau, q, group), self.parameters
+        return self._table
+
+    def amplitude(self, tau) -> np.ndarray:
+        """The scatter-to-primary ratio of an infinite water slab ``tau`` mm thick."""
+        p = self.parameters.values
+        t = np.asarray(tau, float) / 100.0
+        le = math.log(self.energy_kev / 50.0)
+        with np.errstate(divide="ignore"):
+            ln_a = (p["a0"] + p["a1"] * np.log(t) + p["a2"] * (t - 1.0) + p["a3"] * le
+                    + p["a4"] * t * le)
+        return np.exp(ln_a)
+
+    def gap_kernel(self, gap, shape, cells, n) -> np.ndarray | None:
+        """A component's kernel on the coarse grid (FFT order, each cell's share):
+        ``(n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2))`` per unit area, the footprint at
+        the detector of photons leaving a point ``h = gap`` mm above it with intensity
+        ``cos^n`` of their angle per unit solid angle (times the grid's transmission at
+        their angle, with a grid); None for ``h`` below a quarter of a cell (all in the
+        cell below it at this resolution)."""
+        (ny, nx), (cy, cx) = shape, cells
+        if gap < 0.25 * min(cy, cx):
+            return None
+        ky = np.arange(ny)
+        ky = np.where(ky > ny // 2, ky - ny, ky) * cy
+        kx = np.arange(nx)
+        kx = np.where(kx > nx // 2, kx - nx, kx) * cx
+        out = self._footprint(ky[:, None], kx[None, :], gap, n) * (cy * cx)
+        # the cells near the origin, where it changes within a cell: 9 x 9 points each
+        m = min(3, ny // 2 - 1, nx // 2 - 1)
+        sub = (np.arange(9) - 4.0) / 9.0
+        idx = np.arange(-m, m + 1)
+        y = ((idx[:, None] + sub[None, :]) * cy).reshape(-1)
+        x = ((idx[:, None] + sub[None, :]) * cx).reshape(-1)
+        core = self._footprint(y[:, None], x[None, :], gap, n)
+        core = core.reshape(2 * m + 1, 9, 2 * m + 1, 9).mean(axis=(1, 3)) * (cy * cx)
+        out[np.ix_(idx % ny, idx % nx)] = core
+        return out
+
+    @staticmethod
+    def _edge_distance(inside, cells):
+        """mm from each cell to the nearest cell outside the bodies' shadow (the field's own
+        edge is not one); None when the shadow covers the field."""
+        if inside.all():
+            return None
+        from scipy.ndimage import distance_transform_edt
+
+        return distance_transform_edt(inside, sampling=cells)
+
+    def _footprint(self, y, x, gap, n):
+        """The per-area density of :meth:`gap_kernel` at offsets ``y``, ``x`` (mm), times
+        the grid's transmission at ``tan = x / gap`` across the strips."""
+        h2 = gap * gap
+        # (n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2)), without overflow for a large n
+        dens = (n + 1.0) / (2.0 * math.pi * h2) * (h2 / (y * y + x * x + h2)) ** (
+            (n + 3.0) / 2.0)
+        if self.grid is not None:                  # across the strips: along u
+            dens = dens * np.asarray(self.grid.transmission(self.energy_kev, x / gap), float)
+        return dens
+
+    def grid_factor(self, n) -> float:
+        """The grid's mean transmission of scatter leaving with intensity ``cos^n`` of its
+        angle per unit solid angle (the no-gap limit of :meth:`gap_kernel`); 1 without a
+        grid."""
+        if self.grid is None:
+            return 1.0
+        theta = (np.arange(400) + 0.5) * (0.5 * math.pi / 400)
+        phi = (np.arange(64) + 0.5) * (2.0 * math.pi / 64)
+        w = np.cos(theta) ** n * np.sin(theta)
+        tan_u = np.tan(theta)[:, None] * np.cos(phi)[None, :]
+        t = np.asarray(self.grid.transmission(self.energy_kev, tan_u), float)
+        return float((w[:, None] * t).sum() / (w.sum() * len(phi)))
+
+    @staticmethod
+    def geometry(acquisition, bodies) -> tuple[float, float]:
+        """``(gap, magnification)``: the air gap (mm) between the bodies' side nearest the
+        detector and the detector plane, and the source-to-detector distance over the
+        source-to-exit distance (1 for a parallel beam)."""
+        f = acquisition.frame
+        if not len(bodies):
+            return 0.0, 1.0
+        pts = bodies.cached(("scatter_kernel", "points"),
+                            lambda: np.vstack([np.asarray(b.mesh.vertices, float)
+                                               for b in bodies]), limit=1) \
+            if hasattr(bodies, "cached") else np.vstack([np.asarray(b.mesh.vertices, float)
+                                                         for b in bodies])
+        normal = np.asarray(f.normal, float)
+        # above the detector plane (einsum's own loop: no BLAS threads to wait for)
+        gap = max(0.0, float(np.asarray(f.middle, float) @ normal
+                             - np.einsum("ij,j->i", pts, normal).max()))
+        if f.parallel:
+            return gap, 1.0
+        d = float(f.distance)
+        return gap, d / max(d - gap, 1e-9)
+
+    def scattering_coefficients(self, bodies, *, cone=None) -> np.ndarray:
+        """Each body's scattering coefficient over water's at :attr:`energy_kev`:
+        ``(mu_incoherent + mu_coherent)`` of its material over that of liquid water (a body
+        of constant ``mu`` scatters as water of the same attenuation); with ``cone``
+        (radians), of the photons scattered within that angle only
+        (:func:`~xray_viz.physics.materials.mass_scattering`).
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> scene = xray_viz.load_scene("step_wedge")                   # aluminium, 60 keV
+        >>> model = KernelModel.of(scene)
+        >>> [round(float(c), 2) for c in model.scattering_coefficients(scene.bodies)]
+        [2.57]
+        """
+        from xray_viz.physics.materials import (check_material, linear_attenuation,
+                                                mass_scattering)
+
+        e = self.energy_kev
+        water = (float(mass_scattering("Water, Liquid", e, cone=cone)[0])
+                 * check_material("Water, Liquid"))
+        mu_water = float(linear_attenuation("Water, Liquid", e)[0])
+        out = np.empty(len(bodies))
+        for b, body in enumerate(bodies):
+            if getattr(body, "material", None) is None:
+                out[b] = float(body.mu) / mu_water
+            else:
+                rho = check_material(body.material, density=body.density)
+                out[b] = float(mass_scattering(body.material, e, cone=cone)[0]) * rho / water
+        return out
+
+    def path_weights(self, acquisition, bodies) -> np.ndarray:
+        """``(n_bodies,)``: each body's mm of path in mm of water that scatter as much toward
+        the detector (:meth:`scattering_coefficients` within the :meth:`cone` of this
+        acquisition)."""
+        gap, _ = self.geometry(acquisition, bodies)
+        return self.scattering_coefficients(bodies, cone=self.cone(acquisition, gap))
+
+    @staticmethod
+    def cone(acquisition, gap) -> float:
+        """Half-angle (radians) of the cone the detector subtends from the bodies' exit side:
+        ``atan(r / gap)``, ``r`` the radius of the disc of the detector's area (pi / 2 with
+        no gap). Rounded to a quarter of a degree (the cross sections are cached per cone).
+        """
+        w, h = acquisition.detector.shape
+        pu, pv = (float(x) for x in acquisition.frame.pitch)
+        r = math.sqrt(w * h * pu * pv / math.pi)
+        step = math.radians(0.25)
+        return max(step, round(math.atan2(r, gap) / step) * step)
+
+    def scatter(self, log_transmission, acquisition, bodies, *,
+                path_lengths=None, scattering=None) -> np.ndarray:
+        """The scatter reaching each pixel, relative to the flat field.
+
+        Parameters
+        ----------
+        log_transmission : (H, W) float
+            The noise-free primary ``ln(P / flat)`` of each pixel of ``acquisition``.
+        acquisition : Acquisition
+        bodies : Bodies or sequence of Body
+            For the air gap between their exit side and the detector (and, with
+            ``path_lengths``, their materials).
+        path_lengths : (H, W, n_bodies) float, optional
+            Each pixel's path length (mm) through each body (``Radiograph.path_length``).
+            With them the amplitude is read at the pixel's *scatter-equivalent* water
+            thickness (the water of the same incoherent + coherent line integral,
+            :meth:`scattering_coefficients`) instead of the water-equivalent thickness of
+            its transmission: a body of high Z absorbs more and scatters less per unit of
+            attenuation than water. Without them, every body is taken for water.
+        scattering : (H, W) float, optional
+            The same thickness already summed, ``path_lengths @ w`` with ``w`` the
+            :meth:`path_weights` of this acquisition (what the renderer accumulates while
+            it traces, without the (H, W, n_bodies) array); not with ``path_lengths``.
+
+        Returns
+        -------
+        (H, W) float
+            Non-negative; zeros where nothing attenuates.
+
+        Warns
+        -----
+        ScatterModelWarning
+            A water-equivalent thickness, the field or the air gap outside the fitted range.
+        """
+        log_t = np.asarray(log_transmission, dtype=np.float64)
+        h, w = log_t.shape
+        scat = None
+        if path_lengths is not None:
+            lengths = np.asarray(path_lengths, dtype=np.float64)
+            if lengths.shape != (h, w, len(bodies)):
+                raise SceneError(f"scatter kernel: path_lengths of shape {lengths.shape} for "
+                                 f"a {h} x {w} image of {len(bodies)} bodies: pass "
+                                 f"Radiograph.path_length, ({h}, {w}, {len(bodies)})")
+            scat = np.einsum("ijk,k->ij", lengths, self.path_weights(acquisition, bodies))
+        elif scattering is not None:
+            scat = np.asarray(scattering, dtype=np.float64)
+            if scat.shape != (h, w):
+                raise SceneError(f"scatter kernel: scattering of shape {scat.shape} for a "
+                                 f"{h} x {w} image: pass ({h}, {w}) mm of water")
+        f = acquisition.frame
+        pu, pv = (float(x) for x in f.pitch)
+        ranges = self.parameters.ranges
+        x = np.negative(log_t.reshape(-1))                  # ln(1 / T) per pixel
+        top = float(self.water_thickness(-x.max())) if x.size else 0.0
+        if top < 0.05:                               # nothing attenuates: no scatter
+            return np.zeros((h, w))
+        gap, mag = self.geometry(acquisition, bodies)
+        field = max(w * pu, h * pv)
+        for name, value, unit in (("thickness_mm", top, "water-equivalent thickness"),
+                                  ("field_mm", field, "field side at the detector"),
+                                  ("gap_mm", gap, "air gap")):
+            lo, hi = ranges[name]
+            if value > hi * 1.0001:
+                _warn(f"scatter kernel: the {unit} {value:.0f} mm is beyond the fitted "
+                      f"{lo:g}-{hi:g} mm")
+        # the coarse grid: k x k pixels per cell, at most COARSE cells along a side
+        k = max(1, -(-max(h, w) // COARSE))
+        ch, cw = -(-h // k), -(-w // k)
+        n_cells = ch * cw
+        # ln(1 / T) averaged over pre x pre pixels first (at least 4 x 4 of them per cell):
+        # the source varies little within 1/4 of a cell, and the rest costs 1 / pre^2
+        pre = next(p for p in (4, 2, 1) if k % p == 0 and k // p >= 4 or p == 1)
+        if pre > 1:
+            hb, wb = -(-h // pre), -(-w // pre)
+            pad = log_t if (h % pre, w % pre) == (0, 0) else np.pad(
+                log_t, ((0, hb * pre - h), (0, wb * pre - w)), mode="edge")
+            acc = np.zeros((hb, wb))
+            for a in range(pre):                  # strided views: no reshaped copy
+                for b in range(pre):
+                    acc += pad[a::pre, b::pre]
+            x = acc.reshape(-1)
+            x *= -1.0 / (pre * pre)
+            if scat is not None:
+                pad = scat if (h % pre, w % pre) == (0, 0) else np.pad(
+                    scat, ((0, hb * pre - h), (0, wb * pre - w)), mode="edge")
+                acc = np.zeros((hb, wb))
+                for a in range(pre):
+                    for b in range(pre):
+                        acc += pad[a::pre, b::pre]
+                scat = acc.reshape(-1) / (pre * pre)
+        else:
+            hb, wb = h, w
+        kb = k // pre
+        # tau, the scatter source T A(tau) and the group by look-up on a fine uniform table
+        # of ln(1 / T) (its step, LOOKUP_STEP, moves T by 0.05 % at most)
+        tab_tau, tab_q, tab_group = self._lookup()
+        i = np.multiply(x, 1.0 / LOOKUP_STEP)
+        i += 0.5
+        np.clip(i, 0, len(tab_tau) - 1, out=i)
+        i = i.astype(np.intp)
+        tau, q, group = tab_tau[i], tab_q[i], tab_group[i]
+        if scat is not None:
+            if scat.ndim > 1:
+                scat = scat.reshape(-1)
+            # the amplitude at the scatter-equivalent thickness, the transmission as it is
+            with np.errstate(divide="ignore"):
+                q = np.exp(-x) * self.amplitude(scat)
+            q[(scat <= 0) | (tau <= 0)] = 0.0
+        cell = ((np.arange(hb) // kb)[:, None] * cw + (np.arange(wb) // kb)[None, :]).reshape(-1)
+        index = group * n_cells + cell
+        n_groups = len(GROUPS)
+        sums = np.bincount(index, weights=q, minlength=n_groups * n_cells)
+        moments = np.bincount(index, weights=q * tau, minlength=n_groups * n_cells)
+        sums = sums.reshape(n_groups, ch, cw) / (kb * kb)   # mean source per cell (zeros
+        moments = moments.reshape(n_groups, ch, cw) / (kb * kb)  # past the image's edge)
+        # near the edge of a body's shadow the scatter sent sideways leaves the body: the
+        # source falls by 1 - b exp(-d / (c tau)) at d mm from the nearest cell outside it
+        edge = self._edge_distance(sums.sum(axis=0) > 0, (k * pv, k * pu))
+        ny, nx = 2 * ch, 2 * cw                     # zero padded: the field ends at its edge
+        total = np.zeros((ny, nx // 2 + 1), complex)
+        p = self.parameters.values
+        coarse = np.zeros((ny, nx))
+        cells = (k * pv, k * pu)
+        for g in range(n_groups):
+            weight = float(sums[g].sum())
+            if weight <= 0:
+                continue
+            tau_g = float(moments[g].sum()) / weight
+            coarse[:ch, :cw] = sums[g]
+            if edge is not None:
+                coarse[:ch, :cw] *= 1.0 - p["b_edge"] * np.exp(
+                    -edge / (p["c_edge"] * tau_g + 1.0))
+            kern = np.zeros((ny, nx))
+            for share, s_i, n in ((1.0 - p["fraction"], p["s1"], p["n1"]),
+                                  (p["fraction"], p["s2"], p["n2"])):
+                height = gap + s_i * tau_g * mag
+                spread = self.gap_kernel(height, (ny, nx), cells, n)
+                if spread is None:
+                    kern[0, 0] += share * self.grid_factor(n)
+                else:
+                    kern += share * spread
+            total += np.fft.rfft2(coarse) * np.fft.rfft2(kern)
+        if self.grid is not None:
+            total /= self.grid_primary
+        s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
+        np.maximum(s, 0.0, out=s)                   # FFT round-off below zero
+        if k == 1:
+            return np.ascontiguousarray(s)
+        # bilinear interpolation from the cells' centres to the pixels', axis by axis
+        lo, t = _linear(h, k, ch)
+        rows = s[lo] * (1.0 - t)[:, None]
+        rows += s[np.minimum(lo + 1, ch - 1)] * t[:, None]
+        lo, t = _linear(w, k, cw)
+        out = rows[:, lo] * (1.0 - t)
+        out += rows[:, np.minimum(lo + 1, cw - 1)] * t
+        return np.maximum(out, 0.0, out=out)
+
+
+def _linear(n, k, m):
+    """``(lo, t)``: pixel ``i`` of ``n`` is ``(1 - t) cell[lo] + t cell[lo + 1]`` of ``m``
+    cells of ``k`` pixels (values at the cells' centres, held at the ends)."""
+    pos = np.clip((np.arange(n) + 0.5) / k - 0.5, 0.0, m - 1.0)
+    lo = np.minimum(np.floor(pos).astype(np.intp), max(m - 2, 0))
+    return lo, pos - lo
