@@ -170,3 +170,39 @@ def test_code_block_runs(path, block, tmp_path, monkeypatch):
     else:
         for argv in commands(block["text"]):
             run_command(argv, where)
+
+
+#: A dotted name of the package in the text's inline code: `xray_viz.scan.read_zarr`,
+#: `xray_viz.load_image(path)` (the call's arguments dropped); not a Sphinx role's target
+#: (:func:`xray_viz.render.render` names the module, for Sphinx).
+INLINE_NAME = re.compile(r"(?<![:`])`+(xray_viz(?:\.\w+)+)(?:\([^`]*\))?`")
+
+
+def test_the_names_in_the_texts_inline_code_are_attributes():
+    """Each `xray_viz.a.b` named in the inline code of the README and the docs' pages is what
+    a reader typing it gets: reached by attribute access after ``import xray_viz`` (and its
+    modules imported), as the issue's `xray_viz.scan.astra_vectors` was not (``xray_viz.scan``
+    is the function)."""
+    import importlib
+
+    import xray_viz
+
+    names = set()
+    for path in _sources():
+        names |= {m.group(1) for m in INLINE_NAME.finditer(path.read_text(encoding="utf-8"))}
+    assert "xray_viz.load_image" in names                     # the search works
+    bad = []
+    for name in sorted(names):
+        parts = name.split(".")
+        for k in range(2, len(parts) + 1):                     # `import xray_viz.a.b` as far
+            try:                                               # as it goes
+                importlib.import_module(".".join(parts[:k]))
+            except ImportError:
+                break
+        found = xray_viz
+        try:
+            for part in parts[1:]:
+                found = getattr(found, part)
+        except AttributeError:
+            bad.append(name)
+    assert bad == []
