@@ -140,6 +140,31 @@ def test_render_a_mesh_file_frames_it_and_says_which_material(part):
     assert 0.35 < (cols.max() - cols.min()) / li.shape[1] < 0.8
 
 
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".off", ".glb", ".vtp", ".PLY"])
+def test_render_any_mesh_file_frames_it(part, suffix):
+    """Any mesh format xray_viz reads (trimesh's and VTK's, any suffix case), not only STL:
+    the same washer framed the same way, the ring's 40 mm of aluminium where the STL has it."""
+    mesh = trimesh.load(part)
+    other = part.with_name("washer" + suffix)
+    if suffix == ".vtp":
+        import pyvista as pv
+
+        faces = np.hstack([np.full((len(mesh.faces), 1), 3), mesh.faces]).ravel()
+        pv.PolyData(np.asarray(mesh.vertices), faces).save(other)
+    else:
+        mesh.export(other, file_type=suffix[1:].lower())
+    done = _cli("render", other.name, "-o", "any.npy", "--quantity", "line-integral",
+                cwd=part.parent)
+    assert done.returncode == 0, done.stderr
+    assert "material Al" in done.stderr and f"init --from {other.name}" in done.stderr
+    li = np.load(part.parent / "any.npy")
+    stl = xray_viz.render(xray_viz.load_scene(part)).line_integral
+    assert li.shape == stl.shape
+    row, col = li.shape[0] // 2, li.shape[1] // 2
+    assert li[row, col] == 0.0 and li[0, 0] == 0.0
+    assert li[row, col + 75] == pytest.approx(stl[row, col + 75], rel=1e-6)
+    assert np.mean(np.abs(li - stl)) < 1e-6 * stl.max()
+
 def test_render_a_mesh_file_takes_the_overrides(part):
     done = _cli("render", part.name, "-o", "li.npy", "--quantity", "line-integral",
                 "--energy", "40", "--pitch", "0.5", cwd=part.parent)
