@@ -110,6 +110,33 @@ def test_the_readme_quick_start_is_two_commands_with_their_measured_cost():
     assert 0 < 60 * minutes + seconds < 180 and size < 2.0
     assert re.search(r"`make test` then adds .*?\d+ min \d+ s more", prose)
 
+def _system_deps_wanted(tmp_path, *args):
+    """The Debian packages ``.ci/system-deps ARGS`` asks for on a machine that has none of
+    them, as a user who is not root (``dpkg`` and ``id`` replaced): it names them and stops."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir(exist_ok=True)
+    for name, body in (("dpkg", "exit 1"), ("id", "echo 1000")):
+        (bin_dir / name).write_text(f"#!/usr/bin/env bash\n{body}\n")
+        (bin_dir / name).chmod(0o755)
+    env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}")
+    done = subprocess.run(["bash", str(ROOT / ".ci" / "system-deps"), *args], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1, done
+    line = done.stderr.splitlines()[0]
+    return set(line.split(": ", 1)[1].split())
+
+
+def test_the_demo_asks_for_no_browser_nor_x_server(tmp_path):
+    """``make demo``'s Debian packages (``system-deps core``) are the GL libraries pymeshlab
+    links against only; Chromium, Xvfb, xdotool and Mesa's EGL are the tests' (the demo of
+    main before issue 43 installed them all to draw one PNG)."""
+    if shutil.which("bash") is None:
+        pytest.skip("needs bash")
+    core = _system_deps_wanted(tmp_path, "core")
+    tests = _system_deps_wanted(tmp_path)
+    assert core == {"libgl1", "libopengl0", "libx11-6", "libfontconfig1"}
+    assert {"chromium", "xvfb", "xdotool", "libegl1"} <= tests and core < tests
+
 # --------------------------------------------------------------------------------------------
 # A starting point: a mesh file alone renders; `xray-viz init` writes a scene to edit
 
