@@ -392,8 +392,9 @@ def test_reconstruction_reports_its_progress_and_the_volume_is_unchanged(small_s
     finally:
         progress.configure(enabled=False)
     assert np.array_equal(fdk.mu, quiet_fdk.mu) and np.array_equal(sart.mu, quiet_sart.mu)
-    (fdk_desc,) = [d for d in seen if "fdk" in d]
-    (sart_desc,) = [d for d in seen if "sart" in d]
+    fdk_tasks, sart_tasks = ([d for d in seen if m in d] for m in ("fdk", "sart"))
+    assert len(fdk_tasks) == 1 and len(sart_tasks) == 1, seen      # one task each, counting
+    fdk_desc, sart_desc = fdk_tasks[0], sart_tasks[0]
     steps = [n for n, total, unit in seen[fdk_desc]]
     assert {(total, unit) for _, total, unit in seen[fdk_desc]} == {(100, "%")}
     assert steps == sorted(steps) and len(set(steps)) >= 10 and steps[-1] == 100, steps
