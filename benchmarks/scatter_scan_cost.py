@@ -12,10 +12,14 @@ detector's up axis (:func:`xray_viz.scan.default_orbit`).
 Measured in one process, after a warm-up scan of each kind (the compiled kernels loaded):
 ``xray_viz.scan(scene, orbit)`` (line integrals) and ``xray_viz.scan(scene, orbit,
 scatter="kernel")`` of the same ``--views`` views (default 360) in turn, primary then kernel,
-``--repeats`` times (default 5); printed: each one's median wall time, the median of the
-pair-by-pair ratios kernel / primary, and the time the kernel model's ``scatter`` took
-inside the kernel scans (its calls counted and timed through a wrapper; the rest of the
-difference is the path lengths weighted by material the tracer sums for the model).
+``--repeats`` times (default 5); printed: each one's median wall time and CPU time of the
+process (``time.process_time``: all its threads; steadier than the wall time on a machine
+other jobs load), the medians of the pair-by-pair ratios kernel / primary, and the CPU time
+the kernel model's ``scatter`` took inside the kernel scans (its calls counted and timed
+through a wrapper; the rest of the difference is the path lengths weighted by material the
+tracer sums for the model and the detector adding the scatter). Run it with
+``NUMBA_NUM_THREADS=1`` for the cost per core, as a Dask worker scans (one numba thread a
+task).
 
 Usage: PYTHONPATH=$PWD .venv/bin/python benchmarks/scatter_scan_cost.py [--views 360]
        [--repeats 5] [--shape 384 256] [--pitch 1.0] [--kvp 80] [--scene cylinder]
@@ -69,11 +73,11 @@ class _Timed:
         original = self.original
 
         def scatter(model, *args, **kwargs):
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             try:
                 return original(model, *args, **kwargs)
             finally:
-                self.seconds += time.perf_counter() - t0
+                self.seconds += time.process_time() - t0
                 self.calls += 1
 
         self.cls.scatter = scatter
@@ -107,36 +111,49 @@ def main(argv=None) -> int:
     xray_viz.scan(scene, warm, scatter="kernel")
 
     primary, kernel, ratios, model_s, calls = [], [], [], [], []
+    cpu_p, cpu_k, cpu_ratios = [], [], []
     for _ in range(args.repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         p = xray_viz.scan(scene, orbit)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         with _Timed() as timed:
             s = xray_viz.scan(scene, orbit, scatter="kernel")
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
         primary.append(t1 - t0)
         kernel.append(t2 - t1)
         ratios.append((t2 - t1) / (t1 - t0))
+        cpu_p.append(c1 - c0)
+        cpu_k.append(c2 - c1)
+        cpu_ratios.append((c2 - c1) / (c1 - c0))
         model_s.append(timed.seconds)
         calls.append(timed.calls)
     spr = np.exp(p.projections[:, h // 2, w // 2] - s.projections[:, h // 2, w // 2]) - 1.0
     assert np.all(s.projections <= p.projections + 1e-6)      # scatter lowers every li
 
     med = statistics.median
-    print(f"scene {args.scene}: {w} x {h} pixels, {args.views} views, "
-          f"{'%g kVp' % args.kvp if args.kvp else scene.source.spectrum or scene.source.energy}"
-          f"; {args.repeats} repeats; python {platform.python_version()}, numpy "
-          f"{np.__version__}, nproc {os.cpu_count()}, load {os.getloadavg()[0]:.1f}")
+    beam = (f"{args.kvp:g} kVp" if args.kvp else
+            "its own source" if args.scene != "cylinder" else f"{scene.source.energy:g} keV")
+    print(f"scene {args.scene}: {w} x {h} pixels, {args.views} views, {beam}; "
+          f"{args.repeats} repeats; python {platform.python_version()}, numpy "
+          f"{np.__version__}, nproc {os.cpu_count()}, NUMBA_NUM_THREADS "
+          f"{os.environ.get('NUMBA_NUM_THREADS', 'default')}, load (1 min) at the end "
+          f"{os.getloadavg()[0]:.1f}")
     print(f"SPR at the detector centre (median over views): {med(spr):.3f}")
     print("primary scan   (s): " + " ".join(f"{t:.2f}" for t in primary)
           + f"  median {med(primary):.2f} ({1e3 * med(primary) / args.views:.2f} ms/view)")
     print("kernel scan    (s): " + " ".join(f"{t:.2f}" for t in kernel)
           + f"  median {med(kernel):.2f} ({1e3 * med(kernel) / args.views:.2f} ms/view)")
-    print("  of which KernelModel.scatter (s): " + " ".join(f"{t:.2f}" for t in model_s)
+    print("primary scan CPU (s): " + " ".join(f"{t:.2f}" for t in cpu_p)
+          + f"  median {med(cpu_p):.2f} ({1e3 * med(cpu_p) / args.views:.2f} ms/view)")
+    print("kernel scan  CPU (s): " + " ".join(f"{t:.2f}" for t in cpu_k)
+          + f"  median {med(cpu_k):.2f} ({1e3 * med(cpu_k) / args.views:.2f} ms/view)")
+    print("  of which KernelModel.scatter, CPU (s): " + " ".join(f"{t:.2f}" for t in model_s)
           + f"  median {med(model_s):.2f} ({1e3 * med(model_s) / max(1, calls[0]):.2f} "
           f"ms/call, {calls[0]} calls)")
-    print("ratio kernel / primary (pair by pair): " + " ".join(f"{r:.2f}" for r in ratios)
-          + f"  median {med(ratios):.2f}")
+    print("ratio kernel / primary, wall (pair by pair): "
+          + " ".join(f"{r:.2f}" for r in ratios) + f"  median {med(ratios):.2f}")
+    print("ratio kernel / primary, CPU  (pair by pair): "
+          + " ".join(f"{r:.2f}" for r in cpu_ratios) + f"  median {med(cpu_ratios):.2f}")
     return 0
 
 
