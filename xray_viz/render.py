@@ -1094,7 +1094,9 @@ def add_scatter_arguments(parser, *, per: str) -> None:
              "detector reads primary plus scatter"
              + ("; every slider move renders again (mc is slow), and the radiograph can be "
                 "shown as the total, its primary, its scatter or the scatter-to-primary ratio "
-                "(key k, or --radiograph)" if per == "view" else ""))
+                "(key k, or --radiograph); the key a puts the anti-scatter grid in front of the "
+                "detector or takes it away (the scene's [detector] grid, else the default one)"
+                if per == "view" else ""))
     parser.add_argument(
         "--histories", type=int, default=None, metavar="N",
         help=f"photons the Monte Carlo emits for {what} with --scatter mc (required there; "
