@@ -7,7 +7,6 @@ model's scatter reconstructs with the cupping scatter causes."""
 
 from __future__ import annotations
 
-import dataclasses
 import subprocess
 import sys
 import warnings
