@@ -167,6 +167,28 @@ def test_through_render_thicker_and_wider_give_more_spr_and_the_grid_less(mode, 
     assert more(gridded, thick) and gridded[0] < 0.6 * thick[0]
 
 
+def test_the_kernel_scatter_through_render_is_smooth_where_the_primary_has_edges():
+    """A bone ball in a water slab: the primary jumps at the ball's edge from one pixel to
+    the next; the kernel model's scatter, spread over centimetres, changes by a small fraction
+    of that from pixel to pixel."""
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=25)
+    scene = _slab(120.0, shape=(64, 64), pitch=(3.0, 3.0))
+    scene = scene.replace(bodies=(*scene.bodies, Body(name="bone", mesh=ball,
+                                                      material="Bone, Cortical (ICRP)")))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", errors.ScatterModelWarning)
+        image = xray_viz.render(scene, scatter="kernel")
+    s, p = image.scatter, image.primary
+    assert np.all(np.isfinite(s)) and s.min() > 0
+
+    def jump(a):                      # the largest step between neighbours, over the range
+        steps = max(np.abs(np.diff(a, axis=0)).max(), np.abs(np.diff(a, axis=1)).max())
+        return steps / (a.max() - a.min())
+
+    assert jump(p) > 0.1                                   # the ball's edge
+    assert jump(s) < 0.2 * jump(p)
+
+
 # --- CT: the cupping --------------------------------------------------------------------------
 
 def test_a_scan_with_kernel_scatter_reconstructs_cupped():
