@@ -316,7 +316,8 @@ class Projections:
         #: when its projection is rendered: bounded memory for large scans).
         self.acquisitions = list(orbit.acquisitions(self.base)) if keep else None
         self.supersample = scene.detector.supersample
-        check_memory(scene, supersample=self.supersample, engine=engine)
+        check_memory(scene, supersample=self.supersample, engine=engine,
+                     scatter=None if self.scatter is None else self.scatter.mode)
 
     def __call__(self, k: int) -> np.ndarray:
         """Projection ``k``, ``(H, W)`` float32."""
