@@ -431,6 +431,70 @@ def test_a_mesh_overlapping_the_volume_edge_is_warned_about_once(tmp_path):
         _scene(bodies=[Body(name="tank", mesh=tank, mu=0.01)], volumes=(vol,))
 
 
+def _nifti_with_sform(path, values, sform):
+    """A NIfTI whose sform is ``sform`` as given (nibabel refuses to build one from a
+    singular or non-finite affine, but a file can hold it)."""
+    import nibabel as nib
+
+    hdr = nib.Nifti1Header()
+    hdr.set_data_shape(values.shape)
+    hdr.set_data_dtype(np.float32)
+    hdr["srow_x"], hdr["srow_y"], hdr["srow_z"] = sform[0], sform[1], sform[2]
+    hdr["sform_code"], hdr["qform_code"] = 1, 0
+    nib.save(nib.Nifti1Image(values.astype(np.float32), None, header=hdr), str(path))
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("NaN voxel", "the CT holds NaN or infinite values"),
+    ("singular affine", "its voxel-to-world affine is degenerate or not finite"),
+    ("NaN affine", "its voxel-to-world affine is degenerate or not finite"),
+])
+def test_bad_volume_files_are_one_line_and_exit_2_on_the_command_line(tmp_path, capsys,
+                                                                     case, expect):
+    """``xray-viz render`` of a scene whose CT file is bad: exit 2, one line on stderr that
+    names the table and the file, no traceback, no image."""
+    from xray_viz.cli import main
+
+    hu, affine = ct_hu(32)
+    if case == "NaN voxel":
+        hu[2, 3, 4] = np.nan
+        write_ct(tmp_path, hu, affine)
+    else:
+        bad = affine.copy()
+        if case == "singular affine":
+            bad[2, 2] = 0.0                          # the third axis has no length
+        else:
+            bad[0, 0] = np.nan
+        _nifti_with_sform(tmp_path / "ct.nii.gz", hu, bad)
+    (tmp_path / "s.toml").write_text(SCENE.format(body="", extra=""))
+    out = tmp_path / "out.png"
+    assert main(["render", str(tmp_path / "s.toml"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert expect in err[0] and "[[ct]] #1" in err[0] and "ct.nii.gz" in err[0]
+    assert "Traceback" not in err[0] and not out.exists()
+
+
+def test_a_mesh_overlapping_the_volume_edge_is_one_warning_line_on_the_command_line(
+        tmp_path, capsys):
+    import trimesh
+
+    from xray_viz.cli import main
+
+    hu, affine = ct_hu(32)                           # the grid ends at z = 16
+    write_ct(tmp_path, hu, affine)
+    trimesh.creation.box(bounds=[[-2, -2, 10], [2, 2, 22]]).export(tmp_path / "screw.stl")
+    (tmp_path / "s.toml").write_text(SCENE.format(body=IMPLANT, extra=""))
+    out = tmp_path / "out.npy"
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", VolumeOverlapWarning)   # (the suite makes it an error)
+        assert main(["render", str(tmp_path / "s.toml"), "-o", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "warning" in err[0] and "body 'screw' reaches out of volume 'ct'" in err[0]
+    assert np.isfinite(np.load(out)).all()
+
+
 def test_names_of_bodies_and_classes_must_be_unique():
     import trimesh
 
@@ -497,7 +561,10 @@ def test_the_projection_agrees_with_rtk_joseph_within_its_interpolation(kind):
 # scans and label maps
 
 
-def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks():
+@pytest.mark.parametrize("geometry", sorted(GEOMETRIES))
+def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks(geometry):
+    """Both detectors: square to the beam, and tilted 30 degrees and offset (the orbit
+    turns the tilted detector with the source)."""
     from xray_viz.orbit import Orbit
 
     affine = grid_affine()
@@ -508,10 +575,66 @@ def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks():
                                       for c in (1, 2, 3)))
     orbit = Orbit("helical", projections=4, axis=[0, 1, 0], center=[1.0, -2.0, 0.5],
                   pitch=20.0)
-    voxels = xray_viz.scan(_scene(volumes=(vol,)), orbit).projections
-    meshes = xray_viz.scan(_scene(bodies=block_meshes(affine)), orbit).projections
+    det = GEOMETRIES[geometry]
+    voxels = xray_viz.scan(_scene(detector=det, volumes=(vol,)), orbit).projections
+    meshes = xray_viz.scan(_scene(detector=det, bodies=block_meshes(affine)), orbit).projections
     assert voxels.shape == (4, 32, 40) and float(voxels.max()) > 0.4
     np.testing.assert_allclose(voxels, meshes, rtol=1e-6, atol=1e-6)    # float32 stacks
+
+
+def test_a_scan_store_refuses_to_resume_with_a_changed_ct_file(tmp_path, capsys):
+    """The scene file names its CT by path: a store scanned with one CT and resumed after the
+    file changed would mix two patients' projections. The store's digest of the scene's
+    bodies counts the volumes' voxels too (exit 2, one line); the same file resumes."""
+    from xray_viz.cli import main
+
+    hu, affine = ct_hu(32)
+    write_ct(tmp_path, hu, affine)
+    (tmp_path / "s.toml").write_text(SCENE.format(body="", extra="").replace(
+        "shape = [64, 64]", "shape = [16, 12]").replace("pitch = 1.0", "pitch = 4.0"))
+    store = tmp_path / "s.zarr"
+    args = ["scan", str(tmp_path / "s.toml"), "-o", str(store), "--projections", "4",
+            "--axis", "0", "1", "0"]
+    assert main(args) == 0
+    import zarr
+
+    g = zarr.open_group(str(store), mode="r+")
+    g["done"][2] = g["done"][3] = False                 # an interrupted run
+    assert main(args) == 0                              # the same CT: resumed
+    g["done"][2] = g["done"][3] = False
+    hu[hu > 0] += 300.0                                 # another CT at the same path
+    write_ct(tmp_path, hu, affine)
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds another scan" in err and "voxel volumes" in err
+
+
+def test_the_level_of_detail_reduces_the_bodies_and_leaves_the_volumes_as_they_are():
+    """``render(max_error=...)`` decimates the mesh bodies only: a voxel volume has nothing to
+    decimate. The report lists the ball alone, the scene rendered keeps the volume object,
+    the volume's columns are those of the full render wherever the ball's full and reduced
+    meshes both miss the ray, and the line integral stays within max_error."""
+    import trimesh
+
+    hu, affine = ct_hu(48)
+    vol = ct_volume(hu, affine, name="ct")
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=5.0)
+    ball.apply_translation([6.0, 4.0, 0.0])
+    scene = _scene(bodies=[Body(name="ball", mesh=ball, material="Ti", density=4.5)],
+                   volumes=(vol,), shape=(64, 64), pitch=1.0)
+    full = xray_viz.render(scene, path_lengths=True)
+    reduced = xray_viz.render(scene, path_lengths=True, max_error=0.5)
+    assert [b.name for b in reduced.lod.bodies] == ["ball"]
+    assert reduced.lod.faces < reduced.lod.faces_full == len(ball.faces)
+    assert reduced.scene.volumes[0] is vol and len(reduced.scene.bodies[0].mesh.faces) < len(ball.faces)
+    names = full.body_names
+    assert names == reduced.body_names and names[0] == "ball"
+    missed = (full.path_length[..., 0] == 0) & (reduced.path_length[..., 0] == 0)
+    assert missed.sum() > 1000 and (~missed).sum() > 50
+    np.testing.assert_array_equal(reduced.path_length[..., 1:][missed],
+                                  full.path_length[..., 1:][missed])
+    assert np.abs(reduced.line_integral - full.line_integral).max() <= 0.5
 
 
 def test_a_label_map_traced_as_voxels(tmp_path):
