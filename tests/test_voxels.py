@@ -385,6 +385,51 @@ def test_a_ct_scene_renders_as_voxels_by_default_with_the_implant(tmp_path):
     assert tissue.max() > 20.0
 
 
+def test_nrrd_mha_and_a_dicom_series_give_the_niftis_voxel_volume(tmp_path):
+    """The same CT (whole HU, a rotated grid of unequal spacings) as NIfTI, NRRD, MetaImage
+    and a DICOM series (slices in shuffled files, stored + 1024 with its rescale): ``[[ct]]``
+    (voxels by default) reads one volume from each - the same voxels at the same places, to
+    the float32 of the files - and one image (to the float32 of the affines: 1e-5)."""
+    pytest.importorskip("SimpleITK")
+    pytest.importorskip("pydicom")
+    from test_volumes import write_dicom_series, write_itk
+
+    hu, _ = ct_hu(32)
+    hu = np.round(hu)
+    affine = np.eye(4)
+    affine[:3, :3] = _rotation((0.3, 1.0, -0.4), 23.0) * [1.1, 1.3, 1.6]
+    affine[:3, 3] = -affine[:3, :3] @ ((np.array(hu.shape) - 1) / 2)
+    files = {"nifti": "ct.nii.gz", "nrrd": "nrrd/ct.nrrd", "mha": "mha/ct.mha",
+             "dicom": "dicom/ct"}
+    write_ct(tmp_path, hu, affine)
+    for kind in ("nrrd", "mha"):
+        (tmp_path / kind).mkdir()
+        write_itk(tmp_path / files[kind], hu.astype(np.float32), affine)
+    (tmp_path / "dicom").mkdir()
+    write_dicom_series(tmp_path / files["dicom"], hu, affine)
+    volumes, images = {}, {}
+    for kind, name in files.items():
+        text = SCENE.format(body="", extra="").replace('file = "ct.nii.gz"', f'file = "{name}"')
+        (tmp_path / f"{kind}.toml").write_text(text)
+        scene = xray_viz.load_scene(tmp_path / f"{kind}.toml")
+        (volumes[kind],) = scene.volumes
+        images[kind] = xray_viz.render(scene).line_integral
+    ref = volumes["nifti"]
+    assert images["nifti"].max() > 1.0 and len(np.unique(ref.classes)) == 4
+    inverse = np.linalg.inv(ref.affine)
+    for kind in ("nrrd", "mha", "dicom"):
+        vol = volumes[kind]          # its axes maybe in another order (each reader's layout)
+        assert vol.names == ref.names and sorted(vol.shape) == sorted(ref.shape)
+        idx = np.indices(vol.shape).reshape(3, -1).T
+        centres = idx @ vol.affine[:3, :3].T + vol.affine[:3, 3]
+        at = centres @ inverse[:3, :3].T + inverse[:3, 3]       # the NIfTI's voxel indices
+        assert np.abs(at - np.rint(at)).max() < 1e-4, kind
+        at = tuple(np.rint(at).astype(int).T)
+        np.testing.assert_array_equal(vol.classes.reshape(-1), ref.classes[at])
+        np.testing.assert_allclose(vol.weights.reshape(-1), ref.weights[at], rtol=1e-7)
+        np.testing.assert_allclose(images[kind], images["nifti"], rtol=1e-5, atol=1e-5)
+
+
 @pytest.mark.parametrize("extra, expect", [
     ('trace = "pixels"', 'trace must be "voxels"'),
     ('trace = "voxels"\nmax_error = 0.2', "'max_error' only applies to trace"),
