@@ -247,6 +247,39 @@ def test_a_ball_in_a_uniform_block_displaces_exactly_its_chords():
         np.testing.assert_allclose(per[:, 1] + per[:, 0], block, atol=1e-9)
 
 
+def test_meshes_around_and_apart_from_a_volume_add_to_it():
+    """A water tank around the whole block of voxels and a ball apart from it (inside the
+    tank): neither displaces a voxel. The block's column is its analytic chord, the tank's its
+    own whole chord (the block does not take it), and the line integral is their sum with
+    the ball's (which wins over the tank it is nested in, as between meshes)."""
+    import trimesh
+
+    affine = np.eye(4)
+    affine[:3, 3] = -19.5                                # 40 mm cube of 1 mm voxels at 0
+    vol = label_volume(np.ones((40, 40, 40), int), affine, {1: {"mu": 0.2}}, name="block")
+    tank = Body(name="tank", mu=0.02,
+                mesh=trimesh.creation.box(bounds=[[-60, -60, -30], [60, 60, 30]]))
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=8.0)
+    ball.apply_translation([38.0, 0.0, 0.0])             # beside the block
+    ball = Body(name="ball", mesh=ball, mu=0.5)
+    scene = _scene("parallel", bodies=[tank, ball], volumes=(vol,), shape=(64, 32), pitch=2.0,
+                   source=(0.0, 0.0, 400.0))
+    rays = detector_rays(scene)
+    image = xray_viz.render(scene, path_lengths=True)
+    assert image.body_names == ["tank", "ball", "block_1"]
+    per = image.path_length.reshape(-1, 3)
+    block = analytic_box(rays, -20.0, 20.0)
+    np.testing.assert_allclose(per[:, 2], block, rtol=1e-12, atol=1e-9)
+    on_ball = per[:, 1] > 0
+    assert on_ball.sum() > 10 and (block > 0).sum() > 100 and not (on_ball & (block > 0)).any()
+    np.testing.assert_allclose(per[:, 0] + per[:, 1], np.where(per[:, 0] > 0, 60.0, 0.0),
+                               atol=1e-9)                 # the tank less the ball's chord
+    assert (per[:, 0][block > 0] == 60.0).all()          # the block takes nothing of the tank
+    np.testing.assert_allclose(image.line_integral.ravel(),
+                               (per[:, 0] * 0.02 + per[:, 1] * 0.5 + per[:, 2] * 0.2) / 10.0,
+                               rtol=1e-12)
+
+
 def analytic_box(rays, lo, hi):
     t0, t1 = np.zeros(len(rays)), rays.t_max.copy()
     for a in range(3):
