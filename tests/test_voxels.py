@@ -463,6 +463,46 @@ def test_nrrd_mha_and_a_dicom_series_give_the_niftis_voxel_volume(tmp_path):
         np.testing.assert_allclose(images[kind], images["nifti"], rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize("response", ["energy", "counting"])
+def test_a_ct_and_its_implant_under_a_spectrum_are_the_explicit_sum_over_energies(tmp_path,
+                                                                                  response):
+    """mu(E) per voxel for any spectrum: the CT's columns are its classes' g/cm2 (density x
+    chord, voxel by voxel), the implant's its mm; the image is the sum over the spectrum's
+    bins of exp(-sum of mass attenuation x column), computed here by hand from xraylib."""
+    import trimesh
+    import xraylib
+
+    hu, affine = ct_hu(32)
+    write_ct(tmp_path, hu, affine)
+    screw = trimesh.creation.cylinder(radius=1.5, height=14.0)
+    screw.apply_transform(trimesh.transformations.rotation_matrix(1.2, [0, 1, 0]))
+    screw.apply_translation([6.0, 4.0, 0.0])
+    screw.export(tmp_path / "screw.stl")
+    (tmp_path / "spec.csv").write_text("keV,fluence\n30,2\n45,5\n60,4\n75,1\n")
+    text = SCENE.format(body=IMPLANT, extra="").replace(
+        "spectrum = { kvp = 80.0, filters = { Al = 2.5 } }", 'spectrum = { file = "spec.csv" }'
+    ).replace("pitch = 1.0", f'pitch = 1.0\nresponse = "{response}"')
+    (tmp_path / "s.toml").write_text(text)
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    (vol,) = scene.volumes
+    image = xray_viz.render(scene, path_lengths=True)
+    names = image.body_names
+    assert names == ["screw", *vol.names]
+    energies, fluence = [30, 45, 60, 75], np.array([2, 5, 4, 1], float)
+    weights = fluence * energies if response == "energy" else fluence
+    expected = np.zeros(image.intensity.shape)
+    for e, w in zip(energies, weights):
+        total = xraylib.CS_Total_CP("Ti", e) * 4.5 * image.path_length[..., 0] / 10.0
+        for c, m in enumerate(vol.materials, start=1):     # g/cm3 x mm -> g/cm2
+            total = total + xraylib.CS_Total_CP(m.material, e) * image.path_length[..., c] / 10.0
+        expected += w * np.exp(-total)
+    expected /= weights.sum()
+    soft = image.path_length[..., names.index("ct_soft_tissue")]
+    bone = image.path_length[..., names.index("ct_cortical_bone")]
+    assert soft.max() > 20.0 and bone.max() > 10.0 and image.path_length[..., 0].max() > 2.9
+    np.testing.assert_allclose(image.intensity, expected, rtol=1e-12)
+
+
 @pytest.mark.parametrize("extra, expect", [
     ('trace = "pixels"', 'trace must be "voxels"'),
     ('trace = "voxels"\nmax_error = 0.2', "'max_error' only applies to trace"),
