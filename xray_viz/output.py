@@ -143,7 +143,7 @@ def _window(image, *, bright="high") -> tuple[np.ndarray, int]:
     finite = np.isfinite(a)
     bad = int(a.size - np.count_nonzero(finite))
     lo, hi, log = _png_window(a[finite], bright=bright)
-    if log:                             # lo > 0; zero and negative intensities at the bottom
+    if log:                             # lo > 0; zero and negative intensities drawn at lo
         shown = np.log(np.where(finite & (a > 0), a, lo))
         scaled = (shown - np.log(lo)) / (np.log(hi) - np.log(lo))
     elif hi > lo:
