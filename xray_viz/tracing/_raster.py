@@ -209,8 +209,9 @@ def depth_key(w):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
-    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
+def _project_vertices(lo, hi, V, view, XY, w, huge, K):
+    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``
+    (:class:`Projection`); into ``XY``, ``w``, ``huge`` and ``K`` (:class:`Projected`'s).
 
     ``K`` receives each vertex's cell code (x code in bits 0-15, y code in bits 16-31, see
     :func:`_axis_code`): a triangle whose three vertices have the same even x (or y) code lies
@@ -226,6 +227,7 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     that cannot be snapped (huge, or behind a point source) are written again after their
     block. The same operations in the same order as one scalar loop: the same bits.
     """
+    r0, f, eu, ev, sx, bx, sy, by, perspective, nW, nH = view
     codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
     # The frame read once: numba cannot prove the outputs do not alias it, so it would
     # reload every component for every vertex.
@@ -471,10 +473,9 @@ def _sample_box(ax, ay, bx, by, cx, cy, nW, nH):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
-                    K, depth_ok, kept, band_of, counts):
-    """Per triangle: status (SKIP, SMALL or GIANT times the orientation, +-1, or an error
-    code) and sample bounding box.
+def _cull_triangles(lo, hi, mesh, cull, status, box, kept, counts):
+    """Per triangle of ``mesh`` (:class:`Projected`): status (SKIP, SMALL or GIANT times the
+    orientation, +-1, or an error code) and sample bounding box (the beam: :class:`Cull`).
 
     Only triangles that can cover a sample get a box; ``status`` is written for all. A triangle
     crossing the plane of the source is an error (ERR_STRADDLE) unless it lies wholly outside
@@ -494,6 +495,8 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     while its boxes are in cache, so that no other pass, nor a wait for the other threads,
     comes between the cull and the raster (:func:`cull_and_bin`).
     """
+    F, XY, w, huge, V, K = mesh
+    r0, planes, perspective, FL, nW, nH, depth_ok, band_of = cull
     n = 0
     for b in range(counts.shape[0]):
         counts[b] = 0
@@ -657,6 +660,58 @@ class Projected(NamedTuple):
     V: np.ndarray
     #: ``(n,) int32``: each vertex's cell code (:func:`_axis_code`).
     K: np.ndarray
+
+
+class Projection(NamedTuple):
+    """How :func:`_project_vertices` maps a vertex to the fine grid: ``rel = v - origin``,
+    depth ``w = rel.f``, ``x = sx * (rel.eu) [/ w] + bx``, ``y = sy * (rel.ev) [/ w] + by``
+    (``/ w`` for a point source)."""
+
+    #: ``(3,) float64``: the source (a point source) or a point on the beam (parallel).
+    origin: np.ndarray
+    #: ``(3,) float64``: the depth axis (the frame's forward axis).
+    f: np.ndarray
+    #: ``(3,) float64``: the detector's across axis.
+    eu: np.ndarray
+    #: ``(3,) float64``: the detector's down axis.
+    ev: np.ndarray
+    #: Fine-grid steps per unit along ``eu`` (times the depth of the detector for a point source).
+    sx: float
+    #: Fine-grid x of the axis.
+    bx: float
+    #: Fine-grid steps per unit along ``ev``.
+    sy: float
+    #: Fine-grid y of the axis.
+    by: float
+    #: A point source (True) or a parallel beam.
+    perspective: bool
+    #: Sample columns of the fine grid (``n W``).
+    nW: int
+    #: Sample rows of the fine grid (``n H``).
+    nH: int
+
+
+class Cull(NamedTuple):
+    """What :func:`_cull_triangles` tests the triangles against: the beam, the grid and the
+    bands."""
+
+    #: ``(3,) float64``: the source (a point source) or a point on the beam (parallel).
+    origin: np.ndarray
+    #: ``(k, 4) float64``: the beam's side planes (:func:`beyond_side`).
+    planes: np.ndarray
+    #: A point source (True) or a parallel beam.
+    perspective: bool
+    #: Depth of the detector (mm along the frame's forward axis).
+    FL: float
+    #: Sample columns of the fine grid (``n W``).
+    nW: int
+    #: Sample rows of the fine grid (``n H``).
+    nH: int
+    #: Every vertex strictly between the source and the detector planes, none huge: the
+    #: first pass by cell codes (``Projected.K``) may drop triangles.
+    depth_ok: bool
+    #: ``(nH,) int64``: the band of each sample row.
+    band_of: np.ndarray
 
 
 class DepthSums(NamedTuple):
@@ -1513,6 +1568,8 @@ TUPLES = {
     "Grid": (Grid, "f8 b1 f8[1]r f8[1]r f8[1]r"),
     "Frame": (Frame, "f8[1]r f8[1]r Grid"),
     "Projected": (Projected, "u4[2]r i8[2]r f8[1]r b1[1]r f8[2]r i4[1]r"),
+    "Projection": (Projection, "f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8 i8"),
+    "Cull": (Cull, "f8[1]r f8[2]r b1 f8 i8 i8 b1 i8[1]r"),
     "DepthSums": (DepthSums, "f8[2] i4[2] i8"),
     "Rays": (Rays, "f8[2] i8 i8 i8 i8"),
     "Sweep": (Sweep, "i8[1]r i8[1]r Rays"),
@@ -1542,10 +1599,8 @@ def _types(spec: str) -> tuple:
 #: Argument types of the one specialisation of each kernel (see :func:`_types`).
 SIGNATURES = {
     "_first_use_rank": "f8[2]r i8[1]r b1 i8[1] f8[2] i4[1] i8[1] i8[1] i8[1] i8[1] i8[2]",
-    "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
-                         "b1[1] i8 i8 i4[1]",
-    "_cull_triangles": "i8 i8 u4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
-                       "f8[2]r i4[1]r b1 i8[1] i8[1]r i8[1]",
+    "_project_vertices": "i8 i8 f8[2]r Projection i8[2] f8[1] b1[1] i4[1]",
+    "_cull_triangles": "i8 i8 Projected Cull i1[1] i8[2] i8[1] i8[1]",
     "_raster_bands": "i8 i8 Bands Triangles Frame b1 DepthSums Sweep i8[1]",
     "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 Grid Rays i8",
     "_raster_direct": "i8 i8 i8 Projected Frame i8 i8 b1 f8[2]r f8[3] i8[1]",
