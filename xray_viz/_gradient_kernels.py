@@ -15,12 +15,41 @@ bounding boxes meet no other body's.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
 
-__all__ = ["body_pose_gradient", "volume_centroid"]
+__all__ = ["body_pose_gradient", "volume_centroid", "PixelGrid"]
+
+
+class PixelGrid(NamedTuple):
+    """The detector's pixels and their rays, as :func:`body_pose_gradient` takes them: pixel
+    ``(col, row)`` at ``p00 + col eu + row ev``, its ray from ``source`` (a point source) or
+    along ``direction`` from ``depth`` mm before it (a parallel beam)."""
+
+    #: ``(3,) float64``: pixel (0, 0).
+    p00: np.ndarray
+    #: ``(3,) float64``: one pixel along a row.
+    eu: np.ndarray
+    #: ``(3,) float64``: one pixel down a column.
+    ev: np.ndarray
+    #: ``(2, 2) float64``: the inverse Gram matrix of ``eu``, ``ev``.
+    inv: np.ndarray
+    #: ``(3,) float64``: the point source.
+    source: np.ndarray
+    #: ``(3,) float64``: a parallel beam's direction.
+    direction: np.ndarray
+    #: A parallel ray's length (mm) before its pixel.
+    depth: float
+    #: A parallel beam (True) or a point source.
+    parallel: bool
+    #: Pixels across.
+    w: int
+    #: Pixels down.
+    h: int
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -68,15 +97,15 @@ def _project(vertices, p00, inv, eu, ev, source, direction, parallel, cr, front)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def body_pose_gradient(vertices, faces, center, p00, eu, ev, inv, source, direction, depth,
-                       parallel, g, w, h, out):
+def body_pose_gradient(vertices, faces, center, pixels, g, out):
     """Add each covered pixel's hits on the triangles ``faces`` to ``out`` (6, W * H).
 
     Pixel ``(col, row)`` lies at ``p00 + col eu + row ev`` on the detector; its ray comes from
     ``source`` (a point source) or runs along ``direction`` from ``depth`` mm before it (a
-    parallel beam), as :func:`xray_viz.geometry.detector_rays` makes them. ``g`` is (W * H,)
-    ``d ell / d L`` of this body per ray.
+    parallel beam), as :func:`xray_viz.geometry.detector_rays` makes them (``pixels``, a
+    :class:`PixelGrid`). ``g`` is (W * H,) ``d ell / d L`` of this body per ray.
     """
+    p00, eu, ev, inv, source, direction, depth, parallel, w, h = pixels
     nv = vertices.shape[0]
     cr = np.empty((nv, 2))
     front = np.empty(nv, np.bool_)

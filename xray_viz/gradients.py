@@ -269,7 +269,7 @@ def _parents(scene, idx, inside):
 def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
     """:func:`line_integral_gradient` by the numba kernel (one ray per pixel, bodies apart):
     the fast engine's path lengths give each ray's slopes, the kernel the hits' terms."""
-    from xray_viz._gradient_kernels import body_pose_gradient
+    from xray_viz._gradient_kernels import PixelGrid, body_pose_gradient
     from xray_viz.tracing.engines import ENGINES
 
     acq = scene.acquisition
@@ -287,7 +287,8 @@ def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
     parallel = bool(acq.parallel)
     source = np.ascontiguousarray(rays.origins[0], dtype=np.float64)
     direction = np.ascontiguousarray(rays.directions[0], dtype=np.float64)
-    depth = float(rays.t_max[0])
+    pixels = PixelGrid(p00, eu, ev, inv, source, direction, float(rays.t_max[0]), parallel,
+                       int(w), int(h))
 
     def one(b, c):
         body = scene.bodies[b]
@@ -298,8 +299,7 @@ def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
         slope = g[b] if p < 0 else np.ascontiguousarray(g[b] - g[p])
         body_pose_gradient(np.ascontiguousarray(body.vertices),
                            np.ascontiguousarray(body.faces), np.asarray(c, dtype=np.float64),
-                           p00, eu, ev, inv, source, direction, depth, parallel, slope, w,
-                           h, out)
+                           pixels, slope, out)
         return out
     pose = np.zeros((len(idx), 6, w * h))
     for k, b in enumerate(idx):
