@@ -399,10 +399,14 @@ def _edge_function(ex, ey, dx, dy):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _inside_exact(o, px, py, ax, ay, bx, by, cx, cy, e0x, e0y, e1x, e1y, e2x, e2y, bias0, bias1,
-                  bias2):
+def _inside_exact(o, px, py, corners, edges, biases):
     """Whether sample ``(px, py)`` is inside a GIANT triangle, with the tie rule: each edge
-    function's exact sign (:func:`exact_cross_sign`) times ``o`` at least its bias."""
+    function's exact sign (:func:`exact_cross_sign`) times ``o`` at least its bias.
+    ``corners`` ``(ax, ay, bx, by, cx, cy)``, ``edges`` :func:`_edges`'s and ``biases``
+    :func:`_tie_biases`'."""
+    ax, ay, bx, by, cx, cy = corners
+    e0x, e0y, e1x, e1y, e2x, e2y = edges
+    bias0, bias1, bias2 = biases
     return (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
             and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
             and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
@@ -822,6 +826,8 @@ def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
     ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
     r0x, r0y, r0z = origin[0], origin[1], origin[2]
     f0, f1, f2 = f[0], f[1], f[2]
+    sight = (perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2,
+             FL)
     npix_max = band_height * nW
     pieces = band_start.shape[0]
     cap = 1024
@@ -880,10 +886,9 @@ def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
                 cy = XY[i2, 1]
                 o = np.int64(1 if st > 0 else -1)
                 small = abs(st) == SMALL
-                c0, c1, c2, c3, c4, c5 = _plane(V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1],
-                                                V[2, i1], V[0, i2], V[1, i2], V[2, i2], perspective,
-                                                r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1,
-                                                ey2, f0, f1, f2, FL)
+                c0, c1, c2, c3, c4, c5 = _plane(
+                    (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                    (V[0, i2], V[1, i2], V[2, i2]), sight)
                 w0 = w[i0]
                 w1 = w[i1]
                 w2 = w[i2]
@@ -959,8 +964,9 @@ def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
                     for Y in range(y0, y1 + 1):
                         py = Y * ONE
                         for X in range(X0, X1 + 1):
-                            if _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
-                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
+                            if _inside_exact(o, X * ONE, py, (ax, ay, bx, by, cx, cy),
+                                             (e0x, e0y, e1x, e1y, e2x, e2y),
+                                             (bias0, bias1, bias2)):
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                                 if Wd <= FL:
                                     hk[np.uint64(nh)] = (Y - r0) * nW + X
@@ -1187,18 +1193,24 @@ def _obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _plane(ax, ay, az, bx, by, bz, cx, cy, cz, perspective, r0x, r0y, r0z, p0, p1, p2,
-           ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL):
+def _plane(a, b, c, sight):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
-    ray of sample (X, Y) with the plane of the triangle of vertices a, b, c (see
-    :func:`_raster_bands`).
+    ray of sample (X, Y) with the plane of the triangle of vertices a, b, c (each ``(x, y,
+    z)``; see :func:`_raster_bands`). ``sight`` is the frame as scalars, read once by the
+    caller: ``(perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1,
+    f2, FL)`` (the source r0, P00, Ex, Ey, a parallel beam's f, the detector's depth).
 
     Point source: ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0), hit depth s * FL.
     Parallel beam: ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
 
-    Scalars only, so that LLVM inlines it: a compiled helper taking arrays is called, not
-    inlined, and pushing every array's fields costs several times this arithmetic.
+    Scalars only (in tuples), so that LLVM inlines it: a compiled helper taking arrays is
+    called, not inlined, and pushing every array's fields costs several times this arithmetic.
     """
+    ax, ay, az = a
+    bx, by, bz = b
+    cx, cy, cz = c
+    (perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2,
+     FL) = sight
     f1x = bx - ax
     f1y = by - ay
     f1z = bz - az
@@ -1278,6 +1290,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
     ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
     ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
     f0, f1, f2 = f[0], f[1], f[2]
+    sight = (perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2,
+             FL)
     for c in range(lo, hi):
         err[c] = -1
         Sc = S[c]
@@ -1390,9 +1404,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                     i1 = F[t, 1]
                     i2 = F[t, 2]
                     c0, c1, c2, c3, c4, c5 = _plane(
-                        V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                        V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                        p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                        (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                        (V[0, i2], V[1, i2], V[2, i2]), sight)
                     # (the sample as int64: _clamped has one specialisation)
                     Wd = _clamped(c0, c1, c2, c3, c4, c5, np.int64(sample_x[j]),
                                   np.int64(sample_y[j]), min(w[i0], min(w[i1], w[i2])),
@@ -1464,9 +1477,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                             wmin = min(w[i0], min(w[i1], w[i2]))
                             wmax = max(w[i0], max(w[i1], w[i2]))
                         c0, c1, c2, c3, c4, c5 = _plane(
-                            V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                            V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                            p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                            (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                            (V[0, i2], V[1, i2], V[2, i2]), sight)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
                         Sc[np.uint64(Y0), np.uint64(X0)] += sgn * Wd
                         continue
@@ -1484,9 +1496,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                         wmin = min(w[i0], min(w[i1], w[i2]))
                         wmax = max(w[i0], max(w[i1], w[i2]))
                     c0, c1, c2, c3, c4, c5 = _plane(
-                        V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                        V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                        p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                        (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                        (V[0, i2], V[1, i2], V[2, i2]), sight)
                     for Y in range(Y0, Y1 + 1):
                         py = Y * ONE
                         E0 = o * _edge_function(e0x, e0y, X0 * ONE - ax, py - ay)
@@ -1511,8 +1522,9 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                 for Y in range(Y0, Y1 + 1):
                     py = Y * ONE
                     for X in range(X0, X1 + 1):
-                        if not _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
-                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
+                        if not _inside_exact(o, X * ONE, py, (ax, ay, bx, by, cx, cy),
+                                             (e0x, e0y, e1x, e1y, e2x, e2y),
+                                             (bias0, bias1, bias2)):
                             continue
                         if not have_plane:
                             have_plane = True
@@ -1520,9 +1532,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                                 wmin = min(w[i0], min(w[i1], w[i2]))
                                 wmax = max(w[i0], max(w[i1], w[i2]))
                             c0, c1, c2, c3, c4, c5 = _plane(
-                                V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                                V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                                p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                                (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                                (V[0, i2], V[1, i2], V[2, i2]), sight)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                         Sc[Y, X] += sgn * Wd
 
