@@ -199,3 +199,40 @@ def volume_centroid(vertices, faces, ref):
         out[1] += sy / (4.0 * total)
         out[2] += sz / (4.0 * total)
     return out
+
+
+# Each kernel above has one specialisation, compiled on first use (or loaded from numba's
+# cache) through :data:`KERNELS` (:mod:`xray_viz.tracing._compile`); inputs typed read-only,
+# so that read-only arrays need no copy (a writable one converts).
+
+from numba.core import types as _nt  # noqa: E402
+
+from xray_viz.tracing._compile import KernelSet  # noqa: E402
+
+_F1r = _nt.Array(_nt.float64, 1, "C", readonly=True)
+_F2r = _nt.Array(_nt.float64, 2, "C", readonly=True)
+_I2r = _nt.Array(_nt.int64, 2, "C", readonly=True)
+#: The one signature of each kernel (a :class:`PixelGrid`'s arrays must arrive read-only:
+#: numba converts no named tuple; :func:`pixel_grid` makes it so).
+SIGNATURES = {
+    "body_pose_gradient": (_F2r, _I2r, _F1r, _nt.NamedTuple(
+        (_F1r, _F1r, _F1r, _F2r, _F1r, _F1r, _nt.float64, _nt.boolean, _nt.int64, _nt.int64),
+        PixelGrid), _F1r, _nt.Array(_nt.float64, 2, "C")),
+    "volume_centroid": (_F2r, _I2r, _F1r),
+}
+#: The kernels above, each compiled for its one signature on first use.
+KERNELS = KernelSet(__name__, {"body_pose_gradient": body_pose_gradient,
+                               "volume_centroid": volume_centroid}, SIGNATURES)
+
+
+def _ro(a, dtype=np.float64):
+    a = np.ascontiguousarray(a, dtype=dtype).view()
+    a.flags.writeable = False
+    return a
+
+
+def pixel_grid(p00, eu, ev, inv, source, direction, depth, parallel, w, h) -> PixelGrid:
+    """The :class:`PixelGrid` of these values as :data:`KERNELS` takes it (float64 arrays,
+    read-only views: no copy when they already are float64 and C-contiguous)."""
+    return PixelGrid(_ro(p00), _ro(eu), _ro(ev), _ro(inv), _ro(source), _ro(direction),
+                     float(depth), bool(parallel), int(w), int(h))
