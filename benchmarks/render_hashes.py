@@ -100,9 +100,6 @@ def main(argv=None) -> int:
         for quantity in ("line-integral", "intensity"):
             s = xray_viz.scan(scene, orbit, quantity=quantity)
             add(f"scan-frog {vname} {quantity}", _h(np.asarray(s.projections[:])))
-            if vname == "plain" and quantity == "intensity":
-                np.save("/tmp/arch/scan-frog.npy" if not args.compare else
-                        "/tmp/arch/scan-frog-after.npy", np.asarray(s.projections[:]))
     if args.out:
         with open(args.out, "w") as f:
             f.write("\n".join(lines) + "\n")

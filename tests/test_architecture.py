@@ -252,3 +252,53 @@ def test_the_stage_values_take_no_scene(name):
     takes = [n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)
              and any(a.arg == "scene" for a in n.args.args + n.args.kwonlyargs)]
     assert takes == []
+
+
+#: Most parameters a numba function of the library takes (issue 37): more travel as named
+#: tuples (the frame, the mesh, the outputs), as ``tracing._raster._raster_bands`` takes them.
+MAX_KERNEL_PARAMETERS = 12
+
+
+def _is_njit(node) -> bool:
+    """Whether an expression is ``njit``, ``numba.njit`` or a call of either."""
+    if isinstance(node, ast.Call):
+        node = node.func
+    return (isinstance(node, ast.Name) and node.id == "njit") or (
+        isinstance(node, ast.Attribute) and node.attr == "njit")
+
+
+def _kernels(tree) -> list:
+    """The functions a module compiles with numba: decorated with ``njit`` (any form), or
+    wrapped by a call ``njit(...)(f)`` anywhere in the module."""
+    defs = {n.name: n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+    out = [d for d in defs.values() if any(_is_njit(x) for x in d.decorator_list)]
+    for n in ast.walk(tree):
+        if (isinstance(n, ast.Call) and isinstance(n.func, ast.Call) and _is_njit(n.func)
+                and n.args and isinstance(n.args[0], ast.Name) and n.args[0].id in defs):
+            out.append(defs[n.args[0].id])
+    return out
+
+
+def test_the_kernel_reader_finds_the_kernels():
+    """The check below means something: it finds kernels of every form."""
+    tree = ast.parse(MODULES["xray_viz.tracing._raster"].read_text(encoding="utf-8"))
+    names = {d.name for d in _kernels(tree)}
+    assert {"_raster_bands", "_cull_triangles", "first_use_rank", "_plane"} <= names
+    tree = ast.parse("import numba\n@numba.njit\ndef a(x):\n    pass\n"
+                     "def b(x, y):\n    pass\nc = numba.njit(cache=True)(b)\n")
+    assert sorted(d.name for d in _kernels(tree)) == ["a", "b"]
+
+
+def test_no_kernel_takes_more_than_twelve_parameters():
+    """Every numba function of the library (kernels and their helpers) takes at most
+    :data:`MAX_KERNEL_PARAMETERS` parameters (issue 37): no list of 34 loose arrays and
+    scalars whose types sit hundreds of lines away."""
+    bad, seen = [], 0
+    for name, path in MODULES.items():
+        for d in _kernels(ast.parse(path.read_text(encoding="utf-8"))):
+            seen += 1
+            a = d.args
+            n = len(a.posonlyargs + a.args + a.kwonlyargs) + bool(a.vararg) + bool(a.kwarg)
+            if n > MAX_KERNEL_PARAMETERS:
+                bad.append(f"{name}.{d.name}: {n}")
+    assert seen > 50 and bad == []

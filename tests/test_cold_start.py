@@ -65,9 +65,10 @@ def test_one_compile_manager_and_plain_calls():
     swapped into a module's globals."""
     import inspect
 
+    from xray_viz import _gradient_kernels as G
     from xray_viz.meshes import _check_kernels as K
 
-    for module in (R, K):
+    for module in (R, K, G):
         assert isinstance(module.KERNELS, _compile.KernelSet)
         assert set(module.KERNELS.signatures) == set(module.SIGNATURES)
         assert all(module.KERNELS.kernels[n] is getattr(module, n) for n in module.SIGNATURES)

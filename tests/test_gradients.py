@@ -224,6 +224,12 @@ def test_fast_kernel_matches_the_reference(kind):
     np.testing.assert_allclose(fast.line_integral, ref.line_integral, rtol=0, atol=1e-10)
     np.testing.assert_allclose(fast.pose, ref.pose, rtol=0, atol=1e-10 * scale)
     np.testing.assert_allclose(fast.acquisition, ref.acquisition, rtol=0, atol=1e-10 * scale)
+    # through the one compile manager: its one explicit signature, nothing else compiled
+    from xray_viz import _gradient_kernels as K
+
+    kernel = K.KERNELS.kernel("body_pose_gradient")
+    assert kernel.signatures == [K.SIGNATURES["body_pose_gradient"]]
+    assert not kernel._can_compile
 
 
 def test_nested_bodies_through_the_kernel_match_the_reference():

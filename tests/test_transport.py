@@ -108,8 +108,7 @@ def _crossings(bvh, o, d):
     te = np.zeros(16, np.bool_)
     out, t = [], 0.0
     while True:
-        t, n = G.next_crossing(o, d, t, np.inf, bvh.lo, bvh.hi, bvh.child, bvh.start,
-                               bvh.count, bvh.v0, bvh.v1, bvh.v2, bvh.body, stack, tb, te)
+        t, n = G.next_crossing(o, d, t, np.inf, bvh, stack, tb, te)
         if n == 0:
             return out
         out.extend((t, int(tb[k]), bool(te[k])) for k in range(n))

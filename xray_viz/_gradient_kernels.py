@@ -15,12 +15,41 @@ bounding boxes meet no other body's.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
 from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
 
-__all__ = ["body_pose_gradient", "volume_centroid"]
+__all__ = ["body_pose_gradient", "volume_centroid", "PixelGrid"]
+
+
+class PixelGrid(NamedTuple):
+    """The detector's pixels and their rays, as :func:`body_pose_gradient` takes them: pixel
+    ``(col, row)`` at ``p00 + col eu + row ev``, its ray from ``source`` (a point source) or
+    along ``direction`` from ``depth`` mm before it (a parallel beam)."""
+
+    #: ``(3,) float64``: pixel (0, 0).
+    p00: np.ndarray
+    #: ``(3,) float64``: one pixel along a row.
+    eu: np.ndarray
+    #: ``(3,) float64``: one pixel down a column.
+    ev: np.ndarray
+    #: ``(2, 2) float64``: the inverse Gram matrix of ``eu``, ``ev``.
+    inv: np.ndarray
+    #: ``(3,) float64``: the point source.
+    source: np.ndarray
+    #: ``(3,) float64``: a parallel beam's direction.
+    direction: np.ndarray
+    #: A parallel ray's length (mm) before its pixel.
+    depth: float
+    #: A parallel beam (True) or a point source.
+    parallel: bool
+    #: Pixels across.
+    w: int
+    #: Pixels down.
+    h: int
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -68,15 +97,15 @@ def _project(vertices, p00, inv, eu, ev, source, direction, parallel, cr, front)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def body_pose_gradient(vertices, faces, center, p00, eu, ev, inv, source, direction, depth,
-                       parallel, g, w, h, out):
+def body_pose_gradient(vertices, faces, center, pixels, g, out):
     """Add each covered pixel's hits on the triangles ``faces`` to ``out`` (6, W * H).
 
     Pixel ``(col, row)`` lies at ``p00 + col eu + row ev`` on the detector; its ray comes from
     ``source`` (a point source) or runs along ``direction`` from ``depth`` mm before it (a
-    parallel beam), as :func:`xray_viz.geometry.detector_rays` makes them. ``g`` is (W * H,)
-    ``d ell / d L`` of this body per ray.
+    parallel beam), as :func:`xray_viz.geometry.detector_rays` makes them (``pixels``, a
+    :class:`PixelGrid`). ``g`` is (W * H,) ``d ell / d L`` of this body per ray.
     """
+    p00, eu, ev, inv, source, direction, depth, parallel, w, h = pixels
     nv = vertices.shape[0]
     cr = np.empty((nv, 2))
     front = np.empty(nv, np.bool_)
@@ -170,3 +199,40 @@ def volume_centroid(vertices, faces, ref):
         out[1] += sy / (4.0 * total)
         out[2] += sz / (4.0 * total)
     return out
+
+
+# Each kernel above has one specialisation, compiled on first use (or loaded from numba's
+# cache) through :data:`KERNELS` (:mod:`xray_viz.tracing._compile`); inputs typed read-only,
+# so that read-only arrays need no copy (a writable one converts).
+
+from numba.core import types as _nt  # noqa: E402
+
+from xray_viz.tracing._compile import KernelSet  # noqa: E402
+
+_F1r = _nt.Array(_nt.float64, 1, "C", readonly=True)
+_F2r = _nt.Array(_nt.float64, 2, "C", readonly=True)
+_I2r = _nt.Array(_nt.int64, 2, "C", readonly=True)
+#: The one signature of each kernel (a :class:`PixelGrid`'s arrays must arrive read-only:
+#: numba converts no named tuple; :func:`pixel_grid` makes it so).
+SIGNATURES = {
+    "body_pose_gradient": (_F2r, _I2r, _F1r, _nt.NamedTuple(
+        (_F1r, _F1r, _F1r, _F2r, _F1r, _F1r, _nt.float64, _nt.boolean, _nt.int64, _nt.int64),
+        PixelGrid), _F1r, _nt.Array(_nt.float64, 2, "C")),
+    "volume_centroid": (_F2r, _I2r, _F1r),
+}
+#: The kernels above, each compiled for its one signature on first use.
+KERNELS = KernelSet(__name__, {"body_pose_gradient": body_pose_gradient,
+                               "volume_centroid": volume_centroid}, SIGNATURES)
+
+
+def _ro(a, dtype=np.float64):
+    a = np.ascontiguousarray(a, dtype=dtype).view()
+    a.flags.writeable = False
+    return a
+
+
+def pixel_grid(p00, eu, ev, inv, source, direction, depth, parallel, w, h) -> PixelGrid:
+    """The :class:`PixelGrid` of these values as :data:`KERNELS` takes it (float64 arrays,
+    read-only views: no copy when they already are float64 and C-contiguous)."""
+    return PixelGrid(_ro(p00), _ro(eu), _ro(ev), _ro(inv), _ro(source), _ro(direction),
+                     float(depth), bool(parallel), int(w), int(h))

@@ -72,11 +72,11 @@ def centroid(body) -> np.ndarray:
     >>> centroid(Body(name="box", mesh=box, mu=1.0)).round(9).tolist()
     [1.0, 2.0, 3.0]
     """
-    from xray_viz._gradient_kernels import volume_centroid
+    from xray_viz._gradient_kernels import KERNELS
 
     v = np.ascontiguousarray(body.mesh.vertices, dtype=np.float64)
-    return volume_centroid(v, np.ascontiguousarray(body.mesh.faces, dtype=np.int64),
-                           v.mean(axis=0))
+    return KERNELS.kernel("volume_centroid")(
+        v, np.ascontiguousarray(body.mesh.faces, dtype=np.int64), v.mean(axis=0))
 
 
 def pose_matrix(params, center) -> np.ndarray:
@@ -269,7 +269,7 @@ def _parents(scene, idx, inside):
 def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
     """:func:`line_integral_gradient` by the numba kernel (one ray per pixel, bodies apart):
     the fast engine's path lengths give each ray's slopes, the kernel the hits' terms."""
-    from xray_viz._gradient_kernels import body_pose_gradient
+    from xray_viz._gradient_kernels import KERNELS, pixel_grid
     from xray_viz.tracing.engines import ENGINES
 
     acq = scene.acquisition
@@ -287,7 +287,8 @@ def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
     parallel = bool(acq.parallel)
     source = np.ascontiguousarray(rays.origins[0], dtype=np.float64)
     direction = np.ascontiguousarray(rays.directions[0], dtype=np.float64)
-    depth = float(rays.t_max[0])
+    pixels = pixel_grid(p00, eu, ev, inv, source, direction, rays.t_max[0], parallel, w, h)
+    body_pose_gradient = KERNELS.kernel("body_pose_gradient")
 
     def one(b, c):
         body = scene.bodies[b]
@@ -296,10 +297,10 @@ def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
         # changes ell by g(parent) - g(b) per mm, an exit by g(b) - g(parent)
         p = -1 if parents is None else parents[b]     # every body asked for has one
         slope = g[b] if p < 0 else np.ascontiguousarray(g[b] - g[p])
-        body_pose_gradient(np.ascontiguousarray(body.vertices),
-                           np.ascontiguousarray(body.faces), np.asarray(c, dtype=np.float64),
-                           p00, eu, ev, inv, source, direction, depth, parallel, slope, w,
-                           h, out)
+        body_pose_gradient(np.ascontiguousarray(body.vertices, dtype=np.float64),
+                           np.ascontiguousarray(body.faces, dtype=np.int64),
+                           np.ascontiguousarray(c, dtype=np.float64), pixels,
+                           np.ascontiguousarray(slope, dtype=np.float64), out)
         return out
     pose = np.zeros((len(idx), 6, w * h))
     for k, b in enumerate(idx):

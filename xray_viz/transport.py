@@ -119,8 +119,7 @@ def _region_masses(scene, densities, bvh, rank_order) -> np.ndarray:
         if not partial:
             continue
         pts = rng.uniform(bounds[a, 0], bounds[a, 1], size=(OVERLAP_SAMPLES, 3))
-        w = winners(pts, bvh.lo, bvh.hi, bvh.child, bvh.start, bvh.count, bvh.v0, bvh.v1,
-                    bvh.v2, bvh.body, rank_order, len(bodies))
+        w = winners(pts, bvh, rank_order, len(bodies))
         mine = np.count_nonzero(w == a)               # where a wins: its region
         box = float(np.prod(bounds[a, 1] - bounds[a, 0]))
         region[a] = box * mine / len(pts)
@@ -219,8 +218,7 @@ def _class_masses(scene, densities, bvh) -> np.ndarray:
                                         indexing="ij"), axis=-1).reshape(-1, 3)
             pts = grid @ vol.affine[:3, :3].T + vol.affine[:3, 3]
             order = np.array(which, np.int64)            # "inside any displacer"
-            got = winners(pts, bvh.lo, bvh.hi, bvh.child, bvh.start, bvh.count, bvh.v0,
-                          bvh.v1, bvh.v2, bvh.body, order, len(scene.bodies))
+            got = winners(pts, bvh, order, len(scene.bodies))
             inside = grid[got >= 0]
             keep[inside[:, 0], inside[:, 1], inside[:, 2]] = False
         sums = np.bincount(c[keep].ravel(), weights=w[keep].ravel(), minlength=n + 1)[1:]

@@ -474,8 +474,8 @@ def _grid_entries(j_lo, j_hi, placing, phi, clo, glo, inv, dims, fill, keys, own
 
 def _grid(vertices, faces, *, finish=True):
     """The candidate pairs of :func:`_sweep_buckets`: every face's bounding box entered in the
-    cells of a uniform grid it meets, the cells hashed into buckets; ``(start, keys, owner,
-    plo, phi, clo, face_id, dims, widest, pface)``: CSR offsets of the buckets' ``keys`` and
+    cells of a uniform grid it meets, the cells hashed into buckets; a :class:`Buckets`
+    ``(start, keys, owner, plo, phi, clo, face_id, dims, widest, pface)``: CSR offsets of the buckets' ``keys`` and
     ``owner`` entries, then what :func:`_grid_place` gives, ``widest`` the most entries of a
     bucket; ``dims[0] == 0`` when no two boxes can overlap. With ``finish=False``, what
     :func:`_grid_finish` completes (the entries: on every thread of the sweep).
@@ -493,8 +493,8 @@ def _grid(vertices, faces, *, finish=True):
     inv, total = KERNELS.kernel("_grid_boxes")(vertices, faces, lo, hi, glo, dims)
     if dims[0] == 0:
         z = np.zeros(1, np.int64)
-        return z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, dims, 0, np.zeros((0, 3),
-                                                                              np.int64)
+        return Buckets(z, z, z, lo, hi, np.zeros((0, 3), np.int64), z, dims, 0,
+                       np.zeros((0, 3), np.int64))
     # a cell's bucket: its key itself when the grid is small, else the key modulo an odd
     # number (neighbouring cells in neighbouring buckets)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
@@ -543,7 +543,33 @@ def _grid_finish(placed):
     run_pieces(lambda j: kernel(cut[j], cut[j + 1], True, p.phi, p.clo, p.glo, p.inv, p.dims,
                                 fill[j], keys, owner), k)
     widest = int(np.diff(start).max())
-    return start, keys, owner, p.plo, p.phi, p.clo, p.face_id, p.dims, widest, p.pface
+    return Buckets(start, keys, owner, p.plo, p.phi, p.clo, p.face_id, p.dims, widest, p.pface)
+
+
+class Buckets(typing.NamedTuple):
+    """The grid of :func:`_grid`, as :func:`_sweep_buckets` takes it: the faces' boxes entered
+    in the cells of a uniform grid they meet, the cells hashed into buckets."""
+
+    #: ``(buckets + 1,) int64``: CSR offsets of each bucket's entries in ``keys`` and ``owner``.
+    start: np.ndarray
+    #: ``(entries,) int64``: the cell key of each entry.
+    keys: np.ndarray
+    #: ``(entries,) int64``: the (renumbered) face of each entry.
+    owner: np.ndarray
+    #: ``(m, 3) float64``: each renumbered face's box, low corner.
+    plo: np.ndarray
+    #: ``(m, 3) float64``: its high corner.
+    phi: np.ndarray
+    #: ``(m, 3) int64``: the cell of its low corner.
+    clo: np.ndarray
+    #: ``(m,) int64``: the mesh's number of each renumbered face.
+    face_id: np.ndarray
+    #: ``(3,) int64``: cells per axis; ``dims[0] == 0`` when no two boxes can overlap.
+    dims: np.ndarray
+    #: The most entries of a bucket.
+    widest: int
+    #: ``(m, 3) int64``: each renumbered face's vertices.
+    pface: np.ndarray
 
 
 class _Placed(typing.NamedTuple):
@@ -562,15 +588,15 @@ class _Placed(typing.NamedTuple):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, start, keys, owner, plo, phi, clo,
-                   face_id, dims, widest, pface):
+def _sweep_buckets(b_lo, b_hi, vertices, faces, labels, flags, grid):
     """Set ``flags[f]`` for every face ``f`` of a pair that pymeshlab selects as
-    self-intersecting among the entries of buckets ``b_lo .. b_hi - 1`` of
-    :func:`_grid`; with ``labels`` (one per face, else empty), only pairs of
-    faces of the same label count. Each pair is tested in one bucket only, and a flag is only
+    self-intersecting among the entries of buckets ``b_lo .. b_hi - 1`` of the grid
+    ``grid`` (:class:`Buckets`, :func:`_grid`'s); with ``labels`` (one per face, else
+    empty), only pairs of faces of the same label count. Each pair is tested in one bucket only, and a flag is only
     ever set, so bucket ranges can be swept by concurrent threads: the flags do not depend on
     the split (a pair whose two faces are flagged already is not tested again, which changes
     no flag)."""
+    start, keys, owner, plo, phi, clo, face_id, dims, widest, pface = grid
     # each bucket's entries sorted by (cell, low x): an insertion sort of (key, low x, face),
     # then the boxes gathered in that order, one array per bound (SoA), and swept along x
     skey = np.empty(widest, np.int64)
@@ -775,8 +801,8 @@ SIGNATURES = {
     "_grid_entries": (_nt.int64, _nt.int64, _nt.boolean, _F2, _I2, _F1r, _nt.float64, _I1r,
                       _I1, _I1, _I1),
     # buckets lo, hi, vertices, faces, labels, flags (out), then the grid's arrays
-    "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _I1, _I1, _I1, _F2w, _F2w,
-                       _I2w, _I1, _I1, _nt.int64, _I2w),
+    "_sweep_buckets": (_nt.int64, _nt.int64, _F2, _I2, _I1r, _B1, _nt.NamedTuple(
+        (_I1, _I1, _I1, _F2w, _F2w, _I2w, _I1, _I1, _nt.int64, _I2w), Buckets)),
     # faces, vertex count, labels (out), then scratch: start, fill, other, use, parent
     "_edge_facts": (_I2, _nt.int64, _I1, _I1, _I1, _I1, _I1, _I1),
     "_volume_terms": (_F2, _I2, _F1w),                    # vertices, faces, terms (out)
@@ -976,5 +1002,5 @@ def self_intersections(vertices, faces, labels=None, *, started=None) -> np.ndar
                n_buckets]
         from xray_viz._threads import run_pieces
 
-        run_pieces(lambda j: sweep(cut[j], cut[j + 1], v, f, lab, flags, *grid), k)
+        run_pieces(lambda j: sweep(cut[j], cut[j + 1], v, f, lab, flags, grid), k)
     return flags

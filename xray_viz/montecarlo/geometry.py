@@ -16,7 +16,7 @@ is inside the one of highest precedence (nesting, then list order:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -34,9 +34,9 @@ _ERRBOUND = 4.0 * np.finfo(np.float64).eps
 _SPLITTER = 134217729.0          # 2**27 + 1, Dekker's split of a double
 
 
-@dataclass(frozen=True, eq=False)
-class BVH:
-    """A bounding-volume hierarchy of triangles, flattened for the numba kernels.
+class BVH(NamedTuple):
+    """A bounding-volume hierarchy of triangles, flattened for the numba kernels (a named
+    tuple: the kernels take it as one argument).
 
     Attributes
     ----------
@@ -294,14 +294,15 @@ def _slab(lo, hi, node, o, inv0, inv1, inv2, t_min, best):
 
 
 @numba.njit(cache=True, nogil=True)
-def next_crossing(o, d, t_min, t_max, lo, hi, child, start, count, v0, v1, v2, tri_body,
-                  stack, tie_body, tie_enter):
-    """The nearest surface crossings of the ray ``o + t d`` with ``t_min < t <= t_max``.
+def next_crossing(o, d, t_min, t_max, bvh, stack, tie_body, tie_enter):
+    """The nearest surface crossings of the ray ``o + t d`` with ``t_min < t <= t_max`` of
+    the triangles of ``bvh`` (:class:`BVH`).
 
     Returns ``(t, n)``: the crossings' ``t`` (inf if none) and how many there are at that
     very ``t`` (their bodies and directions in ``tie_body[:n]``, ``tie_enter[:n]``; at most
     ``MAX_TIES``). ``stack``: scratch, (64,) int64.
     """
+    lo, hi, child, start, count, v0, v1, v2, tri_body = bvh
     kx, ky, kz, sx, sy, sz = ray_frame(d)
     inv0 = 1.0 / d[0] if d[0] != 0.0 else 1e300
     inv1 = 1.0 / d[1] if d[1] != 0.0 else 1e300
@@ -368,10 +369,11 @@ def region_of(inside, rank_order):
 
 
 @numba.njit(cache=True, nogil=True)
-def winners(points, lo, hi, child, start, count, v0, v1, v2, tri_body, rank_order, n_bodies):
+def winners(points, bvh, rank_order, n_bodies):
     """(n,) int: the body whose material fills each point (-1: none), by the same rule as the
     transport: along a fixed ray from the point to infinity, exits minus entries per body
-    (1 inside a closed body), then the precedence."""
+    (1 inside a closed body) of the triangles of ``bvh`` (:class:`BVH`), then the
+    precedence."""
     out = np.empty(points.shape[0], np.int64)
     inside = np.zeros(max(n_bodies, 1), np.int64)
     stack = np.empty(128, np.int64)
@@ -386,8 +388,7 @@ def winners(points, lo, hi, child, start, count, v0, v1, v2, tri_body, rank_orde
         o = points[i]
         t = 0.0
         while True:
-            t, n = next_crossing(o, d, t, np.inf, lo, hi, child, start, count, v0, v1, v2,
-                                 tri_body, stack, tie_body, tie_enter)
+            t, n = next_crossing(o, d, t, np.inf, bvh, stack, tie_body, tie_enter)
             if n == 0:
                 break
             for k in range(n):

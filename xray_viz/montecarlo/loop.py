@@ -13,6 +13,7 @@ world's box is escape. Interactions: photoelectric (deposit ``E``, end), incoher
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -32,6 +33,82 @@ TOTALS = ("emitted", "detector", "detector_sq", "escaped", "deposited", "histori
           "deposited_sq")
 #: What ended a recorded track (``trk_end``'s codes, in order).
 TRACK_ENDS = ("primary", "scattered", "escaped", "absorbed")
+
+
+class Emission(NamedTuple):
+    """Where :func:`run_batch`'s photons start and with what energy
+    (:func:`~xray_viz.montecarlo.sources.sample_direction`,
+    :func:`~xray_viz.montecarlo.sources.sample_energy`)."""
+
+    #: The source and the field it lights, flattened (:func:`~xray_viz.montecarlo.sources.field`).
+    fa: np.ndarray
+    #: The spectrum's energies (keV).
+    energies: np.ndarray
+    #: Its cumulative distribution.
+    cdf: np.ndarray
+
+
+class Volumes(NamedTuple):
+    """The voxel volumes as :func:`run_batch` reads them (``V`` of them; none: ``V = 0``)."""
+
+    #: ``(V, 3, 4)``: world-to-index affines.
+    inv: np.ndarray
+    #: ``(V, 3)``: the grids' dimensions.
+    dims: np.ndarray
+    #: ``(V,)``: where each grid's voxels begin in ``classes`` and ``weights``.
+    start: np.ndarray
+    #: The grids' classes, flattened one after the other.
+    classes: np.ndarray
+    #: The grids' weights, likewise.
+    weights: np.ndarray
+    #: ``(V,)``: region (row of the tables' ``mu``) of class ``c`` is ``region0[v] + c``.
+    region0: np.ndarray
+    #: ``(V, B)``: the mesh bodies that replace the volume's material where they are.
+    displace: np.ndarray
+    #: ``(V, 3, N)``: the majorant of the volume's voxels (row 0).
+    majorant: np.ndarray
+
+
+class Tracks(NamedTuple):
+    """The recorded tracks of the first histories (:func:`run_batch`)."""
+
+    #: ``(n, K, 3)``: each track's vertices.
+    xyz: np.ndarray
+    #: ``(n,)``: how many vertices each has.
+    n: np.ndarray
+    #: ``(n,)``: what ended it (:data:`TRACK_ENDS`).
+    end: np.ndarray
+
+
+class Tables(NamedTuple):
+    """The regions' interaction data on a log-energy grid
+    (:class:`~xray_viz.montecarlo.physics.MaterialTables`' arrays)."""
+
+    #: Attenuation per region (:func:`~xray_viz.montecarlo.physics.mu_lookup`).
+    mu: np.ndarray
+    #: The grid's first log-energy.
+    ln_e0: float
+    #: Its step.
+    d_ln_e: float
+    #: Incoherent scattering functions per region.
+    sf: np.ndarray
+    #: Cumulative squared form factors per region (coherent scattering).
+    cum: np.ndarray
+    #: The momentum-transfer grid of ``sf`` and ``cum``.
+    dx: float
+
+
+class Scores(NamedTuple):
+    """What :func:`run_batch` adds into (a batch's :class:`~xray_viz.montecarlo.tallies.Tallies`)."""
+
+    #: ``(2, R)``: energy per region and its per-history squares.
+    dep: np.ndarray
+    #: ``(4, H, W)``: primary, single incoherent, single coherent, multiple.
+    img: np.ndarray
+    #: ``(4, H, W)``: the per-history squares.
+    img_sq: np.ndarray
+    #: :data:`TOTALS`.
+    totals: np.ndarray
 
 
 @numba.njit(inline="always")
@@ -182,13 +259,18 @@ def _reading(e, d, a, fa, resp, gpar):
 
 
 @numba.njit(cache=True, nogil=True)
-def run_batch(n_hist, state, fa, energies, cdf, world_lo, world_hi,
-              lo, hi, child, start, count, v0, v1, v2, tri_body, rank_order,
-              vol_inv, vol_dims, vol_start, vol_classes, vol_weights, vol_region0, vol_displace,
-              vol_maj, trk_xyz, trk_n, trk_end,
-              mu, ln_e0, d_ln_e, sf, cum, dx,
-              dep, img, img_sq, totals, resp, gpar):
+def run_batch(n_hist, state, emission, world, bvh, rank_order, volumes, tracks, tables,
+              scores, reading):
     """Run ``n_hist`` histories with the random stream ``state``; add into the tallies.
+
+    The arguments after ``state``, each a named tuple (the kernel unpacks them into the names
+    used below): ``emission`` :class:`Emission` ``(fa, energies, cdf)``, where photons start
+    and their spectrum (:mod:`xray_viz.montecarlo.sources`); ``world`` ``(world_lo,
+    world_hi)``, the world's box; ``bvh`` the bodies' triangles
+    (:class:`~xray_viz.montecarlo.geometry.BVH`) and ``rank_order`` the bodies by decreasing
+    precedence; ``volumes`` :class:`Volumes`; ``tracks`` :class:`Tracks`; ``tables``
+    :class:`Tables`, the regions' interaction data; ``scores`` :class:`Scores` ``(dep, img,
+    img_sq, totals)``; ``reading`` ``(resp, gpar)``, the detector's reading.
 
     ``dep`` (2, R): energy per region (0: the world, 1 + b: body b) summed over histories and
     its per-history squares; ``img``, ``img_sq`` (4, H, W): primary, single incoherent,
@@ -215,6 +297,14 @@ def run_batch(n_hist, state, fa, energies, cdf, world_lo, world_hi,
     across them from the focused direction at the photon's point). The energy balance
     (``totals``) is always the energy.
     """
+    fa, energies, cdf = emission
+    world_lo, world_hi = world
+    (vol_inv, vol_dims, vol_start, vol_classes, vol_weights, vol_region0, vol_displace,
+     vol_maj) = volumes
+    trk_xyz, trk_n, trk_end = tracks
+    mu, ln_e0, d_ln_e, sf, cum, dx = tables
+    dep, img, img_sq, totals = scores
+    resp, gpar = reading
     n_bodies = rank_order.shape[0]
     n_reg = dep.shape[1]                  # the world, the bodies, the volumes' classes
     h_img = img.shape[1]
@@ -273,8 +363,7 @@ def run_batch(n_hist, state, fa, energies, cdf, world_lo, world_hi,
                 # unless this flight already passed the plane there, outside the rectangle
                 if (td > t_cur or (td == t_cur and not plane_passed)) and td <= t_limit:
                     t_det = td
-            t_surf, n_ties = next_crossing(o, d, t_cur, min(t_limit, t_det), lo, hi, child,
-                                           start, count, v0, v1, v2, tri_body, stack,
+            t_surf, n_ties = next_crossing(o, d, t_cur, min(t_limit, t_det), bvh, stack,
                                            tie_body, tie_enter)
             if t_surf < np.inf and t_surf <= t_det:
                 for k in range(n_ties):

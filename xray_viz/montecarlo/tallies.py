@@ -60,7 +60,7 @@ def n_groups(histories: int, batch: int = BATCH) -> int:
 
 
 def _batch(problem: dict, index: int, n_hist: int) -> Tallies:
-    from xray_viz.montecarlo.loop import run_batch
+    from xray_viz.montecarlo.loop import Emission, Scores, Tables, Tracks, Volumes, run_batch
     from xray_viz.montecarlo.rng import batch_states
 
     p = problem
@@ -74,12 +74,13 @@ def _batch(problem: dict, index: int, n_hist: int) -> Tallies:
     trk_xyz = np.zeros((n_trk, TRACK_VERTICES, 3))
     trk_n = np.zeros(n_trk, np.int64)
     trk_end = np.zeros(n_trk, np.int64)
-    run_batch(n_hist, state, p["field"], p["energies"], p["cdf"], p["world_lo"], p["world_hi"],
-              b.lo, b.hi, b.child, b.start, b.count, b.v0, b.v1, b.v2, b.body, p["rank_order"],
-              vg["inv"], vg["dims"], vg["start"], vg["classes"], vg["weights"], vg["region0"],
-              vg["displace"], vg["majorant"], trk_xyz, trk_n, trk_end,
-              tb.mu, tb.ln_e0, tb.d_ln_e, tb.sf, tb.ff2_cum, tb.dx,
-              t.dep, t.img, t.img_sq, t.totals, p["response"], p["grid"])
+    run_batch(n_hist, state, Emission(p["field"], p["energies"], p["cdf"]),
+              (p["world_lo"], p["world_hi"]), b, p["rank_order"],
+              Volumes(vg["inv"], vg["dims"], vg["start"], vg["classes"], vg["weights"],
+                      vg["region0"], vg["displace"], vg["majorant"]),
+              Tracks(trk_xyz, trk_n, trk_end),
+              Tables(tb.mu, tb.ln_e0, tb.d_ln_e, tb.sf, tb.ff2_cum, tb.dx),
+              Scores(t.dep, t.img, t.img_sq, t.totals), (p["response"], p["grid"]))
     if n_trk:
         from xray_viz.montecarlo.loop import TRACK_ENDS
 

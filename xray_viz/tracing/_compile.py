@@ -1,7 +1,7 @@
 """Compiling the library's numba kernels: one module for every module of kernels.
 
-A module of kernels (:mod:`xray_viz.tracing._raster`, :mod:`xray_viz.meshes._check_kernels`)
-defines its kernels with ``@njit(cache=True, nogil=True)`` and lists them, with the one
+A module of kernels (:mod:`xray_viz.tracing._raster`, :mod:`xray_viz.meshes._check_kernels`,
+:mod:`xray_viz._gradient_kernels`) defines its kernels with ``@njit(cache=True, nogil=True)`` and lists them, with the one
 explicit signature each is compiled for, in a :class:`KernelSet` named ``KERNELS``. The set
 compiles each kernel on its first use (or loads it from numba's disk cache,
 :mod:`xray_viz.tracing._numba_cache`) and then forbids numba to compile another

@@ -209,8 +209,9 @@ def depth_key(w):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge, nW, nH, K):
-    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``.
+def _project_vertices(lo, hi, V, view, XY, w, huge, K):
+    """Project and snap vertices: fine-grid coordinates ``x = sx * (rel.eu) [/ w] + bx``
+    (:class:`Projection`); into ``XY``, ``w``, ``huge`` and ``K`` (:class:`Projected`'s).
 
     ``K`` receives each vertex's cell code (x code in bits 0-15, y code in bits 16-31, see
     :func:`_axis_code`): a triangle whose three vertices have the same even x (or y) code lies
@@ -226,6 +227,7 @@ def _project_vertices(lo, hi, V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY,
     that cannot be snapped (huge, or behind a point source) are written again after their
     block. The same operations in the same order as one scalar loop: the same bits.
     """
+    r0, f, eu, ev, sx, bx, sy, by, perspective, nW, nH = view
     codes = nW <= CODE_MAX_SAMPLES and nH <= CODE_MAX_SAMPLES
     # The frame read once: numba cannot prove the outputs do not alias it, so it would
     # reload every component for every vertex.
@@ -397,10 +399,14 @@ def _edge_function(ex, ey, dx, dy):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _inside_exact(o, px, py, ax, ay, bx, by, cx, cy, e0x, e0y, e1x, e1y, e2x, e2y, bias0, bias1,
-                  bias2):
+def _inside_exact(o, px, py, corners, edges, biases):
     """Whether sample ``(px, py)`` is inside a GIANT triangle, with the tie rule: each edge
-    function's exact sign (:func:`exact_cross_sign`) times ``o`` at least its bias."""
+    function's exact sign (:func:`exact_cross_sign`) times ``o`` at least its bias.
+    ``corners`` ``(ax, ay, bx, by, cx, cy)``, ``edges`` :func:`_edges`'s and ``biases``
+    :func:`_tie_biases`'."""
+    ax, ay, bx, by, cx, cy = corners
+    e0x, e0y, e1x, e1y, e2x, e2y = edges
+    bias0, bias1, bias2 = biases
     return (o * exact_cross_sign(e0x, py - ay, e0y, px - ax) >= bias0
             and o * exact_cross_sign(e1x, py - by, e1y, px - bx) >= bias1
             and o * exact_cross_sign(e2x, py - cy, e2y, px - cx) >= bias2)
@@ -471,10 +477,9 @@ def _sample_box(ax, ay, bx, by, cx, cy, nW, nH):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes,
-                    K, depth_ok, kept, band_of, counts):
-    """Per triangle: status (SKIP, SMALL or GIANT times the orientation, +-1, or an error
-    code) and sample bounding box.
+def _cull_triangles(lo, hi, mesh, cull, status, box, kept, counts):
+    """Per triangle of ``mesh`` (:class:`Projected`): status (SKIP, SMALL or GIANT times the
+    orientation, +-1, or an error code) and sample bounding box (the beam: :class:`Cull`).
 
     Only triangles that can cover a sample get a box; ``status`` is written for all. A triangle
     crossing the plane of the source is an error (ERR_STRADDLE) unless it lies wholly outside
@@ -494,6 +499,8 @@ def _cull_triangles(lo, hi, F, XY, w, huge, perspective, FL, nW, nH, status, box
     while its boxes are in cache, so that no other pass, nor a wait for the other threads,
     comes between the cull and the raster (:func:`cull_and_bin`).
     """
+    F, XY, w, huge, V, K = mesh
+    r0, planes, perspective, FL, nW, nH, depth_ok, band_of = cull
     n = 0
     for b in range(counts.shape[0]):
         counts[b] = 0
@@ -659,6 +666,58 @@ class Projected(NamedTuple):
     K: np.ndarray
 
 
+class Projection(NamedTuple):
+    """How :func:`_project_vertices` maps a vertex to the fine grid: ``rel = v - origin``,
+    depth ``w = rel.f``, ``x = sx * (rel.eu) [/ w] + bx``, ``y = sy * (rel.ev) [/ w] + by``
+    (``/ w`` for a point source)."""
+
+    #: ``(3,) float64``: the source (a point source) or a point on the beam (parallel).
+    origin: np.ndarray
+    #: ``(3,) float64``: the depth axis (the frame's forward axis).
+    f: np.ndarray
+    #: ``(3,) float64``: the detector's across axis.
+    eu: np.ndarray
+    #: ``(3,) float64``: the detector's down axis.
+    ev: np.ndarray
+    #: Fine-grid steps per unit along ``eu`` (times the depth of the detector for a point source).
+    sx: float
+    #: Fine-grid x of the axis.
+    bx: float
+    #: Fine-grid steps per unit along ``ev``.
+    sy: float
+    #: Fine-grid y of the axis.
+    by: float
+    #: A point source (True) or a parallel beam.
+    perspective: bool
+    #: Sample columns of the fine grid (``n W``).
+    nW: int
+    #: Sample rows of the fine grid (``n H``).
+    nH: int
+
+
+class Cull(NamedTuple):
+    """What :func:`_cull_triangles` tests the triangles against: the beam, the grid and the
+    bands."""
+
+    #: ``(3,) float64``: the source (a point source) or a point on the beam (parallel).
+    origin: np.ndarray
+    #: ``(k, 4) float64``: the beam's side planes (:func:`beyond_side`).
+    planes: np.ndarray
+    #: A point source (True) or a parallel beam.
+    perspective: bool
+    #: Depth of the detector (mm along the frame's forward axis).
+    FL: float
+    #: Sample columns of the fine grid (``n W``).
+    nW: int
+    #: Sample rows of the fine grid (``n H``).
+    nH: int
+    #: Every vertex strictly between the source and the detector planes, none huge: the
+    #: first pass by cell codes (``Projected.K``) may drop triangles.
+    depth_ok: bool
+    #: ``(nH,) int64``: the band of each sample row.
+    band_of: np.ndarray
+
+
 class DepthSums(NamedTuple):
     """One body's output: per sample the signed depths and the crossings, for :func:`_finish`
     (the rows of the bands rastered, a window)."""
@@ -767,6 +826,8 @@ def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
     ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
     r0x, r0y, r0z = origin[0], origin[1], origin[2]
     f0, f1, f2 = f[0], f[1], f[2]
+    sight = (perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2,
+             FL)
     npix_max = band_height * nW
     pieces = band_start.shape[0]
     cap = 1024
@@ -825,10 +886,9 @@ def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
                 cy = XY[i2, 1]
                 o = np.int64(1 if st > 0 else -1)
                 small = abs(st) == SMALL
-                c0, c1, c2, c3, c4, c5 = _plane(V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1],
-                                                V[2, i1], V[0, i2], V[1, i2], V[2, i2], perspective,
-                                                r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1,
-                                                ey2, f0, f1, f2, FL)
+                c0, c1, c2, c3, c4, c5 = _plane(
+                    (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                    (V[0, i2], V[1, i2], V[2, i2]), sight)
                 w0 = w[i0]
                 w1 = w[i1]
                 w2 = w[i2]
@@ -904,8 +964,9 @@ def _raster_bands(lo, hi, bands, tris, frame, single, sums, sweep, claim):
                     for Y in range(y0, y1 + 1):
                         py = Y * ONE
                         for X in range(X0, X1 + 1):
-                            if _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
-                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
+                            if _inside_exact(o, X * ONE, py, (ax, ay, bx, by, cx, cy),
+                                             (e0x, e0y, e1x, e1y, e2x, e2y),
+                                             (bias0, bias1, bias2)):
                                 Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                                 if Wd <= FL:
                                     hk[np.uint64(nh)] = (Y - r0) * nW + X
@@ -1132,18 +1193,24 @@ def _obliquity(X, Y, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, FL):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _plane(ax, ay, az, bx, by, bz, cx, cy, cz, perspective, r0x, r0y, r0z, p0, p1, p2,
-           ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL):
+def _plane(a, b, c, sight):
     """Coefficients of the depth ``(c0 + c1 X + c2 Y) / (c3 + c4 X + c5 Y)`` of the hit of the
-    ray of sample (X, Y) with the plane of the triangle of vertices a, b, c (see
-    :func:`_raster_bands`).
+    ray of sample (X, Y) with the plane of the triangle of vertices a, b, c (each ``(x, y,
+    z)``; see :func:`_raster_bands`). ``sight`` is the frame as scalars, read once by the
+    caller: ``(perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1,
+    f2, FL)`` (the source r0, P00, Ex, Ey, a parallel beam's f, the detector's depth).
 
     Point source: ray r0 + s D, D = P00 + X Ex + Y Ey (P00 relative to r0), hit depth s * FL.
     Parallel beam: ray O + t f, O = r0 + P00 + X Ex + Y Ey (P00 relative to the detector centre).
 
-    Scalars only, so that LLVM inlines it: a compiled helper taking arrays is called, not
-    inlined, and pushing every array's fields costs several times this arithmetic.
+    Scalars only (in tuples), so that LLVM inlines it: a compiled helper taking arrays is
+    called, not inlined, and pushing every array's fields costs several times this arithmetic.
     """
+    ax, ay, az = a
+    bx, by, bz = b
+    cx, cy, cz = c
+    (perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2,
+     FL) = sight
     f1x = bx - ax
     f1y = by - ay
     f1z = bz - az
@@ -1223,6 +1290,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
     ex0, ex1, ex2 = Ex[0], Ex[1], Ex[2]
     ey0, ey1, ey2 = Ey[0], Ey[1], Ey[2]
     f0, f1, f2 = f[0], f[1], f[2]
+    sight = (perspective, r0x, r0y, r0z, p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2,
+             FL)
     for c in range(lo, hi):
         err[c] = -1
         Sc = S[c]
@@ -1335,9 +1404,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                     i1 = F[t, 1]
                     i2 = F[t, 2]
                     c0, c1, c2, c3, c4, c5 = _plane(
-                        V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                        V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                        p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                        (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                        (V[0, i2], V[1, i2], V[2, i2]), sight)
                     # (the sample as int64: _clamped has one specialisation)
                     Wd = _clamped(c0, c1, c2, c3, c4, c5, np.int64(sample_x[j]),
                                   np.int64(sample_y[j]), min(w[i0], min(w[i1], w[i2])),
@@ -1409,9 +1477,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                             wmin = min(w[i0], min(w[i1], w[i2]))
                             wmax = max(w[i0], max(w[i1], w[i2]))
                         c0, c1, c2, c3, c4, c5 = _plane(
-                            V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                            V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                            p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                            (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                            (V[0, i2], V[1, i2], V[2, i2]), sight)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X0, Y0, wmin, wmax)
                         Sc[np.uint64(Y0), np.uint64(X0)] += sgn * Wd
                         continue
@@ -1429,9 +1496,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                         wmin = min(w[i0], min(w[i1], w[i2]))
                         wmax = max(w[i0], max(w[i1], w[i2]))
                     c0, c1, c2, c3, c4, c5 = _plane(
-                        V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                        V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                        p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                        (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                        (V[0, i2], V[1, i2], V[2, i2]), sight)
                     for Y in range(Y0, Y1 + 1):
                         py = Y * ONE
                         E0 = o * _edge_function(e0x, e0y, X0 * ONE - ax, py - ay)
@@ -1456,8 +1522,9 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                 for Y in range(Y0, Y1 + 1):
                     py = Y * ONE
                     for X in range(X0, X1 + 1):
-                        if not _inside_exact(o, X * ONE, py, ax, ay, bx, by, cx, cy, e0x, e0y,
-                                             e1x, e1y, e2x, e2y, bias0, bias1, bias2):
+                        if not _inside_exact(o, X * ONE, py, (ax, ay, bx, by, cx, cy),
+                                             (e0x, e0y, e1x, e1y, e2x, e2y),
+                                             (bias0, bias1, bias2)):
                             continue
                         if not have_plane:
                             have_plane = True
@@ -1465,9 +1532,8 @@ def _raster_direct(lo, hi, n_chunks, mesh, frame, nW, nH, depth_ok, planes, S, e
                                 wmin = min(w[i0], min(w[i1], w[i2]))
                                 wmax = max(w[i0], max(w[i1], w[i2]))
                             c0, c1, c2, c3, c4, c5 = _plane(
-                                V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1],
-                                V[0, i2], V[1, i2], V[2, i2], perspective, r0x, r0y, r0z,
-                                p0, p1, p2, ex0, ex1, ex2, ey0, ey1, ey2, f0, f1, f2, FL)
+                                (V[0, i0], V[1, i0], V[2, i0]), (V[0, i1], V[1, i1], V[2, i1]),
+                                (V[0, i2], V[1, i2], V[2, i2]), sight)
                         Wd = _clamped(c0, c1, c2, c3, c4, c5, X, Y, wmin, wmax)
                         Sc[Y, X] += sgn * Wd
 
@@ -1513,6 +1579,8 @@ TUPLES = {
     "Grid": (Grid, "f8 b1 f8[1]r f8[1]r f8[1]r"),
     "Frame": (Frame, "f8[1]r f8[1]r Grid"),
     "Projected": (Projected, "u4[2]r i8[2]r f8[1]r b1[1]r f8[2]r i4[1]r"),
+    "Projection": (Projection, "f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8 i8"),
+    "Cull": (Cull, "f8[1]r f8[2]r b1 f8 i8 i8 b1 i8[1]r"),
     "DepthSums": (DepthSums, "f8[2] i4[2] i8"),
     "Rays": (Rays, "f8[2] i8 i8 i8 i8"),
     "Sweep": (Sweep, "i8[1]r i8[1]r Rays"),
@@ -1542,10 +1610,8 @@ def _types(spec: str) -> tuple:
 #: Argument types of the one specialisation of each kernel (see :func:`_types`).
 SIGNATURES = {
     "_first_use_rank": "f8[2]r i8[1]r b1 i8[1] f8[2] i4[1] i8[1] i8[1] i8[1] i8[1] i8[2]",
-    "_project_vertices": "i8 i8 f8[2]r f8[1]r f8[1]r f8[1]r f8[1]r f8 f8 f8 f8 b1 i8[2] f8[1] "
-                         "b1[1] i8 i8 i4[1]",
-    "_cull_triangles": "i8 i8 u4[2]r i8[2]r f8[1]r b1[1]r b1 f8 i8 i8 i1[1] i8[2] f8[2]r f8[1]r "
-                       "f8[2]r i4[1]r b1 i8[1] i8[1]r i8[1]",
+    "_project_vertices": "i8 i8 f8[2]r Projection i8[2] f8[1] b1[1] i4[1]",
+    "_cull_triangles": "i8 i8 Projected Cull i1[1] i8[2] i8[1] i8[1]",
     "_raster_bands": "i8 i8 Bands Triangles Frame b1 DepthSums Sweep i8[1]",
     "_finish": "i8 i8 f8[3]r i4[3]r f8[3]r b1 Grid Rays i8",
     "_raster_direct": "i8 i8 i8 Projected Frame i8 i8 b1 f8[2]r f8[3] i8[1]",

@@ -24,10 +24,12 @@ from xray_viz.tracing._raster import (
     NO_CODE,
     ONE,
     Bands,
+    Cull,
     DepthSums,
     Frame,
     Grid,
     Projected,
+    Projection,
     Rays,
     Sweep,
     Triangles,
@@ -207,10 +209,9 @@ def project_vertices(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w, huge,
         return project_vertices_numpy(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w,
                                       huge, nW, nH, K)
     V = _vertices(V)
-    parts = _split("_project_vertices", 0, V.shape[1],
-                   (V, _in(r0, _f8), _in(f, _f8), _in(eu, _f8), _in(ev, _f8), float(sx),
-                    float(bx), float(sy), float(by), bool(perspective), XY, w, huge, int(nW),
-                    int(nH), K), _MIN_ITEMS)
+    view = Projection(_ro(r0, _f8), _ro(f, _f8), _ro(eu, _f8), _ro(ev, _f8), float(sx),
+                      float(bx), float(sy), float(by), bool(perspective), int(nW), int(nH))
+    parts = _split("_project_vertices", 0, V.shape[1], (V, view, XY, w, huge, K), _MIN_ITEMS)
     kmin, kmax = min(p[0] for p in parts), max(p[1] for p in parts)
     if kmin > kmax:
         return np.inf, -np.inf, any(p[2] for p in parts)
@@ -292,18 +293,17 @@ def _cull(F, XY, w, huge, perspective, FL, nW, nH, status, box, V, r0, planes, K
     starts, sizes, counts, lists)``, piece c's kept triangles ``kept[starts[c]:starts[c] +
     sizes[c]]``, ``counts[c, b]`` of them in band b (``band_of``: :func:`_band_of`) and its
     band lists ``lists[c]``."""
-    V = _vertices(V)
-    F = _faces(F, V.shape[1])
     if K is None:
         K, depth_ok = np.zeros(0, np.int32), False
-    T = F.shape[0]
+    mesh = _projected(F, XY, w, huge, V, K)
+    T = mesh.F.shape[0]
     kept = np.empty(T, np.int64)
     cut = _cuts(0, T, _MIN_ITEMS)
     counts = np.empty((len(cut) - 1, int(band_of[-1]) + 1), np.int64)
-    parts = _split("_cull_triangles", 0, T,
-                   (F, XY, w, huge, bool(perspective), float(FL), int(nW), int(nH), status, box,
-                    V, _in(r0, _f8), _in(planes, _f8), _in(K, np.int32),
-                    bool(depth_ok), kept, band_of), cuts=cut, each=lambda j: (counts[j],))
+    cull = Cull(_ro(r0, _f8), _ro(planes, _f8), bool(perspective), float(FL), int(nW), int(nH),
+                bool(depth_ok), _ro(band_of, np.int64))
+    parts = _split("_cull_triangles", 0, T, (mesh, cull, status, box, kept), cuts=cut,
+                   each=lambda j: (counts[j],))
     starts = np.array([a for a, _, _ in parts], np.int64)
     sizes = np.array([n for _, n, _ in parts], np.int64)
     return kept, starts, sizes, counts, [lists for _, _, lists in parts]
@@ -364,6 +364,13 @@ def _band_inputs(order, band_start, band_tris, band_height, nH, nW, status, box,
                      _ro(XY, np.int64), _ro(_vertices(V), _f8), _ro(w, _f8),
                      _ro(tri_body, np.int32))
     return bands, tris, _frame(r0, f, FL, perspective, P00, Ex, Ey)
+
+
+def _projected(F, XY, w, huge, V, K):
+    """The :class:`Projected` of these arrays, read-only (numba converts no named tuple)."""
+    V = _vertices(V)
+    return Projected(_ro(_faces(F, V.shape[1]), np.uint32), _ro(XY, np.int64), _ro(w, _f8),
+                     _ro(huge, np.bool_), _ro(V, _f8), _ro(K, np.int32))
 
 
 def _grid(FL, perspective, P00, Ex, Ey):
@@ -446,8 +453,7 @@ def raster_direct(n_chunks, F, XY, w, huge, V, perspective, r0, P00, Ex, Ey, f, 
                   depth_ok, S, err, K, planes):
     """:func:`_raster_direct` over the ``n_chunks`` pieces of the triangles, split over the
     threads (:class:`Projected`, :class:`Frame`)."""
-    mesh = Projected(_ro(_faces(F, V.shape[1]), np.uint32), _ro(XY, np.int64), _ro(w, _f8),
-                     _ro(huge, np.bool_), _ro(_vertices(V), _f8), _ro(K, np.int32))
+    mesh = _projected(F, XY, w, huge, V, K)
     _split("_raster_direct", 0, int(n_chunks),
            (int(n_chunks), mesh, _frame(r0, f, FL, perspective, P00, Ex, Ey), int(nW), int(nH),
             bool(depth_ok), _in(planes, _f8), S, err))

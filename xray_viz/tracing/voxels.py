@@ -124,13 +124,18 @@ def _grid_entry(inv, o, d, t_max, ni, nj, nk):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _trace(lo, hi, origins, directions, t_max, inv, classes, weights, n_classes,
-           iv_start, iv_t0, iv_t1, out):
+def _trace(lo, hi, rays, grid, intervals, n_classes, out):
     """Rays ``lo .. hi - 1``: ``out[r, c - 1] += weight x chord`` over their voxels.
+
+    ``rays`` is ``(origins, directions, t_max)``, ``grid`` ``(inv, classes, weights)`` and
+    ``intervals`` ``(iv_start, iv_t0, iv_t1)`` (:func:`voxel_sums`'s, in its order).
 
     ``classes`` and ``weights`` are flat (C order of the (I, J, K) grid, ``out``'s last two
     arguments' shape in ``inv``'s companion ``dims``): the walk steps a flat index by the
     axis' stride. Each ray sums into a small local array (class 0 included, dropped)."""
+    origins, directions, t_max = rays
+    inv, classes, weights = grid
+    iv_start, iv_t0, iv_t1 = intervals
     ni = np.int64(inv[0, 4])
     nj = np.int64(inv[1, 4])
     nk = np.int64(inv[2, 4])
@@ -223,15 +228,20 @@ INTERPOLATIONS = ("nearest", "trilinear")
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _simpson(acc, ta, tb, px, py, pz, ex, ey, ez, ni, nj, nk, classes, weights):
+def _simpson(acc, ta, tb, p, e, n, classes, weights):
     """The exact integral over ``t`` in ``[ta, tb]`` of the trilinear field of every class,
     for a stretch inside one dual cell (the eight voxels around it fixed): there the field is
     a product of three linear functions of ``t`` (a cubic), which Simpson's rule integrates
     exactly. Each of the eight voxels gets ``(tb - ta) / 6 x (w(a) + 4 w(m) + w(b))`` of its
     weight, ``w`` its trilinear weight at the stretch's ends and middle. The point is clamped
-    into ``[0, n - 1]`` along each axis (constant in the box's outer half voxel)."""
+    into ``[0, n - 1]`` along each axis (constant in the box's outer half voxel). ``p``, ``e``
+    and ``n``: the ray's origin and direction in index space and the grid's dimensions, each
+    a 3-tuple."""
     if not tb > ta:
         return
+    px, py, pz = p
+    ex, ey, ez = e
+    ni, nj, nk = n
     tm = 0.5 * (ta + tb)
     xa = min(max(px + ta * ex, 0.0), ni - 1.0)
     ya = min(max(py + ta * ey, 0.0), nj - 1.0)
@@ -273,15 +283,17 @@ def _simpson(acc, ta, tb, px, py, pz, ex, ey, ez, ni, nj, nk, classes, weights):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _trace_trilinear(lo, hi, origins, directions, t_max, inv, classes, weights, n_classes,
-                     iv_start, iv_t0, iv_t1, out):
+def _trace_trilinear(lo, hi, rays, grid, intervals, n_classes, out):
     """Rays ``lo .. hi - 1``: ``out[r, c - 1] +=`` the line integral of class c's trilinear
     field (each voxel's weight where its class is c, 0 elsewhere, interpolated between the
     voxel centres), over the grid's box; the stretches inside meshes left out.
 
     The ray is cut at every plane through voxel centres (whole indices in index space); in
     each piece the interpolation's eight voxels are fixed and the field is a cubic in ``t``,
-    integrated exactly by Simpson's rule (:func:`_simpson`)."""
+    integrated exactly by Simpson's rule (:func:`_simpson`). The arguments: :func:`_trace`'s."""
+    origins, directions, t_max = rays
+    inv, classes, weights = grid
+    iv_start, iv_t0, iv_t1 = intervals
     ni = np.int64(inv[0, 4])
     nj = np.int64(inv[1, 4])
     nk = np.int64(inv[2, 4])
@@ -335,12 +347,13 @@ def _trace_trilinear(lo, hi, origins, directions, t_max, inv, classes, weights, 
                 qq = q
                 while qq < q_end and iv_t0[qq] < tn:
                     if iv_t0[qq] > s:
-                        _simpson(acc, s, iv_t0[qq], px, py, pz, ex, ey, ez, ni, nj, nk,
+                        _simpson(acc, s, iv_t0[qq], (px, py, pz), (ex, ey, ez), (ni, nj, nk),
                                  classes, weights)
                     s = max(s, iv_t1[qq])
                     qq += 1
                 if s < tn:
-                    _simpson(acc, s, tn, px, py, pz, ex, ey, ez, ni, nj, nk, classes, weights)
+                    _simpson(acc, s, tn, (px, py, pz), (ex, ey, ez), (ni, nj, nk), classes,
+                             weights)
                 t = tn
             if tx <= tn:
                 mx += sx
@@ -525,8 +538,9 @@ def voxel_sums(origins, directions, t_max, affine, classes, weights, *, n_classe
     kernel = _trace if interpolation == "nearest" else _trace_trilinear
 
     def piece(q):
-        return kernel(bounds[q], bounds[q + 1], origins, directions, t_max, inv_dims,
-                      flat_classes, flat_weights, int(n_classes), start, iv0, iv1, out)
+        return kernel(bounds[q], bounds[q + 1], (origins, directions, t_max),
+                      (inv_dims, flat_classes, flat_weights), (start, iv0, iv1),
+                      int(n_classes), out)
 
     _threads.run_pieces(piece, k)
     return out
