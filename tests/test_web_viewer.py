@@ -481,3 +481,47 @@ def test_closing_tabs_while_the_server_sends_writes_no_traceback():
     assert "stopped" in out
     for words in ("Traceback", "Exception raised", "Error handling request"):
         assert words not in err, err[-3000:]
+
+
+def test_a_closing_websocket_drops_its_messages_and_the_others_get_theirs():
+    """What the server's websockets do once :func:`start` has bound it: a send to a closing
+    connection (aiohttp raises ConnectionResetError) is dropped, a send to an open one goes
+    through, and the handler's own ``onConnect`` still runs."""
+    import asyncio
+    import types
+
+    from xray_viz.viz import web
+
+    class Socket:
+        def __init__(self, closing):
+            self.closing, self.got = closing, []
+
+        async def send_bytes(self, data):
+            if self.closing:
+                raise ConnectionResetError("Cannot write to closing transport")
+            self.got.append(data)
+
+    connected = []
+
+    class Handler:
+        def __init__(self):
+            self.connections = {"gone": Socket(True), "open": Socket(False)}
+
+        async def onConnect(self, request, client_id):
+            connected.append(client_id)
+
+    handler = Handler()
+    web._quiet_closing_websockets(types.SimpleNamespace(_ws_handlers=[handler]))
+
+    async def main():
+        for client in ("gone", "open"):
+            await handler.onConnect(None, client)
+        for ws in handler.connections.values():       # as wslink's send loop does
+            await ws.send_bytes(b"picture")
+
+    asyncio.run(main())
+    assert connected == ["gone", "open"]
+    assert handler.connections["open"].got == [b"picture"]
+    assert handler.connections["gone"].got == []
+    with pytest.raises(ConnectionResetError):            # unwrapped: what wslink saw
+        asyncio.run(Socket(True).send_bytes(b"picture"))

@@ -172,8 +172,8 @@ def display_window(image, *, bright: str = "high", window=None, level=None
     (0.5, 1.0, False)
     >>> display_window([[1e-3, 1.0]], bright="low")
     (0.001, 1.0, True)
-    >>> display_window([[1e-3, 1.0]], bright="low", window=0.5)
-    (0.25050000000000006, 0.7505000000000001, False)
+    >>> display_window([[1e-3, 1.0]], bright="low", window=0.5, level=0.5)
+    (0.25, 0.75, False)
     """
     if window is None and level is None and bright == "low":
         lo, hi, log = png_window(image, bright=bright)

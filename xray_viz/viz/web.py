@@ -403,8 +403,8 @@ class WebViewer:
 
         A message to a page whose connection is closing (the tab closed while a reply or a
         picture was on its way) is dropped, not written to stderr as a traceback
-        (:func:`_quiet_closing_websockets`); with ``"main"`` the server's own event loop also
-        drops those errors in tasks nobody awaits (:func:`_drop_closing_connections`).
+        (``_quiet_closing_websockets``); with ``"main"`` the server's own event loop also
+        drops those errors in tasks nobody awaits (``_drop_closing_connections``).
         ``proxied``: the page is also reached through jupyter-server-proxy
         (:func:`_request_guard`)."""
         guard = _request_guard(host, proxied=proxied)
@@ -443,7 +443,7 @@ def _drop_if_closing(send):
 
 def _quiet_closing_websockets(wslink_server) -> None:
     """Every websocket of the server's pages drops a message to a closing connection
-    (:func:`_drop_if_closing`).
+    (``_drop_if_closing``).
 
     Closing the tab while wslink sends it a reply (an RPC's result, a picture) made
     ``ws.send_bytes`` raise ``ConnectionResetError`` inside wslink's message handler, which
