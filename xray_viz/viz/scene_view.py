@@ -806,8 +806,9 @@ class SceneView:
 
     @property
     def display_window(self) -> tuple[float, float, bool]:
-        """``(low, high, logarithmic)`` of the radiograph shown: :func:`display_window` of
-        its image with :attr:`window` and :attr:`level`."""
+        """``(low, high, logarithmic)`` of the radiograph shown: the module's
+        :func:`~xray_viz.viz.scene_view.display_window` of its image with ``window`` and
+        ``level``."""
         return display_window(self.radiograph.quantity(self.quantity), bright=self.bright,
                               window=self.window, level=self.level)
 
