@@ -29,7 +29,7 @@ from xray_viz.errors import OutputError, WriteInterrupted, one_line, reader_reas
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
            "format_of", "FORMATS", "SUFFIX_FORMATS", "Format", "suffixes", "UNITS", "window_range", "OUTLIER_FRACTION",
-           "LOG_WINDOW_RATIO"]
+           "LOG_WINDOW_RATIO", "png_window"]
 
 @dataclasses.dataclass(frozen=True)
 class Format:
@@ -966,6 +966,22 @@ def _png_window(finite, *, bright: str) -> tuple[float, float, bool]:
                 return float(positive[depth <= deep].min()), float(positive.max()), True
     lo, hi = window_range(finite, bright=bright)
     return lo, hi, False
+
+
+def png_window(image, *, bright: str = "high") -> tuple[float, float, bool]:
+    """``(low, high, logarithmic)``: the values that a PNG of ``image`` stores as its ends
+    (:func:`to_uint16`), and whether its scale is logarithmic (intensities beyond
+    :data:`LOG_WINDOW_RATIO`); the viewers' radiograph pane follows the same rule.
+
+    Examples
+    --------
+    >>> png_window(np.array([[0.5, 1.0]]), bright="low")
+    (0.5, 1.0, False)
+    >>> png_window(np.array([[1e-3, 1.0]]), bright="low")
+    (0.001, 1.0, True)
+    """
+    a = np.asarray(image, dtype=np.float64)
+    return _png_window(a[np.isfinite(a)], bright=bright)
 
 
 def _write_tiff(tmp, data, meta) -> None:

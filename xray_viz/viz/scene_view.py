@@ -16,8 +16,10 @@
 
 and in the right subplot the radiograph, row 0 at the top as in the image arrays, with its
 own colour bar (round ticks, :func:`colorbar_ticks`) and window/level (shown as ``W=..., L=...``
-in its title; :meth:`SceneView.set_window_level`). It can also be draped on the detector plane
-as a texture.
+in its title; :meth:`SceneView.set_window_level`). Until a window/level is set, an intensity
+image is shown as its PNG is written (:func:`display_window`): on a log scale when it spans more
+than :data:`xray_viz.output.LOG_WINDOW_RATIO` (a chest), so that the lungs, the heart and an
+implant keep their contrast. It can also be draped on the detector plane as a texture.
 
 :class:`SceneView` keeps the actors, their groups and toggles and redraws them
 (:meth:`SceneView.set_scene`); the shapes it draws come from :mod:`xray_viz.viz.shapes`, their
@@ -35,6 +37,7 @@ import pyvista as pv
 
 from xray_viz.errors import SceneError
 from xray_viz.geometry import viewport
+from xray_viz.output import png_window
 from xray_viz.viz import camera, shapes
 from xray_viz.viz.rays import RaySelection, inside_segments, trace_selection
 # the look of the view, importable from here as before
@@ -42,7 +45,8 @@ from xray_viz.viz.style import (ARROW_WIDTH, BODY_SPECULAR, COLORS, CORNER_FONT,
                                 LEGEND, LINE_WIDTHS, OPACITY, PALETTE, material_color)  # noqa: F401
 
 __all__ = ["SceneView", "plot_scene", "material_label", "grid_indices", "image_to_grid",
-           "quantity_title", "window_level_limits", "colorbar_ticks"]
+           "quantity_title", "window_level_limits", "display_window", "gray_levels",
+           "colorbar_ticks"]
 
 #: Actor names of each toggleable group of the 3D view.
 GROUPS = {
@@ -150,9 +154,61 @@ def window_level_limits(image, *, window=None, level=None) -> tuple[float, float
     return float(level - window / 2), float(level + window / 2)
 
 
-def colorbar_ticks(lo: float, hi: float, *, n: int = 5) -> tuple[np.ndarray, str]:
+def display_window(image, *, bright: str = "high", window=None, level=None
+                   ) -> tuple[float, float, bool]:
+    """Colour limits ``(low, high)`` of the radiograph pane and whether its scale is
+    logarithmic.
+
+    Unset ``window`` and ``level``: an intensity image (``bright="low"``) whose PNG is written
+    on a log scale (:func:`xray_viz.output.png_window`: it spans more than
+    :data:`xray_viz.output.LOG_WINDOW_RATIO`) is shown on the same log scale between the same
+    ends (an implant's few pixels beyond them saturated); any other image over its finite
+    range, as :func:`window_level_limits`. A window or a level set: linear, as
+    :func:`window_level_limits` (in the image's units, as the sliders say).
+
+    Examples
+    --------
+    >>> display_window([[0.5, 1.0]], bright="low")
+    (0.5, 1.0, False)
+    >>> display_window([[1e-3, 1.0]], bright="low")
+    (0.001, 1.0, True)
+    >>> display_window([[1e-3, 1.0]], bright="low", window=0.5, level=0.5)
+    (0.25, 0.75, False)
+    """
+    if window is None and level is None and bright == "low":
+        lo, hi, log = png_window(image, bright=bright)
+        if log:
+            return lo, hi, True
+    lo, hi = window_level_limits(image, window=window, level=level)
+    return lo, hi, False
+
+
+def gray_levels(image, lo: float, hi: float, *, log: bool = False) -> np.ndarray:
+    """The image's values as fractions 0 to 1 of the window ``[lo, hi]`` (clipped; NaN at 0):
+    linearly, or of ``[ln lo, ln hi]`` with ``log`` (values <= 0 at 0, as the PNG).
+
+    Examples
+    --------
+    >>> gray_levels([[0.5, 2.0]], 0.0, 1.0).tolist()
+    [[0.5, 1.0]]
+    >>> gray_levels([[0.01, 0.1, 0.0]], 0.01, 1.0, log=True).tolist()
+    [[0.0, 0.5, 0.0]]
+    """
+    a = np.asarray(image, dtype=float)
+    if log:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = np.log(np.where(a > 0, a, lo))
+        lo, hi = math.log(lo), math.log(hi)
+    gray = np.clip((a - lo) / max(hi - lo, 1e-300), 0, 1)
+    return np.nan_to_num(gray, nan=0.0)
+
+
+def colorbar_ticks(lo: float, hi: float, *, n: int = 5, log: bool = False
+                   ) -> tuple[np.ndarray, str]:
     """Round tick values in ``[lo, hi]`` (steps of 1, 2 or 5 times a power of ten, about
-    ``n`` of them) and a printf format that shows them without spurious digits.
+    ``n`` of them) and a printf format that shows them without spurious digits. With ``log``
+    (a log colour scale, ``lo > 0``): the values 1, 2 and 5 times a power of ten in
+    ``[lo, hi]``, or the powers of ten alone when those are too many.
 
     Examples
     --------
@@ -162,8 +218,20 @@ def colorbar_ticks(lo: float, hi: float, *, n: int = 5) -> tuple[np.ndarray, str
     >>> ticks, fmt = colorbar_ticks(0.8, 1.0)
     >>> [fmt % t for t in ticks]
     ['0.80', '0.85', '0.90', '0.95', '1.00']
+    >>> ticks, fmt = colorbar_ticks(3.7e-4, 1.0, log=True)
+    >>> [fmt % t for t in ticks]
+    ['0.001', '0.01', '0.1', '1']
     """
     lo, hi = float(lo), float(hi)
+    if log and 0 < lo < hi and np.isfinite(hi):
+        decades = np.arange(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1)
+        for mantissas in ((1, 2, 5), (1,)):
+            ticks = np.array([m * 10.0 ** d for d in decades for m in mantissas])
+            ticks = ticks[(ticks >= lo * (1 - 1e-9)) & (ticks <= hi * (1 + 1e-9))]
+            if len(ticks) <= 2 * n:
+                break
+        if len(ticks) >= 2:
+            return ticks, "%g"
     if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
         return np.array([lo]), "%.3g"
     mag = 10.0 ** math.floor(math.log10((hi - lo) / max(n, 1)))
@@ -506,9 +574,8 @@ class SceneView:
         plane = shapes.detector_plane(vp, offset=back)
         if self.texture and self.radiograph is not None:
             image = self.radiograph.quantity(self.quantity)
-            lo, hi = window_level_limits(image, window=self.window, level=self.level)
-            gray = np.clip((image - lo) / max(hi - lo, 1e-300), 0, 1)
-            gray = np.nan_to_num(gray, nan=0.0)
+            lo, hi, log = self.display_window
+            gray = gray_levels(image, lo, hi, log=log)
             if self.cmap == "gray_r":                 # as in the 2D view: attenuation bright
                 gray = 1.0 - gray
             rgb = np.repeat((gray * 255).astype(np.uint8)[..., None], 3, axis=2)
@@ -652,7 +719,8 @@ class SceneView:
         title = self.quantity_title
         grid = image_to_grid(image, name=title)
         self.datasets["radiograph"] = grid
-        clim = window_level_limits(image, window=self.window, level=self.level)
+        *clim, log = self.display_window
+        clim = tuple(clim)
         # Attenuation bright, as radiologists read films: low I / I0 is white.
         cmap = self.cmap
         # box of the image, fractions of the pane: left, bottom, right, top
@@ -661,7 +729,7 @@ class SceneView:
         for old in list(pl.scalar_bars.keys()):            # re-placed on every draw
             pl.remove_scalar_bar(old, render=False)
         pl.add_mesh(grid, name="radiograph", scalars=title, cmap=cmap, clim=clim,
-                    lighting=False, show_scalar_bar=True, reset_camera=False, render=False,
+                    log_scale=log, lighting=False, show_scalar_bar=True, reset_camera=False, render=False,
                     scalar_bar_args=dict(title=title, vertical=True, position_x=0.8,
                                          position_y=y0 + 0.05 * (y1 - y0),
                                          height=0.8 * (y1 - y0), width=0.05,
@@ -672,7 +740,7 @@ class SceneView:
         # round ticks (0.2, 0.4, ...) rather than five evenly spaced odd values, and the
         # title clear of the top tick label
         bar = pl.scalar_bars[title]
-        ticks, fmt = colorbar_ticks(*clim, n=5)
+        ticks, fmt = colorbar_ticks(*clim, n=5, log=log)
         from vtkmodules.vtkCommonCore import vtkDoubleArray
 
         values = vtkDoubleArray()
@@ -711,9 +779,12 @@ class SceneView:
         if self.status:
             lines.append(self.status)
         wl, lv = clim[1] - clim[0], (clim[0] + clim[1]) / 2
-        self.window_level_text = (f"W={wl:.3g}, L={lv:.3g}"
-                                  + (" (image range)" if self.window is None
-                                     and self.level is None else ""))
+        if log:
+            self.window_level_text = f"log scale {clim[0]:.3g} to {clim[1]:.3g} (as the PNG)"
+        else:
+            self.window_level_text = (f"W={wl:.3g}, L={lv:.3g}"
+                                      + (" (image range)" if self.window is None
+                                         and self.level is None else ""))
         # the render time last: its digits change from run to run, nothing after them moves
         lines.append(f"window/level {self.window_level_text};  engine {engine}: "
                      f"{total * 1000:.0f} ms")
@@ -726,6 +797,20 @@ class SceneView:
         """Name and unit of the image shown (the colour bar's title), see
         :func:`quantity_title`."""
         return quantity_title(self.quantity, self.scene)
+
+    @property
+    def bright(self) -> str:
+        """``"low"`` for the images whose low values are drawn white (intensities, see
+        :attr:`cmap`), else ``"high"``: as :func:`xray_viz.output.to_uint16` is told."""
+        return "low" if self.cmap == "gray_r" else "high"
+
+    @property
+    def display_window(self) -> tuple[float, float, bool]:
+        """``(low, high, logarithmic)`` of the radiograph shown: the module's
+        :func:`~xray_viz.viz.scene_view.display_window` of its image with ``window`` and
+        ``level``."""
+        return display_window(self.radiograph.quantity(self.quantity), bright=self.bright,
+                              window=self.window, level=self.level)
 
     @property
     def cmap(self) -> str:
@@ -893,8 +978,7 @@ class SceneView:
         """``(window, level)`` in use, the image's range filled in for unset values."""
         if self.radiograph is None:
             return math.nan, math.nan
-        lo, hi = window_level_limits(self.radiograph.quantity(self.quantity),
-                                     window=self.window, level=self.level)
+        lo, hi, _ = self.display_window
         return hi - lo, (hi + lo) / 2
 
     def show_pixel(self, i: int, j: int) -> RaySelection:

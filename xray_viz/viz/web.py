@@ -401,12 +401,19 @@ class WebViewer:
         """Start the trame server (``exec_mode="main"`` blocks until it stops; ``"task"``
         returns its asyncio task, for a running event loop such as a Jupyter kernel's).
 
-        With ``"main"`` the server's own event loop drops the errors of messages to a page
-        whose connection is closing (:func:`_drop_closing_connections`). ``proxied``: the page
-        is also reached through jupyter-server-proxy (:func:`_request_guard`)."""
+        A message to a page whose connection is closing (the tab closed while a reply or a
+        picture was on its way) is dropped, not written to stderr as a traceback
+        (``_quiet_closing_websockets``); with ``"main"`` the server's own event loop also
+        drops those errors in tasks nobody awaits (``_drop_closing_connections``).
+        ``proxied``: the page is also reached through jupyter-server-proxy
+        (:func:`_request_guard`)."""
         guard = _request_guard(host, proxied=proxied)
-        self.server.controller.on_server_bind.add(
-            lambda wslink_server: wslink_server.app.middlewares.append(guard))
+
+        def bind(wslink_server):
+            wslink_server.app.middlewares.append(guard)
+            _quiet_closing_websockets(wslink_server)
+
+        self.server.controller.on_server_bind.add(bind)
         if exec_mode == "main":
             self.server.controller.on_server_ready.add(_own_loop_drops_closing_connections)
         if on_ready is not None:
@@ -418,6 +425,42 @@ class WebViewer:
     def close(self) -> None:
         """Free the viewer's render window (the server, if running, is left to its loop)."""
         self.viewer.close()
+
+
+def _drop_if_closing(send):
+    """``send`` (a websocket's ``send_bytes``) that drops its message, instead of raising,
+    when the connection is closing: the page is gone, there is nobody left to tell."""
+
+    @functools.wraps(send)
+    async def send_or_drop(*args, **kwargs):
+        try:
+            return await send(*args, **kwargs)
+        except ConnectionResetError:        # aiohttp: "Cannot write to closing transport"
+            return None
+
+    return send_or_drop
+
+
+def _quiet_closing_websockets(wslink_server) -> None:
+    """Every websocket of the server's pages drops a message to a closing connection
+    (``_drop_if_closing``).
+
+    Closing the tab while wslink sends it a reply (an RPC's result, a picture) made
+    ``ws.send_bytes`` raise ``ConnectionResetError`` inside wslink's message handler, which
+    logged it as "Exception raised", failed again sending the error back, and left aiohttp
+    to print "Error handling request" with both tracebacks on stderr. The other pages'
+    websockets are apart: each gets its messages whatever happened to another's.
+    """
+    for handler in getattr(wslink_server, "_ws_handlers", ()):
+        connect = handler.onConnect
+
+        async def on_connect(request, client_id, _handler=handler, _connect=connect):
+            ws = _handler.connections.get(client_id)
+            if ws is not None:
+                ws.send_bytes = _drop_if_closing(ws.send_bytes)
+            await _connect(request, client_id)
+
+        handler.onConnect = on_connect
 
 
 def _drop_closing_connections(loop, context) -> None:
