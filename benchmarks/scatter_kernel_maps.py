@@ -36,7 +36,7 @@ def main(argv=None):
               "frog (15 tissues), 60 keV")
     fig, axes = plt.subplots(3, 3, figsize=(11, 10.5), constrained_layout=True)
     for row, (label, make) in zip(axes, [c for c in acc.held_out() if c[0] in wanted]):
-        key = f"{label}|400000|20000000"
+        key = acc.cached(store, label)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             sb, pb, eb, tb, _ = acc.compare(make(), store[key + "|s"], store[key + "|e"],

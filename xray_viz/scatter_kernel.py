@@ -31,15 +31,24 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
   Star-Lack's kernels in a simple form with no new parameter (the water fit read at another
   thickness; single-scatter acceptance, the multiple scatter taken to follow it): it took
   the 20 mm bone layer from 19 % high to 3 % (median) and the step wedge from 30 % low to 12 %
-  (BENCHMARKS.md). Small bodies (the limb, the frog) stay 18-28 % high: a matter of their
-  shape, not of their material;
+  (BENCHMARKS.md). Small bodies (the limb, the frog) stayed 17-30 % high: a matter of
+  their shape, not of their material (the edge term below);
 - ``A(tau, E)`` the scatter-to-primary ratio of an infinite slab of that thickness (the
   amplitude factor), ``ln A = a0 + a1 ln(tau / 100 mm) + a2 (tau / 100 mm - 1)
   + a3 ln(E / 50 keV) + a4 (tau / 100 mm) ln(E / 50 keV)``: Sun and Star-Lack's
   ``c T^alpha (ln 1/T)^beta`` written in the water-equivalent thickness, the spectrum entering
   by ``E``, the mean energy of the source's photons after 100 mm of water;
-- a pixel ``d`` mm from the edge of the bodies' shadow sends less: ``1 - b exp(-d / (c tau))``
-  of it (the scatter sent sideways leaves a body narrower than the field);
+- a body narrower than the field sends less than the slab of its thickness: a pixel ``d`` mm
+  from the edge of the bodies' shadow sends ``1 - b_edge exp(-d / (c_edge tau + l_edge))``
+  of it (1 where the shadow covers the field). The slab fit's amplitude includes the scatter
+  that the material beyond the irradiated field sends back into it (the calibration's slabs
+  are wider than the field); a body narrower than the field has none, and what it sends
+  sideways leaves it. ``b_edge`` is the share lost at the edge, ``c_edge tau + l_edge``
+  (mm at the detector; ``l_edge`` was a fixed 1 mm before the small bodies were in the fit)
+  how far into the body the loss reaches. Fitted on water cylinders, spheres and blocks
+  narrower than the field with the slab parameters held (``benchmarks/
+  calibrate_scatter_kernel.py``, stage 2), the reach came out longer than the bodies: the
+  term is close to a constant share (about a fifth) for bodies of 25-150 mm (BENCHMARKS.md);
 - ``K`` the scatter's spread, two components (Sun and Star-Lack's two-component kernel form):
   a forward-peaked one and a broad one (``fraction`` of the scatter). Each is the footprint
   on the detector of photons leaving a *virtual source* ``h_i = gap + s_i tau M`` mm above it
@@ -54,7 +63,8 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
 The sum is evaluated by FFT on a coarse grid (at most :data:`COARSE` cells along a side) for a
 few groups of thickness (:data:`GROUPS`, each with its own kernel) and interpolated back to the
 pixels. The parameters are fitted by least squares on the transport's scatter images of water
-slabs (``benchmarks/calibrate_scatter_kernel.py``) and stored in
+slabs (the amplitude and the kernels), then of water bodies narrower than the field (the edge
+term) (``benchmarks/calibrate_scatter_kernel.py``), and stored in
 ``xray_viz/data/scatter_kernel.json`` with the ranges of the fit: a scene outside them (its
 spectrum's energy, a water-equivalent thickness, the field size or the air gap) gets a
 :class:`~xray_viz.errors.ScatterModelWarning` naming the quantity and its value.
@@ -90,16 +100,16 @@ PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
 
 #: The fitted parameters, in the order of :attr:`KernelParameters.values`.
 PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
-                   "n2", "b_edge", "c_edge")
+                   "n2", "b_edge", "c_edge", "l_edge")
 
 #: The ranges of the fit: ``[low, high]`` each.
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
 
 #: The model's stated error: the relative error of its scatter (and SPR) over blocks of a
 #: few mm against the transport, inside the fitted ranges, for water and, given the path
-#: lengths per body, bone layers in water (BENCHMARKS.md, "Scatter kernel model": 3 %
-#: median, 4.5-6.5 % 90th percentile on slabs it was not fitted on). Small bodies and
-#: aluminium far from the detector miss it (see there).
+#: lengths per body, bone layers in water and water or tissue bodies narrower than the
+#: field (BENCHMARKS.md, "Scatter kernel model": medians of 2-9 % on the cases it was not
+#: fitted on). Aluminium far from the detector misses it (see there).
 TOLERANCE = 0.10
 
 #: Cells of the coarse grid along the detector's longer side, at most.
@@ -182,6 +192,9 @@ def load_parameters(path=None) -> KernelParameters:
         raise SceneError(f"scatter kernel calibration {path}: needs a1 > 0 and fraction and "
                          f"b_edge in [0, 1], got a1 = {values['a1']}, fraction = "
                          f"{values['fraction']}, b_edge = {values['b_edge']}")
+    if values["l_edge"] <= 0:
+        raise SceneError(f"scatter kernel calibration {path}: needs l_edge > 0 (mm), got "
+                         f"l_edge = {values['l_edge']}")
     meta = doc.get("meta", {})
     return KernelParameters(values, ranges, meta if isinstance(meta, dict) else {})
 
@@ -581,7 +594,7 @@ class KernelModel:
             coarse[:ch, :cw] = sums[g]
             if edge is not None:
                 coarse[:ch, :cw] *= 1.0 - p["b_edge"] * np.exp(
-                    -edge / (p["c_edge"] * tau_g + 1.0))
+                    -edge / (p["c_edge"] * tau_g + p["l_edge"]))
             kern = np.zeros((ny, nx))
             for share, s_i, n in ((1.0 - p["fraction"], p["s1"], p["n1"]),
                                   (p["fraction"], p["s2"], p["n2"])):
