@@ -359,13 +359,15 @@ class KernelModel:
 
     @staticmethod
     def _edge_distance(inside, cells):
-        """mm from each cell to the nearest cell outside the bodies' shadow (the field's own
-        edge is not one); None when the shadow covers the field."""
+        """mm from each cell's centre to the edge of the bodies' shadow (half a cell short of
+        the nearest cell outside it: the same at any cell size; the field's own edge is not
+        one); None when the shadow covers the field."""
         if inside.all():
             return None
         from scipy.ndimage import distance_transform_edt
 
-        return distance_transform_edt(inside, sampling=cells)
+        d = distance_transform_edt(inside, sampling=cells)
+        return np.maximum(d - 0.5 * min(cells), 0.0)
 
     def _footprint(self, y, x, gap, n):
         """The per-area density of :meth:`gap_kernel` at offsets ``y``, ``x`` (mm), times
