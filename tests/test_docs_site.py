@@ -222,6 +222,25 @@ def test_examples_gallery_beside_the_walkthroughs(site):
 
 TASK_EXAMPLES = sorted(p.stem for p in (REPO / "apps" / "examples").glob("plot_*.py"))
 
+#: Issue 43's tasks (the gallery's examples, whose pages the tests below check): your own mesh,
+#: an implant in a CT, a CT scan and its reconstruction, a DRR dataset with Dask, DICOM and
+#: NIfTI out and back, and the open issues' dose, scatter and registration.
+ISSUE_43_TASKS = {"plot_your_own_mesh", "plot_implant_in_ct", "plot_ct_reconstruction",
+                  "plot_drr_dataset_dask", "plot_dicom_nifti_round_trip", "plot_dose",
+                  "plot_scatter_and_grid", "find_the_implant"}
+
+
+def test_the_tasks_gallery_has_an_example_per_task():
+    """Each task of issue 43 is a script of the Tasks gallery (apps/examples), titled in its
+    docstring (the gallery's heading) and ending with what to try next."""
+    scripts = {p.stem: p for p in (REPO / "apps" / "examples").glob("[a-z]*.py")}
+    assert ISSUE_43_TASKS <= set(scripts), sorted(ISSUE_43_TASKS - set(scripts))
+    for name in ISSUE_43_TASKS:
+        text = scripts[name].read_text(encoding="utf-8")
+        title = text.split('"""')[1].strip().splitlines()
+        assert len(title) >= 2 and set(title[1]) <= {"=", "-"}, name
+        assert name == "find_the_implant" or "What to try next" in text, name
+
 
 def test_tasks_gallery_is_a_second_section_beside_the_walkthroughs(site):
     """Issue 43: the task examples are their own gallery (docs/examples), each run by the build

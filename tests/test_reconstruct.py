@@ -364,6 +364,43 @@ def test_cli_bad_input_is_one_line_and_writes_nothing(small_scan, tmp_path, caps
                                                           "partial.zarr"]
 
 
+def test_reconstruction_reports_its_progress_and_the_volume_is_unchanged(small_scan,
+                                                                         monkeypatch):
+    """Issue 43 (FDK of 256^3 ran for minutes silently): with the bars on, FDK's task counts
+    per cent from ITK's ProgressEvent up to 100 and SART's one step per iteration from RTK's
+    IterationEvent; the volumes are bit for bit those without observers. (The command line
+    on a terminal: ``test_cli_shows_reconstruction_progress_and_the_volume_is_unchanged``.)"""
+    from xray_viz import progress
+
+    _, projs, geo = small_scan
+    grid = dict(voxel=2.0, shape=(30, 28, 26))
+    quiet_fdk = reconstruct(projs, geo, **grid)
+    quiet_sart = reconstruct(projs, geo, **grid, method="sart", iterations=2)
+    seen = {}
+    counted = progress.Task.advance
+
+    def advance(self, n=1):
+        counted(self, n)
+        seen.setdefault(self.desc, []).append((self.n, self.total, self.unit.strip()))
+
+    monkeypatch.setattr(progress.Task, "advance", advance)
+    monkeypatch.setenv("XRAY_VIZ_PROGRESS_DELAY", "3600")         # a task, no bar drawn
+    progress.configure(enabled=True)
+    try:
+        fdk = reconstruct(projs, geo, **grid)
+        sart = reconstruct(projs, geo, **grid, method="sart", iterations=2)
+    finally:
+        progress.configure(enabled=False)
+    assert np.array_equal(fdk.mu, quiet_fdk.mu) and np.array_equal(sart.mu, quiet_sart.mu)
+    fdk_tasks, sart_tasks = ([d for d in seen if m in d] for m in ("fdk", "sart"))
+    assert len(fdk_tasks) == 1 and len(sart_tasks) == 1, seen      # one task each, counting
+    fdk_desc, sart_desc = fdk_tasks[0], sart_tasks[0]
+    steps = [n for n, total, unit in seen[fdk_desc]]
+    assert {(total, unit) for _, total, unit in seen[fdk_desc]} == {(100, "%")}
+    assert steps == sorted(steps) and len(set(steps)) >= 10 and steps[-1] == 100, steps
+    assert seen[sart_desc] == [(1, 2, "iteration"), (2, 2, "iteration")]
+
+
 @pytest.mark.slow
 def test_cli_shows_reconstruction_progress_and_the_volume_is_unchanged(small_scan, tmp_path):
     """Issue 43: FDK reports its per cent and SART its iterations on the terminal's stderr;

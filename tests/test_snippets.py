@@ -170,3 +170,58 @@ def test_code_block_runs(path, block, tmp_path, monkeypatch):
     else:
         for argv in commands(block["text"]):
             run_command(argv, where)
+
+
+#: A dotted name of the package in the text's inline code: `xray_viz.scan.read_zarr`,
+#: `xray_viz.load_image(path)` (the call's arguments dropped); not a Sphinx role's target
+#: (:func:`xray_viz.render.render` names the module, for Sphinx).
+INLINE_NAME = re.compile(r"(?<![:`])`+(xray_viz(?:\.\w+)+)(?:\([^`]*\))?`")
+
+
+def test_the_names_in_the_texts_inline_code_are_attributes():
+    """Each `xray_viz.a.b` named in the inline code of the README and the docs' pages is what
+    a reader typing it gets: reached by attribute access after ``import xray_viz`` (and its
+    modules imported), as the issue's `xray_viz.scan.astra_vectors` was not (``xray_viz.scan``
+    is the function)."""
+    import importlib
+
+    import xray_viz
+
+    names = set()
+    for path in _sources():
+        names |= {m.group(1) for m in INLINE_NAME.finditer(path.read_text(encoding="utf-8"))}
+    assert "xray_viz.load_image" in names                     # the search works
+    bad = []
+    for name in sorted(names):
+        parts = name.split(".")
+        for k in range(2, len(parts) + 1):                     # `import xray_viz.a.b` as far
+            try:                                               # as it goes
+                importlib.import_module(".".join(parts[:k]))
+            except ImportError:
+                break
+        found = xray_viz
+        try:
+            for part in parts[1:]:
+                found = getattr(found, part)
+        except AttributeError:
+            bad.append(name)
+    assert bad == []
+
+
+def test_the_readme_says_what_reconstruct_offers_for_a_helical_orbit():
+    """The README's reconstruction paragraph names every ``--method`` of ``xray-viz
+    reconstruct`` and those for a helical orbit (the iterative ones and MBIR), as the
+    command's own help does; it said helical was not done while the help offered SART, CG and
+    mbirjax for it."""
+    from xray_viz.reconstruct import ITERATIVE, METHODS
+
+    text = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    start = text.index("`xray-viz reconstruct")
+    paragraph = text[start:text.index("##", start)]
+    named = set(re.findall(r"--method (\w+)", paragraph)) | {
+        m for m in ("fdk", "fbp") if m.upper() in paragraph}
+    assert named == set(METHODS), named
+    helical = [s for s in re.split(r"(?<=\.) ", paragraph) if "helical" in s]
+    assert helical and not any("not done" in s or "not yet" in s for s in helical), helical
+    offered = {m for s in helical for m in re.findall(r"--method (\w+)", s)}
+    assert offered == set(ITERATIVE) | {"mbirjax"}, offered

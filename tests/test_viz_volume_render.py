@@ -214,3 +214,73 @@ def test_volume_style_on_a_scene_without_a_volume_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--volume-style volume: sphere has no voxel volume" in err[0]
     assert not out.exists()
+
+
+def _reddish(shot: np.ndarray) -> float:
+    """Fraction of the 3D pane's pixels in the CT transfer function's flesh tones (red well
+    above blue): the volume rendering's; the slices are grey."""
+    from test_web_viewer import view_region
+
+    r, b = view_region(shot, "3d")[..., 0], view_region(shot, "3d")[..., 2]
+    return float(((r - b > 40) & (r > 120)).mean())
+
+
+def test_the_web_viewer_shows_the_volume_rendering_with_volume_style_volume(tmp_path):
+    """``xray-viz show chest --web --volume-style volume`` in headless Chromium: the page's
+    picture of the 3D scene is the CT's volume rendering beside the implant, as the viewer
+    draws it off-screen in this process with the same options (the flesh-toned share of the
+    3D pane within a quarter of the off-screen rendering's, and the picture nearer to it than
+    to the off-screen slices); nothing leaves 127.0.0.1, no console error, Ctrl-C stops the
+    server cleanly."""
+    import signal
+
+    from PIL import Image
+    from test_web_viewer import (CHROMIUM, browser_page, non_background, view_region,
+                                 wait_for_shot, web_server)
+
+    import xray_viz
+    from xray_viz.viz.viewer import Viewer
+
+    if CHROMIUM is None:
+        pytest.skip("needs Debian's chromium (installed by .ci/system-deps when root)")
+    size = (1000, 500)
+    with web_server("chest", "--volume-style", "volume", "--view", "bodies", "--port", "0",
+                    "--resolution", "32", "--rays", "none", "--size", *map(str, size)) \
+            as (proc, url):
+        with browser_page(viewport=(size[0], size[1] + 200)) as page:
+            errors = []
+            page.on("console", lambda m: m.type == "error" and errors.append(m.text))
+            page.goto(url)
+            view = page.locator("#xray-viz-view")
+            view.locator("img").first.wait_for(timeout=60_000)
+            web = wait_for_shot(view, tmp_path, "web-volume",
+                                lambda shot: non_background(view_region(shot, "3d")) > 0.02)
+            remote = list(page.remote)
+            # stopped with the page open: the server closes the connection (closing the tab
+            # first races an RPC answer on its way, which wslink logs with a traceback)
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-3000:]
+    assert "stopped" in out and "Traceback" not in err, (out[-1000:], err[-3000:])
+    assert not remote and not errors, (remote, errors)
+    local = {}
+    viewer = Viewer(xray_viz.load_scene("chest"), resolution=32, rays=None, window_size=size,
+                    off_screen=True)
+    try:
+        viewer.view_bodies()
+        for style in ("slices", "volume"):
+            viewer.set_volume_style(style)
+            viewer.plotter.render()
+            pixels = viewer.plotter.screenshot(None, return_img=True)
+            image = Image.fromarray(pixels).convert("RGB").resize(web.shape[1::-1],
+                                                                  Image.BILINEAR)
+            local[style] = np.asarray(image, dtype=float)
+    finally:
+        viewer.close()
+    assert _reddish(local["slices"]) < 0.01 < 0.03 < _reddish(local["volume"])
+    assert _reddish(web) == pytest.approx(_reddish(local["volume"]), rel=0.25)
+
+    def distance(a, b):
+        return np.abs(view_region(a, "3d") - view_region(b, "3d")).mean()
+
+    assert distance(web, local["volume"]) < 0.75 * distance(web, local["slices"])

@@ -247,6 +247,39 @@ def test_a_ball_in_a_uniform_block_displaces_exactly_its_chords():
         np.testing.assert_allclose(per[:, 1] + per[:, 0], block, atol=1e-9)
 
 
+def test_meshes_around_and_apart_from_a_volume_add_to_it():
+    """A water tank around the whole block of voxels and a ball apart from it (inside the
+    tank): neither displaces a voxel. The block's column is its analytic chord, the tank's its
+    own whole chord (the block does not take it), and the line integral is their sum with
+    the ball's (which wins over the tank it is nested in, as between meshes)."""
+    import trimesh
+
+    affine = np.eye(4)
+    affine[:3, 3] = -19.5                                # 40 mm cube of 1 mm voxels at 0
+    vol = label_volume(np.ones((40, 40, 40), int), affine, {1: {"mu": 0.2}}, name="block")
+    tank = Body(name="tank", mu=0.02,
+                mesh=trimesh.creation.box(bounds=[[-60, -60, -30], [60, 60, 30]]))
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=8.0)
+    ball.apply_translation([38.0, 0.0, 0.0])             # beside the block
+    ball = Body(name="ball", mesh=ball, mu=0.5)
+    scene = _scene("parallel", bodies=[tank, ball], volumes=(vol,), shape=(64, 32), pitch=2.0,
+                   source=(0.0, 0.0, 400.0))
+    rays = detector_rays(scene)
+    image = xray_viz.render(scene, path_lengths=True)
+    assert image.body_names == ["tank", "ball", "block_1"]
+    per = image.path_length.reshape(-1, 3)
+    block = analytic_box(rays, -20.0, 20.0)
+    np.testing.assert_allclose(per[:, 2], block, rtol=1e-12, atol=1e-9)
+    on_ball = per[:, 1] > 0
+    assert on_ball.sum() > 10 and (block > 0).sum() > 100 and not (on_ball & (block > 0)).any()
+    np.testing.assert_allclose(per[:, 0] + per[:, 1], np.where(per[:, 0] > 0, 60.0, 0.0),
+                               atol=1e-9)                 # the tank less the ball's chord
+    assert (per[:, 0][block > 0] == 60.0).all()          # the block takes nothing of the tank
+    np.testing.assert_allclose(image.line_integral.ravel(),
+                               (per[:, 0] * 0.02 + per[:, 1] * 0.5 + per[:, 2] * 0.2) / 10.0,
+                               rtol=1e-12)
+
+
 def analytic_box(rays, lo, hi):
     t0, t1 = np.zeros(len(rays)), rays.t_max.copy()
     for a in range(3):
@@ -385,6 +418,91 @@ def test_a_ct_scene_renders_as_voxels_by_default_with_the_implant(tmp_path):
     assert tissue.max() > 20.0
 
 
+def test_nrrd_mha_and_a_dicom_series_give_the_niftis_voxel_volume(tmp_path):
+    """The same CT (whole HU, a rotated grid of unequal spacings) as NIfTI, NRRD, MetaImage
+    and a DICOM series (slices in shuffled files, stored + 1024 with its rescale): ``[[ct]]``
+    (voxels by default) reads one volume from each - the same voxels at the same places, to
+    the float32 of the files - and one image (to the float32 of the affines: 1e-5)."""
+    pytest.importorskip("SimpleITK")
+    pytest.importorskip("pydicom")
+    from test_volumes import write_dicom_series, write_itk
+
+    hu, _ = ct_hu(32)
+    hu = np.round(hu)
+    affine = np.eye(4)
+    affine[:3, :3] = _rotation((0.3, 1.0, -0.4), 23.0) * [1.1, 1.3, 1.6]
+    affine[:3, 3] = -affine[:3, :3] @ ((np.array(hu.shape) - 1) / 2)
+    files = {"nifti": "ct.nii.gz", "nrrd": "nrrd/ct.nrrd", "mha": "mha/ct.mha",
+             "dicom": "dicom/ct"}
+    write_ct(tmp_path, hu, affine)
+    for kind in ("nrrd", "mha"):
+        (tmp_path / kind).mkdir()
+        write_itk(tmp_path / files[kind], hu.astype(np.float32), affine)
+    (tmp_path / "dicom").mkdir()
+    write_dicom_series(tmp_path / files["dicom"], hu, affine)
+    volumes, images = {}, {}
+    for kind, name in files.items():
+        text = SCENE.format(body="", extra="").replace('file = "ct.nii.gz"', f'file = "{name}"')
+        (tmp_path / f"{kind}.toml").write_text(text)
+        scene = xray_viz.load_scene(tmp_path / f"{kind}.toml")
+        (volumes[kind],) = scene.volumes
+        images[kind] = xray_viz.render(scene).line_integral
+    ref = volumes["nifti"]
+    assert images["nifti"].max() > 1.0 and len(np.unique(ref.classes)) == 4
+    inverse = np.linalg.inv(ref.affine)
+    for kind in ("nrrd", "mha", "dicom"):
+        vol = volumes[kind]          # its axes maybe in another order (each reader's layout)
+        assert vol.names == ref.names and sorted(vol.shape) == sorted(ref.shape)
+        idx = np.indices(vol.shape).reshape(3, -1).T
+        centres = idx @ vol.affine[:3, :3].T + vol.affine[:3, 3]
+        at = centres @ inverse[:3, :3].T + inverse[:3, 3]       # the NIfTI's voxel indices
+        assert np.abs(at - np.rint(at)).max() < 1e-4, kind
+        at = tuple(np.rint(at).astype(int).T)
+        np.testing.assert_array_equal(vol.classes.reshape(-1), ref.classes[at])
+        np.testing.assert_allclose(vol.weights.reshape(-1), ref.weights[at], rtol=1e-7)
+        np.testing.assert_allclose(images[kind], images["nifti"], rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("response", ["energy", "counting"])
+def test_a_ct_and_its_implant_under_a_spectrum_are_the_explicit_sum_over_energies(tmp_path,
+                                                                                  response):
+    """mu(E) per voxel for any spectrum: the CT's columns are its classes' g/cm2 (density x
+    chord, voxel by voxel), the implant's its mm; the image is the sum over the spectrum's
+    bins of exp(-sum of mass attenuation x column), computed here by hand from xraylib."""
+    import trimesh
+    import xraylib
+
+    hu, affine = ct_hu(32)
+    write_ct(tmp_path, hu, affine)
+    screw = trimesh.creation.cylinder(radius=1.5, height=14.0)
+    screw.apply_transform(trimesh.transformations.rotation_matrix(1.2, [0, 1, 0]))
+    screw.apply_translation([6.0, 4.0, 0.0])
+    screw.export(tmp_path / "screw.stl")
+    (tmp_path / "spec.csv").write_text("keV,fluence\n30,2\n45,5\n60,4\n75,1\n")
+    text = SCENE.format(body=IMPLANT, extra="").replace(
+        "spectrum = { kvp = 80.0, filters = { Al = 2.5 } }", 'spectrum = { file = "spec.csv" }'
+    ).replace("pitch = 1.0", f'pitch = 1.0\nresponse = "{response}"')
+    (tmp_path / "s.toml").write_text(text)
+    scene = xray_viz.load_scene(tmp_path / "s.toml")
+    (vol,) = scene.volumes
+    image = xray_viz.render(scene, path_lengths=True)
+    names = image.body_names
+    assert names == ["screw", *vol.names]
+    energies, fluence = [30, 45, 60, 75], np.array([2, 5, 4, 1], float)
+    weights = fluence * energies if response == "energy" else fluence
+    expected = np.zeros(image.intensity.shape)
+    for e, w in zip(energies, weights):
+        total = xraylib.CS_Total_CP("Ti", e) * 4.5 * image.path_length[..., 0] / 10.0
+        for c, m in enumerate(vol.materials, start=1):     # g/cm3 x mm -> g/cm2
+            total = total + xraylib.CS_Total_CP(m.material, e) * image.path_length[..., c] / 10.0
+        expected += w * np.exp(-total)
+    expected /= weights.sum()
+    soft = image.path_length[..., names.index("ct_soft_tissue")]
+    bone = image.path_length[..., names.index("ct_cortical_bone")]
+    assert soft.max() > 20.0 and bone.max() > 10.0 and image.path_length[..., 0].max() > 2.9
+    np.testing.assert_allclose(image.intensity, expected, rtol=1e-12)
+
+
 @pytest.mark.parametrize("extra, expect", [
     ('trace = "pixels"', 'trace must be "voxels"'),
     ('trace = "voxels"\nmax_error = 0.2', "'max_error' only applies to trace"),
@@ -429,6 +547,70 @@ def test_a_mesh_overlapping_the_volume_edge_is_warned_about_once(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _scene(bodies=[Body(name="tank", mesh=tank, mu=0.01)], volumes=(vol,))
+
+
+def _nifti_with_sform(path, values, sform):
+    """A NIfTI whose sform is ``sform`` as given (nibabel refuses to build one from a
+    singular or non-finite affine, but a file can hold it)."""
+    import nibabel as nib
+
+    hdr = nib.Nifti1Header()
+    hdr.set_data_shape(values.shape)
+    hdr.set_data_dtype(np.float32)
+    hdr["srow_x"], hdr["srow_y"], hdr["srow_z"] = sform[0], sform[1], sform[2]
+    hdr["sform_code"], hdr["qform_code"] = 1, 0
+    nib.save(nib.Nifti1Image(values.astype(np.float32), None, header=hdr), str(path))
+
+
+@pytest.mark.parametrize("case, expect", [
+    ("NaN voxel", "the CT holds NaN or infinite values"),
+    ("singular affine", "its voxel-to-world affine is degenerate or not finite"),
+    ("NaN affine", "its voxel-to-world affine is degenerate or not finite"),
+])
+def test_bad_volume_files_are_one_line_and_exit_2_on_the_command_line(tmp_path, capsys,
+                                                                     case, expect):
+    """``xray-viz render`` of a scene whose CT file is bad: exit 2, one line on stderr that
+    names the table and the file, no traceback, no image."""
+    from xray_viz.cli import main
+
+    hu, affine = ct_hu(32)
+    if case == "NaN voxel":
+        hu[2, 3, 4] = np.nan
+        write_ct(tmp_path, hu, affine)
+    else:
+        bad = affine.copy()
+        if case == "singular affine":
+            bad[2, 2] = 0.0                          # the third axis has no length
+        else:
+            bad[0, 0] = np.nan
+        _nifti_with_sform(tmp_path / "ct.nii.gz", hu, bad)
+    (tmp_path / "s.toml").write_text(SCENE.format(body="", extra=""))
+    out = tmp_path / "out.png"
+    assert main(["render", str(tmp_path / "s.toml"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert expect in err[0] and "[[ct]] #1" in err[0] and "ct.nii.gz" in err[0]
+    assert "Traceback" not in err[0] and not out.exists()
+
+
+def test_a_mesh_overlapping_the_volume_edge_is_one_warning_line_on_the_command_line(
+        tmp_path, capsys):
+    import trimesh
+
+    from xray_viz.cli import main
+
+    hu, affine = ct_hu(32)                           # the grid ends at z = 16
+    write_ct(tmp_path, hu, affine)
+    trimesh.creation.box(bounds=[[-2, -2, 10], [2, 2, 22]]).export(tmp_path / "screw.stl")
+    (tmp_path / "s.toml").write_text(SCENE.format(body=IMPLANT, extra=""))
+    out = tmp_path / "out.npy"
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", VolumeOverlapWarning)   # (the suite makes it an error)
+        assert main(["render", str(tmp_path / "s.toml"), "-o", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "warning" in err[0] and "body 'screw' reaches out of volume 'ct'" in err[0]
+    assert np.isfinite(np.load(out)).all()
 
 
 def test_names_of_bodies_and_classes_must_be_unique():
@@ -497,7 +679,10 @@ def test_the_projection_agrees_with_rtk_joseph_within_its_interpolation(kind):
 # scans and label maps
 
 
-def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks():
+@pytest.mark.parametrize("geometry", sorted(GEOMETRIES))
+def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks(geometry):
+    """Both detectors: square to the beam, and tilted 30 degrees and offset (the orbit
+    turns the tilted detector with the source)."""
     from xray_viz.orbit import Orbit
 
     affine = grid_affine()
@@ -508,10 +693,66 @@ def test_a_helical_scan_of_a_volume_equals_the_scan_of_its_meshed_blocks():
                                       for c in (1, 2, 3)))
     orbit = Orbit("helical", projections=4, axis=[0, 1, 0], center=[1.0, -2.0, 0.5],
                   pitch=20.0)
-    voxels = xray_viz.scan(_scene(volumes=(vol,)), orbit).projections
-    meshes = xray_viz.scan(_scene(bodies=block_meshes(affine)), orbit).projections
+    det = GEOMETRIES[geometry]
+    voxels = xray_viz.scan(_scene(detector=det, volumes=(vol,)), orbit).projections
+    meshes = xray_viz.scan(_scene(detector=det, bodies=block_meshes(affine)), orbit).projections
     assert voxels.shape == (4, 32, 40) and float(voxels.max()) > 0.4
     np.testing.assert_allclose(voxels, meshes, rtol=1e-6, atol=1e-6)    # float32 stacks
+
+
+def test_a_scan_store_refuses_to_resume_with_a_changed_ct_file(tmp_path, capsys):
+    """The scene file names its CT by path: a store scanned with one CT and resumed after the
+    file changed would mix two patients' projections. The store's digest of the scene's
+    bodies counts the volumes' voxels too (exit 2, one line); the same file resumes."""
+    from xray_viz.cli import main
+
+    hu, affine = ct_hu(32)
+    write_ct(tmp_path, hu, affine)
+    (tmp_path / "s.toml").write_text(SCENE.format(body="", extra="").replace(
+        "shape = [64, 64]", "shape = [16, 12]").replace("pitch = 1.0", "pitch = 4.0"))
+    store = tmp_path / "s.zarr"
+    args = ["scan", str(tmp_path / "s.toml"), "-o", str(store), "--projections", "4",
+            "--axis", "0", "1", "0"]
+    assert main(args) == 0
+    import zarr
+
+    g = zarr.open_group(str(store), mode="r+")
+    g["done"][2] = g["done"][3] = False                 # an interrupted run
+    assert main(args) == 0                              # the same CT: resumed
+    g["done"][2] = g["done"][3] = False
+    hu[hu > 0] += 300.0                                 # another CT at the same path
+    write_ct(tmp_path, hu, affine)
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds another scan" in err and "voxel volumes" in err
+
+
+def test_the_level_of_detail_reduces_the_bodies_and_leaves_the_volumes_as_they_are():
+    """``render(max_error=...)`` decimates the mesh bodies only: a voxel volume has nothing to
+    decimate. The report lists the ball alone, the scene rendered keeps the volume object,
+    the volume's columns are those of the full render wherever the ball's full and reduced
+    meshes both miss the ray, and the line integral stays within max_error."""
+    import trimesh
+
+    hu, affine = ct_hu(48)
+    vol = ct_volume(hu, affine, name="ct")
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=5.0)
+    ball.apply_translation([6.0, 4.0, 0.0])
+    scene = _scene(bodies=[Body(name="ball", mesh=ball, material="Ti", density=4.5)],
+                   volumes=(vol,), shape=(64, 64), pitch=1.0)
+    full = xray_viz.render(scene, path_lengths=True)
+    reduced = xray_viz.render(scene, path_lengths=True, max_error=0.5)
+    assert [b.name for b in reduced.lod.bodies] == ["ball"]
+    assert reduced.lod.faces < reduced.lod.faces_full == len(ball.faces)
+    assert reduced.scene.volumes[0] is vol and len(reduced.scene.bodies[0].mesh.faces) < len(ball.faces)
+    names = full.body_names
+    assert names == reduced.body_names and names[0] == "ball"
+    missed = (full.path_length[..., 0] == 0) & (reduced.path_length[..., 0] == 0)
+    assert missed.sum() > 1000 and (~missed).sum() > 50
+    np.testing.assert_array_equal(reduced.path_length[..., 1:][missed],
+                                  full.path_length[..., 1:][missed])
+    assert np.abs(reduced.line_integral - full.line_integral).max() <= 0.5
 
 
 def test_a_label_map_traced_as_voxels(tmp_path):

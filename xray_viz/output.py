@@ -28,7 +28,8 @@ from xray_viz.errors import OutputError, WriteInterrupted, one_line, reader_reas
 
 __all__ = ["save_image", "load_image", "ImageMetadata", "image_metadata", "to_uint16",
            "dicom_dataset", "dicom_values", "atomic_write", "check_target", "check_format",
-           "format_of", "FORMATS", "SUFFIX_FORMATS", "Format", "suffixes", "UNITS", "window_range", "OUTLIER_FRACTION"]
+           "format_of", "FORMATS", "SUFFIX_FORMATS", "Format", "suffixes", "UNITS", "window_range", "OUTLIER_FRACTION",
+           "LOG_WINDOW_RATIO"]
 
 @dataclasses.dataclass(frozen=True)
 class Format:
@@ -98,6 +99,11 @@ def to_uint16(image, *, bright="high") -> np.ndarray:
 
     A few pixels far beyond the others at the attenuating end (a metal implant's: see
     :func:`window_range`) are drawn saturated at the window's end instead of taking the window.
+    Intensities (``bright="low"``) that span more than a factor :data:`LOG_WINDOW_RATIO` (a
+    body that stops nearly every photon: a chest, an abdomen) are stored on a logarithmic
+    scale, as a radiograph is shown: the picture of their line integral ``-ln I`` (see
+    :func:`window_range`); zero and negative intensities (noise) are drawn at the attenuating
+    end.
     Non-finite values do not stretch the window: it spans the finite values only, ``+inf`` is
     drawn at its top (the largest value; white with ``bright="high"``, so a line integral
     through a body that stops every photon is white), ``-inf`` and NaN at its bottom (as
@@ -136,8 +142,11 @@ def _window(image, *, bright="high") -> tuple[np.ndarray, int]:
     a = np.asarray(image, dtype=np.float64)
     finite = np.isfinite(a)
     bad = int(a.size - np.count_nonzero(finite))
-    lo, hi = window_range(a[finite], bright=bright)
-    if hi > lo:
+    lo, hi, log = _png_window(a[finite], bright=bright)
+    if log:                             # lo > 0; zero and negative intensities drawn at lo
+        shown = np.log(np.where(finite & (a > 0), a, lo))
+        scaled = (shown - np.log(lo)) / (np.log(hi) - np.log(lo))
+    elif hi > lo:
         scaled = (np.where(finite, a, lo) - lo) / (hi - lo)
     else:
         scaled = np.zeros_like(a)
@@ -872,12 +881,17 @@ def _json(meta: dict) -> str:
 
 
 def _window_of(image, *, bright: str) -> dict:
-    """The PNG window: the values mapped to stored 0 and 65535 (:func:`_window`), and how many
-    finite pixels lie beyond it (``clipped``: an implant's, see :func:`window_range`)."""
+    """The PNG window: the values mapped to stored 0 and 65535 (:func:`_window`), its
+    ``scale`` when logarithmic, and how many finite pixels lie beyond it (``clipped``: an
+    implant's, see :func:`window_range`; zero and negative intensities on a log scale)."""
     a = np.asarray(image, dtype=np.float64)
     finite = a[np.isfinite(a)]
-    lo, hi = window_range(finite, bright=bright)
-    window = {"low": lo, "high": hi, "bright": bright, "step": (hi - lo) / 65535.0}
+    lo, hi, log = _png_window(finite, bright=bright)
+    if log:
+        window = {"low": lo, "high": hi, "bright": bright, "scale": "log",
+                  "step": float(np.log(hi) - np.log(lo)) / 65535.0}
+    else:
+        window = {"low": lo, "high": hi, "bright": bright, "step": (hi - lo) / 65535.0}
     clipped = int(np.count_nonzero((finite < lo) | (finite > hi)))
     if clipped:
         window["clipped"] = clipped
@@ -923,6 +937,35 @@ def window_range(values, *, bright: str = "high") -> tuple[float, float]:
             if q - lo > hi - q:
                 lo = float(f[f >= q - (hi - q) / 4].min())
     return lo, hi
+
+
+#: Intensities whose window spans more than this factor are stored on a log scale in a PNG.
+#: At this ratio ``r``, a linear window gives the darkest pixels a tenth of the contrast that a
+#: logarithmic one gives them (``ln r / (r - 1) = 0.1``: a relative change ``dI / I`` moves a
+#: pixel at ``I = lo`` by ``lo / (hi - lo)`` of the window linearly, ``1 / ln(hi / lo)`` on a
+#: log scale). The bundled mesh phantoms but Shepp-Logan's stay below it; a chest CT at
+#: 70 keV spans a factor ~2700.
+LOG_WINDOW_RATIO = 37.0
+
+
+def _png_window(finite, *, bright: str) -> tuple[float, float, bool]:
+    """(low, high, logarithmic): the values a PNG stores as its ends, and its scale.
+
+    Linear: :func:`window_range` of the values. Logarithmic, for intensities
+    (``bright="low"``) whose positive values span more than :data:`LOG_WINDOW_RATIO` after
+    :func:`window_range` of their line integral ``-ln I`` (the implant's pixels left out at
+    the attenuating end as for a line-integral PNG): the smallest positive value kept and the
+    largest value.
+    """
+    if bright == "low":
+        positive = finite[finite > 0]
+        if positive.size:
+            depth = -np.log(positive)
+            shallow, deep = window_range(depth, bright="high")
+            if deep - shallow > np.log(LOG_WINDOW_RATIO):
+                return float(positive[depth <= deep].min()), float(positive.max()), True
+    lo, hi = window_range(finite, bright=bright)
+    return lo, hi, False
 
 
 def _write_tiff(tmp, data, meta) -> None:
@@ -1460,7 +1503,9 @@ class ImageMetadata:
         The scene file the image was rendered from (:meth:`scene` loads it).
     window : dict or None
         A PNG's window: ``low``/``high`` (the values stored as 0 and 65535 with
-        ``bright="high"``, swapped with ``"low"``), ``bright``, ``step`` (the quantisation step).
+        ``bright="high"``, swapped with ``"low"``), ``bright``, ``step`` (the quantisation step;
+        of ``ln`` of the values when ``scale`` is ``"log"``), ``scale`` (``"log"``: intensities
+        stored on a logarithmic scale, see :func:`to_uint16`; absent: linear), ``clipped``.
     version : str or None
         The xray_viz version that wrote the file.
     scatter : dict or None
@@ -1506,7 +1551,9 @@ class ImageMetadata:
         """The quantity a loaded image stands for: a PNG's 16-bit values mapped back through
         its window (within half a quantisation step, ``window["step"] / 2``, of the values
         saved; a saved ``+inf`` comes back as the window's top, ``-inf`` and NaN as its
-        bottom); other formats' values unchanged (as float64).
+        bottom; on a log scale, within a factor ``exp(step / 2)``, the zero and negative
+        intensities come back as the window's bottom); other formats' values unchanged (as
+        float64).
 
         Examples
         --------
@@ -1521,6 +1568,8 @@ class ImageMetadata:
         scaled = a / 65535.0
         if self.window.get("bright") == "low":
             scaled = 1.0 - scaled
+        if self.window.get("scale") == "log":
+            return np.exp(np.log(lo) + scaled * (np.log(hi) - np.log(lo)))
         return lo + scaled * (hi - lo)
 
 

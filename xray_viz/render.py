@@ -534,9 +534,33 @@ def _image_bytes_per_pixel(scene) -> int:
     return per
 
 
+def _scatter_bytes_per_pixel(scatter) -> int:
+    """Bytes per pixel that the scatter of a render or of a scan's projection allocates, at
+    the peak (0 without scatter).
+
+    Every mode: the scatter image ``s`` (8), and what :func:`render` keeps in its
+    :class:`Radiograph` (``primary`` and ``scatter``, 8 + 8) with the flat field they are made
+    from (8). ``"kernel"``: the path lengths weighted by material the tracer sums for the
+    model (8) and the model's per-pixel work on the whole image at the most, without
+    pre-averaging (the image's ``ln(1 / T)``, its look-up index, the thickness, source and
+    group gathered, the cell and group indices, the source times the thickness, the
+    interpolated output: 9 arrays of 8, 72). ``"mc"``: the transport's tallies (a sum and its
+    square per pixel for each of its 4 images, 64) held by the run's total, a group's and one
+    batch per thread, its means and errors (128), the scatter's variance and error (16).
+    """
+    if scatter in (None, "none"):
+        return 0
+    per = 8 + 24
+    if scatter == "kernel":
+        return per + 8 + 72
+    from xray_viz import _threads
+
+    return per + (2 + max(1, _threads.count())) * 64 + 128 + 16
+
+
 def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast",
                   path_lengths: bool = False, images: bool = True,
-                  keep_hits: bool = False) -> dict:
+                  keep_hits: bool = False, scatter: str | None = None) -> dict:
     """Estimated peak memory of :func:`render` (bytes), by part.
 
     Parameters
@@ -551,6 +575,9 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
         Count the output images (see :func:`_image_bytes_per_pixel`).
     keep_hits : bool
         The whole detector is traced at once (its path lengths; the hits are not counted).
+    scatter : {None, "mc", "kernel"}
+        Count the scatter's images and temporaries (:func:`render`'s ``scatter``; a scan's
+        projection allocates the same).
 
     Returns
     -------
@@ -558,8 +585,9 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
         ``images`` (the (H, W) images and the detector model's temporaries), ``path_lengths``
         (a column per body and per voxel volume's class), ``bands`` (a few bands of path
         lengths), ``meshes``, ``volumes`` (what tracing the voxel volumes allocates: each
-        volume's copy in the detector's axis order; the grids themselves are already loaded)
-        and ``total``.
+        volume's copy in the detector's axis order; the grids themselves are already loaded),
+        ``scatter`` (the scatter's images and its model's or Monte Carlo's per-pixel
+        temporaries; 0 without scatter) and ``total``.
 
     Examples
     --------
@@ -585,6 +613,7 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
         "bands": 3 * rows * w * n * n * per_ray,
         "meshes": _mesh_bytes(scene),
         "volumes": sum(v.layout_bytes(scene.acquisition.frame.ho) for v in volumes),
+        "scatter": pixels * _scatter_bytes_per_pixel(scatter),
     }
     need["total"] = sum(need.values())
     return need
@@ -598,7 +627,7 @@ def _gib(nbytes: float) -> str:
 
 def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
                  path_lengths: bool = False, images: bool = True,
-                 keep_hits: bool = False) -> None:
+                 keep_hits: bool = False, scatter: str | None = None) -> None:
     """Refuse, in one line, a job whose output cannot fit in the memory available.
 
     Compares :func:`memory_needed` with :func:`available_memory` (the machine's
@@ -614,7 +643,8 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
     if available is None:
         return
     need = memory_needed(scene, supersample=supersample, engine=engine,
-                         path_lengths=path_lengths, images=images, keep_hits=keep_hits)
+                         path_lengths=path_lengths, images=images, keep_hits=keep_hits,
+                         scatter=scatter)
     if need["total"] <= available:
         return
     from xray_viz._memory import describe
@@ -634,7 +664,8 @@ def check_memory(scene, *, supersample: int | None = None, engine: str = "fast",
     nb += sum(len(v.names) for v in volumes)
     what = [name for name, key in (("the output images", "images"),
                                    (f"the path lengths of {nb} bod{'y' if nb == 1 else 'ies'}",
-                                    "path_lengths")) if need[key]]
+                                    "path_lengths"),
+                                   (f"the scatter ({scatter})", "scatter")) if need[key]]
     fix = "use a smaller shape"
     if need["path_lengths"] and need["path_lengths"] >= need["images"]:
         fix += (", or do without the per-body path lengths (path_lengths=False; "
@@ -739,7 +770,7 @@ def render(scene, *, engine: str = "fast", supersample: int | None = None,
     beam, model = stages(scene)
     model.blur_sigmas(scene.acquisition, scene.bodies)   # a focal spot wider than the detector
     check_memory(scene, supersample=n, engine=engine, path_lengths=path_lengths,
-                 keep_hits=keep_hits)
+                 keep_hits=keep_hits, scatter=None if source is None else source.mode)
     parts = {}
     intensity, line_integral, total, per_body, hits, timing = _image(
         projector, beam, model, scene.acquisition, n, seed=scene.detector.seed,
@@ -1063,7 +1094,9 @@ def add_scatter_arguments(parser, *, per: str) -> None:
              "detector reads primary plus scatter"
              + ("; every slider move renders again (mc is slow), and the radiograph can be "
                 "shown as the total, its primary, its scatter or the scatter-to-primary ratio "
-                "(key k, or --radiograph)" if per == "view" else ""))
+                "(key k, or --radiograph); the key a puts the anti-scatter grid in front of the "
+                "detector or takes it away (the scene's [detector] grid, else the default one)"
+                if per == "view" else ""))
     parser.add_argument(
         "--histories", type=int, default=None, metavar="N",
         help=f"photons the Monte Carlo emits for {what} with --scatter mc (required there; "

@@ -316,7 +316,8 @@ class Projections:
         #: when its projection is rendered: bounded memory for large scans).
         self.acquisitions = list(orbit.acquisitions(self.base)) if keep else None
         self.supersample = scene.detector.supersample
-        check_memory(scene, supersample=self.supersample, engine=engine)
+        check_memory(scene, supersample=self.supersample, engine=engine,
+                     scatter=None if self.scatter is None else self.scatter.mode)
 
     def __call__(self, k: int) -> np.ndarray:
         """Projection ``k``, ``(H, W)`` float32."""
@@ -595,10 +596,12 @@ def _attrs(scene, quantity, geometry, arrays: bool = False, physics=None) -> dic
 
 def bodies_digest(scene) -> str:
     """Hex SHA-256 of what the bodies are: each body's name, material or ``mu``, and its
-    mesh's vertex and face arrays (dtype, shape, bytes). A store keeps it: the scene file
-    names its mesh files by path, so a mesh file changed between two runs would otherwise
-    resume a scan with other bodies (or two scenes built in Python, which have no scene
-    file, would pass for one).
+    mesh's vertex and face arrays (dtype, shape, bytes); then, when the scene has voxel
+    volumes, each volume's name, materials, interpolation, affine, classes and weights (a
+    scene without volumes has the digest it had before volumes existed). A store keeps it:
+    the scene file names its mesh and CT files by path, so a file changed between two runs
+    would otherwise resume a scan with other bodies (or two scenes built in Python, which
+    have no scene file, would pass for one).
 
     Examples
     --------
@@ -611,6 +614,13 @@ def bodies_digest(scene) -> str:
         h.update(repr((getattr(body, "name", None), getattr(body, "material", None),
                        getattr(body, "mu", None))).encode())
         for a in (body.mesh.vertices, body.mesh.faces):
+            a = np.ascontiguousarray(a)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(memoryview(a).cast("B"))
+    for vol in getattr(scene, "volumes", ()):
+        h.update(repr(("volume", vol.name, vol.interpolation,
+                       [(m.name, m.mu, m.material, m.density) for m in vol.materials])).encode())
+        for a in (vol.affine, vol.classes, vol.weights):
             a = np.ascontiguousarray(a)
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(memoryview(a).cast("B"))
@@ -730,8 +740,8 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None, physic
                               f"({_reason(exc)}); remove it and scan again") from None
     if not same:
         raise OutputError(f"{path} holds another scan (its geometry, physics, quantity, "
-                          "scene or bodies' meshes differ); remove it or choose another -o to "
-                          "keep both")
+                          "scene, voxel volumes or bodies' meshes differ); remove it or "
+                          "choose another -o to keep both")
     w, h = geometry["detector"]["shape"]
     proj, done = group["projections"], group["done"]
     if (proj.shape, proj.chunks, proj.dtype, done.shape, done.chunks, done.dtype) != \
@@ -1339,10 +1349,10 @@ def _load_scene_text(text: str, digest: str):
     if hashlib.sha256(text.encode()).hexdigest() != text_digest:
         raise SceneError("the scene text does not match its hash")
     scene = scene_from_dict(tomllib.loads(text))
-    if bodies and bodies_digest(scene) != bodies:    # a mesh file changed since the start
+    if bodies and bodies_digest(scene) != bodies:    # a mesh or CT file changed since
         raise SceneError("the scene's mesh files read on this worker differ from those the "
-                         "scan started with (changed since, or another file at that path); "
-                         "scan again once they are fixed")
+                         "scan started with, or its CT or label volumes do (changed since, or "
+                         "another file at that path); scan again once they are fixed")
     if cache is not None:
         cache.clear()                           # one scene per worker: memory stays bounded
         cache[digest] = scene

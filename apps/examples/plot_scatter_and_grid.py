@@ -105,4 +105,5 @@ fig.tight_layout()
 # * A wider air gap (move the slab away from the detector): scatter falls off with distance,
 #   the primary does not.
 # * ``xray-viz show scene.toml --scatter mc --histories 200000 --radiograph spr``: the SPR map
-#   in the viewer.
+#   in the viewer (the key ``k`` cycles total, primary, scatter and SPR; the key ``a`` puts
+#   the anti-scatter grid in front of the detector or takes it away).

@@ -164,20 +164,25 @@ def _vector(ctx, v, where) -> list:
 
 
 _SCAN_KEYS = ("NumberOfProjections", "AngleStep", "FinalAngle", "StartAngle", "IncludeLastAngle",
-              "CenterOfRotation", "CentreOfRotation", "OutFolder", "GifPath")
+              "CenterOfRotation", "CentreOfRotation", "Center of rotation", "Centre of rotation",
+              "RotationAxis", "Rotation axis", "OutFolder", "GifPath", "Flat-Field Correction",
+              "NumberOfWhiteImages")
 
 
 def _scan(ctx, scan, up, file) -> dict | None:
     """A gVXR ``Scan`` as a ``[scan]`` table, or None (a centre of rotation off the origin:
     ignored, with a warning).
 
-    As gVXR's ``json2gvxr`` scans: the projection count is ``NumberOfProjections`` or
-    ``int((FinalAngle - StartAngle) / AngleStep)``, the step ``AngleStep`` or ``(FinalAngle -
-    StartAngle) / NumberOfProjections``, one more projection with ``IncludeLastAngle``; the
-    first projection is the scene as it is (at angle 0 whatever ``StartAngle``), and before
-    each next one the samples turn by the step about ``Detector UpVector`` through the origin
-    (right-handed, as OpenGL's rotations): the source and detector turn the other way about
-    it, which is the ``[scan]`` orbit about ``-UpVector``.
+    As gVXR's ``json2gvxr`` (gVXR 2.1) scans: it passes ``NumberOfProjections`` (else
+    ``int((FinalAngle - StartAngle) / AngleStep)``, plus one with ``IncludeLastAngle``),
+    ``StartAngle``, ``IncludeLastAngle`` and ``FinalAngle`` to ``computeCTAcquisition``, whose
+    projection ``k`` turns the samples by ``StartAngle + k * step`` about the rotation axis
+    (``RotationAxis``, else ``Detector UpVector``; right-handed, as OpenGL's rotations), the
+    step ``(FinalAngle - StartAngle) / (NumberOfProjections - 1)`` with ``IncludeLastAngle``,
+    else ``/ NumberOfProjections`` (a given ``AngleStep`` only counts the projections). The
+    source and detector turn the other way, which is the ``[scan]`` orbit about ``-axis``.
+    ``NumberOfProjections`` and ``AngleStep`` without ``FinalAngle`` (which json2gvxr cannot
+    pass on) step by ``AngleStep``. The flat-field keys are for gVXR's images only.
     """
     _keys(ctx, scan, _SCAN_KEYS, "Scan")
 
@@ -193,30 +198,45 @@ def _scan(ctx, scan, up, file) -> dict | None:
         ctx.fail("Scan IncludeLastAngle", f"must be true or false, got {excerpt(json.dumps(last))}")
     if nop is not None and (nop != int(nop) or nop < 1):
         ctx.fail("Scan NumberOfProjections", f"must be a whole number >= 1, got {nop:g}")
-    if nop is None or step is None:
-        if (nop is None and step is None) or final is None:
+    if final is None:
+        if nop is None or step is None:
             ctx.fail("Scan", "needs FinalAngle and NumberOfProjections or AngleStep (or both of "
                              "these)")
+        count = int(nop)
+    else:
         if nop is None:
+            if step is None:
+                ctx.fail("Scan", "needs FinalAngle and NumberOfProjections or AngleStep (or "
+                                 "both of these)")
             if step == 0:
                 ctx.fail("Scan AngleStep", "must not be 0")
-            nop = int((final - start) / step)
-        else:
-            step = (final - start) / nop
-    count = int(nop) + int(last)
+            nop = int((final - start) / step) + int(last)
+        count = int(nop)
+        if last and count < 2:
+            ctx.fail("Scan", f"gives {count} projection with IncludeLastAngle; it needs at "
+                             "least two (the first and the last angle)")
+        step = (final - start) / (count - int(last)) if count > int(last) else 0.0
     if count < 1 or step == 0:
         ctx.fail("Scan", f"gives {count} projections {step:g} degrees apart; it needs at least "
                          "one projection and a step other than 0")
-    key = "CenterOfRotation" if "CenterOfRotation" in scan else "CentreOfRotation"
+    names = [k for k in _SCAN_KEYS[5:9] if k in scan]
+    key = names[0] if names else "CenterOfRotation"
     centre = _point(ctx, scan.get(key, [0, 0, 0, "mm"]), f"Scan {key}")
     if any(c != 0 for c in centre):
         warnings.warn(f"{file}: " * bool(file) + f"gVXR Scan {key} {centre} mm ignored, and the "
                       "scan with it (gVXR moves the source and detector by it during the scan "
                       "only): the scene is the radiograph without it", GvxrWarning, stacklevel=4)
         return None
+    turn = next((k for k in ("RotationAxis", "Rotation axis") if k in scan), None)
+    if turn is not None:
+        up = _vector(ctx, scan[turn], f"Scan {turn}")
     axis = [-float(x) for x in up] if step > 0 else [float(x) for x in up]
-    return {"orbit": "circular", "projections": count, "arc": _clean(count * abs(step)),
-            "axis": [_clean(x) + 0.0 for x in axis], "center": [0.0, 0.0, 0.0]}
+    first = start if step > 0 else -start             # the same turns about the axis used
+    table = {"orbit": "circular", "projections": count, "arc": _clean(count * abs(step)),
+             "axis": [_clean(x) + 0.0 for x in axis], "center": [0.0, 0.0, 0.0]}
+    if first != 0:
+        table["start"] = _clean(first) + 0.0
+    return table
 
 
 def _keys(ctx, table, allowed, where):

@@ -122,6 +122,13 @@ class Viewer:
     scatter_smoothing : float, optional
         mm: the Gaussian smoothing of the Monte Carlo's scatter (:func:`xray_viz.render`).
 
+    Notes
+    -----
+    The anti-scatter grid in front of the detector is on or off (:meth:`set_anti_scatter_grid`,
+    the key ``a``): on at first where the scene's detector has one (its ``grid``); turned on,
+    a scene without one gets the default grid (:class:`~xray_viz.physics.grid.Grid`: ratio 10,
+    60 lines per cm), which lowers the primary by its transmission and the scatter more.
+
     Examples
     --------
     >>> import pyvista as pv, xray_viz
@@ -159,6 +166,14 @@ class Viewer:
 
             self.fixed_spectrum = source_spectrum(scene.source)
         self.resolution = int(resolution or max(scene.detector.shape))
+        from xray_viz.physics.grid import Grid
+
+        #: The anti-scatter grid the key ``a`` puts in front of the detector: the scene's own,
+        #: or the default :class:`~xray_viz.physics.grid.Grid` where it has none.
+        self.grid = scene.detector.grid if scene.detector.grid is not None else Grid()
+        #: Whether the renders have :attr:`grid` in front of the detector
+        #: (:meth:`set_anti_scatter_grid`).
+        self.anti_scatter_grid = scene.detector.grid is not None
         self.profile = None
         self.picked_pixel = None
         self._listeners = []
@@ -210,6 +225,9 @@ class Viewer:
         shape = (max(2, round(w * scale)), max(2, round(h * scale)))
         detector = det.from_size(det.center, det.up, shape, det.size) if shape != det.shape \
             else det
+        if self.anti_scatter_grid != (det.grid is not None):       # switched by the user
+            detector = dataclasses.replace(detector,
+                                           grid=self.grid if self.anti_scatter_grid else None)
         from xray_viz.geometry import Acquisition
 
         acquisition = Acquisition(source=source, detector=detector)
@@ -295,6 +313,17 @@ class Viewer:
         if int(round(pixels)) == self.resolution:
             return
         self.resolution = int(round(pixels))
+        self.update()
+
+    def set_anti_scatter_grid(self, on: bool | None = None) -> None:
+        """Put the anti-scatter grid (:attr:`grid`) in front of the detector (``True``), take
+        it away (``False``) or switch it (None: the key ``a``), and render again: the grid
+        lowers the primary by its transmission and, with scatter, the scatter and the SPR
+        more."""
+        on = (not self.anti_scatter_grid) if on is None else bool(on)
+        if on == self.anti_scatter_grid:
+            return
+        self.anti_scatter_grid = on
         self.update()
 
     @property
@@ -498,8 +527,9 @@ class Viewer:
 
     def _update_status(self) -> None:
         beam = self._beam_text()
+        grid = f", grid {self.grid.ratio:g}:1" if self.anti_scatter_grid else ""
         self.view.status = (f"source {self.source_distance:.0f} mm from the detector, bodies "
-                            f"turned {self.rotation:.0f} deg, {beam}")
+                            f"turned {self.rotation:.0f} deg, {beam}{grid}")
         self.view.set_radiograph(self.radiograph, window=self.view.window,
                                  level=self.view.level)
         if self.view.picked is not None:
@@ -593,6 +623,8 @@ class Viewer:
         if self.scatter is not None:                  # total -> primary -> scatter -> SPR
             pl.clear_events_for_key("k")
             pl.add_key_event("k", self._next_quantity)
+        pl.clear_events_for_key("a")                  # the anti-scatter grid on / off
+        pl.add_key_event("a", self.set_anti_scatter_grid)
         for key, (action, _) in KEYS.items():
             pl.clear_events_for_key(key)              # pyvista binds "b" and "v" itself
             if action == "screenshot":
