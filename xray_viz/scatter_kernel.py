@@ -121,6 +121,13 @@ GROUPS = (20.0, 45.0, 75.0, 110.0, 150.0, 200.0, 260.0, 330.0, np.inf)
 #: Step of the look-up table in ``ln(1 / T)``.
 LOOKUP_STEP = 5e-4
 
+#: The kernels' heights above the detector are rounded to multiples of this (mm), so that
+#: the views of a scan share their kernels (:meth:`KernelModel._spread`).
+HEIGHT_STEP = 0.5
+
+#: Kernels kept on a model at most (emptied when full).
+SPREADS_KEPT = 256
+
 #: Water-equivalent thicknesses tabulated for the inversion of the transmission (mm).
 _TAU = np.concatenate([np.linspace(0.0, 50.0, 501), np.linspace(50.5, 1000.0, 1900)])
 
@@ -221,6 +228,7 @@ class KernelModel:
         self.energy_kev = float(energy_kev)
         self.parameters = parameters
         self.grid, self.grid_primary = grid, float(grid_primary)
+        self._spreads = (parameters, {})     # the kernels' spectra (_spread)
 
     @classmethod
     def of(cls, scene, *, parameters=None) -> KernelModel:
@@ -356,6 +364,33 @@ class KernelModel:
         core = core.reshape(2 * m + 1, 9, 2 * m + 1, 9).mean(axis=(1, 3)) * (cy * cx)
         out[np.ix_(idx % ny, idx % nx)] = core
         return out
+
+    def _spread(self, heights, shape, cells) -> np.ndarray:
+        """``rfft2`` of a group's kernel: both components (:meth:`gap_kernel`, shares
+        ``1 - fraction`` and ``fraction``) at ``heights`` (mm), each rounded to a multiple
+        of :data:`HEIGHT_STEP`; kept on the model for the next calls with the same rounded
+        heights, coarse grid and cells (a scan's views share most of them)."""
+        p = self.parameters.values
+        steps = tuple(int(round(hh / HEIGHT_STEP)) for hh in heights)
+        key = (steps, shape, cells)
+        cache = self._spreads
+        if cache[0] is not self.parameters:
+            cache = self._spreads = (self.parameters, {})
+        hit = cache[1].get(key)
+        if hit is None:
+            kern = np.zeros(shape)
+            for share, step, n in ((1.0 - p["fraction"], steps[0], p["n1"]),
+                                   (p["fraction"], steps[1], p["n2"])):
+                spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n)
+                if spread is None:
+                    kern[0, 0] += share * self.grid_factor(n)
+                else:
+                    kern += share * spread
+            hit = np.fft.rfft2(kern)
+            if len(cache[1]) >= SPREADS_KEPT:
+                cache[1].clear()
+            cache[1][key] = hit
+        return hit
 
     @staticmethod
     def _edge_distance(inside, cells):
@@ -597,16 +632,8 @@ class KernelModel:
             if edge is not None:
                 coarse[:ch, :cw] *= 1.0 - p["b_edge"] * np.exp(
                     -edge / (p["c_edge"] * tau_g + p["l_edge"]))
-            kern = np.zeros((ny, nx))
-            for share, s_i, n in ((1.0 - p["fraction"], p["s1"], p["n1"]),
-                                  (p["fraction"], p["s2"], p["n2"])):
-                height = gap + s_i * tau_g * mag
-                spread = self.gap_kernel(height, (ny, nx), cells, n)
-                if spread is None:
-                    kern[0, 0] += share * self.grid_factor(n)
-                else:
-                    kern += share * spread
-            total += np.fft.rfft2(coarse) * np.fft.rfft2(kern)
+            heights = (gap + p["s1"] * tau_g * mag, gap + p["s2"] * tau_g * mag)
+            total += np.fft.rfft2(coarse) * self._spread(heights, (ny, nx), cells)
         if self.grid is not None:
             total /= self.grid_primary
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
