@@ -11,7 +11,8 @@ model's scatter from the primary renderer's noise-free ``ln T``; the parameters 
 relative residuals (``scipy.optimize.least_squares``, each block weighted by its transport
 error plus 3 %) in two stages: the amplitude and the kernels (:data:`SLAB_PARAMETERS`) on
 the slabs wider than the field, then the edge term (:data:`EDGE_PARAMETERS`) on the bodies
-narrower than it, the others held. Histories per case: a pilot of 40,000 estimates the
+narrower than it, the others held (``--slab-parameters FILE``: the slab parameters of a
+previous calibration held, stage 2 only). Histories per case: a pilot of 40,000 estimates the
 scattered photons per history, then enough for ``--scattered`` of them (at most
 ``--max-histories``; ``--small-scattered`` and ``--small-max-histories`` for the bodies
 narrower than the field, which most photons miss).
@@ -20,7 +21,8 @@ Usage::
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calibrate_scatter_kernel.py \
         [--scattered 60000] [--max-histories 4000000] [--small-scattered 150000] \
-        [--small-max-histories 8000000] [--cache /tmp/skcal.npz] [--out FILE]
+        [--small-max-histories 8000000] [--cache /tmp/skcal.npz] [--slab-parameters FILE] \
+        [--out FILE]
 
 Writes ``xray_viz/data/scatter_kernel.json`` (or ``--out``) with the date, commit, histories,
 ranges and the residuals of the fit.

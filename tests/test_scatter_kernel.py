@@ -1,5 +1,6 @@
 """The scatter kernel model (xray_viz.scatter_kernel): its calibration file, the shape of its
-scatter, its ranges, and its agreement with a fresh transport on slabs it was not fitted on."""
+scatter, its ranges, and its agreement with a fresh transport on slabs and small bodies it was
+not fitted on."""
 
 from __future__ import annotations
 
