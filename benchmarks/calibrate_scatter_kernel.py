@@ -11,7 +11,8 @@ model's scatter from the primary renderer's noise-free ``ln T``; the parameters 
 relative residuals (``scipy.optimize.least_squares``, each block weighted by its transport
 error plus 3 %) in two stages: the amplitude and the kernels (:data:`SLAB_PARAMETERS`) on
 the slabs wider than the field, then the edge term (:data:`EDGE_PARAMETERS`) on the bodies
-narrower than it, the others held. Histories per case: a pilot of 40,000 estimates the
+narrower than it, the others held (``--slab-parameters FILE``: the slab parameters of a
+previous calibration held, stage 2 only). Histories per case: a pilot of 40,000 estimates the
 scattered photons per history, then enough for ``--scattered`` of them (at most
 ``--max-histories``; ``--small-scattered`` and ``--small-max-histories`` for the bodies
 narrower than the field, which most photons miss).
@@ -20,7 +21,8 @@ Usage::
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calibrate_scatter_kernel.py \
         [--scattered 60000] [--max-histories 4000000] [--small-scattered 150000] \
-        [--small-max-histories 8000000] [--cache /tmp/skcal.npz] [--out FILE]
+        [--small-max-histories 8000000] [--cache /tmp/skcal.npz] [--slab-parameters FILE] \
+        [--out FILE]
 
 Writes ``xray_viz/data/scatter_kernel.json`` (or ``--out``) with the date, commit, histories,
 ranges and the residuals of the fit.
@@ -298,16 +300,20 @@ def _predict(models, ranges, values):
     return out
 
 
-def fit(results, start=None):
+def fit(results, start=None, *, hold_slabs=False):
     """Least-squares parameters in two stages (:data:`SLAB_PARAMETERS` on the slabs wider
     than the field, then :data:`EDGE_PARAMETERS` on the bodies narrower than it):
     ``(values dict, per-case median |relative error|, the two solutions)``. ``results``:
-    :func:`run_cases`' rows, their last item true for a body narrower than the field."""
+    :func:`run_cases`' rows, their last item true for a body narrower than the field.
+    ``hold_slabs``: the slab parameters of ``start`` held (stage 2 only)."""
     from scipy.optimize import least_squares
 
     values = {k: v[0] for k, v in BOUNDS.items()}
     values.update(start or {})
+    slab_sol = None
     for stage, names in ((False, SLAB_PARAMETERS), (True, EDGE_PARAMETERS)):
+        if hold_slabs and not stage:
+            continue
         models, ranges = _models([r for r in results if r[-1] == stage], values)
         lo = np.array([BOUNDS[k][1] for k in names])
         hi = np.array([BOUNDS[k][2] for k in names])
@@ -341,6 +347,9 @@ def main(argv=None):
                         help="the same for the bodies narrower than the field (default 150000)")
     parser.add_argument("--small-max-histories", type=int, default=8_000_000)
     parser.add_argument("--cache", default=None, help="npz of the transport results")
+    parser.add_argument("--slab-parameters", default=None,
+                        help="a calibration file whose slab parameters are held (stage 2 "
+                             "only)")
     parser.add_argument("--out", default=str(ROOT / "xray_viz" / "data" / "scatter_kernel.json"))
     args = parser.parse_args(argv)
     cases = calibration_cases()
@@ -348,7 +357,13 @@ def main(argv=None):
                         cache=args.cache,
                         small=(args.small_scattered, args.small_max_histories))
     t_mc = sum(r[6] for r in results)           # each case's transport and render, s
-    values, errors, sol = fit(results)
+    if args.slab_parameters:
+        # a previous calibration's file (it may predate the edge parameters)
+        held = json.loads(Path(args.slab_parameters).read_text(encoding="utf-8"))["parameters"]
+        values, errors, sol = fit(results, {k: held[k] for k in SLAB_PARAMETERS},
+                                  hold_slabs=True)
+    else:
+        values, errors, sol = fit(results)
     from xray_viz.scatter_kernel import KernelModel, KernelParameters, PARAMETER_NAMES
 
     values = {k: values[k] for k in PARAMETER_NAMES}
@@ -383,8 +398,9 @@ def main(argv=None):
                     "cases": [{"case": r[0], "histories": r[5],
                                "median_abs_rel_error": round(err, 4)}
                               for r, err in zip(results, errors)],
-                    "cost": [float(x.cost) for x in sol],
-                    "evaluations": [int(x.nfev) for x in sol],
+                    "cost": [None if x is None else float(x.cost) for x in sol],
+                    "evaluations": [None if x is None else int(x.nfev) for x in sol],
+                    "slab_parameters_held_from": args.slab_parameters,
                     "stages": {"slabs wider than the field": list(SLAB_PARAMETERS),
                                "bodies narrower than the field": list(EDGE_PARAMETERS)}}}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -47,8 +47,8 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
   (mm at the detector; ``l_edge`` was a fixed 1 mm before the small bodies were in the fit)
   how far into the body the loss reaches. Fitted on water cylinders, spheres and blocks
   narrower than the field with the slab parameters held (``benchmarks/
-  calibrate_scatter_kernel.py``, stage 2), the reach came out longer than the bodies: the
-  term is close to a constant share (about a fifth) for bodies of 25-150 mm (BENCHMARKS.md);
+  calibrate_scatter_kernel.py``, stage 2), the reach came out long (3.7 tau): the term is
+  close to a constant share (about a fifth) over a body 50-150 mm thick (BENCHMARKS.md);
 - ``K`` the scatter's spread, two components (Sun and Star-Lack's two-component kernel form):
   a forward-peaked one and a broad one (``fraction`` of the scatter). Each is the footprint
   on the detector of photons leaving a *virtual source* ``h_i = gap + s_i tau M`` mm above it
@@ -107,9 +107,10 @@ RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
 
 #: The model's stated error: the relative error of its scatter (and SPR) over blocks of a
 #: few mm against the transport, inside the fitted ranges, for water and, given the path
-#: lengths per body, bone layers in water and water or tissue bodies narrower than the
-#: field (BENCHMARKS.md, "Scatter kernel model": medians of 2-9 % on the cases it was not
-#: fitted on). Aluminium far from the detector misses it (see there).
+#: lengths per body, bone layers in water, the limb and water bodies 50-100 mm across
+#: narrower than the field (BENCHMARKS.md, "Scatter kernel model": medians of 1.6-3 % on
+#: the cases it was not fitted on). The frog (thin tissues, 16 % high), aluminium far from
+#: the detector and large bodies near it miss it (see there).
 TOLERANCE = 0.10
 
 #: Cells of the coarse grid along the detector's longer side, at most.
