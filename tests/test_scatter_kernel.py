@@ -447,3 +447,23 @@ def test_a_narrow_cone_weighs_aluminium_more_against_water():
         from xray_viz.physics.materials import mass_scattering
 
         mass_scattering("Al", 60.0, cone=4.0)
+
+
+def test_kernels_kept_on_the_model_match_the_exact_heights_and_are_reused(monkeypatch):
+    """The kernels kept on the model (heights rounded to HEIGHT_STEP) give the scatter of the
+    exact heights within 0.2 % of its maximum, and a second view of the same body computes no
+    new kernel."""
+    import xray_viz.scatter_kernel as sk
+
+    scene = slab(thickness=120.0, field=200.0, gap=60.0, pixels=64)
+    log_t = -xray_viz.render(scene).line_integral
+    kept = KernelModel.of(scene)
+    first = kept.scatter(log_t, scene.acquisition, scene.bodies)
+    n = len(kept._spreads[1])
+    again = kept.scatter(log_t, scene.acquisition, scene.bodies)
+    assert len(kept._spreads[1]) == n > 0
+    np.testing.assert_array_equal(again, first)
+    monkeypatch.setattr(sk, "HEIGHT_STEP", 1e-9)
+    exact = KernelModel.of(scene).scatter(log_t, scene.acquisition, scene.bodies)
+    diff = np.abs(first - exact).max() / exact.max()
+    assert 0.0 < diff < 2e-3
