@@ -1,19 +1,28 @@
-"""Fit the scatter kernel model (xray_viz/scatter_kernel.py) on the transport's water slabs.
+"""Fit the scatter kernel model (xray_viz/scatter_kernel.py) on the transport's water bodies.
 
-Each calibration case is a water slab (a box, "Water, Liquid") wider than the field, its exit
-side ``gap`` mm above a square detector of 32 x 32 pixels ``field`` mm wide, 1500 mm from a
-point source; the transport emits into the detector's field, so the field at the detector is
-the detector. The transport's scatter (incoherent + coherent + multiple) over the flat field
+Each calibration case is a body of water ("Water, Liquid"), its exit side ``gap`` mm above a
+square detector of 32 x 32 pixels ``field`` mm wide, 1500 mm from a point source; the
+transport emits into the detector's field, so the field at the detector is the detector. The
+bodies: slabs (boxes) wider than the field (thicknesses 10-300 mm), blocks narrower than it
+(:data:`NARROW`), and cylinders and spheres narrower than it (:data:`SMALL`, 25-150 mm
+across). The transport's scatter (incoherent + coherent + multiple) over the flat field
 (:func:`xray_viz.transport.flat_signal`) is compared, in blocks of 4 x 4 pixels, with the
-model's scatter from the primary renderer's noise-free ``ln T``; the twelve parameters minimise
-the relative residuals (``scipy.optimize.least_squares``, each block weighted by its
-transport error plus 3 %). Histories per case: a pilot of 40,000 estimates the scattered
-photons per history, then enough for ``--scattered`` of them (at most ``--max-histories``).
+model's scatter from the primary renderer's noise-free ``ln T``; the parameters minimise the
+relative residuals (``scipy.optimize.least_squares``, each block weighted by its transport
+error plus 3 %) in two stages: the amplitude and the kernels (:data:`SLAB_PARAMETERS`) on
+the slabs wider than the field, then the edge term (:data:`EDGE_PARAMETERS`) on the bodies
+narrower than it, the others held (``--slab-parameters FILE``: the slab parameters of a
+previous calibration held, stage 2 only). Histories per case: a pilot of 40,000 estimates the
+scattered photons per history, then enough for ``--scattered`` of them (at most
+``--max-histories``; ``--small-scattered`` and ``--small-max-histories`` for the bodies
+narrower than the field, which most photons miss).
 
 Usage::
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calibrate_scatter_kernel.py \
-        [--scattered 60000] [--max-histories 4000000] [--cache /tmp/skcal.npz] [--out FILE]
+        [--scattered 60000] [--max-histories 4000000] [--small-scattered 150000] \
+        [--small-max-histories 8000000] [--cache /tmp/skcal.npz] [--slab-parameters FILE] \
+        [--out FILE]
 
 Writes ``xray_viz/data/scatter_kernel.json`` (or ``--out``) with the date, commit, histories,
 ranges and the residuals of the fit.
@@ -54,7 +63,22 @@ FIELDS = (50.0, 150.0, 400.0)
 GAPS = (5.0, 150.0, 300.0)
 #: Water blocks narrower than the field: (thickness, width, spectrum)
 NARROW = ((50.0, 60.0, "60keV"), (100.0, 100.0, "60keV"), (60.0, 150.0, "90kVp"),
-          (100.0, 60.0, "90kVp"), (150.0, 120.0, "120kVp"), (30.0, 40.0, "60keV"))
+          (100.0, 60.0, "90kVp"), (150.0, 120.0, "120kVp"), (30.0, 40.0, "60keV"),
+          (10.0, 60.0, "60keV"), (20.0, 100.0, "60keV"))
+#: Thin slabs wider than the field (the frog is 2-30 mm of water-equivalent tissue):
+#: (thickness, field, gap, spectrum)
+THIN = ((10.0, 150.0, 50.0, "60keV"), (25.0, 300.0, 200.0, "90kVp"),
+        (10.0, 300.0, 100.0, "120kVp"), (25.0, 100.0, 20.0, "60keV"))
+#: Water bodies narrower than the field, round (issue 39's small bodies: the limb, the frog):
+#: (shape, diameter, field, gap, spectrum); a cylinder lies along the detector's v axis,
+#: ``CYLINDER_LENGTH`` of the field long (its ends inside the field, as the limb's are)
+SMALL = (("cylinder", 40.0, 150.0, 50.0, "60keV"), ("cylinder", 60.0, 200.0, 300.0, "60keV"),
+         ("cylinder", 80.0, 200.0, 150.0, "60keV"), ("cylinder", 80.0, 250.0, 400.0, "90kVp"),
+         ("cylinder", 120.0, 200.0, 20.0, "120kVp"), ("cylinder", 150.0, 300.0, 250.0, "60kVp"),
+         ("sphere", 50.0, 120.0, 100.0, "60keV"), ("sphere", 80.0, 150.0, 250.0, "120kVp"),
+         ("sphere", 100.0, 200.0, 450.0, "60keV"), ("sphere", 150.0, 250.0, 50.0, "90kVp"),
+         ("cylinder", 25.0, 120.0, 75.0, "60keV"))
+CYLINDER_LENGTH = 0.75
 #: A wider field (the limb's detector is 415 mm long)
 WIDE_FIELD = 450.0
 #: Longer gaps (the bundled phantoms stand 0.2-0.5 m above their detectors)
@@ -89,10 +113,48 @@ def slab_scene(thickness, field, gap, spectrum, *, pixels=PIXELS, sid=SID, inser
                  bodies=tuple(bodies))
 
 
+def round_scene(shape, diameter, field, gap, spectrum, *, pixels=PIXELS, sid=SID,
+                 material="Water, Liquid"):
+    """A water ``shape`` ("cylinder" or "sphere") ``diameter`` mm across, its exit side
+    ``gap`` mm above a ``pixels``-square detector ``field`` mm wide at z = 0, source at
+    z = ``sid``; a cylinder lies along the detector's v axis, :data:`CYLINDER_LENGTH` of the
+    field long."""
+    import trimesh
+
+    from xray_viz.scene import Body, Detector, Scene, Source
+
+    r = diameter / 2
+    if shape == "cylinder":
+        mesh = trimesh.creation.cylinder(radius=r, height=CYLINDER_LENGTH * field,
+                                         sections=96)
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    elif shape == "sphere":
+        mesh = trimesh.creation.icosphere(subdivisions=4, radius=r)
+    else:
+        raise ValueError(f"shape {shape!r}: 'cylinder' or 'sphere'")
+    mesh.apply_translation([0.0, 0.0, gap + r])
+    pitch = field / pixels
+    keys = SPECTRA[spectrum] if isinstance(spectrum, str) else spectrum
+    return Scene(source=Source(position=[0.0, 0.0, sid], **keys),
+                 detector=Detector(center=[0.0, 0.0, 0.0], shape=(pixels, pixels),
+                                   pitch=(pitch, pitch)),
+                 bodies=(Body(name=shape, mesh=mesh, material=material),))
+
+
+def case_scene(case):
+    """The scene of a :func:`calibration_cases` row."""
+    label, t, f, g, s, w = case[:6]
+    shape = case[6] if len(case) > 6 else None
+    if shape is None:
+        return slab_scene(t, f, g, s, side=w)
+    return round_scene(shape, t, f, g, s)
+
+
 def calibration_cases():
-    """``(label, thickness, field, gap, spectrum, width)``: every corner of the ranges, the
-    centre lines, a seeded sample of the rest of the grid (slabs wider than the field: width
-    None), and blocks narrower than the field (:data:`NARROW`)."""
+    """``(label, thickness, field, gap, spectrum, width, shape)``: every corner of the ranges,
+    the centre lines, a seeded sample of the rest of the grid (slabs wider than the field:
+    width None, shape None), blocks narrower than the field (:data:`NARROW`, shape None) and
+    water cylinders and spheres (:data:`SMALL`: thickness their diameter, shape theirs)."""
     grid = list(itertools.product(THICKNESSES, FIELDS, GAPS, SPECTRA))
     rng = np.random.default_rng(39)
     pick = set()
@@ -111,12 +173,16 @@ def calibration_cases():
         pick.add((t, f, LONG_GAP, s))
     for t, g, s in ((100.0, 150.0, "60keV"), (200.0, 5.0, "90kVp"), (50.0, 300.0, "120kVp")):
         pick.add((t, WIDE_FIELD, g, s))
-    out = [(f"water {t:.0f} mm, field {f:.0f} mm, gap {g:.0f} mm, {s}", t, f, g, s, None)
+    pick.update(THIN)
+    out = [(f"water {t:.0f} mm, field {f:.0f} mm, gap {g:.0f} mm, {s}", t, f, g, s, None, None)
            for (t, f, g, s) in sorted(pick, key=lambda c: (c[3], c[0], c[1], c[2]))]
     # blocks narrower than the field (square, ``w`` mm wide): the edge term
     for t, w, s in NARROW:
         out.append((f"water {t:.0f} mm, {w:.0f} mm wide, field 200 mm, gap 100 mm, {s}",
-                    t, 200.0, 100.0, s, w))
+                    t, 200.0, 100.0, s, w, None))
+    for shape, d, f, g, s in SMALL:
+        out.append((f"water {shape} {d:.0f} mm across, field {f:.0f} mm, gap {g:.0f} mm, {s}",
+                    d, f, g, s, None, shape))
     return out
 
 
@@ -153,25 +219,30 @@ def bin_image(a, b=BIN, *, squared=False):
     return blocks.mean(axis=(1, 3))
 
 
-def run_cases(cases, *, scattered, max_histories, cache=None, seed=0):
+def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None):
     """Each case's scene, binned transport scatter, error, ``ln T`` and histories
-    (read from ``cache`` where it has them, then stored there)."""
+    (read from ``cache`` where it has them, then stored there). ``small``:
+    ``(scattered, max_histories)`` of the bodies narrower than the field (cheap: most
+    photons miss them; they need more for the same error), default the others'."""
     store = {}
     if cache is not None and Path(cache).exists():
         with np.load(cache, allow_pickle=False) as z:
             store = {k: z[k] for k in z.files}
     out = []
-    for label, t, f, g, s, w in cases:
-        scene = slab_scene(t, f, g, s, side=w)
+    for case in cases:
+        label = case[0]
+        scene = case_scene(case)
+        narrow = case[5] is not None or (len(case) > 6 and case[6] is not None)
+        want, cap = small if narrow and small is not None else (scattered, max_histories)
         # the case's seed from its label: the same numbers whatever the other cases
         case_seed = seed + zlib.crc32(label.encode()) % 1_000_000
-        prefix = f"{label}|{scattered}|{max_histories}|"
+        prefix = f"{label}|{want}|{cap}|"
         found = [k[:-2] for k in store if k.startswith(prefix) and k.endswith("|s")]
         key = found[0] if found else prefix + str(case_seed)
         if key + "|s" not in store:
             t0 = time.perf_counter()
-            img, err, log_t, n = simulate(scene, scattered=scattered,
-                                          max_histories=max_histories, seed=case_seed)
+            img, err, log_t, n = simulate(scene, scattered=want, max_histories=cap,
+                                          seed=case_seed)
             store.update({key + "|s": img, key + "|e": err, key + "|l": log_t,
                           key + "|n": np.array(n),
                           key + "|sec": np.array(time.perf_counter() - t0)})
@@ -180,53 +251,91 @@ def run_cases(cases, *, scattered, max_histories, cache=None, seed=0):
             if cache is not None:
                 np.savez(cache, **store)
         out.append((label, scene, store[key + "|s"], store[key + "|e"], store[key + "|l"],
-                    int(store[key + "|n"]), float(store.get(key + "|sec", np.nan))))
+                    int(store[key + "|n"]), float(store.get(key + "|sec", np.nan)), narrow))
     return out
 
 
-def fit(results, start=None):
-    """Least-squares parameters: ``(values dict, per-case median |relative error|)``."""
-    from scipy.optimize import least_squares
+#: The slab parameters (stage 1: water slabs wider than the field) and the edge parameters
+#: (stage 2: bodies narrower than the field, the slab parameters held): the edge term is
+#: 1 over a shadow that covers the field, so stage 2 leaves the slabs as stage 1 fits them
+SLAB_PARAMETERS = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1", "n2")
+EDGE_PARAMETERS = ("b_edge", "c_edge", "l_edge")
+#: start, low and high of each parameter
+BOUNDS = {"a0": (0.40, -5, 5), "a1": (1.02, 0.05, 5), "a2": (0.33, -5, 5),
+          "a3": (-0.28, -5, 5), "a4": (0.02, -5, 5), "fraction": (0.95, 0.0, 1.0),
+          "s1": (1.0, 0.001, 2.0), "s2": (0.49, 0.01, 10.0), "n1": (99.0, 0.0, 100.0),
+          "n2": (1.67, 0.0, 30.0), "b_edge": (0.2, 0.0, 1.0), "c_edge": (1.0, 0.0, 5.0),
+          "l_edge": (100.0, 0.5, 300.0)}
 
-    from xray_viz.scatter_kernel import KernelModel, KernelParameters, PARAMETER_NAMES
+#: more starts of the edge term's fit
+EDGE_STARTS = ((0.2, 4.0, 250.0), (0.35, 0.2, 1.0))
+
+
+def _models(results, values):
+    """Each case's model, scene, ``ln T``, binned transport scatter and residual weight."""
+    from xray_viz.scatter_kernel import KernelModel, KernelParameters
 
     ranges = {"energy_kev": (0.0, 1e9), "thickness_mm": (0.0, 1e9), "field_mm": (0.0, 1e9),
               "gap_mm": (0.0, 1e9)}
-    x0 = np.array(start or [0.37, 1.05, 0.3, -0.25, 0.05, 0.95, 1.2, 0.48, 98.0, 1.85,
-                            0.3, 0.5])
-    lo = np.array([-5, 0.05, -5, -5, -5, 0.0, 0.001, 0.01, 0.0, 0.0, 0.0, 0.0])
-    hi = np.array([5, 5, 5, 5, 5, 1.0, 2.0, 10.0, 100.0, 30.0, 1.0, 20.0])
     models = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for label, scene, s, e, log_t, n, _ in results:
-            m = KernelModel.of(scene, parameters=KernelParameters(
-                dict(zip(PARAMETER_NAMES, x0)), ranges, {}))
+        for _, scene, s, e, log_t, *_ in results:
+            m = KernelModel.of(scene, parameters=KernelParameters(dict(values), ranges, {}))
             sb, eb = bin_image(s), bin_image(e, squared=True)
             models.append((m, scene, log_t, sb, np.sqrt(eb ** 2 + (0.03 * sb) ** 2) + 1e-12))
+    return models, ranges
 
-    def residuals(x):
-        params = KernelParameters(dict(zip(PARAMETER_NAMES, x)), ranges, {})
-        res = []
-        for m, scene, log_t, sb, wb in models:
-            m.parameters = params
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                pred = bin_image(m.scatter(log_t, scene.acquisition, scene.bodies))
-            res.append(((pred - sb) / wb).ravel())
-        return np.concatenate(res)
 
-    sol = least_squares(residuals, x0, bounds=(lo, hi), x_scale="jac")
-    values = dict(zip(PARAMETER_NAMES, (float(v) for v in sol.x)))
-    params = KernelParameters(values, ranges, {})
-    errors = []
+def _predict(models, ranges, values):
+    from xray_viz.scatter_kernel import KernelParameters
+
+    params = KernelParameters(dict(values), ranges, {})
+    out = []
     for m, scene, log_t, sb, wb in models:
         m.parameters = params
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            pred = bin_image(m.scatter(log_t, scene.acquisition, scene.bodies))
-        errors.append(float(np.median(np.abs(pred / sb - 1))))
-    return values, errors, sol
+            out.append((bin_image(m.scatter(log_t, scene.acquisition, scene.bodies)), sb, wb))
+    return out
+
+
+def fit(results, start=None, *, hold_slabs=False):
+    """Least-squares parameters in two stages (:data:`SLAB_PARAMETERS` on the slabs wider
+    than the field, then :data:`EDGE_PARAMETERS` on the bodies narrower than it):
+    ``(values dict, per-case median |relative error|, the two solutions)``. ``results``:
+    :func:`run_cases`' rows, their last item true for a body narrower than the field.
+    ``hold_slabs``: the slab parameters of ``start`` held (stage 2 only)."""
+    from scipy.optimize import least_squares
+
+    values = {k: v[0] for k, v in BOUNDS.items()}
+    values.update(start or {})
+    slab_sol = None
+    for stage, names in ((False, SLAB_PARAMETERS), (True, EDGE_PARAMETERS)):
+        if hold_slabs and not stage:
+            continue
+        models, ranges = _models([r for r in results if r[-1] == stage], values)
+        lo = np.array([BOUNDS[k][1] for k in names])
+        hi = np.array([BOUNDS[k][2] for k in names])
+        x0 = np.clip([values[k] for k in names], lo, hi)
+
+        def residuals(x, names=names, models=models, ranges=ranges):
+            trial = {**values, **dict(zip(names, x))}
+            return np.concatenate([((p - sb) / wb).ravel()
+                                   for p, sb, wb in _predict(models, ranges, trial)])
+
+        # the edge term has local minima (a short reach with a large share, a long one with
+        # a small share): from a few starts, the least cost
+        starts = [x0] if not stage else [x0] + [np.clip(x, lo, hi) for x in EDGE_STARTS]
+        sol = min((least_squares(residuals, x, bounds=(lo, hi), x_scale="jac")
+                   for x in starts), key=lambda r: r.cost)
+        values.update(zip(names, (float(v) for v in sol.x)))
+        if not stage:
+            slab_sol = sol
+    models, ranges = _models(results, values)
+    errors = [float(np.median(np.abs(p / sb - 1))) for p, sb, _ in
+              _predict(models, ranges, values)]
+    return values, errors, (slab_sol, sol)
 
 
 def main(argv=None):
@@ -234,15 +343,30 @@ def main(argv=None):
     parser.add_argument("--scattered", type=int, default=60_000,
                         help="scattered photons on the detector per case (default 60000)")
     parser.add_argument("--max-histories", type=int, default=4_000_000)
+    parser.add_argument("--small-scattered", type=int, default=150_000,
+                        help="the same for the bodies narrower than the field (default 150000)")
+    parser.add_argument("--small-max-histories", type=int, default=8_000_000)
     parser.add_argument("--cache", default=None, help="npz of the transport results")
+    parser.add_argument("--slab-parameters", default=None,
+                        help="a calibration file whose slab parameters are held (stage 2 "
+                             "only)")
     parser.add_argument("--out", default=str(ROOT / "xray_viz" / "data" / "scatter_kernel.json"))
     args = parser.parse_args(argv)
     cases = calibration_cases()
     results = run_cases(cases, scattered=args.scattered, max_histories=args.max_histories,
-                        cache=args.cache)
+                        cache=args.cache,
+                        small=(args.small_scattered, args.small_max_histories))
     t_mc = sum(r[6] for r in results)           # each case's transport and render, s
-    values, errors, sol = fit(results)
-    from xray_viz.scatter_kernel import KernelModel, KernelParameters
+    if args.slab_parameters:
+        # a previous calibration's file (it may predate the edge parameters)
+        held = json.loads(Path(args.slab_parameters).read_text(encoding="utf-8"))["parameters"]
+        values, errors, sol = fit(results, {k: held[k] for k in SLAB_PARAMETERS},
+                                  hold_slabs=True)
+    else:
+        values, errors, sol = fit(results)
+    from xray_viz.scatter_kernel import KernelModel, KernelParameters, PARAMETER_NAMES
+
+    values = {k: values[k] for k in PARAMETER_NAMES}
 
     energies = []
     with warnings.catch_warnings():
@@ -274,7 +398,11 @@ def main(argv=None):
                     "cases": [{"case": r[0], "histories": r[5],
                                "median_abs_rel_error": round(err, 4)}
                               for r, err in zip(results, errors)],
-                    "cost": float(sol.cost), "evaluations": int(sol.nfev)}}
+                    "cost": [None if x is None else float(x.cost) for x in sol],
+                    "evaluations": [None if x is None else int(x.nfev) for x in sol],
+                    "slab_parameters_held_from": args.slab_parameters,
+                    "stages": {"slabs wider than the field": list(SLAB_PARAMETERS),
+                               "bodies narrower than the field": list(EDGE_PARAMETERS)}}}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     for r, err in zip(results, errors):

@@ -20,7 +20,11 @@ and for 2 % per block.
 Usage::
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/scatter_kernel_accuracy.py \
-        [--scattered 400000] [--max-histories 20000000] [--cache /tmp/skacc.npz] [--cost-only]
+        [--scattered 400000] [--max-histories 20000000] [--cache /tmp/skacc.npz] [--cost-only] \
+        [--parameters FILE]
+
+A case already in the cache at another budget is used as it is (its histories are in the
+table).
 """
 
 from __future__ import annotations
@@ -99,10 +103,18 @@ def transport_images(scene, *, scattered, max_histories, seed):
     return s, e, log_t, n, time.perf_counter() - t0
 
 
-def compare(scene, s, e, log_t):
+def cached(store, label):
+    """The key of ``label``'s transport in ``store`` (the run of the most histories, whatever
+    budget it had: a case run at another ``--max-histories`` is used as it is, its
+    histories in the table), or None."""
+    keys = [k[:-2] for k in store if k.startswith(label + "|") and k.endswith("|s")]
+    return max(keys, key=lambda k: int(store[k + "|n"])) if keys else None
+
+
+def compare(scene, s, e, log_t, parameters=None):
     """Blocks: the transport's scatter, the model's, the transport's error, the primary;
-    and the model's warnings."""
-    from xray_viz.scatter_kernel import KernelModel
+    and the model's warnings (``parameters``: a calibration file, default the package's)."""
+    from xray_viz.scatter_kernel import KernelModel, load_parameters
 
     import xray_viz
 
@@ -110,7 +122,7 @@ def compare(scene, s, e, log_t):
     lengths = xray_viz.render(scene, path_lengths=True).path_length
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        model = KernelModel.of(scene)
+        model = KernelModel.of(scene, parameters=load_parameters(parameters))
         pred = model.scatter(log_t, scene.acquisition, scene.bodies, path_lengths=lengths)
     h, w = s.shape
     b = max(1, min(h, w) // 8)
@@ -161,6 +173,8 @@ def main(argv=None):
     parser.add_argument("--cache", default=None)
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--cost-only", action="store_true")
+    parser.add_argument("--parameters", default=None,
+                        help="a calibration file other than the package's (a previous fit)")
     args = parser.parse_args(argv)
     print(f"machine: {platform.machine()}, {platform.processor() or '?'}, "
           f"Python {platform.python_version()}")
@@ -175,7 +189,7 @@ def main(argv=None):
         print("|---|---|---|---|---|---|---|---|")
         for i, (label, make) in enumerate(held_out()):
             scene = make()
-            key = f"{label}|{args.scattered}|{args.max_histories}"
+            key = cached(store, label) or f"{label}|{args.scattered}|{args.max_histories}"
             if key + "|s" not in store:
                 s, e, log_t, n, sec = transport_images(scene, scattered=args.scattered,
                                                        max_histories=args.max_histories,
@@ -186,7 +200,7 @@ def main(argv=None):
                     np.savez(args.cache, **store)
             s, e, log_t = (store[key + k] for k in ("|s", "|e", "|l"))
             n, sec = int(store[key + "|n"]), float(store[key + "|sec"])
-            sb, pb, eb, tb, msgs = compare(scene, s, e, log_t)
+            sb, pb, eb, tb, msgs = compare(scene, s, e, log_t, args.parameters)
             with np.errstate(divide="ignore", invalid="ignore"):
                 rel_err = eb / sb
                 dev = np.abs(pb / sb - 1)
@@ -209,9 +223,14 @@ def main(argv=None):
                 same = "-"
             print(f"| {label} | {n:,} | {sec:.0f} | {int(keep.sum())} / {keep.size} | {figs} | "
                   f"{spr:.3f} | {same} |", flush=True)
+            sel = keep if keep.any() else np.isfinite(dev)
+            print(f"    signed median of SPR_model / SPR_transport - 1: "
+                  f"{100 * np.median((pb / sb - 1)[sel]):+.1f} %")
             for m in msgs:
                 print(f"    warning: {m}")
             rows.append((label, keep, dev))
+    if args.repeats < 1:
+        return 0
     t_new, t_same, t_of, t_scatter, t_kernel = cost(args.repeats)
     print(f"frog 512x512, medians of {args.repeats}: primary render at a new pose "
           f"{1e3 * t_new:.1f} ms, at the same pose {1e3 * t_same:.1f} ms, KernelModel.of "

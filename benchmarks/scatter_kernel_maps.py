@@ -1,9 +1,9 @@
-"""SPR maps: the transport's and the scatter kernel model's, for two held-out cases.
+"""SPR maps: the transport's and the scatter kernel model's, for four held-out cases.
 
 Reads the transport images cached by ``benchmarks/scatter_kernel_accuracy.py --cache FILE``
-and draws, for the held-out water slab, the bone layer in water and the frog, the transport's
-SPR, the model's (given the path lengths per body) and their ratio over the same blocks, into
-``benchmarks/scatter_kernel_spr.png``.
+and draws, for the held-out water slab, the bone layer in water, the limb and the frog, the
+transport's SPR, the model's (given the path lengths per body) and their ratio over the same
+blocks, into ``benchmarks/scatter_kernel_spr.png``.
 
 Usage::
 
@@ -33,10 +33,10 @@ def main(argv=None):
     store = dict(np.load(cache))
     wanted = ("water 150 mm, field 250 mm, gap 100 mm, 100 kVp",
               "bone 20 mm in water 150 mm, field 200 mm, gap 50 mm, 90 kVp",
-              "frog (15 tissues), 60 keV")
-    fig, axes = plt.subplots(3, 3, figsize=(11, 10.5), constrained_layout=True)
+              "limb, 60 keV", "frog (15 tissues), 60 keV")
+    fig, axes = plt.subplots(4, 3, figsize=(11, 14), constrained_layout=True)
     for row, (label, make) in zip(axes, [c for c in acc.held_out() if c[0] in wanted]):
-        key = f"{label}|400000|20000000"
+        key = acc.cached(store, label)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             sb, pb, eb, tb, _ = acc.compare(make(), store[key + "|s"], store[key + "|e"],

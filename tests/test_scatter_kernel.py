@@ -1,5 +1,6 @@
 """The scatter kernel model (xray_viz.scatter_kernel): its calibration file, the shape of its
-scatter, its ranges, and its agreement with a fresh transport on slabs it was not fitted on."""
+scatter, its ranges, and its agreement with a fresh transport on slabs and small bodies it was
+not fitted on."""
 
 from __future__ import annotations
 
@@ -36,6 +37,38 @@ def slab(thickness=150.0, field=150.0, gap=50.0, pixels=32, source=None, insert=
                  detector=Detector(center=[0.0, 0.0, 0.0], shape=(pixels, pixels),
                                    pitch=(field / pixels, field / pixels)),
                  bodies=tuple(bodies))
+
+
+#: The calibration before the small bodies were in it (water slabs and six blocks narrower
+#: than the field; the edge term's reach fixed at tau c_edge + 1 mm)
+PREVIOUS = {
+    "a0": 0.404088,
+    "a1": 1.021972,
+    "a2": 0.327845,
+    "a3": -0.278885,
+    "a4": 0.019965,
+    "fraction": 0.951372,
+    "s1": 1.00179,
+    "s2": 0.491477,
+    "n1": 100.0,
+    "n2": 1.669338,
+    "b_edge": 0.370871,
+    "c_edge": 0.154446,
+    "l_edge": 1.0}
+
+
+def cylinder(diameter=100.0, field=160.0, gap=100.0, pixels=16, source=None):
+    """A water cylinder narrower than the field (along the detector's v axis, 0.75 of the
+    field long), its lowest line ``gap`` mm above a square detector ``field`` mm wide; source
+    1500 mm above the detector (60 keV by default)."""
+    mesh = trimesh.creation.cylinder(radius=diameter / 2, height=0.75 * field, sections=96)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    mesh.apply_translation([0.0, 0.0, gap + diameter / 2])
+    keys = source if source is not None else {"energy": 60.0}
+    return Scene(source=Source(position=[0.0, 0.0, 1500.0], **keys),
+                 detector=Detector(center=[0.0, 0.0, 0.0], shape=(pixels, pixels),
+                                   pitch=(field / pixels, field / pixels)),
+                 bodies=(Body(name="cylinder", mesh=mesh, material="Water, Liquid"),))
 
 
 def model_scatter(scene, *, materials=False):
@@ -263,6 +296,47 @@ def test_model_within_its_tolerance_of_a_fresh_transport_on_a_bone_layer():
     assert np.median(blind - dev) > 0.12, (blind, dev)
 
 
+def test_model_within_its_tolerance_of_a_fresh_transport_on_a_small_body():
+    # a water cylinder 60 mm across in a 120 mm field, 60 mm above the detector, 60 keV:
+    # narrower than the field, a field and gap the fit's cylinders (25, 40, 60, 80, 120,
+    # 150 mm across) did not have. Measured +5 to +8 % per block (the transport's error
+    # 2 %); the calibration before the small bodies were in it +14 to +18 %. Pixels of
+    # about 4 mm (the calibration's: 3-9 mm); at 12 mm the model is some 10 points higher
+    # on such bodies, with the earlier calibration too (BENCHMARKS.md)
+    scene = cylinder(diameter=60.0, field=120.0, gap=60.0, pixels=32)
+    dev, rel = _against_transport(scene, 400_000, seed=39, block=16)
+    assert rel.max() < 0.03
+    # each of the four blocks within the stated tolerance plus three of the transport's
+    # standard errors
+    assert (np.abs(dev) < TOLERANCE + 3 * rel).all(), (dev, rel)
+    # the earlier calibration (no small bodies in the fit, the edge term's reach
+    # c_edge tau + 1 mm) gives about 9 % more here: the transport's noise cancels in the ratio
+    old = KernelParameters(PREVIOUS, load_parameters().ranges, {})
+    image = xray_viz.render(scene, path_lengths=True)
+    before = KernelModel.of(scene, parameters=old).scatter(
+        -image.line_integral, scene.acquisition, scene.bodies, path_lengths=image.path_length)
+    now, _ = model_scatter(scene, materials=True)
+    assert 1.05 < before.sum() / now.sum() < 1.15
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("make", [
+    lambda: cylinder(diameter=70.0, field=200.0, gap=250.0, pixels=32,
+                     source={"spectrum": {"kvp": 80.0, **AL}}),
+    # a large cylinder near the detector: the model's scatter is too concentrated on the
+    # body there, +8 to +13 % over it and -11 to -13 % beside it (BENCHMARKS.md)
+    pytest.param(lambda: cylinder(diameter=130.0, field=240.0, gap=40.0, pixels=32,
+                                  source={"spectrum": {"kvp": 100.0, **AL}}),
+                 marks=pytest.mark.xfail(strict=True, reason="too concentrated on a large "
+                                         "body near the detector")),
+])
+def test_model_within_its_tolerance_of_the_transport_on_small_bodies(make):
+    dev, rel = _against_transport(make(), 6_000_000, seed=43)
+    ok = rel < 0.02
+    assert ok.sum() >= 4
+    assert (np.abs(dev[ok]) < TOLERANCE + 3 * rel[ok]).all(), (dev, rel)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("make", [
     lambda: slab(thickness=180.0, field=250.0, gap=80.0, pixels=32,
@@ -373,3 +447,23 @@ def test_a_narrow_cone_weighs_aluminium_more_against_water():
         from xray_viz.physics.materials import mass_scattering
 
         mass_scattering("Al", 60.0, cone=4.0)
+
+
+def test_kernels_kept_on_the_model_match_the_exact_heights_and_are_reused(monkeypatch):
+    """The kernels kept on the model (heights rounded to HEIGHT_STEP) give the scatter of the
+    exact heights within 0.2 % of its maximum, and a second view of the same body computes no
+    new kernel."""
+    import xray_viz.scatter_kernel as sk
+
+    scene = slab(thickness=120.0, field=200.0, gap=60.0, pixels=64)
+    log_t = -xray_viz.render(scene).line_integral
+    kept = KernelModel.of(scene)
+    first = kept.scatter(log_t, scene.acquisition, scene.bodies)
+    n = len(kept._spreads[1])
+    again = kept.scatter(log_t, scene.acquisition, scene.bodies)
+    assert len(kept._spreads[1]) == n > 0
+    np.testing.assert_array_equal(again, first)
+    monkeypatch.setattr(sk, "HEIGHT_STEP", 1e-9)
+    exact = KernelModel.of(scene).scatter(log_t, scene.acquisition, scene.bodies)
+    diff = np.abs(first - exact).max() / exact.max()
+    assert 0.0 < diff < 2e-3

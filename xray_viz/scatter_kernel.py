@@ -31,15 +31,24 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
   Star-Lack's kernels in a simple form with no new parameter (the water fit read at another
   thickness; single-scatter acceptance, the multiple scatter taken to follow it): it took
   the 20 mm bone layer from 19 % high to 3 % (median) and the step wedge from 30 % low to 12 %
-  (BENCHMARKS.md). Small bodies (the limb, the frog) stay 18-28 % high: a matter of their
-  shape, not of their material;
+  (BENCHMARKS.md). Small bodies (the limb, the frog) stayed 17-30 % high: a matter of
+  their shape, not of their material (the edge term below);
 - ``A(tau, E)`` the scatter-to-primary ratio of an infinite slab of that thickness (the
   amplitude factor), ``ln A = a0 + a1 ln(tau / 100 mm) + a2 (tau / 100 mm - 1)
   + a3 ln(E / 50 keV) + a4 (tau / 100 mm) ln(E / 50 keV)``: Sun and Star-Lack's
   ``c T^alpha (ln 1/T)^beta`` written in the water-equivalent thickness, the spectrum entering
   by ``E``, the mean energy of the source's photons after 100 mm of water;
-- a pixel ``d`` mm from the edge of the bodies' shadow sends less: ``1 - b exp(-d / (c tau))``
-  of it (the scatter sent sideways leaves a body narrower than the field);
+- a body narrower than the field sends less than the slab of its thickness: a pixel ``d`` mm
+  from the edge of the bodies' shadow sends ``1 - b_edge exp(-d / (c_edge tau + l_edge))``
+  of it (1 where the shadow covers the field). The slab fit's amplitude includes the scatter
+  that the material beyond the irradiated field sends back into it (the calibration's slabs
+  are wider than the field); a body narrower than the field has none, and what it sends
+  sideways leaves it. ``b_edge`` is the share lost at the edge, ``c_edge tau + l_edge``
+  (mm at the detector; ``l_edge`` was a fixed 1 mm before the small bodies were in the fit)
+  how far into the body the loss reaches. Fitted on water cylinders, spheres and blocks
+  narrower than the field with the slab parameters held (``benchmarks/
+  calibrate_scatter_kernel.py``, stage 2), the reach came out long (3.7 tau): the term is
+  close to a constant share (about a fifth) over a body 50-150 mm thick (BENCHMARKS.md);
 - ``K`` the scatter's spread, two components (Sun and Star-Lack's two-component kernel form):
   a forward-peaked one and a broad one (``fraction`` of the scatter). Each is the footprint
   on the detector of photons leaving a *virtual source* ``h_i = gap + s_i tau M`` mm above it
@@ -54,7 +63,8 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
 The sum is evaluated by FFT on a coarse grid (at most :data:`COARSE` cells along a side) for a
 few groups of thickness (:data:`GROUPS`, each with its own kernel) and interpolated back to the
 pixels. The parameters are fitted by least squares on the transport's scatter images of water
-slabs (``benchmarks/calibrate_scatter_kernel.py``) and stored in
+slabs (the amplitude and the kernels), then of water bodies narrower than the field (the edge
+term) (``benchmarks/calibrate_scatter_kernel.py``), and stored in
 ``xray_viz/data/scatter_kernel.json`` with the ranges of the fit: a scene outside them (its
 spectrum's energy, a water-equivalent thickness, the field size or the air gap) gets a
 :class:`~xray_viz.errors.ScatterModelWarning` naming the quantity and its value.
@@ -90,16 +100,17 @@ PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
 
 #: The fitted parameters, in the order of :attr:`KernelParameters.values`.
 PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
-                   "n2", "b_edge", "c_edge")
+                   "n2", "b_edge", "c_edge", "l_edge")
 
 #: The ranges of the fit: ``[low, high]`` each.
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
 
 #: The model's stated error: the relative error of its scatter (and SPR) over blocks of a
 #: few mm against the transport, inside the fitted ranges, for water and, given the path
-#: lengths per body, bone layers in water (BENCHMARKS.md, "Scatter kernel model": 3 %
-#: median, 4.5-6.5 % 90th percentile on slabs it was not fitted on). Small bodies and
-#: aluminium far from the detector miss it (see there).
+#: lengths per body, bone layers in water, the limb and water bodies 50-100 mm across
+#: narrower than the field (BENCHMARKS.md, "Scatter kernel model": medians of 1.6-3 % on
+#: the cases it was not fitted on). The frog (thin tissues, 16 % high), aluminium far from
+#: the detector and large bodies near it miss it (see there).
 TOLERANCE = 0.10
 
 #: Cells of the coarse grid along the detector's longer side, at most.
@@ -110,6 +121,13 @@ GROUPS = (20.0, 45.0, 75.0, 110.0, 150.0, 200.0, 260.0, 330.0, np.inf)
 
 #: Step of the look-up table in ``ln(1 / T)``.
 LOOKUP_STEP = 5e-4
+
+#: The kernels' heights above the detector are rounded to multiples of this (mm), so that
+#: the views of a scan share their kernels (:meth:`KernelModel._spread`).
+HEIGHT_STEP = 0.5
+
+#: Kernels kept on a model at most (emptied when full).
+SPREADS_KEPT = 256
 
 #: Water-equivalent thicknesses tabulated for the inversion of the transmission (mm).
 _TAU = np.concatenate([np.linspace(0.0, 50.0, 501), np.linspace(50.5, 1000.0, 1900)])
@@ -182,6 +200,9 @@ def load_parameters(path=None) -> KernelParameters:
         raise SceneError(f"scatter kernel calibration {path}: needs a1 > 0 and fraction and "
                          f"b_edge in [0, 1], got a1 = {values['a1']}, fraction = "
                          f"{values['fraction']}, b_edge = {values['b_edge']}")
+    if values["l_edge"] <= 0:
+        raise SceneError(f"scatter kernel calibration {path}: needs l_edge > 0 (mm), got "
+                         f"l_edge = {values['l_edge']}")
     meta = doc.get("meta", {})
     return KernelParameters(values, ranges, meta if isinstance(meta, dict) else {})
 
@@ -208,6 +229,7 @@ class KernelModel:
         self.energy_kev = float(energy_kev)
         self.parameters = parameters
         self.grid, self.grid_primary = grid, float(grid_primary)
+        self._spreads = (parameters, {})     # the kernels' spectra (_spread)
 
     @classmethod
     def of(cls, scene, *, parameters=None) -> KernelModel:
@@ -344,15 +366,44 @@ class KernelModel:
         out[np.ix_(idx % ny, idx % nx)] = core
         return out
 
+    def _spread(self, heights, shape, cells) -> np.ndarray:
+        """``rfft2`` of a group's kernel: both components (:meth:`gap_kernel`, shares
+        ``1 - fraction`` and ``fraction``) at ``heights`` (mm), each rounded to a multiple
+        of :data:`HEIGHT_STEP`; kept on the model for the next calls with the same rounded
+        heights, coarse grid and cells (a scan's views share most of them)."""
+        p = self.parameters.values
+        steps = tuple(int(round(hh / HEIGHT_STEP)) for hh in heights)
+        key = (steps, shape, cells)
+        cache = self._spreads
+        if cache[0] is not self.parameters:
+            cache = self._spreads = (self.parameters, {})
+        hit = cache[1].get(key)
+        if hit is None:
+            kern = np.zeros(shape)
+            for share, step, n in ((1.0 - p["fraction"], steps[0], p["n1"]),
+                                   (p["fraction"], steps[1], p["n2"])):
+                spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n)
+                if spread is None:
+                    kern[0, 0] += share * self.grid_factor(n)
+                else:
+                    kern += share * spread
+            hit = np.fft.rfft2(kern)
+            if len(cache[1]) >= SPREADS_KEPT:
+                cache[1].clear()
+            cache[1][key] = hit
+        return hit
+
     @staticmethod
     def _edge_distance(inside, cells):
-        """mm from each cell to the nearest cell outside the bodies' shadow (the field's own
-        edge is not one); None when the shadow covers the field."""
+        """mm from each cell's centre to the edge of the bodies' shadow (half a cell short of
+        the nearest cell outside it: the same at any cell size; the field's own edge is not
+        one); None when the shadow covers the field."""
         if inside.all():
             return None
         from scipy.ndimage import distance_transform_edt
 
-        return distance_transform_edt(inside, sampling=cells)
+        d = distance_transform_edt(inside, sampling=cells)
+        return np.maximum(d - 0.5 * min(cells), 0.0)
 
     def _footprint(self, y, x, gap, n):
         """The per-area density of :meth:`gap_kernel` at offsets ``y``, ``x`` (mm), times
@@ -581,17 +632,9 @@ class KernelModel:
             coarse[:ch, :cw] = sums[g]
             if edge is not None:
                 coarse[:ch, :cw] *= 1.0 - p["b_edge"] * np.exp(
-                    -edge / (p["c_edge"] * tau_g + 1.0))
-            kern = np.zeros((ny, nx))
-            for share, s_i, n in ((1.0 - p["fraction"], p["s1"], p["n1"]),
-                                  (p["fraction"], p["s2"], p["n2"])):
-                height = gap + s_i * tau_g * mag
-                spread = self.gap_kernel(height, (ny, nx), cells, n)
-                if spread is None:
-                    kern[0, 0] += share * self.grid_factor(n)
-                else:
-                    kern += share * spread
-            total += np.fft.rfft2(coarse) * np.fft.rfft2(kern)
+                    -edge / (p["c_edge"] * tau_g + p["l_edge"]))
+            heights = (gap + p["s1"] * tau_g * mag, gap + p["s2"] * tau_g * mag)
+            total += np.fft.rfft2(coarse) * self._spread(heights, (ny, nx), cells)
         if self.grid is not None:
             total /= self.grid_primary
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
