@@ -474,14 +474,17 @@ def test_doctests_of_the_progress_and_cli_modules():
 
 
 def _local_imports(test_file: Path) -> set[str]:
-    """Modules a test file imports that live in tests/ (helpers, other test modules)."""
+    """Files in tests/ that a test file imports (helpers in tests/_support/, other test
+    modules as ``tests.<folder>.test_x``), relative to the repository's root."""
     names = set()
     for node in ast.walk(ast.parse(test_file.read_text())):
         if isinstance(node, ast.Import):
-            names |= {a.name.split(".")[0] for a in node.names}
+            names |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
-            names.add(node.module.split(".")[0])
-    return {n for n in names if (ROOT / "tests" / f"{n}.py").is_file()}
+            names.add(node.module)
+    files = {f"tests/_support/{n.split('.')[0]}.py" for n in names}
+    files |= {n.replace(".", "/") + ".py" for n in names if n.startswith("tests.")}
+    return {f for f in files if (ROOT / f).is_file()}
 
 
 @pytest.fixture(scope="module")
@@ -500,11 +503,12 @@ def sdist(tmp_path_factory):
 
 
 def test_the_sdist_carries_what_its_tests_import(sdist):
-    tests = sorted((ROOT / "tests").glob("*.py"))
-    assert {p.name for p in tests} <= {p.name for p in (sdist / "tests").glob("*.py")}
+    tests = sorted((ROOT / "tests").rglob("*.py"))
+    assert ({str(p.relative_to(ROOT)) for p in tests}
+            <= {str(p.relative_to(sdist)) for p in (sdist / "tests").rglob("*.py")})
     for test in tests:
-        for name in _local_imports(test):
-            assert (sdist / "tests" / f"{name}.py").is_file(), (test.name, name)
+        for rel in _local_imports(test):
+            assert (sdist / rel).is_file(), (test.name, rel)
     # the files the tests read from the checkout
     for rel in ("pyproject.toml", "BENCHMARKS.md", "benchmarks/suites.py", "LICENSE",
                 "CITATION.cff", "tests/conftest.py", "docs/conf.py", "Makefile",

@@ -97,7 +97,7 @@ def test_helpers_are_specialised_once(tmp_path):
     every caller passes a helper the same types, so each is compiled once (``_cover`` no
     longer once per literal mode)."""
     here = os.path.dirname(__file__)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), PYTHONPATH=os.pathsep.join(sys.path))
     out = subprocess.run([sys.executable, "-c", EVERY_PATH, here], env=env, check=True,
                          capture_output=True, text=True, timeout=1200, cwd=here)
     counts = json.loads(out.stdout.splitlines()[-1])
@@ -129,7 +129,8 @@ print(json.dumps({"compiled": compiled, "sha": hashlib.sha256(L.tobytes()).hexdi
 
 def _cold_order(tmp_path, how):
     here = os.path.dirname(__file__)
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / how))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / how),
+               PYTHONPATH=os.pathsep.join(sys.path))     # helpers (tests/_support/)
     run = subprocess.run([sys.executable, "-c", COLD_ORDER, here, how], env=env, check=True,
                          capture_output=True, text=True, timeout=900, cwd=here)
     return json.loads(run.stdout.splitlines()[-1])

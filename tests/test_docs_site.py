@@ -37,7 +37,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from test_walkthroughs import EXPECTED_PNGS
+from tests.test_walkthroughs import EXPECTED_PNGS
 from xray_viz.walkthroughs import list_walkthroughs
 
 REPO = Path(__file__).resolve().parents[1]

@@ -26,7 +26,7 @@ import pytest
 import trimesh
 
 import xray_viz
-from tests.helpers import random_rotation
+from helpers import random_rotation
 from tests.test_self_intersection import CROSSING, square_tube
 from xray_viz import phantoms
 from xray_viz.meshes import _check_kernels as K

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import csv
 import json
-from pathlib import Path
 
 import numpy as np
 import trimesh
 
-DATA = Path(__file__).parent / "data" / "tg195"
+from helpers import REPO
+
+DATA = REPO / "tests" / "data" / "tg195"
 
 
 def cases() -> dict:

@@ -1,4 +1,8 @@
-"""Shared helpers for the tests: scenes built in code, analytic chords."""
+"""Shared helpers for the tests: scenes built in code, analytic chords.
+
+In tests/_support/, which pytest puts on ``sys.path`` (pyproject.toml, ``pythonpath``): every
+test folder imports it as ``from helpers import ...``.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from xray_viz.scene import Body, Detector, Scene, Source
+
+#: The repository's root folder (the tests read its README, BENCHMARKS.md, phantoms/, ...).
+REPO = Path(__file__).resolve().parents[2]
 
 
 def random_rotation(rng) -> np.ndarray:
