@@ -21,7 +21,7 @@ def pytest_configure(config):
         config.option.image_cache_dir = "tests/image_cache"
 
 
-# Hypothesis (tests/test_properties.py): the default profile is derandomized (the same examples
+# Hypothesis (tests/tracing/test_properties.py): the default profile is derandomized (the same examples
 # on every run and machine) and keeps no example database, so CI is reproducible and leaves no
 # .hypothesis folder; HYPOTHESIS_PROFILE=slow runs many more, random examples (failures are
 # saved in .hypothesis/, which git ignores, and printed with a @reproduce_failure blob).
