@@ -27,6 +27,7 @@ from xray_viz.physics.materials import (ICRU44_TISSUES, check_material, mass_att
                                         material_density, suggest_materials)
 from xray_viz.physics.spectra import (IEC61267_QUALITIES, Spectrum, UnfilteredSpectrumWarning,
                                       quality_spectrum, spectrum_from_dict, tube_spectrum)
+from helpers import REPO
 
 spekpy = pytest.importorskip("spekpy")
 SPEKPY_DATA = Path(spekpy.__file__).parent / "data"
@@ -580,7 +581,7 @@ def test_scatter_scope_says_what_each_image_includes():
     assert "not detected" in SCATTER_SCOPE[None] and "primary radiation only" in SCATTER_SCOPE[None]
     assert "Monte Carlo" in scatter_scope("mc") and "kernel" in scatter_scope("kernel")
     assert scatter_scope("none") == SCATTER_SCOPE[None]
-    bench = (Path(__file__).resolve().parents[1] / "BENCHMARKS.md").read_text()
+    bench = (REPO / "BENCHMARKS.md").read_text()
     assert "## Scatter in the images" in bench
 
 
