@@ -4,7 +4,7 @@ pytest-pyvista's cached images in tests/image_cache/."""
 import os
 import sys
 
-# Mesh reports are not read from or kept on disk during tests (tests/test_report_cache.py turns
+# Mesh reports are not read from or kept on disk during tests (tests/meshes/test_report_cache.py turns
 # it on in a temporary folder): a test that changes the checker's behaviour must see it run.
 os.environ["XRAY_VIZ_CACHE_DIR"] = "off"
 # nor the bundled phantoms' reports shipped with the package (test_report_cache.py reads them)

@@ -205,7 +205,7 @@ def test_a_dicom_series_that_cannot_fit_as_float64_is_refused_before_decoding(tm
     pytest.importorskip("pydicom")
     pytest.importorskip("nibabel")
     pytest.importorskip("SimpleITK")
-    from tests.test_volumes import grid_affine, write_dicom_series
+    from tests.meshes.test_volumes import grid_affine, write_dicom_series
 
     from xray_viz.meshes import volumes as V
 

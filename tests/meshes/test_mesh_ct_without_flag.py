@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.test_volumes import write_dicom_series
+from tests.meshes.test_volumes import write_dicom_series
 from xray_viz.cli import main
 
 pytest.importorskip("pydicom")

@@ -26,6 +26,7 @@ from xray_viz.meshes import (
 )
 from xray_viz.meshes.command import add_mesh_parser
 from helpers import ball_union_chord
+from helpers import REPO
 
 R = 40.0
 
@@ -277,9 +278,8 @@ def _same_arrays(a, b):
 def test_binary_stl_is_read_as_trimesh_reads_and_merges_it(process):
     """load_mesh reads binary STL itself and merges its vertices itself: the same arrays, bit
     for bit, as trimesh's loader and ``process=True`` (every bundled phantom's file)."""
-    from pathlib import Path
 
-    files = sorted((Path(__file__).resolve().parents[1] / "phantoms").glob("*/*.stl"))
+    files = sorted((REPO / "phantoms").glob("*/*.stl"))
     assert len(files) > 10
     for path in files:
         mine = load_mesh(path, process=process)

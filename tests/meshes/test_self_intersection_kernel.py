@@ -27,7 +27,7 @@ import trimesh
 
 import xray_viz
 from helpers import random_rotation
-from tests.test_self_intersection import CROSSING, square_tube
+from tests.meshes.test_self_intersection import CROSSING, square_tube
 from xray_viz import phantoms
 from xray_viz.meshes import _check_kernels as K
 from xray_viz.meshes import repair
