@@ -10,7 +10,6 @@ import dataclasses
 import hashlib
 import importlib.util
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,9 +18,10 @@ import xray_viz
 from xray_viz import phantoms
 from xray_viz.scene import Scene
 from xray_viz.tracing.engines import ENGINES
+from helpers import REPO
 
 #: The source checkout's phantoms folder (the worktree's own files), else the installed one.
-_HERE = Path(__file__).resolve().parents[1] / "phantoms"
+_HERE = REPO / "phantoms"
 ROOT = _HERE if (_HERE / "chest.toml").is_file() else phantoms._root()
 
 
