@@ -5,7 +5,7 @@ the head and outside it, and writes benchmarks/ct_few_view.png (a slice of each 
 
     python benchmarks/ct_few_view.py [N VIEWS DETECTOR]      # default 48 16 64
 
-The scan and the measure are tests/test_reconstruct_iterative.py's.
+The scan and the measure are tests/reconstruct/test_reconstruct_iterative.py's.
 """
 
 import sys
@@ -26,7 +26,7 @@ def main(argv):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import tests.test_reconstruct_iterative as t
+    import tests.reconstruct.test_reconstruct_iterative as t
 
     n, views, det = (int(a) for a in argv) if argv else (48, 16, 64)
     t0 = time.perf_counter()

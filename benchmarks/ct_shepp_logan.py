@@ -5,7 +5,7 @@ truth, and writes benchmarks/ct_shepp_logan.png (central slices beside the truth
 
     python benchmarks/ct_shepp_logan.py [N N_PROJECTIONS DETECTOR]      # default 64 180 128
 
-The scan and the measurement are tests/test_reconstruct.py's ``shepp_logan_validation``.
+The scan and the measurement are tests/reconstruct/test_reconstruct.py's ``shepp_logan_validation``.
 """
 
 import sys
@@ -22,7 +22,7 @@ warnings.simplefilter("ignore", DeprecationWarning)       # ITK's SWIG load-time
 
 def truth_volume(vol):
     """mu (1/cm) of the exact ellipsoids at the voxel centres (the renderer's precedence)."""
-    import tests.test_reconstruct as t
+    import tests.reconstruct.test_reconstruct as t
     import xray_viz
     from xray_viz.physics.imaging import body_mu
 
@@ -46,7 +46,7 @@ def main(argv):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import tests.test_reconstruct as t
+    import tests.reconstruct.test_reconstruct as t
 
     n, n_proj, det = (int(a) for a in argv) if argv else (64, 180, 128)
     t0 = time.perf_counter()

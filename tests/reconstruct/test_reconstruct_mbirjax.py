@@ -13,8 +13,8 @@ import xray_viz
 from xray_viz.orbit import Orbit
 from xray_viz.reconstruct import ReconstructionError, mbirjax_geometry, reconstruct
 
-from tests.test_reconstruct import CENTER, ellipsoid_scene
-from tests.test_reconstruct_iterative import check_ellipsoid
+from tests.reconstruct.test_reconstruct import CENTER, ellipsoid_scene
+from tests.reconstruct.test_reconstruct_iterative import check_ellipsoid
 
 
 def helical_scan(axis, pitch, n=24, *, shape=(40, 24), det_pitch=3.0, render=True):

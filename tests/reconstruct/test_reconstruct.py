@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.util
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from xray_viz import cli
 from xray_viz.reconstruct import (ReconstructionError, reconstruct, reconstruct_file,
                                   rtk_frame, rtk_geometry)
 from xray_viz.scene import Body, Detector, Scene, Source
+from helpers import REPO
 
 #: ITK's SWIG modules warn at load time (Python's own DeprecationWarning about SWIG's
 #: ``swigvarlink`` type); raised as an error inside SWIG's module initialisation it crashes the
@@ -34,7 +34,7 @@ with __import__("warnings").catch_warnings():
     itk = pytest.importorskip("itk")         # the ct extra (installed by make setup)
     from itk import RTK as rtk               # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 
 def scan(scene, angles, *, axis, center):
@@ -260,7 +260,7 @@ def test_refused_backends_and_mismatches():
         with pytest.raises(ReconstructionError, match=words) as info:
             reconstruct(projs, geo, method=method)
         assert "\n" not in str(info.value)
-    # mbirjax is a method now (tests/test_reconstruct_mbirjax.py); it refuses a parallel beam
+    # mbirjax is a method now (tests/reconstruct/test_reconstruct_mbirjax.py); it refuses a parallel beam
     with pytest.raises(ReconstructionError, match="is for a cone beam") as info:
         reconstruct(projs, dict(geo, beam="parallel"), method="mbirjax")
     assert "\n" not in str(info.value)

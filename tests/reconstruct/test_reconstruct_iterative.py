@@ -14,7 +14,7 @@ from xray_viz import cli
 from xray_viz.orbit import Orbit
 from xray_viz.reconstruct import ITERATIVE, ReconstructionError, reconstruct
 
-from tests.test_reconstruct import (C_ELL, CENTER, MU, SWIG_WARNING, _inside, _suites,
+from tests.reconstruct.test_reconstruct import (C_ELL, CENTER, MU, SWIG_WARNING, _inside, _suites,
                               ellipsoid_scene, write_store)
 
 pytestmark = pytest.mark.filterwarnings(SWIG_WARNING)

@@ -17,7 +17,7 @@ from xray_viz.reconstruct import (ReconstructionError, read_rtk_geometry, recons
                                   rtk_frame, rtk_geometry, rtk_matrices, write_rtk_geometry,
                                   write_rtk_projections)
 
-from tests.test_reconstruct import CENTER, SWIG_WARNING, ellipsoid_scene, write_store
+from tests.reconstruct.test_reconstruct import CENTER, SWIG_WARNING, ellipsoid_scene, write_store
 
 pytestmark = pytest.mark.filterwarnings(SWIG_WARNING)
 

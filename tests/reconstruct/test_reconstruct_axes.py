@@ -15,6 +15,7 @@ from xray_viz.orbit import orbit_from_dict  # noqa: E402
 from xray_viz.reconstruct import ReconstructionError, reconstruct  # noqa: E402
 from xray_viz.scan import scan  # noqa: E402
 from xray_viz.scene import scene_from_dict  # noqa: E402
+from helpers import REPO
 
 BALL = "phantoms/sphere/ball.stl"
 CENTRE = np.array([14.0, -9.0, 6.0])          # off the axis: a mirrored image would show it
@@ -22,9 +23,8 @@ CENTRE = np.array([14.0, -9.0, 6.0])          # off the axis: a mirrored image w
 
 @pytest.fixture(scope="module")
 def scene():
-    from pathlib import Path
 
-    ball = Path(__file__).resolve().parents[1] / BALL
+    ball = REPO / BALL
     return scene_from_dict({
         "source": {"position": [0.0, 0.0, 1000.0], "energy": 60.0},
         "detector": {"center": [0.0, 0.0, -500.0], "shape": [36, 30], "pitch": [5.0, 5.0]},
