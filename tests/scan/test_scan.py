@@ -73,7 +73,7 @@ def test_poses_orbit_reproduces_the_circular_scan(sphere, tmp_path):
     again = xray_viz.scan(sphere, Orbit("poses", poses=poses))
     assert np.array_equal(again.projections, circ.projections)
     tilted = dict(poses[1], u=(np.array(poses[1]["u"]) + [0, 0.1, 0]).tolist())
-    # (tilted poses are supported now, tests/test_detector_tilt.py; skewed u/v are not)
+    # (tilted poses are supported now, tests/render/test_detector_tilt.py; skewed u/v are not)
     with pytest.raises(SceneError, match="pose 1: .*must be perpendicular"):
         S.orbit_from_dict({"poses": [poses[0], tilted]})
 
