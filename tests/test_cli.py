@@ -13,7 +13,7 @@ import trimesh
 import xray_viz
 from xray_viz.cli import main
 from helpers import write_scene
-from tests.test_scene_file import GOOD
+from tests.scene.test_scene_file import GOOD
 
 
 @pytest.fixture

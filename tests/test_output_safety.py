@@ -35,7 +35,7 @@ from xray_viz.meshes import load_mesh
 from xray_viz.physics.spectra import read_spectrum_csv
 from xray_viz.output import _write_protected, save_image, to_uint16
 from helpers import write_scene
-from tests.test_scene_file import GOOD
+from tests.scene.test_scene_file import GOOD
 
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
 #: A scene big enough that its outputs are written in many chunks (npy 512 KiB).

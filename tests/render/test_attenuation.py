@@ -99,7 +99,7 @@ def test_cli_prints_a_repair_warning_as_one_line(tmp_path):
     import sys
 
     from helpers import write_scene
-    from tests.test_scene_file import GOOD
+    from tests.scene.test_scene_file import GOOD
 
     good = trimesh.creation.icosphere(subdivisions=2, radius=20.0)
     flipped = trimesh.Trimesh(good.vertices, good.faces[:, ::-1], process=False)
