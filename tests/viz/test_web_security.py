@@ -18,7 +18,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import pytest
 
-from tests.test_web_viewer import web_server
+from tests.viz.test_web_viewer import web_server
 
 pytest.importorskip("trame")
 websocket = pytest.importorskip("websocket")

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.test_web_viewer import (browser_page, check_driven, drive_viewer, needs_browser,
+from tests.viz.test_web_viewer import (browser_page, check_driven, drive_viewer, needs_browser,
                              non_background, save_shot, stop_process, view_region)
 
 TOKEN = "xray-viz-test-token"
