@@ -31,8 +31,9 @@ import trimesh
 import xray_viz
 from xray_viz import cli, progress
 from helpers import run_on_a_terminal
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 SCRIPT = Path(sys.executable).parent / "xray-viz"
 
 #: A bone ball (a material: the image depends on the energy), noise-ready (I0 given).
