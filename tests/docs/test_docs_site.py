@@ -37,10 +37,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from tests.test_walkthroughs import EXPECTED_PNGS
+from tests.docs.test_walkthroughs import EXPECTED_PNGS
 from xray_viz.walkthroughs import list_walkthroughs
+from helpers import REPO
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = REPO
 DOCS = REPO / "docs"
 
 #: Modules the API reference must cover (issue 17), each with a page per public object.

@@ -27,8 +27,9 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 SHELL = {"bash", "sh", "shell", "console"}
 SKIP_MD = re.compile(r"^<!--\s*snippet:\s*skip:\s*(.*?)\s*-->\s*$")
 SKIP_RST = re.compile(r"^\.\.\s+snippet:\s*skip:\s*(.*?)\s*$")
