@@ -16,7 +16,7 @@ import sys
 import numpy as np
 import pytest
 
-from tests.test_architecture import MODULES, THIRD_PARTY, _reaches
+from tests.project.test_architecture import MODULES, THIRD_PARTY, _reaches
 from xray_viz.geometry import viewport
 from xray_viz.scene import Detector
 from xray_viz.viz import camera

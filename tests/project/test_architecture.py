@@ -11,8 +11,9 @@ import ast
 from pathlib import Path
 
 import pytest
+from helpers import REPO
 
-PACKAGE = Path(__file__).resolve().parents[1] / "xray_viz"
+PACKAGE = REPO / "xray_viz"
 
 
 def _modules() -> dict[str, Path]:

@@ -33,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 NOBODY = 65534
 #: The small kernel the probes compile (well under 10 s cold).
 SMALL = "first_use_rank"

@@ -14,15 +14,15 @@ import shutil
 import stat
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
 import xray_viz
+from helpers import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 FAKE_PYTHON = r"""#!/usr/bin/env bash
 # records its arguments; `-m venv DIR` makes DIR/bin/python (this script) and DIR/bin/xray-viz
