@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import REPO
 
-ROOT = REPO
+#: The repository's root (not helpers.REPO: this file also runs as a script, the launcher).
+ROOT = Path(__file__).resolve().parents[2]
 NOBODY = 65534
 #: The small kernel the probes compile (well under 10 s cold).
 SMALL = "first_use_rank"
