@@ -137,3 +137,17 @@ def run_on_a_terminal(argv, *, env=None, timeout=300):
     finally:
         os.close(master)
     return status, b"".join(chunks).decode("utf-8", "replace")
+
+
+def doctest_examples(module) -> int:
+    """The number of docstring examples in ``module`` (a module of xray_viz), once it is sure
+    that pytest runs them: pyproject.toml's pytest options collect every module of the package
+    with ``--doctest-modules``, so the examples run there, once, and a test that wants a module
+    to keep its examples counts them rather than running them again (``doctest.testmod``)."""
+    import doctest
+    import tomllib
+
+    ini = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]
+    assert "--doctest-modules" in ini["addopts"] and "xray_viz" in ini["testpaths"], ini
+    assert module.__name__.split(".")[0] == "xray_viz", module.__name__
+    return sum(len(test.examples) for test in doctest.DocTestFinder().find(module))

@@ -1,11 +1,13 @@
-"""The examples in the docstrings run and print what they say."""
+"""The examples in the docstrings run and print what they say: pytest runs them, once
+(``--doctest-modules`` over the package, pyproject.toml); these modules keep theirs."""
 
 from __future__ import annotations
 
-import doctest
 import importlib
 
 import pytest
+
+from helpers import doctest_examples
 
 MODULES = [
     "xray_viz", "xray_viz.scene", "xray_viz.geometry", "xray_viz.tracing.intersect",
@@ -17,7 +19,4 @@ MODULES = [
 
 @pytest.mark.parametrize("name", MODULES)
 def test_docstring_examples(name):
-    module = importlib.import_module(name)
-    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
-                             extraglobs={"dataclasses": importlib.import_module("dataclasses")})
-    assert result.attempted > 0 and result.failed == 0
+    assert doctest_examples(importlib.import_module(name)) > 0

@@ -3,7 +3,6 @@ has no equivalent (xray_viz.meshes.gvxr)."""
 
 from __future__ import annotations
 
-import doctest
 import json
 import re
 import tomllib
@@ -17,6 +16,7 @@ import xray_viz
 from xray_viz import cli
 from xray_viz.errors import SceneError
 from xray_viz.meshes import gvxr as G
+from helpers import doctest_examples
 
 
 def write_meshes(folder):
@@ -211,8 +211,7 @@ def test_to_toml_round_trips_through_tomllib():
 
 
 def test_docstring_examples():
-    result = doctest.testmod(G, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted > 0 and result.failed == 0
+    assert doctest_examples(G) > 0           # pytest runs them (--doctest-modules), once
 
 
 # --------------------------------------------------------------------------------------------

@@ -11,7 +11,6 @@ survives, nothing is left behind, and the user reads one line. Messages about a 
 from __future__ import annotations
 
 import builtins
-import doctest
 import errno
 import io
 import os
@@ -34,7 +33,7 @@ from xray_viz.errors import MeshError, OutputError, SpectrumError, excerpt, one_
 from xray_viz.meshes import load_mesh
 from xray_viz.physics.spectra import read_spectrum_csv
 from xray_viz.output import _write_protected, save_image, to_uint16
-from helpers import write_scene
+from helpers import doctest_examples, write_scene
 from tests.scene.test_scene_file import GOOD
 
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
@@ -477,8 +476,7 @@ def assert_safe(line: str, folder=None) -> None:
 
 
 def test_excerpt_and_one_line_helpers():
-    result = doctest.testmod(xray_viz.errors)
-    assert result.attempted >= 4 and result.failed == 0
+    assert doctest_examples(xray_viz.errors) >= 4     # pytest runs them (--doctest-modules)
     text = excerpt(LONG_LINE)
     assert text.startswith("'" + "7" * 40 + "'...") and f"({len(LONG_LINE)} characters)" in text
     assert_safe(text)

@@ -27,7 +27,7 @@ from xray_viz.physics.materials import (ICRU44_TISSUES, check_material, mass_att
                                         material_density, suggest_materials)
 from xray_viz.physics.spectra import (IEC61267_QUALITIES, Spectrum, UnfilteredSpectrumWarning,
                                       quality_spectrum, spectrum_from_dict, tube_spectrum)
-from helpers import REPO
+from helpers import REPO, doctest_examples
 
 spekpy = pytest.importorskip("spekpy")
 SPEKPY_DATA = Path(spekpy.__file__).parent / "data"
@@ -586,12 +586,8 @@ def test_scatter_scope_says_what_each_image_includes():
 
 
 def test_dosimetry_docstring_examples():
-    import doctest
-
-    result = doctest.testmod(dosimetry, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted >= 5 and result.failed == 0
-    result = doctest.testmod(spectra, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted >= 5 and result.failed == 0
+    # pytest runs them (--doctest-modules), once
+    assert doctest_examples(dosimetry) >= 5 and doctest_examples(spectra) >= 5
 
 
 def test_air_kerma_reaches_the_radiograph_and_the_dicom_header(tmp_path):
