@@ -41,7 +41,6 @@ from tests.docs.test_walkthroughs import EXPECTED_PNGS
 from xray_viz.walkthroughs import list_walkthroughs
 from helpers import REPO
 
-REPO = REPO
 DOCS = REPO / "docs"
 
 #: Modules the API reference must cover (issue 17), each with a page per public object.

@@ -27,6 +27,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
+
 from helpers import REPO
 
 ROOT = REPO

@@ -25,8 +25,7 @@ from xray_viz.meshes import (
     repair_mesh,
 )
 from xray_viz.meshes.command import add_mesh_parser
-from helpers import ball_union_chord
-from helpers import REPO
+from helpers import REPO, ball_union_chord
 
 R = 40.0
 

@@ -11,6 +11,7 @@ import ast
 from pathlib import Path
 
 import pytest
+
 from helpers import REPO
 
 PACKAGE = REPO / "xray_viz"

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import subprocess
 import sys
+
 from helpers import REPO
 
-REPO = REPO
 
 
 def test_ruff_finds_nothing():

@@ -14,14 +14,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from helpers import run_on_a_terminal
+from helpers import REPO, run_on_a_terminal
 
 import xray_viz
 from xray_viz import cli
 from xray_viz.reconstruct import (ReconstructionError, reconstruct, reconstruct_file,
                                   rtk_frame, rtk_geometry)
 from xray_viz.scene import Body, Detector, Scene, Source
-from helpers import REPO
 
 #: ITK's SWIG modules warn at load time (Python's own DeprecationWarning about SWIG's
 #: ``swigvarlink`` type); raised as an error inside SWIG's module initialisation it crashes the

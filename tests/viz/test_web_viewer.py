@@ -25,9 +25,9 @@ from urllib.parse import urlsplit
 import numpy as np
 import pytest
 from PIL import Image
+
 from helpers import REPO
 
-REPO = REPO
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 LOCAL_HOSTS = ("127.0.0.1", "localhost")
 
