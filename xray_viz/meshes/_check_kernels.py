@@ -19,7 +19,7 @@ give the same set of faces bit for bit:
 
 Floating-point double precision, as pymeshlab's meshes (its ``Scalarm`` is ``double``); the
 expressions keep vcglib's order of operations (no fused multiply-add, no reassociation), so
-each comparison sees the same numbers. ``tests/meshes/test_self_intersection_kernel.py`` checks the
+each comparison sees the same numbers. ``tests/test_self_intersection_kernel.py`` checks the
 sets against pymeshlab on the phantoms and on random overlapping meshes.
 
 :func:`edge_facts` gives the edge facts of ``repair._edge_facts`` (boundary edges, watertight,
