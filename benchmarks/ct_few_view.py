@@ -5,7 +5,7 @@ the head and outside it, and writes benchmarks/ct_few_view.png (a slice of each 
 
     python benchmarks/ct_few_view.py [N VIEWS DETECTOR]      # default 48 16 64
 
-The scan and the measure are tests/test_reconstruct_iterative.py's.
+The scan and the measure are tests/reconstruct/test_reconstruct_iterative.py's.
 """
 
 import sys
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path[:0] = [str(HERE.parent), str(HERE.parent / "tests" / "_support")]   # tests.*, helpers
 warnings.simplefilter("ignore", DeprecationWarning)       # ITK's SWIG load-time warning
 
 METHODS = [("fdk", None), ("sart", 20), ("cg", 10)]
@@ -26,7 +26,7 @@ def main(argv):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import test_reconstruct_iterative as t
+    import tests.reconstruct.test_reconstruct_iterative as t
 
     n, views, det = (int(a) for a in argv) if argv else (48, 16, 64)
     t0 = time.perf_counter()

@@ -5,7 +5,7 @@ truth, and writes benchmarks/ct_shepp_logan.png (central slices beside the truth
 
     python benchmarks/ct_shepp_logan.py [N N_PROJECTIONS DETECTOR]      # default 64 180 128
 
-The scan and the measurement are tests/test_reconstruct.py's ``shepp_logan_validation``.
+The scan and the measurement are tests/reconstruct/test_reconstruct.py's ``shepp_logan_validation``.
 """
 
 import sys
@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path[:0] = [str(HERE.parent), str(HERE.parent / "tests" / "_support")]   # tests.*, helpers
 warnings.simplefilter("ignore", DeprecationWarning)       # ITK's SWIG load-time warning
 
 
 def truth_volume(vol):
     """mu (1/cm) of the exact ellipsoids at the voxel centres (the renderer's precedence)."""
-    import test_reconstruct as t
+    import tests.reconstruct.test_reconstruct as t
     import xray_viz
     from xray_viz.physics.imaging import body_mu
 
@@ -46,7 +46,7 @@ def main(argv):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import test_reconstruct as t
+    import tests.reconstruct.test_reconstruct as t
 
     n, n_proj, det = (int(a) for a in argv) if argv else (64, 180, 128)
     t0 = time.perf_counter()

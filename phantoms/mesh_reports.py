@@ -1,7 +1,7 @@
 """Write the bundled phantoms' mesh reports and inside tests shipped with the package:
 ``python phantoms/mesh_reports.py`` (after a change of a phantom's meshes or of the checking
 code, ``xray_viz/meshes/repair.py``, ``_check_kernels.py`` or ``tracing/hits.py``:
-``tests/test_report_cache.py`` says when). Writes ``phantoms/mesh-reports.json``, read by
+``tests/meshes/test_report_cache.py`` says when). Writes ``phantoms/mesh-reports.json``, read by
 :func:`xray_viz.meshes._report_cache.shipped`.
 """
 

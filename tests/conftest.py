@@ -4,7 +4,7 @@ pytest-pyvista's cached images in tests/image_cache/."""
 import os
 import sys
 
-# Mesh reports are not read from or kept on disk during tests (tests/test_report_cache.py turns
+# Mesh reports are not read from or kept on disk during tests (tests/meshes/test_report_cache.py turns
 # it on in a temporary folder): a test that changes the checker's behaviour must see it run.
 os.environ["XRAY_VIZ_CACHE_DIR"] = "off"
 # nor the bundled phantoms' reports shipped with the package (test_report_cache.py reads them)
@@ -21,7 +21,7 @@ def pytest_configure(config):
         config.option.image_cache_dir = "tests/image_cache"
 
 
-# Hypothesis (tests/test_properties.py): the default profile is derandomized (the same examples
+# Hypothesis (tests/tracing/test_properties.py): the default profile is derandomized (the same examples
 # on every run and machine) and keeps no example database, so CI is reproducible and leaves no
 # .hypothesis folder; HYPOTHESIS_PROFILE=slow runs many more, random examples (failures are
 # saved in .hypothesis/, which git ignores, and printed with a @reproduce_failure blob).

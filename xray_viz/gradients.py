@@ -29,11 +29,11 @@ motion of the body with velocity ``tau + omega x (x - c)`` (translation ``tau``,
 
 with ``p`` the hit point: the plane's displacement at the hit, read along the ray. It is the
 same as differentiating Moller-Trumbore's ``t = n . (v0 - o) / (n . d)`` with respect to the
-three vertices and chaining with their velocities (``tests/test_gradients.py`` checks both
+three vertices and chaining with their velocities (``tests/registration/test_gradients.py`` checks both
 against finite differences). The acquisition's pose (source and detector moved together, a
 rigid C-arm) moves every ray instead: the relative motion is the bodies moved the other way.
 
-Two implementations give the same numbers (to ~1e-13 relative, ``tests/test_gradients.py``):
+Two implementations give the same numbers (to ~1e-13 relative, ``tests/registration/test_gradients.py``):
 the reference takes every hit with its triangle from the NumPy tracer
 (:func:`xray_viz.tracing.hits.trace_rays`) and sweeps them by precedence; the default
 ``engine="fast"`` runs a numba kernel (``xray_viz._gradient_kernels``) over the fast

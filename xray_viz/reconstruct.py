@@ -36,9 +36,9 @@ stack as one ``.mha`` in RTK's image convention);
 ``xray-viz reconstruct scan.zarr --rtk-geometry geometry.xml --rtk-projections proj.mha``
 writes both (``-o`` is then optional), and ``rtkfdk -g geometry.xml -p . -r proj.mha -o
 volume.mha`` reconstructs the scan in RTK's frame (``--like`` an image on our grid gives our
-volume, ``tests/test_reconstruct_rtk_files.py``).
+volume, ``tests/reconstruct/test_reconstruct_rtk_files.py``).
 
-``tests/test_reconstruct.py`` proves the mapping against RTK's own analytic projections of an
+``tests/reconstruct/test_reconstruct.py`` proves the mapping against RTK's own analytic projections of an
 off-centre ellipsoid (``RayEllipsoidIntersectionImageFilter``) and the render of the same
 ellipsoid's mesh.
 """
@@ -358,7 +358,7 @@ def write_rtk_projections(projections, geometry, path) -> Path:
     index runs along ``v``, bottom to top), spacing ``(pu, pv, 1)`` and origin
     ``(-(W-1)/2 pu, -(H-1)/2 pv, 0)`` mm: with :func:`write_rtk_geometry`'s file,
     ``rtkfdk -g geometry.xml -p FOLDER -r NAME.mha -o volume.mha`` reconstructs the scan
-    (``tests/test_reconstruct_rtk_files.py`` runs it).
+    (``tests/reconstruct/test_reconstruct_rtk_files.py`` runs it).
 
     Returns
     -------

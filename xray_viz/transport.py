@@ -488,7 +488,7 @@ def _grid_levels(scene, energies, q, resp, gpar, *, table=None) -> np.ndarray:
 
     ``table``: interpolate in a table over ``(t, s)`` (:data:`GRID_TABLE_NODES`) instead of
     evaluating every point at every energy; default when the detector has more points than
-    the table (within ~1e-5 of the direct sum: tests/test_transport_grid.py)."""
+    the table (within ~1e-5 of the direct sum: tests/montecarlo/test_transport_grid.py)."""
     from xray_viz.montecarlo.sources import field
     from xray_viz.physics.grid import PeriodGeometry
 

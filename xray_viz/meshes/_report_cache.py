@@ -21,7 +21,7 @@ so that the first load and render of a bundled phantom check nothing (the frog's
 inside tests, through pymeshlab, were ~2.5 s of a cold ``xray-viz render default``). They are read
 whether or not the cache is on (they are part of the install, not a cache), and only under the
 key of the running checker: a changed checker or mesh finds no shipped report and checks as
-before, never a stale one (``tests/test_report_cache.py`` fails when the shipped file lacks a
+before, never a stale one (``tests/meshes/test_report_cache.py`` fails when the shipped file lacks a
 current key; ``python phantoms/mesh_reports.py`` writes it anew).
 ``XRAY_VIZ_SHIPPED_REPORTS=off`` ignores them (the test suite sets it: a test that changes the
 checker's behaviour must see it run).

@@ -74,7 +74,7 @@ def collapse(mesh, target_faces: int):
     boundary preserved), in float64 throughout.
 
     pymeshlab (2025.7) keeps vertices as float64: a vertex the collapse does not move comes
-    back bit for bit (``tests/test_lod.py`` checks it on a mesh 1 m from the origin, where a
+    back bit for bit (``tests/render/test_lod.py`` checks it on a mesh 1 m from the origin, where a
     float32 round trip would move it by ~6e-5 mm).
 
     Parameters

@@ -355,7 +355,7 @@ def check_material(material, *, density=None) -> float:
 #: its photoelectric, Rayleigh and Compton tables are splines in ln E that refuse to
 #: extrapolate ("Spline extrapolation is not allowed", xraylib >= 4.0); the scattering tables
 #: run from 100 eV to 800 keV (measured with xraylib 4.3: 0.1 and 800 keV are accepted for
-#: every Z, 0.09999 and 800.03 keV refused; tests/test_validation.py checks it).
+#: every Z, 0.09999 and 800.03 keV refused; tests/scene/test_validation.py checks it).
 ENERGY_RANGE = (0.1, 800.0)
 
 

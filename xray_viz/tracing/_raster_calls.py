@@ -232,7 +232,7 @@ def project_vertices_numpy(V, r0, f, eu, ev, sx, bx, sy, by, perspective, XY, w,
                            nH, K):
     """:func:`project_vertices` in NumPy: the same floating-point operations in the same order
     (no fused multiply-add in either), so the same ``XY``, ``w``, ``huge``, ``K`` and return,
-    bit for bit (``tests/test_cold_start.py`` compares them on the bundled phantoms)."""
+    bit for bit (``tests/tracing/test_cold_start.py`` compares them on the bundled phantoms)."""
     V = _vertices(V)
     r0, f, eu, ev = (np.asarray(a, np.float64) for a in (r0, f, eu, ev))
     sx, bx, sy, by = float(sx), float(bx), float(sy), float(by)

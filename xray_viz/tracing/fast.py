@@ -66,7 +66,7 @@ exact one by the chord there (below 1e-9 of the body size in the stress suite).
 
 Precision: float64 throughout (projection, depths, sums) and exact int64 / limb arithmetic for
 coverage. **There is no float32 path** in this engine or in the NumPy engine, so there is no
-float32-against-float64 error to report; the stress suite (``tests/test_stress.py``) measures
+float32-against-float64 error to report; the stress suite (``tests/tracing/test_stress.py``) measures
 the float64 engines against exact rational references instead.
 
 Rays are the ideal grid of :func:`xray_viz.geometry.detector_rays`; the engine agrees with the

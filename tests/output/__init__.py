@@ -1,0 +1,1 @@
+"""Tests of xray_viz.output: image files and their formats."""

@@ -1,0 +1,1 @@
+"""Tests of xray_viz.phantoms: the bundled phantom library."""

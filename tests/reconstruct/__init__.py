@@ -1,0 +1,1 @@
+"""Tests of xray_viz.reconstruct: reconstruction through RTK and mbirjax."""

@@ -1,0 +1,1 @@
+"""Tests of xray_viz.viz: the viewer (desktop, web, notebook) and its images."""
