@@ -425,7 +425,7 @@ def test_nrrd_mha_and_a_dicom_series_give_the_niftis_voxel_volume(tmp_path):
     the float32 of the files - and one image (to the float32 of the affines: 1e-5)."""
     pytest.importorskip("SimpleITK")
     pytest.importorskip("pydicom")
-    from test_volumes import write_dicom_series, write_itk
+    from tests.meshes.test_volumes import write_dicom_series, write_itk
 
     hu, _ = ct_hu(32)
     hu = np.round(hu)

@@ -219,7 +219,7 @@ def test_volume_style_on_a_scene_without_a_volume_is_one_line(tmp_path, capsys):
 def _reddish(shot: np.ndarray) -> float:
     """Fraction of the 3D pane's pixels in the CT transfer function's flesh tones (red well
     above blue): the volume rendering's; the slices are grey."""
-    from test_web_viewer import view_region
+    from tests.viz.test_web_viewer import view_region
 
     r, b = view_region(shot, "3d")[..., 0], view_region(shot, "3d")[..., 2]
     return float(((r - b > 40) & (r > 120)).mean())
@@ -235,7 +235,7 @@ def test_the_web_viewer_shows_the_volume_rendering_with_volume_style_volume(tmp_
     import signal
 
     from PIL import Image
-    from test_web_viewer import (CHROMIUM, browser_page, non_background, view_region,
+    from tests.viz.test_web_viewer import (CHROMIUM, browser_page, non_background, view_region,
                                  wait_for_shot, web_server)
 
     import xray_viz

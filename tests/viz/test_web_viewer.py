@@ -417,7 +417,7 @@ def test_web_viewer_shows_the_chest_on_the_log_scale(tmp_path):
     comes from an off-screen web viewer of the same scene at the view's size, whose picture
     the page's must match."""
     import xray_viz
-    from test_viz_log_window import chest_regions, region_greys
+    from tests.viz.test_viz_log_window import chest_regions, region_greys
     from xray_viz.viz.web import WebViewer
 
     with web_server(*CHEST) as (proc, url):
