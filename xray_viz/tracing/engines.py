@@ -39,29 +39,14 @@ True
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from xray_viz.geometry import check_supersample
-from xray_viz.tracing.reference import numpy_path_lengths, numpy_rows
+from xray_viz.tracing import reference
 
 __all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES", "Projector"]
-
-
-class _Imaged(NamedTuple):
-    """Bodies and an acquisition, where a scene-like pair is wanted."""
-
-    bodies: object
-    acquisition: object
-
-    @property
-    def source(self):
-        return self.acquisition.source
-
-    @property
-    def detector(self):
-        return self.acquisition.detector
 
 
 class Engine(Protocol):
@@ -117,24 +102,25 @@ class NumpyEngine:
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """Path lengths of every detector ray (see :class:`Engine`)."""
         n = check_supersample(supersample)
-        return numpy_path_lengths(_Imaged(bodies, acquisition), supersample=n)[0]
+        return reference._path_lengths(bodies, acquisition, supersample=n)[0]
 
     def hits(self, bodies, acquisition, *, supersample: int = 1, rows=None):
         """``(L, hits)``: path lengths and every hit (:class:`~xray_viz.tracing.hits.Hits`,
         ray numbers within ``rows``)."""
         n = check_supersample(supersample)
-        return numpy_path_lengths(_Imaged(bodies, acquisition), supersample=n,
-                                   keep_hits=True, rows=rows)
+        return reference._path_lengths(bodies, acquisition, supersample=n, keep_hits=True,
+                                       rows=rows)
 
     def windows(self, bodies, acquisition, *, supersample: int = 1, rows: int | None = None):
         """Path lengths window by window of image rows (see :class:`Engine`)."""
         n = check_supersample(supersample)
-        yield from numpy_rows(_Imaged(bodies, acquisition), supersample=n, rows=rows)
+        yield from reference._rows(bodies, acquisition, supersample=n, rows=rows)
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
-        """``(L, hits or None)`` of a scene (see :class:`Engine`)."""
+        """``(L, hits or None)`` of a scene (see :class:`Engine`; a public adapter)."""
         n = check_supersample(supersample)
-        return numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
+        return reference._path_lengths(scene.bodies, scene.acquisition, supersample=n,
+                                       keep_hits=keep_hits)
 
     def __repr__(self) -> str:
         return "NumpyEngine()"
@@ -155,21 +141,23 @@ class FastEngine:
 
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """Path lengths of every detector ray (see :class:`Engine`); read-only when kept."""
-        from xray_viz.tracing.fast import fast_path_lengths
+        from xray_viz.tracing.fast import _path_lengths
 
-        return fast_path_lengths(_Imaged(bodies, acquisition), supersample=supersample)[0]
+        return _path_lengths(bodies, acquisition, supersample=supersample)[0]
 
     def windows(self, bodies, acquisition, *, supersample: int = 1, rows: int | None = None):
         """Path lengths window by window of image rows (see :class:`Engine`)."""
-        from xray_viz.tracing.fast import trace_rows
+        from xray_viz.tracing.fast import _rows
 
-        yield from trace_rows(_Imaged(bodies, acquisition), supersample=supersample, rows=rows)
+        yield from _rows(bodies, acquisition, supersample=supersample, rows=rows)
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
-        """``(L, hits or None)`` of a scene; ``keep_hits`` asks the NumPy engine for the hits."""
-        from xray_viz.tracing.fast import fast_path_lengths
+        """``(L, hits or None)`` of a scene; ``keep_hits`` asks the NumPy engine for the hits
+        (a public adapter)."""
+        from xray_viz.tracing.fast import _path_lengths
 
-        return fast_path_lengths(scene, supersample=supersample, keep_hits=keep_hits)
+        return _path_lengths(scene.bodies, scene.acquisition, supersample=supersample,
+                             keep_hits=keep_hits)
 
     def __repr__(self) -> str:
         return "FastEngine()"
