@@ -766,7 +766,7 @@ class Scene:
             _check_volumes(self)
         from xray_viz.physics.heel import check_heel
 
-        check_heel(self)
+        check_heel(acquisition)
 
     def _where(self) -> str:
         return f"{self.path}: " if self.path else ""
