@@ -826,7 +826,7 @@ class Scene:
         from xray_viz.scene_file import _compose_placement
 
         def placed(body, m):
-            if body.source_file is None and getattr(body, "shape", None) is None:
+            if body.source_file is None and body.shape is None:
                 return {}
             placement = _compose_placement(body.placement, m)
             # a shear has no scene-file keys: the mesh is no longer its file's (or shape's)
