@@ -46,7 +46,7 @@ import numpy as np
 from xray_viz.geometry import check_supersample
 from xray_viz.tracing import reference
 
-__all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES", "Projector"]
+__all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES", "DEFAULT_ENGINE", "Projector"]
 
 
 class Engine(Protocol):
@@ -85,7 +85,8 @@ class Engine(Protocol):
         about ``rows`` rows, from the top), bit for bit those of :meth:`path_lengths`."""
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
-        """``(L, hits or None)`` of a scene (``keep_hits``: every hit, where supported)."""
+        """``(L, hits or None)`` of a scene (``keep_hits``: every hit, where supported); a
+        public adapter over :meth:`path_lengths` and :meth:`hits`."""
 
 
 class NumpyEngine:
@@ -169,6 +170,12 @@ class FastEngine:
 #: :func:`~xray_viz.geometry.detector_rays` ``(scene, supersample=supersample)``, in that order.
 ENGINES = {"fast": FastEngine(), "numpy": NumpyEngine()}
 
+#: The engine a :class:`Projector` uses unless told otherwise: the compiled fast engine.
+DEFAULT_ENGINE = "fast"
+
+#: The engine that gives every hit (:meth:`Projector.hits`, whatever the projector's engine).
+_HITS = ENGINES["numpy"]
+
 
 class Projector:
     """Bodies and an engine: the path lengths of the bodies at any acquisition.
@@ -189,6 +196,8 @@ class Projector:
     engine : Engine
     name, returns_hits, keeps_results, compiled, ray_bytes, fallback
         The engine's (see :class:`Engine`).
+    hits_ray_bytes : int
+        Working memory per ray of a window of :meth:`hits` (the engine that gives the hits).
 
     Raises
     ------
@@ -196,7 +205,7 @@ class Projector:
         For an unknown engine name.
     """
 
-    def __init__(self, bodies, engine: str = "fast"):
+    def __init__(self, bodies, engine: str = DEFAULT_ENGINE):
         if not isinstance(engine, str) or engine not in ENGINES:
             from xray_viz.errors import SceneError
 
@@ -215,6 +224,8 @@ class Projector:
                          doc="Working memory per ray of a window besides its path lengths.")
     fallback = property(lambda self: self.engine.fallback,
                         doc="The other engine, for a scene this one fails on.")
+    hits_ray_bytes = property(lambda self: _HITS.ray_bytes,
+                              doc="Working memory per ray of a window of :meth:`hits`.")
     columns = property(lambda self: len(self.bodies),
                        doc="The path lengths' columns per ray: one per body.")
 
@@ -231,7 +242,7 @@ class Projector:
     def hits(self, acquisition, *, supersample: int = 1):
         """``(L, hits)``: the path lengths and every hit of every ray, from the NumPy engine
         whatever this projector's engine (the fast engine builds no hit list)."""
-        return ENGINES["numpy"].hits(self.bodies, acquisition, supersample=supersample)
+        return _HITS.hits(self.bodies, acquisition, supersample=supersample)
 
     def __repr__(self) -> str:
         return f"Projector({len(self.bodies)} bodies, engine={self.name!r})"
