@@ -105,7 +105,8 @@ _GEOMETRY_BYTES = 512 << 20
 
 def clear_caches(scene) -> None:
     """Forget what the fast engine keeps on a scene's bodies (its per-mesh set-up, scratch
-    memory and recent results), for timing cold runs.
+    memory and recent results), for timing cold runs. A public adapter: a scene gives its
+    bodies.
 
     Parameters
     ----------
