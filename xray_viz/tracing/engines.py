@@ -86,7 +86,7 @@ class Engine(Protocol):
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
         """``(L, hits or None)`` of a scene (``keep_hits``: every hit, where supported); a
-        public adapter over :meth:`path_lengths` and :meth:`hits`."""
+        public adapter over ``path_lengths`` and ``hits``."""
 
 
 class NumpyEngine:
@@ -197,7 +197,7 @@ class Projector:
     name, returns_hits, keeps_results, compiled, ray_bytes, fallback
         The engine's (see :class:`Engine`).
     hits_ray_bytes : int
-        Working memory per ray of a window of :meth:`hits` (the engine that gives the hits).
+        Working memory per ray of a window of ``hits`` (the engine that gives the hits).
 
     Raises
     ------
@@ -225,7 +225,7 @@ class Projector:
     fallback = property(lambda self: self.engine.fallback,
                         doc="The other engine, for a scene this one fails on.")
     hits_ray_bytes = property(lambda self: _HITS.ray_bytes,
-                              doc="Working memory per ray of a window of :meth:`hits`.")
+                              doc="Working memory per ray of a window of ``hits``.")
     columns = property(lambda self: len(self.bodies),
                        doc="The path lengths' columns per ray: one per body.")
 
