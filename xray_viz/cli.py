@@ -132,7 +132,7 @@ def _render_command(args) -> int:
     w, h = scene.detector.shape
     n = len(scene.bodies)
     dose = ""
-    if getattr(scene.source, "mas", None) is not None:
+    if scene.source.mas is not None:
         from xray_viz.physics.dosimetry import air_kerma
 
         k = air_kerma(scene)

@@ -613,8 +613,8 @@ class Acquisition:
         r0 = np.asarray(self.source.position, np.float64)
         center = np.asarray(det.center, np.float64)
         sid = float(np.linalg.norm(r0 - center))
-        tilted = getattr(det, "u", None) is not None
-        offset = tuple(float(x) for x in getattr(det, "offset", (0.0, 0.0)))
+        tilted = det.u is not None
+        offset = tuple(float(x) for x in det.offset)
         if tilted:
             forward = beam_direction(r0, center)
             ho, ve = np.asarray(det.u, np.float64), np.asarray(det.v, np.float64)

@@ -223,10 +223,6 @@ def _per_ray_slopes(L, scene, supersample):
     return ell, p @ mu
 
 
-#: Whether each gradient engine may use the numba kernel (``"numpy"``: the reference always).
-_KERNEL = {"fast": True, "numpy": False}
-
-
 def _apart(scene, idx) -> bool:
     """Whether the bounding boxes of the bodies ``idx`` meet no other body's box."""
     box = scene.bodies.bounds                                   # (n, 2, 3)
@@ -266,15 +262,15 @@ def _parents(scene, idx, inside):
     return parents
 
 
-def _fast_gradient(scene, idx, centers, acquisition, center, parents=None):
+def _fast_gradient(scene, idx, centers, acquisition, center, parents=None, *, projector):
     """:func:`line_integral_gradient` by the numba kernel (one ray per pixel, bodies apart):
-    the fast engine's path lengths give each ray's slopes, the kernel the hits' terms."""
+    the (compiled) ``projector``'s path lengths give each ray's slopes, the kernel the hits'
+    terms."""
     from xray_viz._gradient_kernels import KERNELS, pixel_grid
-    from xray_viz.tracing.engines import ENGINES
 
     acq = scene.acquisition
     w, h = scene.detector.shape
-    L = ENGINES["fast"].path_lengths(scene.bodies, acq, supersample=1)
+    L = projector.path_lengths(acq, supersample=1)
     ell, g = _per_ray_slopes(np.asarray(L, dtype=np.float64), scene, 1)
     g = np.ascontiguousarray(np.asarray(g, dtype=np.float64).T)       # (bodies, rays)
     # the detector grid from the rays of its first two rows: pixel (col, row) at
@@ -354,9 +350,14 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
     from xray_viz.physics.imaging import pixel_log_mean
     from xray_viz.tracing.hits import trace_rays
 
-    kernel = _KERNEL.get(engine)
-    if kernel is None:
-        raise SceneError(f"unknown gradient engine {engine!r}; choose 'fast' or 'numpy'")
+    from xray_viz.tracing.engines import ENGINES, Projector
+
+    if not isinstance(engine, str) or engine not in ENGINES:
+        raise SceneError(f"unknown gradient engine {engine!r}; choose one of "
+                         f"{', '.join(map(repr, ENGINES))}")
+    # a compiled engine may use the numba kernel; the reference (NumPy) engine never does
+    projector = Projector(scene.bodies, engine)
+    kernel = projector.compiled
     idx = _body_indices(scene, bodies)
     n = int(supersample or scene.detector.supersample)
     nn = n * n
@@ -368,11 +369,13 @@ def line_integral_gradient(scene, bodies=None, *, acquisition: bool = False,
     if kernel and nn == 1 and w > 1 and h > 1:
         every = list(range(len(scene.bodies)))
         if _apart(scene, every if acquisition else idx):
-            return _fast_gradient(scene, idx, centers, acquisition, center)
+            return _fast_gradient(scene, idx, centers, acquisition, center,
+                                  projector=projector)
         parents = _parents(scene, every if acquisition else idx,
                            nesting(scene) if inside is None else inside)
         if parents is not None:
-            return _fast_gradient(scene, idx, centers, acquisition, center, parents)
+            return _fast_gradient(scene, idx, centers, acquisition, center, parents,
+                                  projector=projector)
     acq = scene.acquisition
     rays = acq.rays(supersample=n)
     nb = len(scene.bodies)

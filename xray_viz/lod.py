@@ -322,9 +322,9 @@ def _measure(mesh, reduced, m: _Measurement, *, pitch: float, report=None, keep=
     traces were made (each made when first needed)."""
     from xray_viz.bodies import Bodies
     from xray_viz.scene import Body
-    from xray_viz.tracing.engines import ENGINES
+    from xray_viz.tracing.engines import DEFAULT_ENGINE, ENGINES
 
-    fast = ENGINES["fast"]
+    fast = ENGINES[DEFAULT_ENGINE]                   # the default (compiled) engine
     key = float(pitch)                               # (one dict per mesh: see below)
     ref = None if keep is None else keep.get(key)
     if ref is None or ref[0] is not mesh:
@@ -564,13 +564,13 @@ def _footprints(scene, boxes):
     trace is refused (a triangle across the plane of a point source)."""
     from scipy.ndimage import binary_dilation
 
-    from xray_viz.tracing.engines import ENGINES
+    from xray_viz.tracing.engines import Projector
 
     acq, s = _coarse_acquisition(scene)
     cw, ch = acq.detector.shape
     n = len(scene.bodies)
     try:
-        L = np.asarray(ENGINES["fast"].path_lengths(scene.bodies, acq, supersample=1))
+        L = np.asarray(Projector(scene.bodies).path_lengths(acq, supersample=1))
         inside = (L > 0).reshape(ch, cw, n).transpose(2, 0, 1)
     except SceneError:
         inside = None

@@ -857,7 +857,7 @@ def image_metadata(scene=None, *, quantity=None, scatter=None) -> dict:
         source["spectrum"] = json.loads(json.dumps(plain(dict(src.spectrum)), default=str))
     else:
         source["spectrum"] = str(getattr(src.spectrum, "description", src.spectrum))
-    if getattr(src, "mas", None) is not None:
+    if src.mas is not None:
         source["mas"] = src.mas
     pitch = [float(p) for p in det.pitch]
     detector = {"center": plain(np.asarray(det.center, np.float64)),
@@ -1340,7 +1340,7 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None, scatter=None):
     ds.ContentDate = now.strftime("%Y%m%d")
     ds.ContentTime = now.strftime("%H%M%S")
     ds.StudyDate, ds.StudyTime = ds.ContentDate, ds.ContentTime
-    ds.PatientName = "Phantom^" + (scene.path.stem if getattr(scene, "path", None) else "scene")
+    ds.PatientName = "Phantom^" + (scene.path.stem if scene.path else "scene")
     ds.PatientID = "XRAY_VIZ"
     ds.Manufacturer = "xray_viz (simulation)"
     ds.SeriesDescription = f"simulated radiograph: {quantity or 'image'}"
@@ -1414,7 +1414,7 @@ def dicom_dataset(image, scene, *, bright="high", quantity=None, scatter=None):
         ds.GridAspectRatio = [str(int(round(grid.ratio * 1000))), "1000"]
         ds.GridFocalDistance = _ds(grid.focus_distance)
     exposure = ""
-    if getattr(scene.source, "mas", None) is not None:
+    if scene.source.mas is not None:
         from xray_viz.physics.dosimetry import air_kerma, hvl
 
         kerma = air_kerma(scene)

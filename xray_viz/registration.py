@@ -451,10 +451,10 @@ def _read_line_integral(path, scene):
     from xray_viz.output import load_image
 
     image, meta = load_image(path, with_metadata=True)
-    if getattr(meta, "window", None) and image.dtype.kind in "ui":
+    if meta.window and image.dtype.kind in "ui":
         image = meta.to_physical(image)
     image = np.asarray(image, dtype=np.float64)
-    quantity = getattr(meta, "quantity", None)
+    quantity = meta.quantity
     if quantity == "intensity":
         if not np.all(image > 0):
             raise SceneError(f"{path}: an intensity image with pixels <= 0 has no line "
@@ -463,7 +463,7 @@ def _read_line_integral(path, scene):
     elif quantity not in (None, "line-integral"):
         raise SceneError(f"{path}: holds {quantity!r}; register needs line integrals (render "
                          "--quantity line-integral) or intensities")
-    return image, getattr(meta, "geometry", None) or None
+    return image, meta.geometry or None
 
 
 def _recorded_view(scene, geometry, path):

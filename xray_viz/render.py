@@ -67,9 +67,6 @@ BAND_BYTES = 64 << 20
 #: :class:`_LogBlocks`).
 LOG_BLOCK_BYTES = 16 << 20
 
-#: The NumPy engine's working memory per ray of a band besides its path lengths (rays, hits,
-#: the sweep's temporaries), for choosing its bands (:attr:`Projector.ray_bytes`).
-NUMPY_RAY_BYTES = ENGINES["numpy"].ray_bytes
 
 
 @dataclass(frozen=True, eq=False)
@@ -603,7 +600,7 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
     nb = len(scene.bodies) + sum(len(v.names) for v in volumes)   # the path lengths' columns
     projector = Projector(scene.bodies, engine)
     rows = h if keep_hits else min(h, _band_rows(projector, scene.acquisition, n))
-    per_ray = 8 * max(1, nb) + (NUMPY_RAY_BYTES if keep_hits else projector.ray_bytes)
+    per_ray = 8 * max(1, nb) + (projector.hits_ray_bytes if keep_hits else projector.ray_bytes)
     if volumes:     # the voxel traversal's rays: directions and ends (24 + 8 bytes a ray)
         per_ray += 32
     need = {

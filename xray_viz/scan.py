@@ -193,7 +193,7 @@ def _geometry_head(scene, orbit: Orbit, *, acquisitions=None) -> dict:
         "sid_mm": first.sid,
         "sod_mm": sod,
         "detector": {"shape": list(det.shape), "pitch_mm": list(det.pitch),
-                     "offset_mm": list(getattr(det, "offset", (0.0, 0.0)))},
+                     "offset_mm": list(det.offset)},
         "poses": None,
         "projection_matrices": None,
     }
@@ -395,7 +395,7 @@ def default_orbit(scene, **changes) -> Orbit:
 
 def _orbit_of(scene, orbit) -> Orbit:
     if orbit is None:
-        orbit = getattr(scene, "orbit", None) or default_orbit(scene)
+        orbit = scene.orbit or default_orbit(scene)
     elif isinstance(orbit, dict):
         orbit = orbit_from_dict(orbit)
     if not isinstance(orbit, Orbit):
@@ -611,13 +611,12 @@ def bodies_digest(scene) -> str:
     """
     h = hashlib.sha256(b"xray_viz bodies 1")
     for body in scene.bodies:
-        h.update(repr((getattr(body, "name", None), getattr(body, "material", None),
-                       getattr(body, "mu", None))).encode())
+        h.update(repr((body.name, body.material, body.mu)).encode())
         for a in (body.mesh.vertices, body.mesh.faces):
             a = np.ascontiguousarray(a)
             h.update(f"{a.dtype.str}{a.shape}".encode())
             h.update(memoryview(a).cast("B"))
-    for vol in getattr(scene, "volumes", ()):
+    for vol in scene.volumes:
         h.update(repr(("volume", vol.name, vol.interpolation,
                        [(m.name, m.mu, m.material, m.density) for m in vol.materials])).encode())
         for a in (vol.affine, vol.classes, vol.weights):
@@ -1469,7 +1468,7 @@ def add_scan_parser(subparsers) -> None:
 
 
 def _cli_orbit(scene, args) -> Orbit:
-    table = (scene.orbit if getattr(scene, "orbit", None) is not None
+    table = (scene.orbit if scene.orbit is not None
              else default_orbit(scene)).to_dict()
     for key in ("orbit", "projections", "arc", "pitch", "axis", "center"):
         value = getattr(args, key)

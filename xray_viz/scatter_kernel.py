@@ -286,11 +286,11 @@ class KernelModel:
         if not lo <= energy <= hi:
             _warn(f"scatter kernel: the spectrum's mean energy after 100 mm of water, "
                   f"{energy:.1f} keV, is outside the fitted {lo:g}-{hi:g} keV")
-        response = getattr(det, "response", "energy")
+        response = det.response
         if response != "energy":
             _warn(f"scatter kernel: fitted for an energy-integrating detector, the scene's "
                   f"response is {response!r}")
-        grid = getattr(det, "grid", None)
+        grid = det.grid
         grid_primary = 1.0
         if grid is not None:
             # the primary's transmission through the grid as the detector without it weighs
@@ -475,7 +475,7 @@ class KernelModel:
         mu_water = float(linear_attenuation("Water, Liquid", e)[0])
         out = np.empty(len(bodies))
         for b, body in enumerate(bodies):
-            if getattr(body, "material", None) is None:
+            if body.material is None:
                 out[b] = float(body.mu) / mu_water
             else:
                 rho = check_material(body.material, density=body.density)

@@ -766,7 +766,7 @@ class Scene:
             _check_volumes(self)
         from xray_viz.physics.heel import check_heel
 
-        check_heel(self)
+        check_heel(acquisition)
 
     def _where(self) -> str:
         return f"{self.path}: " if self.path else ""
@@ -826,7 +826,7 @@ class Scene:
         from xray_viz.scene_file import _compose_placement
 
         def placed(body, m):
-            if body.source_file is None and getattr(body, "shape", None) is None:
+            if body.source_file is None and body.shape is None:
                 return {}
             placement = _compose_placement(body.placement, m)
             # a shear has no scene-file keys: the mesh is no longer its file's (or shape's)

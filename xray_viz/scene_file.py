@@ -116,10 +116,10 @@ def _scene_document(scene: "Scene", *, base: Path | None) -> dict:
     doc = {"source": source, "detector": detector}
     if bodies:
         doc["body"] = bodies
-    if getattr(scene, "world", None) is not None:       # the transport's medium
+    if scene.world is not None:       # the transport's medium
         doc["world"] = {"material": scene.world["material"],
                         "density": float(scene.world["density"])}
-    for vol in getattr(scene, "volumes", ()):       # voxel volumes: their [[ct]] / [[labels]]
+    for vol in scene.volumes:       # voxel volumes: their [[ct]] / [[labels]]
         if vol.table is None or vol.source_file is None:
             raise SceneError(f"voxel volume {vol.name!r} was built in Python, not read from a "
                              "[[ct]] or [[labels]] table: save it as NIfTI and refer to it, to "

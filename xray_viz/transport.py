@@ -55,7 +55,7 @@ __all__ = ["transport", "Transport", "prepare", "flat_signal", "IMAGE_KEYS"]
 
 def _world(scene):
     """``(material, density)`` of the world medium, ``(None, 0)`` for vacuum."""
-    world = getattr(scene, "world", None)
+    world = scene.world
     if not world:
         return None, 0.0
     from xray_viz.errors import MaterialError
@@ -134,7 +134,7 @@ def _voxel_problem(scene, n_bodies: int) -> dict:
     from xray_viz.tracing.voxels import inverse_affine
     from xray_viz.volume import displacers
 
-    volumes = tuple(getattr(scene, "volumes", ()))
+    volumes = tuple(scene.volumes)
     mats, region0, inv, dims, flat_c, flat_w, wmax = [], [], [], [], [], [], []
     displace = np.zeros((len(volumes), max(n_bodies, 1)), np.bool_)
     for v, vol in enumerate(volumes):
@@ -292,7 +292,7 @@ def prepare(scene, histories, *, seed: int = 0, batch: int | None = None,
     corners = [fa[7:10] + a * fa[19] * fa[10:13] + b * fa[20] * fa[13:16]
                for a in (-1, 1) for b in (-1, 1)]
     pts = np.vstack([tri.reshape(-1, 3), np.array(corners), fa[0:3][None, :]]
-                    + [v.corners for v in getattr(scene, "volumes", ())])
+                    + [v.corners for v in scene.volumes])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     pad = 0.05 * float(np.linalg.norm(hi - lo)) + 1.0
     rank = np.asarray(scene.precedence) if len(scene.bodies) else np.zeros(0, int)
@@ -417,7 +417,7 @@ def transport(scene, histories, *, seed=0, client=None, progress=None, interrupt
             fut.cancel()
     masses = photons = None
     spectrum = p["spectrum"]
-    mas = getattr(scene.source, "mas", None)
+    mas = scene.source.mas
     names = p["names"] + p["class_names"]            # the bodies, then the volumes' classes
     if mas is not None and spectrum.fluence_per_mas is not None and len(names):
         from xray_viz.montecarlo.sources import solid_angle

@@ -536,7 +536,7 @@ def imaged_centre(scene):
         box = scene.bodies.bounds
         lows.append(box[:, 0].min(axis=0))
         highs.append(box[:, 1].max(axis=0))
-    for v in getattr(scene, "volumes", ()):
+    for v in scene.volumes:
         lows.append(v.bounds[0])
         highs.append(v.bounds[1])
     if not lows:
@@ -572,6 +572,6 @@ class _WithVolumes:
 def with_volume_materials(scene):
     """The scene itself without volumes; else the physics' view of it (its bodies followed by
     every volume's classes, see :func:`volume_path_lengths`)."""
-    if not getattr(scene, "volumes", ()):
+    if not scene.volumes:
         return scene
     return _WithVolumes(scene)

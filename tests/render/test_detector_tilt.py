@@ -417,11 +417,11 @@ def test_heel_directions_follow_the_rays_of_an_offset_or_tilted_detector():
                   detector=Detector(center=[0, 0, -500.0], shape=(9, 7), pitch=(10.0, 10.0)),
                   bodies=[])
     f = scene.acquisition.frame
-    plain = pixel_directions(scene)
-    same = pixel_directions(scene.replace(detector=dataclasses.replace(scene.detector, u=f.ho,
-                                                                        v=f.ve)))
+    plain = pixel_directions(scene.acquisition)
+    same = pixel_directions(scene.replace(detector=dataclasses.replace(
+        scene.detector, u=f.ho, v=f.ve)).acquisition)
     np.testing.assert_allclose(same, plain, rtol=0, atol=1e-15)
-    moved = pixel_directions(scene.replace(detector=dataclasses.replace(scene.detector,
-                                                                         offset=(20.0, 0.0))))
+    moved = pixel_directions(scene.replace(detector=dataclasses.replace(
+        scene.detector, offset=(20.0, 0.0))).acquisition)
     np.testing.assert_allclose(moved[0], plain[0], rtol=0, atol=1e-15)   # along: anode-cathode
     np.testing.assert_allclose(moved[1], plain[1] + 20.0 / 1500.0, rtol=0, atol=1e-15)

@@ -311,8 +311,8 @@ def test_a_body_reaching_beyond_the_detector_takes_the_bands_and_ends_rays_there
         m = ball.copy()
         m.apply_translation([0.0, 0.0, z])
         scene = make_scene(m, kind=kind, pitch=1.5, center=(0, 0, -500), shape=(41, 41))
-        with fast._locked(scene):
-            modes[name] = fast._Plan(scene, 1, None).mode
+        with fast._locked(scene.bodies):
+            modes[name] = fast._Plan(scene.bodies, scene.acquisition, 1, None).mode
         L, _ = fast_path_lengths(scene, cache=False)
         ref, _ = ENGINES["numpy"](scene, keep_hits=False)
         assert np.all(np.abs(L - ref) <= 1e-9 * ref.max()) and ref.max() > 40

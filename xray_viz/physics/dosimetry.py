@@ -367,6 +367,9 @@ def _closest_distance(points_source, tris) -> float:
 def air_kerma(scene) -> AirKerma:
     """Incident air kerma at the bodies' nearest surface and at the detector, for ``mas``.
 
+    A public adapter (``xray_viz.physics.air_kerma(scene)`` in the README) over the scene's
+    acquisition and bodies.
+
     Parameters
     ----------
     scene : Scene

@@ -85,12 +85,13 @@ def _tube_parameters(source):
     return spectrum_from_dict(spec)
 
 
-def pixel_directions(scene, pixels=None):
+def pixel_directions(acquisition, pixels=None):
     """SpekPy's direction of each pixel centre: ``x / z`` (towards the cathode) and ``y / z``.
 
     Parameters
     ----------
-    scene : Scene
+    acquisition : Acquisition
+        The source (with ``heel`` on) and the detector (a scene's ``scene.acquisition``).
     pixels : (n,) int, optional
         Flat pixel indices (row-major, image order); default every pixel.
 
@@ -98,13 +99,7 @@ def pixel_directions(scene, pixels=None):
     -------
     tx, ty : (n,) float
     """
-    return _pixel_directions(scene.acquisition, pixels)
-
-
-def _pixel_directions(acquisition, pixels=None):
-    """:func:`pixel_directions` of an :class:`~xray_viz.geometry.Acquisition`."""
     from xray_viz.geometry import viewport
-
 
     det = acquisition.detector
     w, h = det.shape
@@ -132,12 +127,13 @@ def _extent(acquisition):
     """Extreme ``x / z`` and ``y / z`` over the pixel centres (at the detector's edges)."""
     w, h = acquisition.detector.shape
     corners = np.array([0, w - 1, (h - 1) * w, h * w - 1])
-    tx, ty = _pixel_directions(acquisition, corners)
+    tx, ty = pixel_directions(acquisition, corners)
     return (float(tx.min()), float(tx.max())), (float(ty.min()), float(ty.max()))
 
 
-def check_heel(scene) -> None:
-    """Refuse a heel effect SpekPy cannot compute (called when a scene is built).
+def check_heel(acquisition) -> None:
+    """Refuse a heel effect SpekPy cannot compute (called when a scene is built, with its
+    :class:`~xray_viz.geometry.Acquisition`).
 
     Raises
     ------
@@ -145,13 +141,14 @@ def check_heel(scene) -> None:
         A parallel beam, no tube spectrum, or pixels behind the anode surface (take-off angle
         <= 0: a detector too large for the anode angle).
     """
-    if heel_side(scene.source.heel) is None:
+    source = acquisition.source
+    if heel_side(source.heel) is None:
         return
-    if scene.source.kind == "parallel":
+    if source.kind == "parallel":
         raise SceneError("[source] heel = true needs a point source (kind = \"point\"): a "
                          "parallel beam has no off-axis directions")
-    params = _tube_parameters(scene.source)
-    (tx_lo, _), _ = _extent(scene.acquisition)
+    params = _tube_parameters(source)
+    (tx_lo, _), _ = _extent(acquisition)
     take_off = params["anode_angle"] + math.degrees(math.atan(tx_lo))
     if not take_off > 0:
         raise SceneError(
@@ -220,8 +217,13 @@ def _grid_cached(params, x_range, y_range, grid, energies):
     return a_nodes, ty_nodes, ratio
 
 
-def heel_grid(scene):
+def heel_grid(acquisition):
     """SpekPy's off-axis spectra on the coarse grid (cached per spectrum and field).
+
+    Parameters
+    ----------
+    acquisition : Acquisition
+        The source (with ``heel`` on) and the detector.
 
     Returns
     -------
@@ -234,11 +236,6 @@ def heel_grid(scene):
         The fluence per solid angle in each of the scene spectrum's bins, relative to the
         central axis.
     """
-    return _heel_grid(scene.acquisition)
-
-
-def _heel_grid(acquisition):
-    """:func:`heel_grid` of an :class:`~xray_viz.geometry.Acquisition`."""
     from xray_viz.physics.spectra import source_spectrum
 
     params = _tube_parameters(acquisition.source)
@@ -273,7 +270,7 @@ class HeelInterpolation:
     """
 
     def __init__(self, acquisition):
-        a_nodes, y_nodes, ratio = _heel_grid(acquisition)
+        a_nodes, y_nodes, ratio = heel_grid(acquisition)
         self._acquisition = acquisition
         self._a, self._y = a_nodes, y_nodes
         self._anode_angle = _tube_parameters(acquisition.source)["anode_angle"]
@@ -281,7 +278,7 @@ class HeelInterpolation:
 
     def corners(self, pixels):
         """``(corners, coef)``: (n, 4) int rows of :attr:`ratio` and their (n, 4) weights."""
-        tx, ty = _pixel_directions(self._acquisition, pixels)
+        tx, ty = pixel_directions(self._acquisition, pixels)
         i, ta = _linear(self._a, _coordinate(tx, self._anode_angle))
         j, tb = _linear(self._y, ty)
         nb = len(self._y)
@@ -297,18 +294,19 @@ class HeelInterpolation:
         return np.einsum("nc,nck->nk", coef, self.ratio[corners])
 
 
-def heel_interpolator(scene) -> HeelInterpolation:
-    """The :class:`HeelInterpolation` of a scene with the heel effect on (the grid is cached)."""
-    return HeelInterpolation(scene.acquisition)
+def heel_interpolator(acquisition) -> HeelInterpolation:
+    """The :class:`HeelInterpolation` of an acquisition with the heel effect on (the grid is
+    cached)."""
+    return HeelInterpolation(acquisition)
 
 
-def heel_ratio(scene, pixels=None) -> np.ndarray:
+def heel_ratio(acquisition, pixels=None) -> np.ndarray:
     """Each pixel's fluence per bin relative to the central axis (heel and filters).
 
     Parameters
     ----------
-    scene : Scene
-        With ``[source] heel`` on.
+    acquisition : Acquisition
+        With ``[source] heel`` on (a scene's ``scene.acquisition``).
     pixels : (n,) int, optional
         Flat pixel indices (row-major, image order); default every pixel.
 
@@ -317,5 +315,5 @@ def heel_ratio(scene, pixels=None) -> np.ndarray:
     (n, K) float
         Over the bins of the scene's spectrum (:func:`~xray_viz.physics.spectra.source_spectrum`).
     """
-    w, h = scene.detector.shape
-    return heel_interpolator(scene)(np.arange(w * h) if pixels is None else pixels)
+    w, h = acquisition.detector.shape
+    return heel_interpolator(acquisition)(np.arange(w * h) if pixels is None else pixels)

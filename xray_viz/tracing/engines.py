@@ -39,29 +39,14 @@ True
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from xray_viz.geometry import check_supersample
-from xray_viz.tracing.reference import numpy_path_lengths, numpy_rows
+from xray_viz.tracing import reference
 
-__all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES", "Projector"]
-
-
-class _Imaged(NamedTuple):
-    """Bodies and an acquisition, where a scene-like pair is wanted."""
-
-    bodies: object
-    acquisition: object
-
-    @property
-    def source(self):
-        return self.acquisition.source
-
-    @property
-    def detector(self):
-        return self.acquisition.detector
+__all__ = ["Engine", "NumpyEngine", "FastEngine", "ENGINES", "DEFAULT_ENGINE", "Projector"]
 
 
 class Engine(Protocol):
@@ -100,7 +85,8 @@ class Engine(Protocol):
         about ``rows`` rows, from the top), bit for bit those of :meth:`path_lengths`."""
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
-        """``(L, hits or None)`` of a scene (``keep_hits``: every hit, where supported)."""
+        """``(L, hits or None)`` of a scene (``keep_hits``: every hit, where supported); a
+        public adapter over ``path_lengths`` and ``hits``."""
 
 
 class NumpyEngine:
@@ -117,24 +103,25 @@ class NumpyEngine:
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """Path lengths of every detector ray (see :class:`Engine`)."""
         n = check_supersample(supersample)
-        return numpy_path_lengths(_Imaged(bodies, acquisition), supersample=n)[0]
+        return reference._path_lengths(bodies, acquisition, supersample=n)[0]
 
     def hits(self, bodies, acquisition, *, supersample: int = 1, rows=None):
         """``(L, hits)``: path lengths and every hit (:class:`~xray_viz.tracing.hits.Hits`,
         ray numbers within ``rows``)."""
         n = check_supersample(supersample)
-        return numpy_path_lengths(_Imaged(bodies, acquisition), supersample=n,
-                                   keep_hits=True, rows=rows)
+        return reference._path_lengths(bodies, acquisition, supersample=n, keep_hits=True,
+                                       rows=rows)
 
     def windows(self, bodies, acquisition, *, supersample: int = 1, rows: int | None = None):
         """Path lengths window by window of image rows (see :class:`Engine`)."""
         n = check_supersample(supersample)
-        yield from numpy_rows(_Imaged(bodies, acquisition), supersample=n, rows=rows)
+        yield from reference._rows(bodies, acquisition, supersample=n, rows=rows)
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
-        """``(L, hits or None)`` of a scene (see :class:`Engine`)."""
+        """``(L, hits or None)`` of a scene (see :class:`Engine`; a public adapter)."""
         n = check_supersample(supersample)
-        return numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
+        return reference._path_lengths(scene.bodies, scene.acquisition, supersample=n,
+                                       keep_hits=keep_hits)
 
     def __repr__(self) -> str:
         return "NumpyEngine()"
@@ -155,21 +142,23 @@ class FastEngine:
 
     def path_lengths(self, bodies, acquisition, *, supersample: int = 1) -> np.ndarray:
         """Path lengths of every detector ray (see :class:`Engine`); read-only when kept."""
-        from xray_viz.tracing.fast import fast_path_lengths
+        from xray_viz.tracing.fast import _path_lengths
 
-        return fast_path_lengths(_Imaged(bodies, acquisition), supersample=supersample)[0]
+        return _path_lengths(bodies, acquisition, supersample=supersample)[0]
 
     def windows(self, bodies, acquisition, *, supersample: int = 1, rows: int | None = None):
         """Path lengths window by window of image rows (see :class:`Engine`)."""
-        from xray_viz.tracing.fast import trace_rows
+        from xray_viz.tracing.fast import _rows
 
-        yield from trace_rows(_Imaged(bodies, acquisition), supersample=supersample, rows=rows)
+        yield from _rows(bodies, acquisition, supersample=supersample, rows=rows)
 
     def __call__(self, scene, *, supersample: int = 1, keep_hits: bool = False):
-        """``(L, hits or None)`` of a scene; ``keep_hits`` asks the NumPy engine for the hits."""
-        from xray_viz.tracing.fast import fast_path_lengths
+        """``(L, hits or None)`` of a scene; ``keep_hits`` asks the NumPy engine for the hits
+        (a public adapter)."""
+        from xray_viz.tracing.fast import _path_lengths
 
-        return fast_path_lengths(scene, supersample=supersample, keep_hits=keep_hits)
+        return _path_lengths(scene.bodies, scene.acquisition, supersample=supersample,
+                             keep_hits=keep_hits)
 
     def __repr__(self) -> str:
         return "FastEngine()"
@@ -180,6 +169,12 @@ class FastEngine:
 #: lengths ``(W * H * supersample**2, n_bodies)`` of the rays of
 #: :func:`~xray_viz.geometry.detector_rays` ``(scene, supersample=supersample)``, in that order.
 ENGINES = {"fast": FastEngine(), "numpy": NumpyEngine()}
+
+#: The engine a :class:`Projector` uses unless told otherwise: the compiled fast engine.
+DEFAULT_ENGINE = "fast"
+
+#: The engine that gives every hit (:meth:`Projector.hits`, whatever the projector's engine).
+_HITS = ENGINES["numpy"]
 
 
 class Projector:
@@ -201,6 +196,8 @@ class Projector:
     engine : Engine
     name, returns_hits, keeps_results, compiled, ray_bytes, fallback
         The engine's (see :class:`Engine`).
+    hits_ray_bytes : int
+        Working memory per ray of a window of ``hits`` (the engine that gives the hits).
 
     Raises
     ------
@@ -208,7 +205,7 @@ class Projector:
         For an unknown engine name.
     """
 
-    def __init__(self, bodies, engine: str = "fast"):
+    def __init__(self, bodies, engine: str = DEFAULT_ENGINE):
         if not isinstance(engine, str) or engine not in ENGINES:
             from xray_viz.errors import SceneError
 
@@ -227,6 +224,8 @@ class Projector:
                          doc="Working memory per ray of a window besides its path lengths.")
     fallback = property(lambda self: self.engine.fallback,
                         doc="The other engine, for a scene this one fails on.")
+    hits_ray_bytes = property(lambda self: _HITS.ray_bytes,
+                              doc="Working memory per ray of a window of ``hits``.")
     columns = property(lambda self: len(self.bodies),
                        doc="The path lengths' columns per ray: one per body.")
 
@@ -243,7 +242,7 @@ class Projector:
     def hits(self, acquisition, *, supersample: int = 1):
         """``(L, hits)``: the path lengths and every hit of every ray, from the NumPy engine
         whatever this projector's engine (the fast engine builds no hit list)."""
-        return ENGINES["numpy"].hits(self.bodies, acquisition, supersample=supersample)
+        return _HITS.hits(self.bodies, acquisition, supersample=supersample)
 
     def __repr__(self) -> str:
         return f"Projector({len(self.bodies)} bodies, engine={self.name!r})"

@@ -105,7 +105,8 @@ _GEOMETRY_BYTES = 512 << 20
 
 def clear_caches(scene) -> None:
     """Forget what the fast engine keeps on a scene's bodies (its per-mesh set-up, scratch
-    memory and recent results), for timing cold runs.
+    memory and recent results), for timing cold runs. A public adapter: a scene gives its
+    bodies.
 
     Parameters
     ----------
@@ -118,11 +119,6 @@ def clear_caches(scene) -> None:
     bodies.forget(("fast", "workspace"))
     bodies.forget(("fast", "accumulators"))
     bodies.forget(("fast", "result buffer"))
-
-
-def _split(scene):
-    """``(bodies, acquisition)`` of a scene."""
-    return scene.bodies, scene.acquisition
 
 
 def _spatial_order(v, f):
@@ -190,13 +186,19 @@ def visible_bodies(scene, planes=None) -> tuple:
     """Indices of the bodies whose bounding box meets the beam (any supersampling); the others
     are culled as a whole: no vertex of theirs is projected, their path lengths are zero.
 
+    A public adapter: the scene's bodies and acquisition go to the function the engine uses.
+
     Boxes are kept by the scene's bodies (:attr:`xray_viz.bodies.Bodies.bounds`). A body is
     culled when its box lies wholly outside one side plane of the beam (the pyramid from a
     point source through the detector's edges, the slab box of a parallel beam), wholly behind
     the plane of the source or wholly beyond the detector
     (:meth:`xray_viz.geometry.Acquisition.outside_beam`).
     """
-    bodies, acq = _split(scene)
+    return _visible(scene.bodies, scene.acquisition, planes)
+
+
+def _visible(bodies, acq, planes=None) -> tuple:
+    """:func:`visible_bodies` of ``bodies`` seen by the acquisition ``acq``."""
     if not len(bodies):
         return ()
     if planes is None:
@@ -213,11 +215,11 @@ _LOCK = threading.RLock()     # one trace at a time: numba's parallel kernels, s
 
 
 @contextlib.contextmanager
-def _locked(scene):
-    """``_LOCK`` held, and the scene's meshes taken as unchanged once checked on entry
+def _locked(bodies):
+    """``_LOCK`` held, and the bodies' meshes taken as unchanged once checked on entry
     (:meth:`xray_viz.bodies.Bodies.checked`): a frame's dozen lookups of the bodies' derived
     data hash each mesh once."""
-    with _LOCK, scene.bodies.checked():
+    with _LOCK, bodies.checked():
         yield
 
 
@@ -336,6 +338,8 @@ def _band_order(entries):
 def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, cache: bool = True):
     """Effective path lengths of the detector rays through every body (engine ``"fast"``).
 
+    A public adapter: the scene's bodies and acquisition go to the function the engines use.
+
     Parameters
     ----------
     scene : Scene
@@ -373,19 +377,24 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
     >>> L.shape, round(float(L.max()), 1)
     ((65536, 1), 80.0)
     """
-    n = check_supersample(supersample)
-    W, H = scene.detector.shape
-    if keep_hits or (n > 1 and (W == 1 or H == 1)):
-        from xray_viz.tracing.reference import numpy_path_lengths
+    return _path_lengths(scene.bodies, scene.acquisition, supersample=supersample,
+                         keep_hits=keep_hits, cache=cache)
 
-        return numpy_path_lengths(scene, supersample=n, keep_hits=keep_hits)
-    bodies, acq = _split(scene)
+
+def _path_lengths(bodies, acq, *, supersample=1, keep_hits=False, cache=True):
+    """:func:`fast_path_lengths` of ``bodies`` seen by the acquisition ``acq``."""
+    n = check_supersample(supersample)
+    W, H = acq.detector.shape
+    if keep_hits or (n > 1 and (W == 1 or H == 1)):
+        from xray_viz.tracing.reference import _path_lengths as numpy_path_lengths
+
+        return numpy_path_lengths(bodies, acq, supersample=n, keep_hits=keep_hits)
     key = ("fast", "result", acq.key, n)
     if cache:
         hit = bodies.lookup(key)
         if hit is not None:
             return hit, None
-    L = trace_once(scene, supersample=n)
+    L = _trace(bodies, acq, supersample=n)
     if cache and L.nbytes <= _RESULT_ENTRY_BYTES:
         L.setflags(write=False)
         bodies.store(key, L, limit=_RESULTS, nbytes=_RESULT_BYTES,
@@ -395,6 +404,8 @@ def fast_path_lengths(scene, *, supersample: int = 1, keep_hits: bool = False, c
 
 def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
     """Trace a scene's detector rays with the fast engine, without the result cache.
+
+    A public adapter: the scene's bodies and acquisition go to the function the engines use.
 
     Parameters
     ----------
@@ -407,18 +418,21 @@ def trace_once(scene, *, supersample: int = 1) -> np.ndarray:
         Effective path lengths (mm), rays in the order of
         :func:`~xray_viz.geometry.detector_rays`.
     """
-    return _trace(scene, supersample=supersample)
+    return _trace(scene.bodies, scene.acquisition, supersample=supersample)
 
 
-def _trace(scene, *, supersample):
+def _trace(bodies, acq, *, supersample):
+    """:func:`trace_once` of ``bodies`` seen by the acquisition ``acq``."""
     n = check_supersample(supersample)
-    with _locked(scene):
-        plan = _Plan(scene, n, None)
+    with _locked(bodies):
+        plan = _Plan(bodies, acq, n, None)
         return plan.window(0, plan.n_bands)[2]
 
 
 def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
     """Trace a scene's detector rays with the fast engine window by window of image rows.
+
+    A public adapter: the scene's bodies and acquisition go to the function the engines use.
 
     The per-scene set-up (culling, projection, triangle set-up and binning) is done once; then
     each window of about ``rows`` image rows is rastered on its own, so memory is O(meshes +
@@ -452,16 +466,21 @@ def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
     >>> bool(np.array_equal(np.concatenate([L for *_, L in parts]), trace_once(scene)))
     True
     """
-    n = check_supersample(supersample)
-    W, H = scene.detector.shape
-    if n > 1 and (W == 1 or H == 1):       # as fast_path_lengths: the NumPy engine's rays
-        from xray_viz.tracing.reference import numpy_rows
+    return _rows(scene.bodies, scene.acquisition, supersample=supersample, rows=rows)
 
-        yield from numpy_rows(scene, supersample=n, rows=rows)
+
+def _rows(bodies, acq, *, supersample=1, rows=None):
+    """:func:`trace_rows` of ``bodies`` seen by the acquisition ``acq``."""
+    n = check_supersample(supersample)
+    W, H = acq.detector.shape
+    if n > 1 and (W == 1 or H == 1):       # as fast_path_lengths: the NumPy engine's rays
+        from xray_viz.tracing.reference import _rows as numpy_rows
+
+        yield from numpy_rows(bodies, acq, supersample=n, rows=rows)
         return
     window = None if rows is None or rows >= H else n * max(1, int(rows))
-    with _locked(scene):
-        plan = _Plan(scene, n, window)
+    with _locked(bodies):
+        plan = _Plan(bodies, acq, n, window)
         if plan.per_window >= plan.n_bands:         # one window: done under this lock
             part = plan.window(0, plan.n_bands)
         else:
@@ -471,7 +490,7 @@ def trace_rows(scene, *, supersample: int = 1, rows: int | None = None):
         return
     # Windows from the top of the image down: the bands from the last one down.
     for b1 in range(plan.n_bands, 0, -plan.per_window):
-        with _locked(scene):
+        with _locked(bodies):
             part = plan.window(max(0, b1 - plan.per_window), b1)
         yield part
 
@@ -500,10 +519,9 @@ class _Plan:
     :meth:`detach` the plan holds its own copies of them and only the kernels need the lock.
     """
 
-    def __init__(self, scene, n, window):
+    def __init__(self, bodies, acq, n, window):
         from xray_viz.tracing import _raster_calls as R
 
-        bodies, acq = _split(scene)
         self.R = R
         self.bodies = bodies
         self.n = n
@@ -524,7 +542,7 @@ class _Plan:
         eu, ev = fr.project_u, fr.project_v
         sx, sy, bx, by, Ex, Ey, P0 = g.sx, g.sy, g.bx, g.by, g.ex, g.ey, g.q00
         planes = acq.planes
-        keep = self.keep = visible_bodies(scene)
+        keep = self.keep = _visible(bodies, acq)
         if not keep:
             return
         V, F, B = _geometry(bodies, keep)

@@ -188,6 +188,9 @@ def trace_triangles(triangles, origins, directions, *, t_min=0.0, t_max=np.inf, 
 def trace_rays(scene, origins, directions, *, t_min=0.0, t_max=np.inf, axis=None) -> Hits:
     """Trace any set of rays through a scene's bodies and return every hit.
 
+    A public adapter (``xray_viz.trace_rays(scene, ...)`` in the README): a scene gives its
+    bodies; the tracer itself reads only the bodies' triangles.
+
     Parameters
     ----------
     scene : Scene or Bodies

@@ -17,6 +17,8 @@ __all__ = ["numpy_path_lengths", "numpy_rows"]
 def numpy_path_lengths(scene, *, supersample=1, keep_hits=False, rows=None):
     """The NumPy engine on a scene (anything with ``bodies`` and ``acquisition``).
 
+    A public adapter: the scene's bodies and acquisition go to the function the engines use.
+
     Parameters
     ----------
     scene : Scene
@@ -32,21 +34,32 @@ def numpy_path_lengths(scene, *, supersample=1, keep_hits=False, rows=None):
         Path lengths (mm).
     hits : Hits or None
     """
-    acq = scene.acquisition
+    return _path_lengths(scene.bodies, scene.acquisition, supersample=supersample,
+                         keep_hits=keep_hits, rows=rows)
+
+
+def _path_lengths(bodies, acq, *, supersample=1, keep_hits=False, rows=None):
+    """:func:`numpy_path_lengths` of ``bodies`` seen by the acquisition ``acq``."""
     rays = acq.rays(supersample=supersample, rows=rows)
-    hits = trace_rays(scene.bodies, rays.origins, rays.directions, t_min=0.0, t_max=rays.t_max,
+    hits = trace_rays(bodies, rays.origins, rays.directions, t_min=0.0, t_max=rays.t_max,
                       axis=acq.frame.forward)
     L = _sweep_path_lengths(hits.ray, hits.t, hits.body, hits.entering, n_rays=len(rays),
-                            n_bodies=len(scene.bodies), precedence=scene.bodies.precedence,
+                            n_bodies=len(bodies), precedence=bodies.precedence,
                             t_max=rays.t_max)
     return L, (hits if keep_hits else None)
 
 
 def numpy_rows(scene, *, supersample=1, rows=None):
     """The NumPy engine by windows of ``rows`` image rows: yields ``(r0, r1, L)`` as
-    :func:`xray_viz.tracing.fast.trace_rows` does."""
-    h = scene.acquisition.detector.shape[1]
+    :func:`xray_viz.tracing.fast.trace_rows` does (a public adapter, as
+    :func:`numpy_path_lengths`)."""
+    return _rows(scene.bodies, scene.acquisition, supersample=supersample, rows=rows)
+
+
+def _rows(bodies, acq, *, supersample=1, rows=None):
+    """:func:`numpy_rows` of ``bodies`` seen by the acquisition ``acq``."""
+    h = acq.detector.shape[1]
     step = h if rows is None else max(1, int(rows))
     for r0 in range(0, h, step):
         r1 = min(h, r0 + step)
-        yield r0, r1, numpy_path_lengths(scene, supersample=supersample, rows=(r0, r1))[0]
+        yield r0, r1, _path_lengths(bodies, acq, supersample=supersample, rows=(r0, r1))[0]

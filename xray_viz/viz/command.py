@@ -229,7 +229,7 @@ def dose_window(args, scene, window_size, out) -> int:
     seed = 0 if getattr(args, "seed", None) is None else int(args.seed)
     with progress.task(f"transport of {args.dose} histories", unit="histories"):
         result = xray_viz.transport(scene, args.dose, seed=seed)
-    name = Path(str(scene.path)).stem if getattr(scene, "path", None) else "scene"
+    name = Path(str(scene.path)).stem if scene.path else "scene"
     plotter = plot_transport(result, window_size=window_size, off_screen=out is not None,
                              title=f"{name}: photon transport, seed {seed}").plotter
     if out is None:

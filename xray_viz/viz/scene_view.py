@@ -124,7 +124,7 @@ def quantity_title(quantity: str, scene=None) -> str:
     'path length (mm)'
     """
     if quantity in ("intensity", "total", "primary", "scatter"):
-        i0 = getattr(getattr(scene, "detector", None), "i0", 1.0)
+        i0 = 1.0 if scene is None else scene.detector.i0
         unit = "I / I0" if i0 == 1 else "I (photons)"
         return unit if quantity == "intensity" else f"{quantity} {unit}"
     return {"line-integral": "line integral", "path-length": "path length (mm)",
@@ -363,7 +363,7 @@ class SceneView:
     def bodies_bounds(self):
         """``(lo, hi)``, the (3,) corners of the box around all bodies (the detector's if
         there are none)."""
-        volumes = getattr(self.scene, "volumes", ())
+        volumes = self.scene.volumes
         if self.scene.bodies or volumes:
             boxes = [(b.vertices.min(axis=0), b.vertices.max(axis=0)) for b in self.scene.bodies]
             boxes += [tuple(v.bounds) for v in volumes]      # voxel volumes (issue 40)
@@ -396,7 +396,7 @@ class SceneView:
     def _group_names(self, group):
         if group == "bodies":     # a volume's box, and its parts of the current style
             return tuple(f"body:{b.name}" for b in self.scene.bodies) + tuple(
-                f"volume:{v.name}{part}" for v in getattr(self.scene, "volumes", ())
+                f"volume:{v.name}{part}" for v in self.scene.volumes
                 for part in (":box",) + VOLUME_PARTS[self.volume_style])
         return GROUPS[group]
 
@@ -464,7 +464,7 @@ class SceneView:
             drawn[name] = key
         self._drawn_bodies = drawn
         self.material_colors = labels
-        volumes = getattr(self.scene, "volumes", ())
+        volumes = self.scene.volumes
         names = {v.name for v in volumes}
         for name in [n for n in self.plotter.actors if n.startswith("volume:")]:
             if name.split(":")[1] not in names:           # a volume no longer in the scene
@@ -545,7 +545,7 @@ class SceneView:
             raise SceneError(f"volume style must be one of {', '.join(VOLUME_PARTS)}, got "
                              f"{style!r}")
         self.volume_style = style
-        for vol in getattr(self.scene, "volumes", ()):
+        for vol in self.scene.volumes:
             self._draw_volume(vol)
 
     def set_volume_window(self, window: float, level: float) -> None:
@@ -555,7 +555,7 @@ class SceneView:
             raise SceneError(f"volume window must be a width > 0 and a level in HU, got "
                              f"{window!r}, {level!r}")
         self.volume_window = (float(window), float(level))
-        for vol in getattr(self.scene, "volumes", ()):
+        for vol in self.scene.volumes:
             if _is_ct(vol):
                 for axis in "ijk":
                     actor = self.plotter.actors.get(f"volume:{vol.name}:slice:{axis}")

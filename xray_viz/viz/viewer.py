@@ -637,7 +637,7 @@ class Viewer:
                 pl.add_key_event(key, self.set_volume_style)
             else:
                 pl.add_key_event(key, lambda a=action: self.toggle(a))
-        self.view._text(help_text(volumes=bool(getattr(self.scene, "volumes", ()))),
+        self.view._text(help_text(volumes=bool(self.scene.volumes)),
                         (0.985, 0.985), "help", font_size=8, justify="right")
         pl.enable_point_picking(self.on_pick, left_clicking=True, picker="cell",
                                 show_message=False, show_point=False, tolerance=0.0)
