@@ -25,6 +25,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from xray_viz.tracing._primitives import tie_positive
+
 __all__ = ["moller_trumbore", "watertight_intersect"]
 
 
@@ -112,14 +114,15 @@ def _exact_sign(a, b, c, d, approx):
 
 
 def _tie_sign(ex, ey):
-    """Sign of an edge function that is exactly zero, after perturbing the ray.
+    """Sign (+-1, int8) of an edge function that is exactly zero, after perturbing the ray.
 
     The ray is moved by ``(-eps, -eps * delta)`` in the 2D ray frame (eps, delta -> 0+). For an
     edge function ``cross(P, Q)`` with edge vector ``e = P - Q`` this gives ``sign(-ey + delta ex)``:
-    the same edge seen from the neighbouring triangle has ``-e`` and gets the opposite sign, so
-    exactly one of the two triangles accepts the ray.
+    the tie rule of every kernel, ``xray_viz.tracing._primitives.tie_positive`` (its Python
+    function, on arrays). The same edge seen from the neighbouring triangle has ``-e`` and gets
+    the opposite sign, so exactly one of the two triangles accepts the ray.
     """
-    return np.where((ey < 0) | ((ey == 0) & (ex > 0)), 1, -1).astype(np.int8)
+    return np.where(tie_positive.py_func(ex, ey), 1, -1).astype(np.int8)
 
 
 def watertight_intersect(origins, directions, v0, v1, v2, *, t_min=0.0, t_max=np.inf):
