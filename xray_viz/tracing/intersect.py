@@ -25,8 +25,6 @@ from fractions import Fraction
 
 import numpy as np
 
-from xray_viz.tracing._primitives import tie_positive
-
 __all__ = ["moller_trumbore", "watertight_intersect"]
 
 
@@ -120,8 +118,11 @@ def _tie_sign(ex, ey):
     edge function ``cross(P, Q)`` with edge vector ``e = P - Q`` this gives ``sign(-ey + delta ex)``:
     the tie rule of every kernel, ``xray_viz.tracing._primitives.tie_positive`` (its Python
     function, on arrays). The same edge seen from the neighbouring triangle has ``-e`` and gets
-    the opposite sign, so exactly one of the two triangles accepts the ray.
+    the opposite sign, so exactly one of the two triangles accepts the ray. Imported here, when
+    a sign is zero: the NumPy engine does not import numba otherwise.
     """
+    from xray_viz.tracing._primitives import tie_positive
+
     return np.where(tie_positive.py_func(ex, ey), 1, -1).astype(np.int8)
 
 
@@ -196,9 +197,10 @@ def watertight_intersect(origins, directions, v0, v1, v2, *, t_min=0.0, t_max=np
     su = _exact_sign(cx, by, cy, bx, u)
     sv = _exact_sign(ax, cy, ay, cx, v)
     sw = _exact_sign(bx, ay, by, ax, w)
-    su = np.where(su == 0, _tie_sign(cx - bx, cy - by), su)
-    sv = np.where(sv == 0, _tie_sign(ax - cx, ay - cy), sv)
-    sw = np.where(sw == 0, _tie_sign(bx - ax, by - ay), sw)
+    if not (su.all() and sv.all() and sw.all()):      # a ray exactly on an edge: the tie rule
+        su = np.where(su == 0, _tie_sign(cx - bx, cy - by), su)
+        sv = np.where(sv == 0, _tie_sign(ax - cx, ay - cy), sv)
+        sw = np.where(sw == 0, _tie_sign(bx - ax, by - ay), sw)
     hit = (su == sv) & (sv == sw)
 
     det = u + v + w
