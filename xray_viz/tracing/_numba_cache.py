@@ -32,9 +32,9 @@ list of places 1-4 as it does for numba. :func:`cache_path` tells where a kernel
 
 numba keys a cached kernel by its own source file only: a kernel that calls (and inlines) a
 numba function of another module would be loaded stale after that function changed. The key
-of every cached function of xray_viz therefore also holds :func:`callee_digest`, the SHA-256
+of every cached function of xray_viz therefore also holds ``callee_digest``, the SHA-256
 of the source files of the xray_viz numba functions it calls, directly or not, in other files
-(e.g. the tie rule of :mod:`xray_viz.tracing._primitives`, inlined into the kernels of
+(e.g. the tie rule of ``xray_viz.tracing._primitives``, inlined into the kernels of
 ``_raster``, ``_gradient_kernels`` and the Monte Carlo).
 
 What is read back is checked: every data file (``.nbc``) written here starts with a header and
@@ -304,7 +304,7 @@ def callee_files(py_func) -> frozenset:
 
 
 def callee_digest(py_func) -> str:
-    """SHA-256 of the sources of :func:`callee_files` (``""`` when there are none): part of
+    """SHA-256 of the sources of ``callee_files`` (``""`` when there are none): part of
     the cache key of ``py_func``, so that a change in a numba function of another module that
     it calls compiles it again."""
     files = sorted(callee_files(py_func))

@@ -7,14 +7,14 @@ that point (a fine-grid sample of the fast engine's raster, a pixel centre of th
 gradients, a ray of the watertight intersection or of the Monte Carlo's crossings) is decided
 by moving it off the edge by ``(eps, eps * delta)`` (``eps``, then ``delta``, to ``0+``):
 ``E`` becomes ``eps * (-ey + delta * ex)``, positive when ``ey < 0``, or ``ey == 0`` and
-``ex > 0`` (:func:`tie_positive`; a "top-left" rule). The neighbour sees the edge as ``-e``
+``ex > 0`` (``tie_positive``; a "top-left" rule). The neighbour sees the edge as ``-e``
 and gets the other sign, so exactly one of the two triangles takes the point.
 
 The helper is compiled by numba (``cache=True``) and inlined by LLVM into each kernel that
 calls it; its Python function (``tie_positive.py_func``) also takes NumPy arrays, for the
 vectorised :func:`xray_viz.tracing.intersect.watertight_intersect`. A change here reaches the
 cached kernels of other modules through the callee digest of
-:mod:`xray_viz.tracing._numba_cache`.
+``xray_viz.tracing._numba_cache``.
 """
 
 from __future__ import annotations
