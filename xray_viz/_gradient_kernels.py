@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from xray_viz.tracing import _numba_cache  # noqa: F401  (where the kernels below are cached)
+from xray_viz.tracing._primitives import tie_positive
 
 __all__ = ["body_pose_gradient", "volume_centroid", "PixelGrid"]
 
@@ -55,12 +56,12 @@ class PixelGrid(NamedTuple):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _inside(e, dx, dy):
     """Edge function ``e`` of an edge running ``(dx, dy)`` (counter-clockwise order): inside,
-    or on it and the edge is a top or left one."""
+    or on it and the tie rule gives it to this side (``xray_viz.tracing._primitives``)."""
     if e > 0.0:
         return True
     if e < 0.0:
         return False
-    return dy < 0.0 or (dy == 0.0 and dx > 0.0)
+    return tie_positive(dx, dy)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -81,7 +81,7 @@ def test_one_compile_manager_and_plain_calls():
         assert inspect.isfunction(getattr(RC, name)) and getattr(RC, name).__module__ == RC.__name__
 
 HELPERS = ("_lowest_bit", "_plane", "_sample_ray", "_obliquity", "exact_cross_sign",
-           "beyond_side", "_tie", "_clamped", "_axis_code", "_side_value", "_between_samples",
+           "beyond_side", "tie_positive", "_clamped", "_axis_code", "_side_value", "_between_samples",
            "_sample_box", "_i32")
 EVERY_PATH = """
 import json, sys
@@ -454,7 +454,54 @@ def test_a_worker_imports_only_the_engine_and_caches_for_the_parent(tmp_path):
     said, modules = out.stdout.split("\n")[:2]
     assert said == "_first_use_rank"
     assert modules.split() == ["xray_viz", "xray_viz.tracing", "xray_viz.tracing._compile",
-                               "xray_viz.tracing._numba_cache", "xray_viz.tracing._raster"]
+                               "xray_viz.tracing._numba_cache", "xray_viz.tracing._primitives",
+                               "xray_viz.tracing._raster"]
     out = subprocess.run([sys.executable, "-c", IS_CACHED], env=env, check=True,
                          capture_output=True, text=True, timeout=600)
     assert out.stdout.split() == ["True", "False"]
+
+
+#: Two modules of the package, a kernel in one calling (inlining) a helper of the other: run
+#: once per process with a shared cache (``argv``: the modules' folder).
+CALLEE = """
+import importlib.util, sys
+import xray_viz.tracing._numba_cache
+def load(name):
+    spec = importlib.util.spec_from_file_location("xray_viz." + name, sys.argv[1] + "/" + name + ".py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+load("probe_helper")
+kernel = load("probe_kernel").kernel
+print(kernel(2.0), len(kernel.stats.cache_hits))
+"""
+PROBE_KERNEL = """
+from numba import njit
+from xray_viz.probe_helper import helper
+@njit(cache=True)
+def kernel(x):
+    return helper(x) + 1.0
+"""
+
+
+def test_a_changed_helper_of_another_module_is_not_loaded_stale(tmp_path):
+    """numba keys a cached kernel by its own file: the key of xray_viz's kernels also holds
+    the sources of the numba functions they call in other modules (the tie rule's
+    ``tracing._primitives``), so that the kernel is compiled again when one changes."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    (tmp_path / "probe_kernel.py").write_text(PROBE_KERNEL)
+
+    def run(helper):
+        (tmp_path / "probe_helper.py").write_text(
+            f"from numba import njit\n@njit(cache=True)\ndef helper(x):\n    return {helper}\n")
+        out = subprocess.run([sys.executable, "-c", CALLEE, str(tmp_path)], env=env, check=True,
+                             capture_output=True, text=True, timeout=600)
+        value, hits = out.stdout.split()
+        return float(value), int(hits)
+
+    assert run("x * 10.0") == (21.0, 0)       # compiled
+    assert run("x * 10.0") == (21.0, 1)       # loaded
+    assert run("x * 100.0") == (201.0, 0)     # the helper changed: compiled again, not 21
+    assert C.callee_files(R._tie_biases.py_func) == {
+        os.path.join(os.path.dirname(R.__file__), "_primitives.py")}

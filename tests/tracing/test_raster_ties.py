@@ -2,7 +2,12 @@
 the exact limb-arithmetic copies of the edge test): fine-grid samples placed exactly on the
 shared edges and the shared vertex of a fan of such triangles are each covered exactly once by
 a surface sheet, so that every ray through the body has its whole chord, in the one-body raster,
-the banded one-body raster and the several-bodies raster, with a point and a parallel beam."""
+the banded one-body raster and the several-bodies raster, with a point and a parallel beam.
+
+The tie rule is written once (``xray_viz.tracing._primitives.tie_positive``); its other callers
+meet the same fan: the watertight intersection (the NumPy engine), the Monte Carlo's crossing
+test and the pose gradients' pixel coverage each take every sample on a shared edge exactly
+once, so that a broken rule fails here in each of them."""
 
 from __future__ import annotations
 
@@ -10,9 +15,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from xray_viz import _gradient_kernels as GK
 from xray_viz.geometry import detector_rays
+from xray_viz.montecarlo import geometry as MG
 from xray_viz.tracing import _raster as R
 from xray_viz.tracing import fast
+from xray_viz.tracing.intersect import watertight_intersect
 from helpers import make_scene
 
 SOURCE_Z = 1000.0
@@ -115,3 +123,78 @@ def test_samples_on_shared_edges_of_giant_triangles_are_covered_once(kind, path,
     assert np.all(np.abs(L[on_shared, 0] - want[on_shared]) < 1e-9 * want[on_shared])
     if path == "several":
         assert (L[:, 1] > 0).sum() > 20 and not np.any((L[:, 0] > 0) & (L[:, 1] > 0))
+
+
+def _front_fan():
+    """The parallel frustum's front face: its 8 triangles, ``(8, 3, 3)``, in the plane
+    ``z = FRONT_Z`` (the fan of :func:`_fan_frustum`, vertices in its order)."""
+    mesh = _fan_frustum("parallel")
+    return mesh.vertices[np.asarray(mesh.faces)[0::4]]
+
+
+def _fan_samples(every):
+    """Samples ``(x, y)`` (mm) inside the square: each one on a shared edge of the front fan
+    (the rows ``x = 0``, ``y = 0``, the diagonals) and every ``every``-th of the others; and
+    which are on an edge."""
+    X, Y = np.meshgrid(np.arange(-300, 301), np.arange(-300, 301))
+    on = (X == 0) | (Y == 0) | (np.abs(X) == np.abs(Y))
+    keep = on | ((X % every == 0) & (Y % every == 0))
+    assert on.sum() == 4 * 601 - 3
+    return X[keep].astype(float), Y[keep].astype(float), on[keep]
+
+
+def test_rays_on_shared_edges_hit_one_triangle_of_the_watertight_intersection():
+    """The NumPy engine's test (:func:`watertight_intersect`): each ray down ``-z`` through a
+    sample hits exactly one triangle of the fan, on its edges and at its centre too."""
+    x, y, on = _fan_samples(7)
+    n = len(x)
+    origins = np.c_[x, y, np.full(n, 100.0)]
+    dirs = np.tile([0.0, 0.0, -1.0], (n, 1))
+    hits = np.zeros(n, int)
+    for tri in _front_fan():
+        hit, t, _, entering = watertight_intersect(origins, dirs, *(np.tile(v, (n, 1))
+                                                                    for v in tri))
+        assert np.all(t[hit] == 100.0 - FRONT_Z) and np.all(entering[hit])
+        hits += hit
+    assert on.sum() == 4 * 601 - 3 and np.all(hits == 1)
+
+
+def test_photons_on_shared_edges_cross_one_triangle_in_the_monte_carlo():
+    """The Monte Carlo's crossing test of one triangle (``montecarlo.geometry._triangle``,
+    numba): a photon down ``-z`` through a sample crosses exactly one triangle of the fan."""
+    x, y, on = _fan_samples(20)
+    d = np.array([0.0, 0.0, -1.0])
+    frame = MG.ray_frame(d)
+    fan = _front_fan()
+    hits = np.zeros(len(x), int)
+    for k in range(len(x)):
+        o = np.array([x[k], y[k], 100.0])
+        for tri in fan:
+            t, entering = MG._triangle(o, d, tri[0], tri[1], tri[2], *frame)
+            if np.isfinite(t):
+                assert t == 100.0 - FRONT_Z and entering
+                hits[k] += 1
+    assert on.sum() == 4 * 601 - 3 and np.all(hits == 1)
+
+
+def test_pixels_on_shared_edges_count_once_in_the_pose_gradients():
+    """The pose gradients' kernel (``_gradient_kernels.body_pose_gradient``, pixel centres on
+    an edge by the tie rule): with the fan alone (a sheet facing the beam) the derivative along
+    ``z`` of every pixel inside the square is one hit's, on the shared edges and at the centre
+    too (a pixel taken twice has twice, one taken by none has 0)."""
+    w = h = SHAPE[0]
+    pixels = GK.pixel_grid(np.array([-320.0, -320.0, DETECTOR_Z]), np.array([1.0, 0.0, 0.0]),
+                           np.array([0.0, 1.0, 0.0]), np.eye(2), np.zeros(3),
+                           np.array([0.0, 0.0, -1.0]), 2000.0, True, w, h)
+    mesh = _fan_frustum("parallel")
+    out = np.zeros((6, w * h))
+    GK.KERNELS.kernel("body_pose_gradient")(
+        np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+        np.ascontiguousarray(np.asarray(mesh.faces)[0::4], dtype=np.int64), np.zeros(3), pixels,
+        np.ones(w * h), out)
+    dz = out[2].reshape(h, w)
+    X, Y = np.meshgrid(np.arange(-320, 321), np.arange(-320, 321))
+    inside = (np.abs(X) < HALF) & (np.abs(Y) < HALF)
+    one = dz[320, 320]                 # the centre: the vertex of all 8 triangles
+    assert one != 0.0
+    assert np.all(dz[inside] == one) and np.all(dz[~inside] == 0.0)

@@ -22,6 +22,7 @@ import numba
 import numpy as np
 
 import xray_viz.tracing._numba_cache  # noqa: F401  (the kernels' one disk cache)
+from xray_viz.tracing._primitives import tie_positive
 
 __all__ = ["BVH", "build_bvh", "MAX_TIES", "LEAF_SIZE"]     # and the numba kernels below
 
@@ -205,14 +206,14 @@ def exact_sign(a, b, c, d):
 @numba.njit(inline="always")
 def _edge_sign(a, b, c, d, approx, ex, ey):
     """Sign of ``a b - c d`` (rounded ``approx``), exact near zero; a zero resolved by the
-    tie rule of ``xray_viz.tracing.intersect._tie_sign`` (edge vector ``ex, ey``)."""
+    tie rule (``xray_viz.tracing._primitives.tie_positive``, edge vector ``ex, ey``)."""
     s = 0
     if abs(approx) > _ERRBOUND * (abs(a * b) + abs(c * d)):
         s = 1 if approx > 0 else -1
     else:
         s = exact_sign(a, b, c, d)
     if s == 0:
-        s = 1 if (ey < 0.0 or (ey == 0.0 and ex > 0.0)) else -1
+        s = 1 if tie_positive(ex, ey) else -1
     return s
 
 

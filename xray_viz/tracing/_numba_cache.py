@@ -30,6 +30,13 @@ package's folder (numba's scheme), so several installs can share one place. A re
 list of places 1-4 as it does for numba. :func:`cache_path` tells where a kernel is cached, and
 :func:`on_first_compile` when one is compiled rather than loaded (the CLI's notice).
 
+numba keys a cached kernel by its own source file only: a kernel that calls (and inlines) a
+numba function of another module would be loaded stale after that function changed. The key
+of every cached function of xray_viz therefore also holds ``callee_digest``, the SHA-256
+of the source files of the xray_viz numba functions it calls, directly or not, in other files
+(e.g. the tie rule of ``xray_viz.tracing._primitives``, inlined into the kernels of
+``_raster``, ``_gradient_kernels`` and the Monte Carlo).
+
 What is read back is checked: every data file (``.nbc``) written here starts with a header and
 the SHA-256 of its content, so a truncated, garbled or foreign file is detected before numba
 unpickles it or LLVM loads its machine code. An index (``.nbi``) or data file that cannot be read
@@ -41,12 +48,14 @@ for the process. A broken cache never stops a render. Deleting the cache is alwa
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import os
 import pickle
 import stat
 import tempfile
 import threading
+import types
 import warnings
 
 from numba.core import caching, config, dispatcher, event
@@ -232,6 +241,10 @@ class KernelCache(caching.FunctionCache):
                        f"could not be loaded ({_why(exc)}): compiling it again")
             return None
 
+    def _index_key(self, sig, codegen):
+        key = super()._index_key(sig, codegen)
+        return (*key[:2], (*key[2], callee_digest(self._py_func)))
+
     def is_cached(self, sig, target_context) -> bool:
         """Whether the cache index holds ``sig`` for this machine and source (nothing loaded)."""
         try:
@@ -247,6 +260,58 @@ class KernelCache(caching.FunctionCache):
             _warn_once(("save", self._cache_path),
                        f"cannot write the kernel cache in {self._cache_path} ({_why(exc)}): "
                        "compiled kernels will not be reused by the next process")
+
+
+def _file_digest(path: str) -> str:
+    st = os.stat(path)
+    return _file_digest_of(path, st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=None)
+def _file_digest_of(path: str, mtime_ns: int, size: int) -> str:
+    # keyed by the file's time and size: a file changed while the process runs is read again
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def callee_files(py_func) -> frozenset:
+    """The source files of the xray_viz numba functions that ``py_func`` calls, directly or
+    through others, by a global name (``helper(...)``) or a module's attribute
+    (``module.helper(...)``): read from the names of its code and its globals."""
+    own = py_func.__code__.co_filename
+    files, seen, todo = set(), set(), [py_func]
+    while todo:
+        fn = todo.pop()
+        names, codes = set(), [fn.__code__]
+        while codes:                       # the function's own code and any nested in it
+            code = codes.pop()
+            names.update(code.co_names)
+            codes += [c for c in code.co_consts if hasattr(c, "co_names")]
+        scope = fn.__globals__
+        found = [scope.get(n) for n in names]
+        found += [getattr(m, n, None) for m in found if isinstance(m, types.ModuleType)
+                  and m.__name__.startswith(PACKAGE) for n in names]
+        for obj in found:
+            py = getattr(obj, "py_func", None)
+            if (isinstance(obj, dispatcher.Dispatcher) and id(py) not in seen
+                    and str(getattr(py, "__module__", "")).startswith(PACKAGE)):
+                seen.add(id(py))
+                todo.append(py)
+                if py.__code__.co_filename != own:
+                    files.add(py.__code__.co_filename)
+    return frozenset(files)
+
+
+def callee_digest(py_func) -> str:
+    """SHA-256 of the sources of ``callee_files`` (``""`` when there are none): part of
+    the cache key of ``py_func``, so that a change in a numba function of another module that
+    it calls compiles it again."""
+    files = sorted(callee_files(py_func))
+    if not files:
+        return ""
+    return hashlib.sha256("".join(f"{os.path.basename(f)}:{_file_digest(f)}\n"
+                                  for f in files).encode()).hexdigest()
 
 
 def _places(py_func, py_file, *, temp: bool = True) -> str:

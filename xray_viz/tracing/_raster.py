@@ -30,6 +30,7 @@ from numba.extending import intrinsic
 
 # Imported before the kernels are defined: it gives them their disk cache.
 from xray_viz.tracing import _numba_cache  # noqa: F401
+from xray_viz.tracing._primitives import tie_positive
 
 # An old TBB (Open3D brings one) makes numba warn when it tries its TBB threading layer first;
 # OpenMP or numba's own work queue serve these kernels equally well. A user's choice wins.
@@ -346,17 +347,6 @@ def exact_cross_sign(a, b, c, d):
     return 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _tie(ex, ey):
-    """Sign of an edge function at a sample point exactly on the edge, after moving the point
-    by ``(eps, eps * delta)``: the lexicographic sign of ``(-ey, ex)``."""
-    if ey != 0:
-        return 1 if ey < 0 else -1
-    if ex != 0:
-        return 1 if ex > 0 else -1
-    return 0
-
-
 # The coverage primitive, written once: a fine-grid sample ``p`` (fixed point) is inside the
 # projected triangle ``a, b, c`` of orientation ``o`` (+-1) when each edge function
 # ``E_k = o * (e_k x (p - start of edge k))`` (:func:`_edge_function`, edges a->b, b->c, c->a:
@@ -386,9 +376,11 @@ def _orientation(e0x, e0y, ax, ay, cx, cy, small):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _tie_biases(o, e0x, e0y, e1x, e1y, e2x, e2y):
     """The tie rule: per edge, the least edge function (times ``o``) of a covered sample, 0
-    where a sample exactly on the edge is inside (:func:`_tie`), else 1."""
-    return (0 if o * _tie(e0x, e0y) > 0 else 1, 0 if o * _tie(e1x, e1y) > 0 else 1,
-            0 if o * _tie(e2x, e2y) > 0 else 1)
+    where a sample exactly on the edge is inside, else 1. ``o`` times an edge function is the
+    edge function of the edge ``o e``, whose tie (``tie_positive``) decides."""
+    return (0 if tie_positive(o * e0x, o * e0y) else 1,
+            0 if tie_positive(o * e1x, o * e1y) else 1,
+            0 if tie_positive(o * e2x, o * e2y) else 1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -112,14 +112,18 @@ def _exact_sign(a, b, c, d, approx):
 
 
 def _tie_sign(ex, ey):
-    """Sign of an edge function that is exactly zero, after perturbing the ray.
+    """Sign (+-1, int8) of an edge function that is exactly zero, after perturbing the ray.
 
     The ray is moved by ``(-eps, -eps * delta)`` in the 2D ray frame (eps, delta -> 0+). For an
     edge function ``cross(P, Q)`` with edge vector ``e = P - Q`` this gives ``sign(-ey + delta ex)``:
-    the same edge seen from the neighbouring triangle has ``-e`` and gets the opposite sign, so
-    exactly one of the two triangles accepts the ray.
+    the tie rule of every kernel, ``xray_viz.tracing._primitives.tie_positive`` (its Python
+    function, on arrays). The same edge seen from the neighbouring triangle has ``-e`` and gets
+    the opposite sign, so exactly one of the two triangles accepts the ray. Imported here, when
+    a sign is zero: the NumPy engine does not import numba otherwise.
     """
-    return np.where((ey < 0) | ((ey == 0) & (ex > 0)), 1, -1).astype(np.int8)
+    from xray_viz.tracing._primitives import tie_positive
+
+    return np.where(tie_positive.py_func(ex, ey), 1, -1).astype(np.int8)
 
 
 def watertight_intersect(origins, directions, v0, v1, v2, *, t_min=0.0, t_max=np.inf):
@@ -193,9 +197,10 @@ def watertight_intersect(origins, directions, v0, v1, v2, *, t_min=0.0, t_max=np
     su = _exact_sign(cx, by, cy, bx, u)
     sv = _exact_sign(ax, cy, ay, cx, v)
     sw = _exact_sign(bx, ay, by, ax, w)
-    su = np.where(su == 0, _tie_sign(cx - bx, cy - by), su)
-    sv = np.where(sv == 0, _tie_sign(ax - cx, ay - cy), sv)
-    sw = np.where(sw == 0, _tie_sign(bx - ax, by - ay), sw)
+    if not (su.all() and sv.all() and sw.all()):      # a ray exactly on an edge: the tie rule
+        su = np.where(su == 0, _tie_sign(cx - bx, cy - by), su)
+        sv = np.where(sv == 0, _tie_sign(ax - cx, ay - cy), sv)
+        sw = np.where(sw == 0, _tie_sign(bx - ax, by - ay), sw)
     hit = (su == sv) & (sv == sw)
 
     det = u + v + w
