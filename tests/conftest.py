@@ -17,8 +17,11 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
 
 
 def pytest_configure(config):
+    import atexit
+
     if hasattr(config.option, "image_cache_dir") and config.option.image_cache_dir is None:
         config.option.image_cache_dir = "tests/image_cache"
+    atexit.register(_skip_itk_teardown)      # first registered: the last exit handler to run
 
 
 # Hypothesis (tests/tracing/test_properties.py): the default profile is derandomized (the same examples
@@ -37,3 +40,23 @@ else:
         "slow", max_examples=300, deadline=None, print_blob=True,
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
     _hypothesis_settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "xray_viz"))
+
+
+_SESSION_STATUS = []
+
+
+def _skip_itk_teardown():
+    """ITK's SWIG modules (RTK, loaded by the reconstruction and geometry tests) can crash the
+    interpreter's final teardown when other extension modules (VTK's) were loaded in the same
+    process: a capsule of ``itk._ITKPyBasePython`` is freed after its type (a segmentation
+    fault in ``capsule_dealloc`` after every test has passed: exit 139). Registered first, so
+    run last of the exit handlers: with ITK loaded, the session's exit status goes to
+    ``os._exit`` and the module teardown is skipped."""
+    if _SESSION_STATUS and "itk" in sys.modules:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_SESSION_STATUS[-1])
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _SESSION_STATUS.append(int(exitstatus))
