@@ -17,7 +17,7 @@ DiffDRR's conventions, matched rather than assumed: the volume is given with xra
 (voxel centres, ``read(..., orientation="AP")``; its centring moves nothing: the affine is
 centred on the origin already); the pose is DiffDRR's ``euler_angles`` / ``ZXY`` with zero
 rotation and the translation ``(0, 600, 0)`` (its AP frame puts the source on +y, rows along
--z, columns along +x with ``reverse_x_axis=True``), ``sdd = 1000``, ``delx`` our pitch; the
+-z, columns from +x to -x with ``reverse_x_axis=True``), ``sdd = 1000``, ``delx`` our pitch; the
 worker checks that DiffDRR's source and 512 x 512 target points (``drr.detector(pose)``) are
 xray_viz's ray origins and pixel points, and prints the largest difference in mm. Units:
 DiffDRR integrates its ``density`` buffer times mm; the worker renders (a) with that buffer
@@ -27,11 +27,11 @@ correlation only.
 
 Usage::
 
-    PYTHONPATH=. python benchmarks/voxels_diffdrr.py --python /tmp/ddrr/bin/python \\
+    PYTHONPATH=. python benchmarks/voxels_diffdrr.py --python /tmp/ddrr/bin/python
         [--repeat 5] [--rtk] [--threads 2] [--patch 128] [--data /tmp/voxels_diffdrr]
 
 ``--patch P`` is DiffDRR's ``patch_size`` (the image rendered in ``(512 / P)^2`` pieces in
-series; its whole-image Siddon holds ~1,166 float32 plane crossings per ray and several
+series; its whole-image Siddon holds ~1,160 float32 plane crossings per ray and several
 intermediates of that size, ~10 GB at 512 x 512); ``--patch 0``: the whole image at once.
 """
 
