@@ -35,13 +35,16 @@ from xray_viz.errors import OutputError, SceneError
 from xray_viz.orbit import Orbit, orbit_from_dict
 from xray_viz.poses import (  # noqa: F401  (the exports: importable here as documented)
     POSE_ROWS,
+    acquisition_pose,
     astra_vectors,
     pose_arrays_of,
     pose_dict,
+    pose_frames,
     pose_lists,
     pose_table,
     poses_from_astra,
     poses_from_tigre,
+    projection_matrices,
     tigre_geometry,
 )
 
@@ -406,13 +409,12 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         w, h = scene.detector.shape
         _check_stack(orbit.projections, h, w, "give store= (a .zarr path): a store keeps "
                      "memory bounded by the batch")
-        geometry = scan_geometry(scene, orbit)
-        out = np.empty((orbit.projections, h, w), np.float32)
         # the stack is in memory anyway: the acquisitions are built once, for the images
         # and the geometry (random poses: the geometry's arrays, built all at once)
         project = Projections(scene, orbit, quantity=quantity, engine=engine,
                               keep=orbit.random is None, **mc)
         geometry = scan_geometry(scene, orbit, acquisitions=project.acquisitions)
+        out = np.empty((orbit.projections, h, w), np.float32)
         bar = _bar(orbit.projections, progress)
         for k in range(orbit.projections):
             out[k] = project(k)
