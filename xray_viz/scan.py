@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import gc
 import hashlib
 import json
 import os
@@ -35,9 +34,14 @@ import numpy as np
 from xray_viz.errors import OutputError, SceneError
 from xray_viz.orbit import Orbit, orbit_from_dict
 from xray_viz.poses import (  # noqa: F401  (the exports: importable here as documented)
+    POSE_ROWS,
     acquisition_pose,
     astra_vectors,
+    pose_arrays_of,
+    pose_dict,
     pose_frames,
+    pose_lists,
+    pose_table,
     poses_from_astra,
     poses_from_tigre,
     projection_matrices,
@@ -65,8 +69,6 @@ INLINE_POSES_MAX = 1000
 #: From this many projections ``xray-viz scan`` says it is building the poses (random ones
 #: take about 30 us each) before its progress bar starts.
 POSES_NOTICE = 100_000
-#: What the rows of a store's ``poses`` array are.
-POSE_ROWS = ("source", "detector_center", "u", "v")
 PLUGIN_NAME = "xray_viz-scenes"
 
 
@@ -84,66 +86,6 @@ def projection_seed(seed: int | None, k: int) -> int | None:
     if seed is None:
         return None
     return int(np.random.SeedSequence([int(seed), int(k)]).generate_state(1, np.uint64)[0])
-
-
-def pose_table(scene, orbit: Orbit, *, acquisitions=None):
-    """``(poses, projection_matrices)`` of a scan as arrays, ``(n, 4, 3)`` (rows: source,
-    detector_center, u, v) and ``(n, 3, 4)``: random poses built over all projections at once
-    (:meth:`~xray_viz.orbit.RandomPoses.pose_arrays`), as are circular and helical ones
-    (:meth:`~xray_viz.orbit.Orbit.pose_arrays`), for an untilted detector without offset;
-    explicit poses and other detectors pose by pose (from ``acquisitions``, the orbit's
-    acquisitions when the caller has them already, e.g. :class:`Projections`'s).
-
-    Examples
-    --------
-    >>> import xray_viz
-    >>> from xray_viz.orbit import orbit_from_dict
-    >>> o = orbit_from_dict({"axis": [0, 1, 0], "poses": {"random": 5, "seed": 7}})
-    >>> poses, mats = pose_table(xray_viz.load_scene("sphere"), o)
-    >>> poses.shape, mats.shape
-    ((5, 4, 3), (5, 3, 4))
-    """
-    base = scene.acquisition
-    if (orbit.random is None and orbit.kind == "poses") or \
-            not getattr(base.frame, "plain", True):
-        # pose by pose (explicit poses; a tilted or offset detector: the general frame and
-        # matrix)
-        acqs = list(orbit.acquisitions(base)) if acquisitions is None else acquisitions
-        poses = np.array([[acquisition_pose(a)[r] for r in POSE_ROWS] for a in acqs],
-                         np.float64).reshape(-1, 4, 3)
-        mats = np.array([a.projection_matrix() for a in acqs], np.float64).reshape(-1, 3, 4)
-        return poses, mats
-    if orbit.random is not None:
-        src, det, up = orbit.random.pose_arrays(base, axis=orbit.axis, center=orbit.center)
-    else:                                   # circular or helical: all angles at once
-        src, det, up = orbit.pose_arrays(base)
-    forward, ho, ve, sid = pose_frames(src, det, up)
-    mats = projection_matrices(src, det, forward, ho, ve, sid, shape=scene.detector.shape,
-                                pitch=scene.detector.pitch, parallel=base.parallel)
-    return np.stack([src, det, ho, ve], axis=1), mats
-
-
-@contextlib.contextmanager
-def _gc_paused():
-    """The cyclic garbage collector paused: building or walking the per-projection lists
-    makes millions of small objects (no cycles), and each collection would walk them all
-    again (5 s of 6 for 100,000 poses)."""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
-
-
-def _per_projection_lists(poses, mats) -> tuple:
-    """The geometry's ``poses`` (list of dicts) and ``projection_matrices`` (nested lists) of
-    the arrays of :func:`pose_table`."""
-    with _gc_paused():
-        poses = [{"source": s, "detector_center": c, "u": u, "v": v}
-                 for s, c, u, v in np.asarray(poses, np.float64).tolist()]
-        return poses, np.asarray(mats, np.float64).tolist()
 
 
 def scan_geometry(scene, orbit: Orbit, *, acquisitions=None) -> dict:
@@ -165,7 +107,7 @@ def scan_geometry(scene, orbit: Orbit, *, acquisitions=None) -> dict:
     (1500.0, 1000.0, [0.0, 90.0, 180.0, 270.0])
     """
     out = _geometry_head(scene, orbit, acquisitions=acquisitions)
-    out["poses"], out["projection_matrices"] = _per_projection_lists(
+    out["poses"], out["projection_matrices"] = pose_lists(
         *pose_table(scene, orbit, acquisitions=acquisitions))
     return out
 
@@ -467,13 +409,12 @@ def scan(scene, orbit=None, *, quantity: str = "line-integral", engine: str = "f
         w, h = scene.detector.shape
         _check_stack(orbit.projections, h, w, "give store= (a .zarr path): a store keeps "
                      "memory bounded by the batch")
-        geometry = scan_geometry(scene, orbit)
-        out = np.empty((orbit.projections, h, w), np.float32)
         # the stack is in memory anyway: the acquisitions are built once, for the images
         # and the geometry (random poses: the geometry's arrays, built all at once)
         project = Projections(scene, orbit, quantity=quantity, engine=engine,
                               keep=orbit.random is None, **mc)
         geometry = scan_geometry(scene, orbit, acquisitions=project.acquisitions)
+        out = np.empty((orbit.projections, h, w), np.float32)
         bar = _bar(orbit.projections, progress)
         for k in range(orbit.projections):
             out[k] = project(k)
@@ -502,12 +443,8 @@ def _with_lists(geometry, tables) -> dict:
     if geometry.get("poses") is not None or tables is None:
         return geometry
     out = dict(geometry)
-    out["poses"], out["projection_matrices"] = _per_projection_lists(*tables)
+    out["poses"], out["projection_matrices"] = pose_lists(*tables)
     return out
-
-
-def _pose_dict(row) -> dict:
-    return dict(zip(POSE_ROWS, np.asarray(row, np.float64).tolist()))
 
 
 def _scan_to_store(scene, orbit, store, *, quantity, engine, client, batch,
@@ -640,23 +577,13 @@ def _geometry_attr(geometry) -> dict:
     return out
 
 
-def _pose_arrays_of(geometry) -> tuple:
-    """``(n, 4, 3)`` poses (rows :data:`POSE_ROWS`) and ``(n, 3, 4)`` projection matrices of a
-    geometry dict."""
-    with _gc_paused():
-        poses = np.array([[p[r] for r in POSE_ROWS] for p in geometry["poses"]],
-                         np.float64).reshape(-1, 4, 3)
-        mats = np.asarray(geometry["projection_matrices"], np.float64).reshape(-1, 3, 4)
-    return poses, mats
-
-
 def _geometry_from_store(group, geometry) -> dict:
     """The geometry dict of a store's attributes, the per-projection arrays read back into
     lists (the dict :func:`scan_geometry` made, whichever way the store keeps it)."""
     where = geometry.get("per_projection_arrays")
     if where is None:
         return geometry
-    poses, mats = _per_projection_lists(group[where["poses"]][:],
+    poses, mats = pose_lists(group[where["poses"]][:],
                                         group[where["projection_matrices"]][:])
     out = {}
     for key, value in geometry.items():
@@ -728,7 +655,7 @@ def _open_existing(zarr, path, *, scene, geometry, quantity, tables=None, physic
         for k in ("version", "quantity", "geometry", "physics", "scene")
         + (("bodies",) if "bodies" in old else ()))     # older stores: without it
     if same and arrays:
-        poses, mats = _pose_arrays_of(geometry) if tables is None else tables
+        poses, mats = pose_arrays_of(geometry) if tables is None else tables
         try:
             same = np.array_equal(group["poses"][:], poses) and \
                 np.array_equal(group["projection_matrices"][:], mats)
@@ -767,7 +694,7 @@ def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays, tables=
                            fill_value=np.nan, compressors=_checked_codecs())
         group.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False)
         first = geometry if geometry.get("poses") is not None else \
-            {"poses": [_pose_dict(tables[0][0])]}
+            {"poses": [pose_dict(tables[0][0])]}
         flat, dark = flat_dark(scene, first, quantity)
         for name, field in (("flat", flat), ("dark", dark)):
             if field is not None:
@@ -775,7 +702,7 @@ def _create_store(zarr, path, *, scene, geometry, quantity, pose_arrays, tables=
                                    fill_value=np.nan, compressors=_checked_codecs())[:] = field
         if pose_arrays:
             for name, table in zip(("poses", "projection_matrices"),
-                                   _pose_arrays_of(geometry) if tables is None else tables):
+                                   pose_arrays_of(geometry) if tables is None else tables):
                 group.create_array(name, shape=table.shape, dtype="float64", fill_value=np.nan,
                                    chunks=(min(n, 1 << 16),) + table.shape[1:],
                                    compressors=_checked_codecs())[:] = table
@@ -1040,7 +967,7 @@ def _file_geometry(geometry, poses=None, mats=None):
     if geometry.get("poses") is not None and geometry["projections"] <= INLINE_POSES_MAX:
         return geometry, None
     if poses is None:
-        poses, mats = _pose_arrays_of(geometry)
+        poses, mats = pose_arrays_of(geometry)
     return _geometry_attr(geometry), (np.asarray(poses, np.float64),
                                       np.asarray(mats, np.float64))
 
@@ -1207,7 +1134,7 @@ def _scan_to_file(scene, orbit, out, kind, *, quantity, engine, batch, progress,
                                       poses, mats)
     if n <= INLINE_POSES_MAX:
         geometry = _geometry_head(scene, orbit)
-        geometry["poses"], geometry["projection_matrices"] = _per_projection_lists(poses, mats)
+        geometry["poses"], geometry["projection_matrices"] = pose_lists(poses, mats)
         tables = None
     del poses, mats
     w, h = scene.detector.shape

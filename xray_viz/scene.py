@@ -41,6 +41,9 @@ from typing import Any
 
 import numpy as np
 
+from xray_viz._checks import is_number as _is_number
+from xray_viz._checks import shown as _shown
+from xray_viz._checks import vector3
 from xray_viz.errors import SceneError
 from xray_viz.physics.spectra import DEFAULT_ENERGY
 
@@ -56,6 +59,9 @@ LENGTH_UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "um": 1e-3, "in": 25.4}
 #: from that far keep their path lengths to 1e-7 mm (float64 rounds a distance d to 1e-16 d);
 #: squared distances overflow float64 only beyond 1e154 mm.
 COORDINATE_LIMIT = 1e9
+
+#: The open range of a usable direction's largest coordinate: its square is an ordinary float64.
+DIRECTION_LENGTH = (1e-150, 1e150)
 
 #: Smallest and largest detector pitch (mm between neighbouring rays). The fast engine maps the
 #: detector onto a fixed-point grid: projected positions are snapped to ``2**-22`` of a (sub-ray)
@@ -83,23 +89,6 @@ BODY_SIZE_RANGE = (1e-9, 1e9)
 #: A body must be at least this fraction of its distance from the origin across (its largest
 #: coordinate): float64 then places its vertices to ``2**-22`` of its size.
 BODY_MIN_RELATIVE = 2.0 ** -30
-
-
-def _shown(value) -> str:
-    """A user's value quoted for a one-line message: short, escaped (see
-    :func:`xray_viz.errors.excerpt`)."""
-    from xray_viz.errors import excerpt
-
-    if isinstance(value, (str, bytes)):
-        return excerpt(value)
-    text = repr(value).replace("\n", " ")
-    return text if len(text) <= 80 else f"{text[:80]}... ({len(text)} characters)"
-
-
-def _is_number(value) -> bool:
-    """A real number (Python or NumPy int or float), not a bool, string or complex."""
-    return (isinstance(value, (int, float, np.integer, np.floating))
-            and not isinstance(value, (bool, np.bool_)))
 
 
 def _is_integer(value) -> bool:
@@ -158,30 +147,10 @@ def _vec3(value, *, name: str = "vector", position: bool = True) -> np.ndarray:
 
     A ``position`` (mm) must lie within :data:`COORDINATE_LIMIT` of the origin; a direction
     (``position=False``) must have a length between 1e-150 and 1e150, so that its square is an
-    ordinary float64 number."""
-    if isinstance(value, (list, tuple)):
-        ok = len(value) == 3 and all(_is_number(v) for v in value)
-    else:
-        ok = isinstance(value, np.ndarray) and value.dtype.kind in "iuf" and value.size == 3
-    if not ok:
-        raise SceneError(f"{name} must be 3 numbers (x, y, z in mm), got {_shown(value)}")
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(3)
-    except OverflowError:                      # a Python int beyond float64
-        arr = np.full(3, math.inf)
-    if not np.all(np.isfinite(arr)):
-        raise SceneError(f"{name} must be finite, got {np.asarray(value).tolist()}")
-    big = float(np.max(np.abs(arr)))
-    if position and big > COORDINATE_LIMIT:
-        raise SceneError(f"{name} {arr.tolist()} is {big:g} mm from the origin: coordinates must "
-                         f"be within {COORDINATE_LIMIT:g} mm (1000 km), where float64 still keeps "
-                         f"path lengths to 1e-7 mm; check the units (mm)")
-    if not position and big > 0 and not 1e-150 < big < 1e150:
-        raise SceneError(f"{name} {arr.tolist()} has no usable length: give a direction of "
-                         f"ordinary size, such as [0, 1, 0]")
-    arr = arr + 0.0                            # -0.0 -> 0.0, and a copy the caller cannot change
-    arr.setflags(write=False)
-    return arr
+    ordinary float64 number (``_checks.vector3`` with the scene's limits)."""
+    if position:
+        return vector3(value, name, strict=True, limit=COORDINATE_LIMIT)
+    return vector3(value, name, strict=True, length=DIRECTION_LENGTH)
 
 
 def check_pitch(pitch, center, *, what: str = "pitch") -> tuple[float, float]:

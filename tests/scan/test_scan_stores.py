@@ -362,3 +362,26 @@ def test_a_worker_refuses_mesh_files_that_differ_from_the_scans(tmp_path):
     trimesh.creation.icosphere(subdivisions=1, radius=31.0).export(tmp_path / "ball.stl")
     with pytest.raises(SceneError, match="mesh files read on this worker differ"):
         S._load_scene_text(text, key)
+
+
+@pytest.mark.parametrize("kind", ["poses", "circular"])
+def test_a_held_scan_builds_each_acquisition_once(sphere, monkeypatch, kind):
+    """A scan whose stack is held builds each projection's acquisition once, for its images
+    and its geometry export alike (the geometry reads the scan's acquisitions)."""
+    from xray_viz.orbit import Orbit as O
+    from xray_viz.poses import acquisition_pose
+
+    scene = _small(sphere, shape=(16, 16), pitch=8.0)
+    if kind == "circular":
+        orbit = Orbit(projections=5, axis=[0, 1, 0])
+    else:
+        circle = Orbit(projections=5, axis=[0, 1, 0], arc=200.0)
+        orbit = Orbit("poses", projections=5, poses=tuple(
+            acquisition_pose(a) for a in circle.acquisitions(scene.acquisition)))
+    calls = []
+    real = O.acquisition
+    monkeypatch.setattr(O, "acquisition", lambda self, *a: calls.append(a[1]) or real(self, *a))
+    result = S.scan(scene, orbit)
+    monkeypatch.setattr(O, "acquisition", real)
+    assert sorted(calls) == list(range(5))
+    assert result.geometry == S.scan_geometry(scene, orbit)

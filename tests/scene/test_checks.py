@@ -45,3 +45,34 @@ def test_each_caller_names_its_value():
     with pytest.raises(ReconstructionError,
                        match=r"^geometry center must be 3 finite numbers \(mm\); got"):
         rtk_frame({"axis": [0, 0, 1], "center": [0, np.nan, 0]})
+
+
+def test_the_scenes_rule_is_the_same_check_with_its_limits():
+    """scene._vec3 is vector3(strict=True) with the scene's limits: the limits are parameters
+    (another limit moves the boundary), the result a read-only copy without -0.0."""
+    from xray_viz.scene import COORDINATE_LIMIT, DIRECTION_LENGTH, Detector, Source
+
+    v = vector3([-0.0, 1, 2], "p", strict=True, limit=COORDINATE_LIMIT)
+    assert v.tolist() == [0.0, 1.0, 2.0] and not np.signbit(v).any() and not v.flags.writeable
+    assert vector3([10.0, 0, 0], "p", strict=True, limit=10.0).tolist() == [10.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r"^p \[10.5, 0.0, 0.0\] is 10.5 mm from the origin: "
+                                         r"coordinates must be within 10 mm \(1e-05 km\)"):
+        vector3([10.5, 0, 0], "p", strict=True, limit=10.0, error=ValueError)
+    with pytest.raises(SceneError, match=r"must be within 1e\+09 mm \(1000 km\)"):
+        Source([0, 0, 2 * COORDINATE_LIMIT])
+    for bad in ([1e-3, 0, 0], [1e3, 0, 0]):
+        with pytest.raises(SceneError, match="^d .* has no usable length"):
+            vector3(bad, "d", strict=True, length=(1e-2, 1e2))
+    assert vector3([0, 0, 0], "d", strict=True, length=DIRECTION_LENGTH).tolist() == [0, 0, 0]
+    with pytest.raises(SceneError, match="^up .* has no usable length"):
+        vector3([DIRECTION_LENGTH[1], 0, 0], "up", strict=True, length=DIRECTION_LENGTH)
+    # the strict rule refuses what the loose one takes (a string of digits), in its own words
+    assert vector3(np.array([1, 2, 3], np.int64), "p").tolist() == [1.0, 2.0, 3.0]
+    with pytest.raises(SceneError, match=r"^p must be 3 numbers \(x, y, z in mm\), got "):
+        vector3((1, 2, np.int64(3) + 0j), "p", strict=True)
+    with pytest.raises(SceneError, match=r"^p must be finite, got \[0.0, 0.0, nan\]"):
+        vector3([0.0, 0.0, np.nan], "p", strict=True)
+    with pytest.raises(SceneError, match=r"^\[detector\] up must be finite"):
+        Detector([0, 0, -500], up=[0, np.inf, 0])
+    with pytest.raises(TypeError, match="strict takes no direction"):
+        vector3([0, 0, 1], "d", strict=True, direction=True)
