@@ -724,6 +724,8 @@ def _update(f, volume_shape=None, *, iterations=None, desc="reconstructing"):
             tag = f.AddObserver(event, step) if progress.is_enabled() else None
             try:
                 f.Update()
+                if tag is not None and iterations is None:
+                    t.update_to(100)     # done: ITK's last ProgressEvent may read 0.99...
             finally:
                 if tag is not None:
                     f.RemoveObserver(tag)
