@@ -124,7 +124,7 @@ def to_uint16(image, *, bright="high") -> np.ndarray:
     ...     to_uint16(np.array([[0.0, 1.0], [np.inf, np.nan]])).tolist()
     [[0, 65535], [65535, 0]]
     """
-    data, bad = _window(image, bright=bright)
+    data, bad, _ = _window(image, bright=bright)
     if bad:
         warnings.warn(_nonfinite_message(bad, data.size), RuntimeWarning, stacklevel=2)
     return data
@@ -135,14 +135,27 @@ def _nonfinite_message(bad: int, total: int, where: str = "") -> str:
             "spans the finite values, +inf is drawn at its top, -inf and NaN at its bottom")
 
 
-def _window(image, *, bright="high") -> tuple[np.ndarray, int]:
-    """(the 16-bit windowed image, the number of non-finite pixels): see :func:`to_uint16`."""
+def _window(image, *, bright="high") -> tuple[np.ndarray, int, dict]:
+    """(the 16-bit windowed image, the number of non-finite pixels, the window): see
+    :func:`to_uint16`. The window is what a PNG records: the values mapped to stored 0 and
+    65535, ``bright``, its ``scale`` when logarithmic, the quantisation ``step``, and how many
+    finite pixels lie beyond it (``clipped``: an implant's, see :func:`window_range`; zero and
+    negative intensities on a log scale)."""
     if bright not in ("high", "low"):
         raise OutputError(f"bright must be 'high' or 'low', got {bright!r}")
     a = np.asarray(image, dtype=np.float64)
     finite = np.isfinite(a)
     bad = int(a.size - np.count_nonzero(finite))
-    lo, hi, log = _png_window(a[finite], bright=bright)
+    values = a[finite]
+    lo, hi, log = _png_window(values, bright=bright)
+    window = {"low": lo, "high": hi, "bright": bright}
+    if log:
+        window.update(scale="log", step=float(np.log(hi) - np.log(lo)) / 65535.0)
+    else:
+        window["step"] = (hi - lo) / 65535.0
+    clipped = int(np.count_nonzero((values < lo) | (values > hi)))
+    if clipped:
+        window["clipped"] = clipped
     if log:                             # lo > 0; zero and negative intensities drawn at lo
         shown = np.log(np.where(finite & (a > 0), a, lo))
         scaled = (shown - np.log(lo)) / (np.log(hi) - np.log(lo))
@@ -153,7 +166,7 @@ def _window(image, *, bright="high") -> tuple[np.ndarray, int]:
     scaled[a == np.inf] = 1.0           # the top of the window; -inf and NaN stay at 0
     if bright == "low":
         scaled = 1.0 - scaled
-    return np.round(np.clip(scaled, 0, 1) * 65535).astype(np.uint16), bad
+    return np.round(np.clip(scaled, 0, 1) * 65535).astype(np.uint16), bad, window
 
 
 def _umask() -> int:
@@ -676,11 +689,10 @@ def save_image(path, image, *, bright="high", scene=None, quantity=None,
         atomic_write(path, lambda tmp: _write_tiff(tmp, data, meta),
                      verify=lambda tmp: _check_tiff(tmp, data, meta))
     elif fmt.name == "png":
-        data, bad = _window(image, bright=bright)
+        data, bad, meta["window"] = _window(image, bright=bright)
         if bad:
             warnings.warn(_nonfinite_message(bad, data.size, f"{path}: "), RuntimeWarning,
                           stacklevel=2)
-        meta["window"] = _window_of(image, bright=bright)
         _seal(meta, data)
         atomic_write(path, lambda tmp: _write_png(tmp, data, meta),
                      verify=lambda tmp: _check_png(tmp, data, meta))
@@ -878,24 +890,6 @@ def image_metadata(scene=None, *, quantity=None, scatter=None) -> dict:
 def _json(meta: dict) -> str:
     """The metadata as 7-bit ASCII JSON (what TIFF's ImageDescription allows)."""
     return json.dumps(meta, ensure_ascii=True, allow_nan=False, sort_keys=True)
-
-
-def _window_of(image, *, bright: str) -> dict:
-    """The PNG window: the values mapped to stored 0 and 65535 (:func:`_window`), its
-    ``scale`` when logarithmic, and how many finite pixels lie beyond it (``clipped``: an
-    implant's, see :func:`window_range`; zero and negative intensities on a log scale)."""
-    a = np.asarray(image, dtype=np.float64)
-    finite = a[np.isfinite(a)]
-    lo, hi, log = _png_window(finite, bright=bright)
-    if log:
-        window = {"low": lo, "high": hi, "bright": bright, "scale": "log",
-                  "step": float(np.log(hi) - np.log(lo)) / 65535.0}
-    else:
-        window = {"low": lo, "high": hi, "bright": bright, "step": (hi - lo) / 65535.0}
-    clipped = int(np.count_nonzero((finite < lo) | (finite > hi)))
-    if clipped:
-        window["clipped"] = clipped
-    return window
 
 
 #: A PNG's window leaves out at most this fraction of the pixels, at the attenuating end.

@@ -230,6 +230,7 @@ class KernelModel:
         self.parameters = parameters
         self.grid, self.grid_primary = grid, float(grid_primary)
         self._spreads = (parameters, {})     # the kernels' spectra (_spread)
+        self._table, self._table_params = None, None    # the look-up table (_lookup)
 
     @classmethod
     def of(cls, scene, *, parameters=None) -> KernelModel:
@@ -321,7 +322,7 @@ class KernelModel:
     def _lookup(self):
         """``(tau, T A(tau), group)`` on the uniform grid of ``ln(1 / T)``, step
         :data:`LOOKUP_STEP`, up to the water table's end (cached per parameters)."""
-        if getattr(self, "_table_params", None) is not self.parameters:
+        if self._table_params is not self.parameters:
             grid = np.arange(0.0, self._minus_log_t[-1] + LOOKUP_STEP, LOOKUP_STEP)
             tau = np.interp(grid, self._minus_log_t, self._tau)
             q = np.exp(-grid) * self.amplitude(tau)
