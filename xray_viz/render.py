@@ -368,7 +368,8 @@ def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, 
                per_body=None, keep_hits=False, progress=None, weighted=None):
     """Trace the projector's bodies at the acquisition band by band into the (H, W) images
     given (any may be None; ``log_t`` and ``log_v`` need the ``beam`` at the acquisition;
-    ``weighted = (w, out)``: ``out`` (H, W) receives each pixel's mean ``L @ w``).
+    ``weighted = (w, out)``: ``out`` (H, W, k) receives each pixel's mean ``L @ w``, ``w``
+    (n_bodies, k)).
 
     ``progress(rows_done, rows)`` is called after each band (default:
     :func:`xray_viz.progress.rows`, the command line's progress bar; a no-op elsewhere).
@@ -400,9 +401,10 @@ def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, 
             # log domain.
             blocks.add(r0, r1, L)
         if weighted is not None:
-            lw = np.einsum("ij,j->i", L, weighted[0])     # no BLAS threads to wait for
-            weighted[1][r0:r1] = (lw if nn == 1 else lw.reshape(-1, nn).mean(axis=1)).reshape(
-                r1 - r0, w)
+            lw = np.einsum("ij,jk->ik", L, weighted[0])   # no BLAS threads to wait for
+            k = lw.shape[1]
+            weighted[1][r0:r1] = (lw if nn == 1 else lw.reshape(-1, nn, k).mean(axis=1)
+                                  ).reshape(r1 - r0, w, k)
             del lw
         if (total is not None and nn > 1) or per_body is not None:
             # (pixels, bodies): the mean over each pixel's rays (one ray: the same numbers).
@@ -900,7 +902,7 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
     if (scatter is not None and scatter.mode == "kernel"
             and projector.columns == len(projector.bodies)):
         weights = scatter.kernel.path_weights(acquisition, projector.bodies)
-        scattering = np.empty((h, w))
+        scattering = np.empty((h, w, weights.shape[1]))
     per_body = np.empty((h, w, projector.columns)) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
                                         log_v=log_v, total=total, per_body=per_body,
@@ -1038,7 +1040,7 @@ class ScatterSource:
         return 0 if detector_seed is None else int(detector_seed)
 
     def __call__(self, log_t, acquisition, bodies, *, seed=None, scattering=None):
-        """``(s, details)`` at ``acquisition``: see the class. ``scattering`` ((H, W) mm of
+        """``(s, details)`` at ``acquisition``: see the class. ``scattering`` ((H, W, 2) mm of
         water, optional): each pixel's path lengths weighted by ``self.kernel.path_weights``;
         the kernel model's amplitude then sees the bodies' materials (``KernelModel.scatter``'s
         option of that name)."""

@@ -452,12 +452,76 @@ class KernelModel:
         d = float(f.distance)
         return gap, d / max(d - gap, 1e-9)
 
-    def scattering_coefficients(self, bodies, *, cone=None) -> np.ndarray:
+    @staticmethod
+    def exit_heights(acquisition, bodies, cells, k) -> np.ndarray:
+        """``(ch, cw)`` float: mm above the detector plane of the bodies' side nearest it
+        (their exit side) over each cell of ``k x k`` pixels of ``acquisition``; NaN where no
+        body's surface projects.
+
+        The lowest of the bodies' surface points that project into the cell: their
+        vertices, and points on a lattice over each triangle whose projection spans more
+        than a cell (about a cell apart), projected from the source (along the beam
+        for a parallel one). A slab's is its exit face's everywhere; a cylinder's or a
+        frog's rises toward the edges of its shadow, where the air gap the scatter crosses
+        is longer than the global one (:meth:`geometry`).
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> scene = xray_viz.load_scene("sphere")                      # r 50 mm, 150 mm up
+        >>> h = KernelModel.exit_heights(scene.acquisition, scene.bodies, (8, 8), 32)
+        >>> round(float(np.nanmin(h)), 0), bool(np.isnan(h[0, 0]))
+        (100.0, True)
+        """
+        f = acquisition.frame
+        ch, cw = cells
+        out = np.full(ch * cw, np.nan)
+        meshes = [b.mesh for b in bodies if getattr(b, "mesh", None) is not None]
+        if not meshes:
+            return out.reshape(ch, cw)
+        normal, middle = np.asarray(f.normal, float), np.asarray(f.middle, float)
+        pu, pv = (float(x) for x in f.pitch)
+        verts = (bodies.cached(("scatter_kernel", "points"), lambda: np.vstack(
+            [np.asarray(m.vertices, float) for m in meshes]), limit=1)
+            if hasattr(bodies, "cached") else np.vstack([np.asarray(m.vertices, float)
+                                                         for m in meshes]))
+        top = float(np.max((middle - verts) @ normal))          # the highest point
+        stretch = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - top,
+                                                                 1e-9)
+        # points about a cell apart once projected (a power of two in mm: a scan's views
+        # share them)
+        spacing = 2.0 ** round(math.log2(k * min(pu, pv) / stretch))
+        pts = (bodies.cached(("scatter_kernel", "surface", spacing),
+                             lambda: _surface_points(meshes, spacing), limit=2)
+               if hasattr(bodies, "cached") else _surface_points(meshes, spacing))
+        height = (middle - pts) @ normal
+        src = np.asarray(f.source, float)
+        if f.parallel:
+            x = pts + (height / float(np.asarray(f.forward, float) @ normal))[:, None] * \
+                np.asarray(f.forward, float)
+        else:
+            d = pts - src
+            x = src + d * (float(f.distance) / (d @ normal))[:, None]
+        rel = x - middle
+        w, h = f.shape
+        col = (rel @ np.asarray(f.ho, float)) / pu + 0.5 * w     # from the left edge
+        row = 0.5 * h - (rel @ np.asarray(f.ve, float)) / pv     # from the top edge
+        ok = (col >= 0) & (col < w) & (row >= 0) & (row < h) & (height > -1e-9)
+        if not ok.any():
+            return out.reshape(ch, cw)
+        index = (row[ok] // k).astype(np.intp) * cw + (col[ok] // k).astype(np.intp)
+        out[:] = np.inf
+        np.minimum.at(out, index, height[ok])
+        out[np.isinf(out)] = np.nan
+        return out.reshape(ch, cw)
+
+    def scattering_coefficients(self, bodies, *, cone=None, process=None) -> np.ndarray:
         """Each body's scattering coefficient over water's at :attr:`energy_kev`:
         ``(mu_incoherent + mu_coherent)`` of its material over that of liquid water (a body
         of constant ``mu`` scatters as water of the same attenuation); with ``cone``
         (radians), of the photons scattered within that angle only
-        (:func:`~xray_viz.physics.materials.mass_scattering`).
+        (:func:`~xray_viz.physics.materials.mass_scattering`); with ``process``
+        (``"coherent"`` or ``"incoherent"``), that part of it (over water's whole).
 
         Examples
         --------
@@ -473,22 +537,48 @@ class KernelModel:
         e = self.energy_kev
         water = (float(mass_scattering("Water, Liquid", e, cone=cone)[0])
                  * check_material("Water, Liquid"))
+        share = 1.0 if process is None else (
+            float(mass_scattering("Water, Liquid", e, cone=cone, process=process)[0])
+            * check_material("Water, Liquid") / water)
         mu_water = float(linear_attenuation("Water, Liquid", e)[0])
         out = np.empty(len(bodies))
         for b, body in enumerate(bodies):
             if body.material is None:
-                out[b] = float(body.mu) / mu_water
+                out[b] = float(body.mu) / mu_water * share
             else:
                 rho = check_material(body.material, density=body.density)
-                out[b] = float(mass_scattering(body.material, e, cone=cone)[0]) * rho / water
+                out[b] = float(mass_scattering(body.material, e, cone=cone,
+                                               process=process)[0]) * rho / water
         return out
 
     def path_weights(self, acquisition, bodies) -> np.ndarray:
-        """``(n_bodies,)``: each body's mm of path in mm of water that scatter as much toward
-        the detector (:meth:`scattering_coefficients` within the :meth:`cone` of this
-        acquisition)."""
+        """``(n_bodies, 2)``: each body's mm of path in mm of water that scatter as much
+        toward the detector (:meth:`scattering_coefficients` within the :meth:`cone` of this
+        acquisition), and the coherent part of it.
+
+        Examples
+        --------
+        >>> import xray_viz
+        >>> scene = xray_viz.load_scene("step_wedge")          # 490 mm above its detector
+        >>> w = KernelModel.of(scene).path_weights(scene.acquisition, scene.bodies)
+        >>> w.shape, bool(w[0, 1] > 0.5 * w[0, 0])             # mostly coherent, aluminium
+        ((1, 2), True)
+        """
         gap, _ = self.geometry(acquisition, bodies)
-        return self.scattering_coefficients(bodies, cone=self.cone(acquisition, gap))
+        cone = self.cone(acquisition, gap)
+        return np.stack([self.scattering_coefficients(bodies, cone=cone),
+                         self.scattering_coefficients(bodies, cone=cone,
+                                                      process="coherent")], axis=1)
+
+    def _water_coherent(self, acquisition, bodies) -> float:
+        """The coherent share of water's scattering within this acquisition's cone."""
+        from xray_viz.physics.materials import mass_scattering
+
+        gap, _ = self.geometry(acquisition, bodies)
+        cone = self.cone(acquisition, gap)
+        return float(mass_scattering("Water, Liquid", self.energy_kev, cone=cone,
+                                     process="coherent")[0]
+                     / mass_scattering("Water, Liquid", self.energy_kev, cone=cone)[0])
 
     @staticmethod
     def cone(acquisition, gap) -> float:
@@ -521,10 +611,11 @@ class KernelModel:
             :meth:`scattering_coefficients`) instead of the water-equivalent thickness of
             its transmission: a body of high Z absorbs more and scatters less per unit of
             attenuation than water. Without them, every body is taken for water.
-        scattering : (H, W) float, optional
+        scattering : (H, W, 2) or (H, W) float, optional
             The same thickness already summed, ``path_lengths @ w`` with ``w`` the
             :meth:`path_weights` of this acquisition (what the renderer accumulates while
-            it traces, without the (H, W, n_bodies) array); not with ``path_lengths``.
+            it traces, without the (H, W, n_bodies) array): the whole and its coherent
+            part (the whole only: water's coherent share); not with ``path_lengths``.
 
         Returns
         -------
@@ -545,12 +636,15 @@ class KernelModel:
                 raise SceneError(f"scatter kernel: path_lengths of shape {lengths.shape} for "
                                  f"a {h} x {w} image of {len(bodies)} bodies: pass "
                                  f"Radiograph.path_length, ({h}, {w}, {len(bodies)})")
-            scat = np.einsum("ijk,k->ij", lengths, self.path_weights(acquisition, bodies))
+            scat = np.einsum("ijk,kl->ijl", lengths, self.path_weights(acquisition, bodies))
         elif scattering is not None:
             scat = np.asarray(scattering, dtype=np.float64)
-            if scat.shape != (h, w):
+            if scat.shape not in ((h, w), (h, w, 2)):
                 raise SceneError(f"scatter kernel: scattering of shape {scat.shape} for a "
-                                 f"{h} x {w} image: pass ({h}, {w}) mm of water")
+                                 f"{h} x {w} image: pass ({h}, {w}, 2) mm of water")
+        coherent = None
+        if scat is not None and scat.ndim == 3:
+            scat, coherent = scat[..., 0], scat[..., 1]
         f = acquisition.frame
         pu, pv = (float(x) for x in f.pitch)
         ranges = self.parameters.ranges
@@ -585,13 +679,9 @@ class KernelModel:
             x = acc.reshape(-1)
             x *= -1.0 / (pre * pre)
             if scat is not None:
-                pad = scat if (h % pre, w % pre) == (0, 0) else np.pad(
-                    scat, ((0, hb * pre - h), (0, wb * pre - w)), mode="edge")
-                acc = np.zeros((hb, wb))
-                for a in range(pre):
-                    for b in range(pre):
-                        acc += pad[a::pre, b::pre]
-                scat = acc.reshape(-1) / (pre * pre)
+                scat = _pooled(scat, pre, hb, wb)
+            if coherent is not None:
+                coherent = _pooled(coherent, pre, hb, wb)
         else:
             hb, wb = h, w
         kb = k // pre
@@ -610,13 +700,23 @@ class KernelModel:
             with np.errstate(divide="ignore"):
                 q = np.exp(-x) * self.amplitude(scat)
             q[(scat <= 0) | (tau <= 0)] = 0.0
+        # the coherent share of each pixel's scatter (water's where the materials are not
+        # given): single and forward, it has no share in what the edge term takes off
+        if coherent is None:
+            share = self._water_coherent(acquisition, bodies)
+            q_coh = q * share
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                q_coh = q * np.where(scat > 0, coherent.reshape(-1) / scat, 0.0)
         cell = ((np.arange(hb) // kb)[:, None] * cw + (np.arange(wb) // kb)[None, :]).reshape(-1)
         index = group * n_cells + cell
         n_groups = len(GROUPS)
         sums = np.bincount(index, weights=q, minlength=n_groups * n_cells)
         moments = np.bincount(index, weights=q * tau, minlength=n_groups * n_cells)
+        sums_coh = np.bincount(index, weights=q_coh, minlength=n_groups * n_cells)
         sums = sums.reshape(n_groups, ch, cw) / (kb * kb)   # mean source per cell (zeros
         moments = moments.reshape(n_groups, ch, cw) / (kb * kb)  # past the image's edge)
+        sums_coh = sums_coh.reshape(n_groups, ch, cw) / (kb * kb)
         # near the edge of a body's shadow the scatter sent sideways leaves the body: the
         # source falls by 1 - b exp(-d / (c tau)) at d mm from the nearest cell outside it
         edge = self._edge_distance(sums.sum(axis=0) > 0, (k * pv, k * pu))
@@ -625,16 +725,23 @@ class KernelModel:
         p = self.parameters.values
         coarse = np.zeros((ny, nx))
         cells = (k * pv, k * pu)
+        # each group's air gap: the mean over its source of the cells' exit heights (the
+        # global gap where no surface point projects)
+        lift = self.exit_heights(acquisition, bodies, (ch, cw), k)
+        lift = np.where(np.isfinite(lift), np.maximum(lift, gap), gap)
         for g in range(n_groups):
             weight = float(sums[g].sum())
             if weight <= 0:
                 continue
             tau_g = float(moments[g].sum()) / weight
+            gap_g = float((sums[g] * lift).sum()) / weight
+            mag = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - gap_g,
+                                                                 1e-9)
             coarse[:ch, :cw] = sums[g]
             if edge is not None:
-                coarse[:ch, :cw] *= 1.0 - p["b_edge"] * np.exp(
-                    -edge / (p["c_edge"] * tau_g + p["l_edge"]))
-            heights = (gap + p["s1"] * tau_g * mag, gap + p["s2"] * tau_g * mag)
+                coarse[:ch, :cw] -= (sums[g] - sums_coh[g]) * (p["b_edge"] * np.exp(
+                    -edge / (p["c_edge"] * tau_g + p["l_edge"])))
+            heights = (gap_g + p["s1"] * tau_g * mag, gap_g + p["s2"] * tau_g * mag)
             total += np.fft.rfft2(coarse) * self._spread(heights, (ny, nx), cells)
         if self.grid is not None:
             total /= self.grid_primary
@@ -650,6 +757,48 @@ class KernelModel:
         out = rows[:, lo] * (1.0 - t)
         out += rows[:, np.minimum(lo + 1, cw - 1)] * t
         return np.maximum(out, 0.0, out=out)
+
+
+def _pooled(a, pre, hb, wb):
+    """``(hb * wb,)``: the means of ``a`` over ``pre x pre`` pixels (edges repeated)."""
+    h, w = a.shape
+    pad = a if (h % pre, w % pre) == (0, 0) else np.pad(
+        a, ((0, hb * pre - h), (0, wb * pre - w)), mode="edge")
+    acc = np.zeros((hb, wb))
+    for i in range(pre):                          # strided views: no reshaped copy
+        for j in range(pre):
+            acc += pad[i::pre, j::pre]
+    return acc.reshape(-1) / (pre * pre)
+
+
+def _surface_points(meshes, spacing):
+    """(n, 3) float: the meshes' vertices and, on each triangle with an edge longer than
+    ``spacing`` mm, points at most ``spacing`` apart: rows from the vertex opposite its
+    shortest edge (the apex) to that edge, so that a sliver gets few."""
+    verts = [np.asarray(m.vertices, float) for m in meshes]
+    out = [np.vstack(verts)]
+    tris = np.concatenate([v[np.asarray(m.faces)] for v, m in zip(verts, meshes)])
+    # edge i is opposite vertex i
+    edges = np.stack([np.linalg.norm(tris[:, (i + 2) % 3] - tris[:, (i + 1) % 3], axis=1)
+                      for i in range(3)], axis=1)
+    big = edges.max(axis=1) > spacing
+    if big.any():
+        tris, edges = tris[big], edges[big]
+        apex = edges.argmin(axis=1)
+        t = np.arange(len(tris))
+        a, b, c = (tris[t, (apex + i) % 3] for i in range(3))
+        n_s = np.minimum(np.ceil(np.maximum(np.linalg.norm(b - a, axis=1),
+                                            np.linalg.norm(c - a, axis=1)) / spacing), 512)
+        n_r = np.minimum(np.maximum(np.ceil(edges[t, apex] / spacing), 1), 512)
+        for ns, nr in np.unique(np.stack([n_s, n_r], axis=1), axis=0):
+            sel = (n_s == ns) & (n_r == nr)
+            s_ = np.arange(1, int(ns) + 1) / ns
+            r_ = np.arange(int(nr) + 1) / nr
+            s_, r_ = (x.reshape(-1) for x in np.meshgrid(s_, r_, indexing="ij"))
+            w = np.stack([1.0 - s_, s_ * (1.0 - r_), s_ * r_], axis=1)     # (q, 3)
+            corners = np.stack([a[sel], b[sel], c[sel]], axis=1)           # (t, 3, 3)
+            out.append(np.einsum("qk,tkd->tqd", w, corners).reshape(-1, 3))
+    return np.vstack(out)
 
 
 def _linear(n, k, m):
