@@ -93,14 +93,14 @@ import numpy as np
 from xray_viz.errors import SceneError, ScatterModelWarning
 
 __all__ = ["KernelModel", "KernelParameters", "load_parameters", "PARAMETERS_FILE",
-           "PARAMETER_NAMES", "RANGE_NAMES", "COARSE", "GROUPS", "TOLERANCE"]
+           "PARAMETER_NAMES", "RANGE_NAMES", "COARSE", "GROUPS", "TOLERANCE", "TAU_MIN"]
 
 #: The calibration shipped with the package.
 PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
 
 #: The fitted parameters, in the order of :attr:`KernelParameters.values`.
 PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
-                   "n2", "b_edge", "c_edge", "l_edge")
+                   "n2", "b_edge", "c_edge", "l_edge", "r_edge")
 
 #: The ranges of the fit: ``[low, high]`` each.
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
@@ -118,6 +118,11 @@ COARSE = 64
 
 #: Upper edges (mm of water) of the groups of thickness that share a kernel.
 GROUPS = (20.0, 45.0, 75.0, 110.0, 150.0, 200.0, 260.0, 330.0, np.inf)
+
+#: Water-equivalent thickness (mm) below which a pixel sends no scatter and lies outside
+#: the bodies' shadow (the edge term's): a spectrum's weights sum to 1 only to rounding, so
+#: the unattenuated pixels invert to a few 1e-15 mm, not 0.
+TAU_MIN = 0.05
 
 #: Step of the look-up table in ``ln(1 / T)``.
 LOOKUP_STEP = 5e-4
@@ -326,7 +331,7 @@ class KernelModel:
             grid = np.arange(0.0, self._minus_log_t[-1] + LOOKUP_STEP, LOOKUP_STEP)
             tau = np.interp(grid, self._minus_log_t, self._tau)
             q = np.exp(-grid) * self.amplitude(tau)
-            q[tau <= 0] = 0.0
+            q[tau < TAU_MIN] = 0.0
             group = np.searchsorted(np.asarray(GROUPS), tau, side="left")
             self._table, self._table_params = (tau, q, group), self.parameters
         return self._table
@@ -388,6 +393,26 @@ class KernelModel:
                     kern[0, 0] += share * self.grid_factor(n)
                 else:
                     kern += share * spread
+            hit = np.fft.rfft2(kern)
+            if len(cache[1]) >= SPREADS_KEPT:
+                cache[1].clear()
+            cache[1][key] = hit
+        return hit
+
+    def _side_spread(self, height, shape, cells) -> np.ndarray:
+        """``rfft2`` of the kernel of the scatter leaving a body's sides (:meth:`gap_kernel`
+        with ``n = 0`` at ``height``), kept on the model as :meth:`_spread`'s."""
+        step = int(round(height / HEIGHT_STEP))
+        key = ("side", step, shape, cells)
+        cache = self._spreads
+        if cache[0] is not self.parameters:
+            cache = self._spreads = (self.parameters, {})
+        hit = cache[1].get(key)
+        if hit is None:
+            kern = self.gap_kernel(step * HEIGHT_STEP, shape, cells, 0.0)
+            if kern is None:
+                kern = np.zeros(shape)
+                kern[0, 0] = self.grid_factor(0.0)
             hit = np.fft.rfft2(kern)
             if len(cache[1]) >= SPREADS_KEPT:
                 cache[1].clear()
@@ -650,7 +675,7 @@ class KernelModel:
         ranges = self.parameters.ranges
         x = np.negative(log_t.reshape(-1))                  # ln(1 / T) per pixel
         top = float(self.water_thickness(-x.max())) if x.size else 0.0
-        if top < 0.05:                               # nothing attenuates: no scatter
+        if top < TAU_MIN:                            # nothing attenuates: no scatter
             return np.zeros((h, w))
         gap, mag = self.geometry(acquisition, bodies)
         field = max(w * pu, h * pv)
@@ -699,7 +724,7 @@ class KernelModel:
             # the amplitude at the scatter-equivalent thickness, the transmission as it is
             with np.errstate(divide="ignore"):
                 q = np.exp(-x) * self.amplitude(scat)
-            q[(scat <= 0) | (tau <= 0)] = 0.0
+            q[(scat <= 0) | (tau < TAU_MIN)] = 0.0
         # the coherent share of each pixel's scatter (water's where the materials are not
         # given): single and forward, it has no share in what the edge term takes off
         if coherent is None:
@@ -738,11 +763,18 @@ class KernelModel:
             mag = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - gap_g,
                                                                  1e-9)
             coarse[:ch, :cw] = sums[g]
+            side = None
             if edge is not None:
-                coarse[:ch, :cw] -= (sums[g] - sums_coh[g]) * (p["b_edge"] * np.exp(
+                side = (sums[g] - sums_coh[g]) * (p["b_edge"] * np.exp(
                     -edge / (p["c_edge"] * tau_g + p["l_edge"])))
+                coarse[:ch, :cw] -= side
             heights = (gap_g + p["s1"] * tau_g * mag, gap_g + p["s2"] * tau_g * mag)
             total += np.fft.rfft2(coarse) * self._spread(heights, (ny, nx), cells)
+            if side is not None and p["r_edge"] > 0:
+                # what leaves the body's sides: from its middle, evenly per solid angle
+                coarse[:ch, :cw] = side * p["r_edge"]
+                total += np.fft.rfft2(coarse) * self._side_spread(
+                    gap_g + 0.5 * tau_g * mag, (ny, nx), cells)
         if self.grid is not None:
             total /= self.grid_primary
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
