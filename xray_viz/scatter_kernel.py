@@ -100,7 +100,7 @@ PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
 
 #: The fitted parameters, in the order of :attr:`KernelParameters.values`.
 PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
-                   "n2", "b_edge", "c_edge", "l_edge", "r_edge")
+                   "n2", "b_edge", "c_edge", "l_edge")
 
 #: The ranges of the fit: ``[low, high]`` each.
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
@@ -770,9 +770,9 @@ class KernelModel:
                 coarse[:ch, :cw] -= side
             heights = (gap_g + p["s1"] * tau_g * mag, gap_g + p["s2"] * tau_g * mag)
             total += np.fft.rfft2(coarse) * self._spread(heights, (ny, nx), cells)
-            if side is not None and p["r_edge"] > 0:
+            if side is not None:
                 # what leaves the body's sides: from its middle, evenly per solid angle
-                coarse[:ch, :cw] = side * p["r_edge"]
+                coarse[:ch, :cw] = side
                 total += np.fft.rfft2(coarse) * self._side_spread(
                     gap_g + 0.5 * tau_g * mag, (ny, nx), cells)
         if self.grid is not None:
