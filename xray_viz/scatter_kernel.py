@@ -131,6 +131,10 @@ LOOKUP_STEP = 5e-4
 #: the views of a scan share their kernels (:meth:`KernelModel._spread`).
 HEIGHT_STEP = 0.5
 
+#: Positions along the detector's ``u`` axis at which a focused grid's kernels are taken
+#: (the scatter's sources shared linearly between neighbours).
+GRID_NODES = 5
+
 #: Kernels kept on a model at most (emptied when full).
 SPREADS_KEPT = 256
 
@@ -346,13 +350,14 @@ class KernelModel:
                     + p["a4"] * t * le)
         return np.exp(ln_a)
 
-    def gap_kernel(self, gap, shape, cells, n) -> np.ndarray | None:
+    def gap_kernel(self, gap, shape, cells, n, across=0.0) -> np.ndarray | None:
         """A component's kernel on the coarse grid (FFT order, each cell's share):
         ``(n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2))`` per unit area, the footprint at
         the detector of photons leaving a point ``h = gap`` mm above it with intensity
         ``cos^n`` of their angle per unit solid angle (times the grid's transmission at
-        their angle, with a grid); None for ``h`` below a quarter of a cell (all in the
-        cell below it at this resolution)."""
+        their angle, with a grid, for photons leaving from ``across`` mm along ``u`` from
+        the detector's middle: :meth:`_footprint`); None for ``h`` below a quarter of a
+        cell (all in the cell below it at this resolution)."""
         (ny, nx), (cy, cx) = shape, cells
         if gap < 0.25 * min(cy, cx):
             return None
@@ -360,37 +365,34 @@ class KernelModel:
         ky = np.where(ky > ny // 2, ky - ny, ky) * cy
         kx = np.arange(nx)
         kx = np.where(kx > nx // 2, kx - nx, kx) * cx
-        out = self._footprint(ky[:, None], kx[None, :], gap, n) * (cy * cx)
+        out = self._footprint(ky[:, None], kx[None, :], gap, n, across) * (cy * cx)
         # the cells near the origin, where it changes within a cell: 9 x 9 points each
         m = min(3, ny // 2 - 1, nx // 2 - 1)
         sub = (np.arange(9) - 4.0) / 9.0
         idx = np.arange(-m, m + 1)
         y = ((idx[:, None] + sub[None, :]) * cy).reshape(-1)
         x = ((idx[:, None] + sub[None, :]) * cx).reshape(-1)
-        core = self._footprint(y[:, None], x[None, :], gap, n)
+        core = self._footprint(y[:, None], x[None, :], gap, n, across)
         core = core.reshape(2 * m + 1, 9, 2 * m + 1, 9).mean(axis=(1, 3)) * (cy * cx)
         out[np.ix_(idx % ny, idx % nx)] = core
         return out
 
-    def _spread(self, heights, shape, cells) -> np.ndarray:
-        """``rfft2`` of a group's kernel: both components (:meth:`gap_kernel`, shares
-        ``1 - fraction`` and ``fraction``) at ``heights`` (mm), each rounded to a multiple
-        of :data:`HEIGHT_STEP`; kept on the model for the next calls with the same rounded
-        heights, coarse grid and cells (a scan's views share most of them)."""
-        p = self.parameters.values
-        steps = tuple(int(round(hh / HEIGHT_STEP)) for hh in heights)
-        key = (steps, shape, cells)
+    def _spread(self, components, shape, cells, across=0.0) -> np.ndarray:
+        """``rfft2`` of a kernel: the sum of ``components``, ``(share, step, n)`` each, a
+        :meth:`gap_kernel` at ``step`` times :data:`HEIGHT_STEP` mm; kept on the model for
+        the next calls with the same components, coarse grid, cells and ``across`` (a
+        scan's views share most of them)."""
+        key = (components, shape, cells, across)
         cache = self._spreads
         if cache[0] is not self.parameters:
             cache = self._spreads = (self.parameters, {})
         hit = cache[1].get(key)
         if hit is None:
             kern = np.zeros(shape)
-            for share, step, n in ((1.0 - p["fraction"], steps[0], p["n1"]),
-                                   (p["fraction"], steps[1], p["n2"])):
-                spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n)
+            for share, step, n in components:
+                spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n, across)
                 if spread is None:
-                    kern[0, 0] += share * self.grid_factor(n)
+                    kern[0, 0] += share * self.grid_factor(n, across)
                 else:
                     kern += share * spread
             hit = np.fft.rfft2(kern)
@@ -399,25 +401,19 @@ class KernelModel:
             cache[1][key] = hit
         return hit
 
-    def _side_spread(self, height, shape, cells) -> np.ndarray:
-        """``rfft2`` of the kernel of the scatter leaving a body's sides (:meth:`gap_kernel`
-        with ``n = 0`` at ``height``), kept on the model as :meth:`_spread`'s."""
-        step = int(round(height / HEIGHT_STEP))
-        key = ("side", step, shape, cells)
-        cache = self._spreads
-        if cache[0] is not self.parameters:
-            cache = self._spreads = (self.parameters, {})
-        hit = cache[1].get(key)
-        if hit is None:
-            kern = self.gap_kernel(step * HEIGHT_STEP, shape, cells, 0.0)
-            if kern is None:
-                kern = np.zeros(shape)
-                kern[0, 0] = self.grid_factor(0.0)
-            hit = np.fft.rfft2(kern)
-            if len(cache[1]) >= SPREADS_KEPT:
-                cache[1].clear()
-            cache[1][key] = hit
-        return hit
+    def _grid_nodes(self, w, k, pu, cw):
+        """``[(across, weights)]``: with a grid, :data:`GRID_NODES` positions along ``u``
+        (mm from the detector's middle) over the coarse grid's ``cw`` columns and each
+        column's share of each (linear between neighbours): the strips lean toward the
+        focus, so a photon's angle across them depends on where it arrives. Without a
+        grid, ``[(0.0, None)]``."""
+        if self.grid is None or cw < 2:
+            return [(0.0, None)]
+        u = ((np.arange(cw) + 0.5) * k - 0.5 * w) * pu          # the columns' centres
+        nodes = np.linspace(u[0], u[-1], min(GRID_NODES, cw))
+        step = nodes[1] - nodes[0]
+        return [(round(float(c), 6), np.maximum(0.0, 1.0 - np.abs(u - c) / step))
+                for c in nodes]
 
     @staticmethod
     def _edge_distance(inside, cells):
@@ -431,27 +427,31 @@ class KernelModel:
         d = distance_transform_edt(inside, sampling=cells)
         return np.maximum(d - 0.5 * min(cells), 0.0)
 
-    def _footprint(self, y, x, gap, n):
+    def _footprint(self, y, x, gap, n, across=0.0):
         """The per-area density of :meth:`gap_kernel` at offsets ``y``, ``x`` (mm), times
-        the grid's transmission at ``tan = x / gap`` across the strips."""
+        the grid's transmission at ``tan = x / gap - (across + x) / focus_distance`` across
+        the strips (the angle from the strip where the photon arrives, ``across + x`` mm
+        from the detector's middle along ``u``: the grid is focused)."""
         h2 = gap * gap
         # (n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2)), without overflow for a large n
         dens = (n + 1.0) / (2.0 * math.pi * h2) * (h2 / (y * y + x * x + h2)) ** (
             (n + 3.0) / 2.0)
         if self.grid is not None:                  # across the strips: along u
-            dens = dens * np.asarray(self.grid.transmission(self.energy_kev, x / gap), float)
+            tan = x / gap - (across + x) / self.grid.focus_distance
+            dens = dens * np.asarray(self.grid.transmission(self.energy_kev, tan), float)
         return dens
 
-    def grid_factor(self, n) -> float:
+    def grid_factor(self, n, across=0.0) -> float:
         """The grid's mean transmission of scatter leaving with intensity ``cos^n`` of its
-        angle per unit solid angle (the no-gap limit of :meth:`gap_kernel`); 1 without a
-        grid."""
+        angle per unit solid angle (the no-gap limit of :meth:`gap_kernel`, ``across`` mm
+        along ``u`` from the detector's middle); 1 without a grid."""
         if self.grid is None:
             return 1.0
         theta = (np.arange(400) + 0.5) * (0.5 * math.pi / 400)
         phi = (np.arange(64) + 0.5) * (2.0 * math.pi / 64)
         w = np.cos(theta) ** n * np.sin(theta)
-        tan_u = np.tan(theta)[:, None] * np.cos(phi)[None, :]
+        tan_u = (np.tan(theta)[:, None] * np.cos(phi)[None, :]
+                 - across / self.grid.focus_distance)
         t = np.asarray(self.grid.transmission(self.energy_kev, tan_u), float)
         return float((w[:, None] * t).sum() / (w.sum() * len(phi)))
 
@@ -754,6 +754,7 @@ class KernelModel:
         # global gap where no surface point projects)
         lift = self.exit_heights(acquisition, bodies, (ch, cw), k)
         lift = np.where(np.isfinite(lift), np.maximum(lift, gap), gap)
+        nodes = self._grid_nodes(w, k, pu, cw)
         for g in range(n_groups):
             weight = float(sums[g].sum())
             if weight <= 0:
@@ -762,19 +763,25 @@ class KernelModel:
             gap_g = float((sums[g] * lift).sum()) / weight
             mag = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - gap_g,
                                                                  1e-9)
-            coarse[:ch, :cw] = sums[g]
+            source = sums[g]
             side = None
             if edge is not None:
+                # near the edge of the shadow, a share of the incoherent scatter leaves by
+                # the body's sides: from its middle, evenly per solid angle
                 side = (sums[g] - sums_coh[g]) * (p["b_edge"] * np.exp(
                     -edge / (p["c_edge"] * tau_g + p["l_edge"])))
-                coarse[:ch, :cw] -= side
-            heights = (gap_g + p["s1"] * tau_g * mag, gap_g + p["s2"] * tau_g * mag)
-            total += np.fft.rfft2(coarse) * self._spread(heights, (ny, nx), cells)
+                source = source - side
+            parts = [(source, ((1.0 - p["fraction"], _height_step(gap_g + p["s1"] * tau_g * mag),
+                                p["n1"]),
+                               (p["fraction"], _height_step(gap_g + p["s2"] * tau_g * mag),
+                                p["n2"])))]
             if side is not None:
-                # what leaves the body's sides: from its middle, evenly per solid angle
-                coarse[:ch, :cw] = side
-                total += np.fft.rfft2(coarse) * self._side_spread(
-                    gap_g + 0.5 * tau_g * mag, (ny, nx), cells)
+                parts.append((side, ((1.0, _height_step(gap_g + 0.5 * tau_g * mag), 0.0),)))
+            for src, components in parts:
+                for across, share in nodes:
+                    coarse[:ch, :cw] = src if share is None else src * share
+                    total += np.fft.rfft2(coarse) * self._spread(components, (ny, nx), cells,
+                                                                 across)
         if self.grid is not None:
             total /= self.grid_primary
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
@@ -789,6 +796,12 @@ class KernelModel:
         out = rows[:, lo] * (1.0 - t)
         out += rows[:, np.minimum(lo + 1, cw - 1)] * t
         return np.maximum(out, 0.0, out=out)
+
+
+def _height_step(height):
+    """A kernel's height (mm) in multiples of :data:`HEIGHT_STEP` (:meth:`KernelModel._spread`'s
+    key: the views of a scan share their kernels)."""
+    return int(round(height / HEIGHT_STEP))
 
 
 def _pooled(a, pre, hb, wb):
