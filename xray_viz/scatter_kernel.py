@@ -233,11 +233,12 @@ class KernelModel:
     """
 
     def __init__(self, tau, log_t_water, energy_kev, parameters, *, grid=None,
-                 grid_primary=1.0):
+                 grid_primary=1.0, grid_spectrum=None):
         self._tau, self._minus_log_t = tau, -log_t_water
         self.energy_kev = float(energy_kev)
         self.parameters = parameters
         self.grid, self.grid_primary = grid, float(grid_primary)
+        self.grid_spectrum = grid_spectrum
         self._spreads = (parameters, {})     # the kernels' spectra (_spread)
         self._table, self._table_params = None, None    # the look-up table (_lookup)
 
@@ -301,7 +302,7 @@ class KernelModel:
             _warn(f"scatter kernel: fitted for an energy-integrating detector, the scene's "
                   f"response is {response!r}")
         grid = det.grid
-        grid_primary = 1.0
+        grid_primary, grid_spectrum = 1.0, None
         if grid is not None:
             # the primary's transmission through the grid as the detector without it weighs
             # the beam: the flat field behind the grid over the one without
@@ -311,8 +312,9 @@ class KernelModel:
             w0 = bare.u1[bare.keep]
             grid_primary = float(w0 @ np.asarray(grid.primary_transmission(e), float)
                                  / w0.sum())
+            grid_spectrum = (e, w0)
         return cls(_TAU, log_t_water, energy, parameters, grid=grid,
-                   grid_primary=grid_primary)
+                   grid_primary=grid_primary, grid_spectrum=grid_spectrum)
 
     def water_thickness(self, log_transmission) -> np.ndarray:
         """Water-equivalent thickness (mm) of each transmission ``ln T``: the water of the
@@ -787,7 +789,7 @@ class KernelModel:
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
         np.maximum(s, 0.0, out=s)                   # FFT round-off below zero
         if k == 1:
-            return np.ascontiguousarray(s)
+            return self._per_flat(np.ascontiguousarray(s), acquisition)
         # bilinear interpolation from the cells' centres to the pixels', axis by axis
         lo, t = _linear(h, k, ch)
         rows = s[lo] * (1.0 - t)[:, None]
@@ -795,7 +797,16 @@ class KernelModel:
         lo, t = _linear(w, k, cw)
         out = rows[:, lo] * (1.0 - t)
         out += rows[:, np.minimum(lo + 1, cw - 1)] * t
-        return np.maximum(out, 0.0, out=out)
+        return self._per_flat(np.maximum(out, 0.0, out=out), acquisition)
+
+    def _per_flat(self, s, acquisition):
+        """``s`` (relative to the focused flat field) relative to each pixel's flat field:
+        with a grid, over its off-focus cut-off (:meth:`~xray_viz.physics.grid.Grid.
+        off_focus`, as :meth:`~xray_viz.physics.beam.Beam.at` puts it in the flat field)."""
+        if self.grid is None:
+            return s
+        s /= self.grid.off_focus(acquisition, *self.grid_spectrum)
+        return s
 
 
 def _height_step(height):

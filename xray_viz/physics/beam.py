@@ -201,6 +201,14 @@ class Beam:
         its detector point minus its path lengths in the bodies: one more term of every sum.
     acquisition : Acquisition or None
         The pose :meth:`at` bound, for the rays' lengths when there is a world medium.
+    grid : Grid or None
+        The detector's anti-scatter grid (``u1`` and ``u2`` include its focused
+        transmission).
+    off_focus : ((H, W) float, (H, W) float) or None
+        Set by :meth:`at` with a grid: each pixel's primary transmission at its ray's angle
+        over the focused one, for the signal's and the variance's weights
+        (:meth:`~xray_viz.physics.grid.Grid.off_focus`): 1 where the source is at the grid's
+        focus, lower toward the edges where it is not (:meth:`levels` multiplies them in).
     """
 
     spectrum: object
@@ -213,16 +221,18 @@ class Beam:
     heel: tuple | None = None
     world: np.ndarray | None = None
     acquisition: object = None
+    grid: object = None
+    off_focus: tuple | None = None
 
     @classmethod
     def of(cls, source, bodies, detector, *, world=None) -> Beam:
         """The beam of ``source`` through ``bodies`` as ``detector`` weighs it (its
         ``response``, ``scintillator`` and ``grid``), at no pose yet (see :meth:`at`).
 
-        The grid's transmission is its focused one at every pixel, ``Tp(E)``: the source is
-        taken at the grid's focus, above the detector's middle (off focus the strips cut the
-        primary off towards the edges; the transport, :func:`xray_viz.transport`, models it
-        photon by photon).
+        The grid's transmission in ``u1`` and ``u2`` is its focused one, ``Tp(E)``; :meth:`at`
+        adds each pixel's off-focus cut-off (the strips lean toward the grid's focus, above
+        the detector's middle: a source at another distance sees them cut its rays off
+        toward the edges, as the transport's photons are).
 
         ``world``: the scene's ``[world]`` medium (``{"material": ..., "density": ...}``, as
         :class:`~xray_viz.scene.Scene` checks it), attenuating each ray along its path outside
@@ -254,7 +264,8 @@ class Beam:
             mu_world = np.asarray(linear_attenuation(
                 world["material"], spectrum.energies[keep], density=world.get("density")),
                 dtype=np.float64).reshape(-1) / MM_PER_CM
-        return cls(spectrum, keep, u1, u2, mu, counts, tuple(detector.shape), world=mu_world)
+        return cls(spectrum, keep, u1, u2, mu, counts, tuple(detector.shape), world=mu_world,
+                   grid=grid)
 
     def at(self, acquisition) -> Beam:
         """This beam at an :class:`~xray_viz.geometry.Acquisition`: with the heel effect
@@ -263,12 +274,23 @@ class Beam:
 
         if self.world is not None:
             self = replace(self, acquisition=acquisition, shape=tuple(acquisition.detector.shape))
+        if self.grid is not None:
+            self = replace(self, off_focus=self._off_focus(acquisition),
+                           shape=tuple(acquisition.detector.shape))
         if heel_side(acquisition.source.heel) is None:
             return self if self.heel is None else replace(self, heel=None)
         interpolation = HeelInterpolation(acquisition)
         return replace(self, heel=(interpolation,
                                    np.ascontiguousarray(interpolation.ratio[:, self.keep])),
                        shape=tuple(acquisition.detector.shape))
+
+    def _off_focus(self, acquisition):
+        """:attr:`off_focus` at ``acquisition``: the grid's, weighted by ``u1`` and ``u2``
+        without the grid's focused transmission."""
+        e = self.spectrum.energies[self.keep]
+        focused = np.asarray(self.grid.primary_transmission(e), dtype=np.float64)
+        return tuple(self.grid.off_focus(acquisition, e, u[self.keep] / focused)
+                     for u in (self.u1, self.u2))
 
     # ----------------------------------------------------------------------------------------
 
@@ -449,13 +471,17 @@ class Beam:
     def levels(self):
         """The unattenuated signal and variance per incident photon at each pixel, relative
         to an ideal detector at the centre: ``A = sum_k u1_k``, ``B = sum_k u2_k`` (heel
-        included): two floats, or two ``(H, W)`` arrays with the heel effect."""
+        and a grid's :attr:`off_focus` included): two floats, or two ``(H, W)`` arrays with
+        the heel effect or a grid."""
         u1, u2, keep = self.u1, self.u2, self.keep
         if self.heel is None:
-            return float(u1.sum()), float(u2.sum())
-        interpolation, ratio = self.heel
-        w, h = self.shape
-        corners, coef = interpolation.corners(np.arange(w * h))
-        A = ((ratio @ u1[keep])[corners] * coef).sum(axis=1)
-        B = ((ratio @ u2[keep])[corners] * coef).sum(axis=1)
-        return A.reshape(h, w), B.reshape(h, w)
+            A, B = float(u1.sum()), float(u2.sum())
+        else:
+            interpolation, ratio = self.heel
+            w, h = self.shape
+            corners, coef = interpolation.corners(np.arange(w * h))
+            A = ((ratio @ u1[keep])[corners] * coef).sum(axis=1).reshape(h, w)
+            B = ((ratio @ u2[keep])[corners] * coef).sum(axis=1).reshape(h, w)
+        if self.off_focus is not None:
+            A, B = A * self.off_focus[0], B * self.off_focus[1]
+        return A, B
