@@ -5,24 +5,28 @@ square detector of 32 x 32 pixels ``field`` mm wide, 1500 mm from a point source
 transport emits into the detector's field, so the field at the detector is the detector. The
 bodies: slabs (boxes) wider than the field (thicknesses 10-300 mm), blocks narrower than it
 (:data:`NARROW`), and cylinders and spheres narrower than it (:data:`SMALL`, 25-150 mm
-across). The transport's scatter (incoherent + coherent + multiple) over the flat field
+across). Then water slabs and a cylinder behind the default anti-scatter grid (:data:`GRIDDED`). The
+transport's scatter (incoherent + coherent + multiple) over the flat field
 (:func:`xray_viz.transport.flat_signal`) is compared, in blocks of 4 x 4 pixels, with the
 model's scatter from the primary renderer's noise-free ``ln T``; the parameters minimise the
 relative residuals (``scipy.optimize.least_squares``, each block weighted by its transport
-error plus 3 %) in two stages: the amplitude and the kernels (:data:`SLAB_PARAMETERS`) on
-the slabs wider than the field, then the edge term (:data:`EDGE_PARAMETERS`) on the bodies
-narrower than it, the others held (``--slab-parameters FILE``: the slab parameters of a
-previous calibration held, stage 2 only). Histories per case: a pilot of 40,000 estimates the
-scattered photons per history, then enough for ``--scattered`` of them (at most
-``--max-histories``; ``--small-scattered`` and ``--small-max-histories`` for the bodies
-narrower than the field, which most photons miss).
+error plus 3 %) in three stages, each with the previous ones' held: the amplitude and the
+kernels (:data:`SLAB_PARAMETERS`) on the slabs wider than the field, the edge term
+(:data:`EDGE_PARAMETERS`) on the bodies narrower than it, the angles through a grid
+(:data:`GRID_PARAMETERS`) on the cases behind the grid (``--slab-parameters FILE``,
+``--edge-parameters FILE``: those of a previous calibration held, not fitted). Histories per
+case: a pilot of 40,000 estimates the scattered photons per history, then enough for
+``--scattered`` of them (at most ``--max-histories``; ``--small-scattered`` and
+``--small-max-histories`` for the bodies narrower than the field, which most photons miss,
+``--grid-scattered`` and ``--grid-max-histories`` for the cases behind the grid).
 
 Usage::
 
     PYTHONPATH=$PWD .venv/bin/python benchmarks/calibrate_scatter_kernel.py \
         [--scattered 60000] [--max-histories 4000000] [--small-scattered 150000] \
-        [--small-max-histories 8000000] [--cache /tmp/skcal.npz] [--slab-parameters FILE] \
-        [--out FILE]
+        [--small-max-histories 8000000] [--grid-scattered 150000] \
+        [--grid-max-histories 20000000] [--cache /tmp/skcal.npz] [--slab-parameters FILE] \
+        [--edge-parameters FILE] [--out FILE]
 
 Writes ``xray_viz/data/scatter_kernel.json`` (or ``--out``) with the date, commit, histories,
 ranges and the residuals of the fit.
@@ -79,6 +83,14 @@ SMALL = (("cylinder", 40.0, 150.0, 50.0, "60keV"), ("cylinder", 60.0, 200.0, 300
          ("sphere", 100.0, 200.0, 450.0, "60keV"), ("sphere", 150.0, 250.0, 50.0, "90kVp"),
          ("cylinder", 25.0, 120.0, 75.0, "60keV"))
 CYLINDER_LENGTH = 0.75
+#: Water slabs behind the default anti-scatter grid (ratio 10, 60 lines/cm, focused at 1000
+#: mm, 1500 mm from the source: cut off toward the edges): (thickness, field, gap,
+#: spectrum); and one cylinder narrower than the field, ("cylinder", diameter, field, gap,
+#: spectrum). The grid's angle parameter (:data:`GRID_PARAMETERS`)
+GRIDDED = ((50.0, 200.0, 10.0, "60kVp"), (100.0, 300.0, 50.0, "90kVp"),
+           (200.0, 250.0, 150.0, "120kVp"), (300.0, 400.0, 20.0, "90kVp"),
+           (100.0, 150.0, 300.0, "60keV"), (150.0, 400.0, 5.0, "120kVp"),
+           ("cylinder", 120.0, 250.0, 30.0, "90kVp"))
 #: A wider field (the limb's detector is 415 mm long)
 WIDE_FIELD = 450.0
 #: Longer gaps (the bundled phantoms stand 0.2-0.5 m above their detectors)
@@ -145,9 +157,18 @@ def case_scene(case):
     """The scene of a :func:`calibration_cases` row."""
     label, t, f, g, s, w = case[:6]
     shape = case[6] if len(case) > 6 else None
+    gridded = len(case) > 7 and case[7]
     if shape is None:
-        return slab_scene(t, f, g, s, side=w)
-    return round_scene(shape, t, f, g, s)
+        scene = slab_scene(t, f, g, s, side=w)
+    else:
+        scene = round_scene(shape, t, f, g, s)
+    if gridded:
+        import dataclasses
+
+        from xray_viz.physics.grid import Grid
+
+        scene = scene.replace(detector=dataclasses.replace(scene.detector, grid=Grid()))
+    return scene
 
 
 def calibration_cases():
@@ -183,6 +204,11 @@ def calibration_cases():
     for shape, d, f, g, s in SMALL:
         out.append((f"water {shape} {d:.0f} mm across, field {f:.0f} mm, gap {g:.0f} mm, {s}",
                     d, f, g, s, None, shape))
+    for row in GRIDDED:
+        shape, (t, f, g, s) = (row[0], row[1:]) if isinstance(row[0], str) else (None, row)
+        what = f"{shape} {t:.0f} mm across" if shape else f"{t:.0f} mm"
+        out.append((f"water {what}, field {f:.0f} mm, gap {g:.0f} mm, {s}, default grid",
+                    t, f, g, s, None, shape, True))
     return out
 
 
@@ -219,11 +245,14 @@ def bin_image(a, b=BIN, *, squared=False):
     return blocks.mean(axis=(1, 3))
 
 
-def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None):
-    """Each case's scene, binned transport scatter, error, ``ln T`` and histories
+def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None,
+              gridded=None):
+    """Each case's scene, binned transport scatter, error, ``ln T``, histories, seconds and
+    stage (0 a slab wider than the field, 1 a body narrower than it, 2 behind a grid)
     (read from ``cache`` where it has them, then stored there). ``small``:
     ``(scattered, max_histories)`` of the bodies narrower than the field (cheap: most
-    photons miss them; they need more for the same error), default the others'."""
+    photons miss them; they need more for the same error), default the others'; ``gridded``
+    the same for the cases behind a grid."""
     store = {}
     if cache is not None and Path(cache).exists():
         with np.load(cache, allow_pickle=False) as z:
@@ -233,7 +262,9 @@ def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None
         label = case[0]
         scene = case_scene(case)
         narrow = case[5] is not None or (len(case) > 6 and case[6] is not None)
-        want, cap = small if narrow and small is not None else (scattered, max_histories)
+        stage = 2 if len(case) > 7 and case[7] else int(narrow)
+        budget = {0: None, 1: small, 2: gridded}[stage]
+        want, cap = budget if budget is not None else (scattered, max_histories)
         # the case's seed from its label: the same numbers whatever the other cases
         case_seed = seed + zlib.crc32(label.encode()) % 1_000_000
         prefix = f"{label}|{want}|{cap}|"
@@ -251,7 +282,7 @@ def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None
             if cache is not None:
                 np.savez(cache, **store)
         out.append((label, scene, store[key + "|s"], store[key + "|e"], store[key + "|l"],
-                    int(store[key + "|n"]), float(store.get(key + "|sec", np.nan)), narrow))
+                    int(store[key + "|n"]), float(store.get(key + "|sec", np.nan)), stage))
     return out
 
 
@@ -260,12 +291,13 @@ def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None
 #: 1 over a shadow that covers the field, so stage 2 leaves the slabs as stage 1 fits them
 SLAB_PARAMETERS = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1", "n2")
 EDGE_PARAMETERS = ("b_edge", "c_edge", "l_edge")
+GRID_PARAMETERS = ("grid_depth",)
 #: start, low and high of each parameter
 BOUNDS = {"a0": (0.40, -5, 5), "a1": (1.02, 0.05, 5), "a2": (0.33, -5, 5),
           "a3": (-0.28, -5, 5), "a4": (0.02, -5, 5), "fraction": (0.95, 0.0, 1.0),
           "s1": (1.0, 0.001, 2.0), "s2": (0.49, 0.01, 10.0), "n1": (99.0, 0.0, 100.0),
           "n2": (1.67, 0.0, 30.0), "b_edge": (0.2, 0.0, 1.0), "c_edge": (0.5, 0.0, 1.0),
-          "l_edge": (50.0, 0.5, 100.0)}
+          "l_edge": (50.0, 0.5, 100.0), "grid_depth": (50.0, 1.0, 2000.0)}
 
 #: more starts of the edge term's fit
 EDGE_STARTS = ((0.2, 1.0, 100.0), (0.35, 0.2, 1.0))
@@ -300,19 +332,20 @@ def _predict(models, ranges, values):
     return out
 
 
-def fit(results, start=None, *, hold_slabs=False):
-    """Least-squares parameters in two stages (:data:`SLAB_PARAMETERS` on the slabs wider
-    than the field, then :data:`EDGE_PARAMETERS` on the bodies narrower than it):
-    ``(values dict, per-case median |relative error|, the two solutions)``. ``results``:
-    :func:`run_cases`' rows, their last item true for a body narrower than the field.
-    ``hold_slabs``: the slab parameters of ``start`` held (stage 2 only)."""
+def fit(results, start=None, *, held=()):
+    """Least-squares parameters in three stages, each with the previous ones' held:
+    :data:`SLAB_PARAMETERS` on the slabs wider than the field, :data:`EDGE_PARAMETERS` on
+    the bodies narrower than it, :data:`GRID_PARAMETERS` on the cases behind a grid:
+    ``(values dict, per-case median |relative error|, the stages' solutions)``.
+    ``results``: :func:`run_cases`' rows, their last item the stage. ``held``: the stages
+    whose parameters ``start`` gives and are not fitted."""
     from scipy.optimize import least_squares
 
     values = {k: v[0] for k, v in BOUNDS.items()}
     values.update(start or {})
-    slab_sol = None
-    for stage, names in ((False, SLAB_PARAMETERS), (True, EDGE_PARAMETERS)):
-        if hold_slabs and not stage:
+    solutions = [None, None, None]
+    for stage, names in enumerate((SLAB_PARAMETERS, EDGE_PARAMETERS, GRID_PARAMETERS)):
+        if stage in held:
             continue
         models, ranges = _models([r for r in results if r[-1] == stage], values)
         lo = np.array([BOUNDS[k][1] for k in names])
@@ -326,16 +359,18 @@ def fit(results, start=None, *, hold_slabs=False):
 
         # the edge term has local minima (a short reach with a large share, a long one with
         # a small share): from a few starts, the least cost
-        starts = [x0] if not stage else [x0] + [np.clip(x, lo, hi) for x in EDGE_STARTS]
-        sol = min((least_squares(residuals, x, bounds=(lo, hi), x_scale="jac")
-                   for x in starts), key=lambda r: r.cost)
+        starts = [x0] if stage != 1 else [x0] + [np.clip(x, lo, hi) for x in EDGE_STARTS]
+        # the grid's depth moves the kernels' angle heights, rounded to HEIGHT_STEP: a
+        # difference step that crosses a step
+        step = 0.05 if stage == 2 else None
+        sol = min((least_squares(residuals, x, bounds=(lo, hi), x_scale="jac",
+                                 diff_step=step) for x in starts), key=lambda r: r.cost)
         values.update(zip(names, (float(v) for v in sol.x)))
-        if not stage:
-            slab_sol = sol
+        solutions[stage] = sol
     models, ranges = _models(results, values)
     errors = [float(np.median(np.abs(p / sb - 1))) for p, sb, _ in
               _predict(models, ranges, values)]
-    return values, errors, (slab_sol, sol)
+    return values, errors, solutions
 
 
 def main(argv=None):
@@ -346,24 +381,31 @@ def main(argv=None):
     parser.add_argument("--small-scattered", type=int, default=150_000,
                         help="the same for the bodies narrower than the field (default 150000)")
     parser.add_argument("--small-max-histories", type=int, default=8_000_000)
+    parser.add_argument("--grid-scattered", type=int, default=150_000,
+                        help="the same for the cases behind a grid (default 150000)")
+    parser.add_argument("--grid-max-histories", type=int, default=20_000_000)
     parser.add_argument("--cache", default=None, help="npz of the transport results")
     parser.add_argument("--slab-parameters", default=None,
-                        help="a calibration file whose slab parameters are held (stage 2 "
-                             "only)")
+                        help="a calibration file whose slab parameters are held")
+    parser.add_argument("--edge-parameters", default=None,
+                        help="a calibration file whose edge parameters are held")
     parser.add_argument("--out", default=str(ROOT / "xray_viz" / "data" / "scatter_kernel.json"))
     args = parser.parse_args(argv)
     cases = calibration_cases()
     results = run_cases(cases, scattered=args.scattered, max_histories=args.max_histories,
                         cache=args.cache,
-                        small=(args.small_scattered, args.small_max_histories))
+                        small=(args.small_scattered, args.small_max_histories),
+                        gridded=(args.grid_scattered, args.grid_max_histories))
     t_mc = sum(r[6] for r in results)           # each case's transport and render, s
-    if args.slab_parameters:
-        # a previous calibration's file (it may predate the edge parameters)
-        held = json.loads(Path(args.slab_parameters).read_text(encoding="utf-8"))["parameters"]
-        values, errors, sol = fit(results, {k: held[k] for k in SLAB_PARAMETERS},
-                                  hold_slabs=True)
-    else:
-        values, errors, sol = fit(results)
+    start, held = {}, set()
+    for stage, (path, names) in enumerate(((args.slab_parameters, SLAB_PARAMETERS),
+                                           (args.edge_parameters, EDGE_PARAMETERS))):
+        if path:
+            # a previous calibration's file
+            doc = json.loads(Path(path).read_text(encoding="utf-8"))["parameters"]
+            start.update({k: doc[k] for k in names})
+            held.add(stage)
+    values, errors, sol = fit(results, start, held=held)
     from xray_viz.scatter_kernel import KernelModel, KernelParameters, PARAMETER_NAMES
 
     values = {k: values[k] for k in PARAMETER_NAMES}
@@ -401,8 +443,10 @@ def main(argv=None):
                     "cost": [None if x is None else float(x.cost) for x in sol],
                     "evaluations": [None if x is None else int(x.nfev) for x in sol],
                     "slab_parameters_held_from": args.slab_parameters,
+                    "edge_parameters_held_from": args.edge_parameters,
                     "stages": {"slabs wider than the field": list(SLAB_PARAMETERS),
-                               "bodies narrower than the field": list(EDGE_PARAMETERS)}}}
+                               "bodies narrower than the field": list(EDGE_PARAMETERS),
+                               "behind the default grid": list(GRID_PARAMETERS)}}}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     for r, err in zip(results, errors):

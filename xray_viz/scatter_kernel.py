@@ -100,7 +100,7 @@ PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
 
 #: The fitted parameters, in the order of :attr:`KernelParameters.values`.
 PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
-                   "n2", "b_edge", "c_edge", "l_edge")
+                   "n2", "b_edge", "c_edge", "l_edge", "grid_depth")
 
 #: The ranges of the fit: ``[low, high]`` each.
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
@@ -134,6 +134,13 @@ HEIGHT_STEP = 0.5
 #: Positions along the detector's ``u`` axis at which a focused grid's kernels are taken
 #: (the scatter's sources shared linearly between neighbours).
 GRID_NODES = 5
+
+#: Angles in (-pi/2, pi/2) of the table of the grid's scatter transmission.
+GRID_ANGLES = 2001
+
+#: Steps (mm of water) of the thicknesses that harden the scatter's spectrum for a grid's
+#: transmission (:meth:`KernelModel.scatter_transmission`).
+GRID_TAU_STEP = 10.0
 
 #: Kernels kept on a model at most (emptied when full).
 SPREADS_KEPT = 256
@@ -239,6 +246,7 @@ class KernelModel:
         self.parameters = parameters
         self.grid, self.grid_primary = grid, float(grid_primary)
         self.grid_spectrum = grid_spectrum
+        self._grid_table, self._grid_tables = None, {}     # scatter_transmission's
         self._spreads = (parameters, {})     # the kernels' spectra (_spread)
         self._table, self._table_params = None, None    # the look-up table (_lookup)
 
@@ -312,7 +320,8 @@ class KernelModel:
             w0 = bare.u1[bare.keep]
             grid_primary = float(w0 @ np.asarray(grid.primary_transmission(e), float)
                                  / w0.sum())
-            grid_spectrum = (e, w0)
+            # the scatter's spectrum: the source's after the bodies' water, as detected
+            grid_spectrum = (e, w0, mu)
         return cls(_TAU, log_t_water, energy, parameters, grid=grid,
                    grid_primary=grid_primary, grid_spectrum=grid_spectrum)
 
@@ -352,14 +361,15 @@ class KernelModel:
                     + p["a4"] * t * le)
         return np.exp(ln_a)
 
-    def gap_kernel(self, gap, shape, cells, n, across=0.0) -> np.ndarray | None:
+    def gap_kernel(self, gap, shape, cells, n, across=0.0, angle=None) -> np.ndarray | None:
         """A component's kernel on the coarse grid (FFT order, each cell's share):
         ``(n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2))`` per unit area, the footprint at
         the detector of photons leaving a point ``h = gap`` mm above it with intensity
         ``cos^n`` of their angle per unit solid angle (times the grid's transmission at
         their angle, with a grid, for photons leaving from ``across`` mm along ``u`` from
-        the detector's middle: :meth:`_footprint`); None for ``h`` below a quarter of a
-        cell (all in the cell below it at this resolution)."""
+        the detector's middle, as if from ``angle`` mm above the detector, default ``h``:
+        :meth:`_footprint`); None for ``h`` below a quarter of a cell (all in the cell
+        below it at this resolution)."""
         (ny, nx), (cy, cx) = shape, cells
         if gap < 0.25 * min(cy, cx):
             return None
@@ -367,32 +377,36 @@ class KernelModel:
         ky = np.where(ky > ny // 2, ky - ny, ky) * cy
         kx = np.arange(nx)
         kx = np.where(kx > nx // 2, kx - nx, kx) * cx
-        out = self._footprint(ky[:, None], kx[None, :], gap, n, across) * (cy * cx)
+        angle = gap if angle is None else angle
+        out = self._footprint(ky[:, None], kx[None, :], gap, n, across, angle) * (cy * cx)
         # the cells near the origin, where it changes within a cell: 9 x 9 points each
         m = min(3, ny // 2 - 1, nx // 2 - 1)
         sub = (np.arange(9) - 4.0) / 9.0
         idx = np.arange(-m, m + 1)
         y = ((idx[:, None] + sub[None, :]) * cy).reshape(-1)
         x = ((idx[:, None] + sub[None, :]) * cx).reshape(-1)
-        core = self._footprint(y[:, None], x[None, :], gap, n, across)
+        core = self._footprint(y[:, None], x[None, :], gap, n, across, angle)
         core = core.reshape(2 * m + 1, 9, 2 * m + 1, 9).mean(axis=(1, 3)) * (cy * cx)
         out[np.ix_(idx % ny, idx % nx)] = core
         return out
 
     def _spread(self, components, shape, cells, across=0.0) -> np.ndarray:
-        """``rfft2`` of a kernel: the sum of ``components``, ``(share, step, n)`` each, a
-        :meth:`gap_kernel` at ``step`` times :data:`HEIGHT_STEP` mm; kept on the model for
-        the next calls with the same components, coarse grid, cells and ``across`` (a
-        scan's views share most of them)."""
+        """``rfft2`` of a kernel: the sum of ``components``, ``(share, step, n, angle)``
+        each, a :meth:`gap_kernel` at ``step`` times :data:`HEIGHT_STEP` mm (its photons'
+        angles through a grid as if from ``angle`` times that); kept on the model for the
+        next calls with the same components, coarse grid, cells and ``across`` (a scan's
+        views share most of them)."""
         key = (components, shape, cells, across)
+        across = across[0]
         cache = self._spreads
         if cache[0] is not self.parameters:
             cache = self._spreads = (self.parameters, {})
         hit = cache[1].get(key)
         if hit is None:
             kern = np.zeros(shape)
-            for share, step, n in components:
-                spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n, across)
+            for share, step, n, angle in components:
+                spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n, across,
+                                         angle * HEIGHT_STEP)
                 if spread is None:
                     kern[0, 0] += share * self.grid_factor(n, across)
                 else:
@@ -429,19 +443,69 @@ class KernelModel:
         d = distance_transform_edt(inside, sampling=cells)
         return np.maximum(d - 0.5 * min(cells), 0.0)
 
-    def _footprint(self, y, x, gap, n, across=0.0):
+    def _footprint(self, y, x, gap, n, across=0.0, angle=None):
         """The per-area density of :meth:`gap_kernel` at offsets ``y``, ``x`` (mm), times
-        the grid's transmission at ``tan = x / gap - (across + x) / focus_distance`` across
-        the strips (the angle from the strip where the photon arrives, ``across + x`` mm
-        from the detector's middle along ``u``: the grid is focused)."""
+        the grid's transmission at ``tan = x / angle - (across + x) / focus_distance``
+        across the strips (``angle`` default ``gap``; the angle from the strip where the
+        photon arrives, ``across + x`` mm from the detector's middle along ``u``: the grid
+        is focused)."""
         h2 = gap * gap
         # (n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2)), without overflow for a large n
         dens = (n + 1.0) / (2.0 * math.pi * h2) * (h2 / (y * y + x * x + h2)) ** (
             (n + 3.0) / 2.0)
         if self.grid is not None:                  # across the strips: along u
-            tan = x / gap - (across + x) / self.grid.focus_distance
-            dens = dens * np.asarray(self.grid.transmission(self.energy_kev, tan), float)
+            tan = x / (gap if angle is None else angle) - (across + x) / self.grid.focus_distance
+            dens = dens * self.scatter_transmission(tan)
         return dens
+
+    def _angle_depth(self, depth):
+        """How far (mm) above the bodies' exit side a kernel's photons seem to come from,
+        for their angles through a grid: its source's ``depth``, but no deeper than a few
+        of ``grid_depth`` (``depth / (1 + depth / grid_depth)``): most of the scatter from
+        deep in a thick body is scattered again on its way out, the last time near the
+        exit side, and arrives more obliquely than from the kernel's source. ``depth``
+        without a grid (where the angles do not matter)."""
+        if self.grid is None:
+            return depth
+        return depth / (1.0 + depth / self.parameters.values["grid_depth"])
+
+    def scatter_transmission(self, tan_angle) -> np.ndarray:
+        """The grid's transmission of the scatter at the tangents ``tan_angle`` across its
+        strips (from the local focused direction), weighted over the scatter's energies:
+        the source's photons after half the bodies' water-equivalent thickness as the
+        detector weighs them, scattered once within the cone the detector subtends (:meth:`cone`), water's coherent share
+        of it at their own energy, the rest Compton-shifted (Klein-Nishina;
+        :func:`_compton_shifted`); interpolated in a table over the angle
+        (:data:`GRID_ANGLES` nodes and 0) made for the cone of the last :meth:`scatter`.
+        1 without a grid."""
+        if self.grid is None:
+            return np.ones(np.shape(tan_angle))
+        theta, values = self._grid_table
+        return np.interp(np.arctan(tan_angle), theta, values)
+
+    def _grid_table_for(self, cone, coherent, tau):
+        """Set :meth:`scatter_transmission`'s table for this cone, coherent share and water
+        thickness ``tau`` (mm, in steps of :data:`GRID_TAU_STEP`: the scatter's spectrum is
+        the source's hardened by it); kept on the model per cone and step. Returns its
+        key."""
+        step = int(round(tau / GRID_TAU_STEP))
+        key = (round(cone, 6), step)
+        table = self._grid_tables.get(key)
+        if table is None:
+            from xray_viz.physics.grid import PeriodGeometry
+
+            e, w0, mu = self.grid_spectrum
+            e, w = _compton_shifted(e, w0 * np.exp(-step * GRID_TAU_STEP * mu), cone,
+                                    coherent)
+            theta = np.union1d(np.linspace(-0.5 * math.pi, 0.5 * math.pi, GRID_ANGLES)[1:-1],
+                               [0.0])
+            mus, mui = self.grid.attenuation(e)
+            geometry = PeriodGeometry(np.tan(theta), 0.0, d=self.grid.strip_thickness,
+                                      period=self.grid.period, h=self.grid.strip_height)
+            values = sum(wk * geometry.mean(a, b) for wk, a, b in zip(w, mus, mui)) / w.sum()
+            table = self._grid_tables[key] = (theta, values)
+        self._grid_table = table
+        return key
 
     def grid_factor(self, n, across=0.0) -> float:
         """The grid's mean transmission of scatter leaving with intensity ``cos^n`` of its
@@ -454,7 +518,7 @@ class KernelModel:
         w = np.cos(theta) ** n * np.sin(theta)
         tan_u = (np.tan(theta)[:, None] * np.cos(phi)[None, :]
                  - across / self.grid.focus_distance)
-        t = np.asarray(self.grid.transmission(self.energy_kev, tan_u), float)
+        t = self.scatter_transmission(tan_u)
         return float((w[:, None] * t).sum() / (w.sum() * len(phi)))
 
     @staticmethod
@@ -757,6 +821,9 @@ class KernelModel:
         lift = self.exit_heights(acquisition, bodies, (ch, cw), k)
         lift = np.where(np.isfinite(lift), np.maximum(lift, gap), gap)
         nodes = self._grid_nodes(w, k, pu, cw)
+        if self.grid is not None:
+            cone = self.cone(acquisition, gap)
+            coherent = self._water_coherent(acquisition, bodies)
         for g in range(n_groups):
             weight = float(sums[g].sum())
             if weight <= 0:
@@ -766,6 +833,10 @@ class KernelModel:
             mag = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - gap_g,
                                                                  1e-9)
             source = sums[g]
+            # the scatter's spectrum through a grid: hardened by half the body (the photons
+            # cross about half of it before they scatter, at the source's energies)
+            table = None if self.grid is None else self._grid_table_for(cone, coherent,
+                                                                        0.5 * tau_g)
             side = None
             if edge is not None:
                 # near the edge of the shadow, a share of the incoherent scatter leaves by
@@ -773,17 +844,23 @@ class KernelModel:
                 side = (sums[g] - sums_coh[g]) * (p["b_edge"] * np.exp(
                     -edge / (p["c_edge"] * tau_g + p["l_edge"])))
                 source = source - side
-            parts = [(source, ((1.0 - p["fraction"], _height_step(gap_g + p["s1"] * tau_g * mag),
-                                p["n1"]),
-                               (p["fraction"], _height_step(gap_g + p["s2"] * tau_g * mag),
-                                p["n2"])))]
+            # each component's height, and the height its photons' angles through a grid
+            # are taken from (the depth in the body scaled by grid_depth; the same without
+            # a grid)
+            parts = [(source, tuple(
+                (share, _height_step(gap_g + sk * tau_g * mag), n,
+                 _height_step(gap_g + self._angle_depth(sk * tau_g * mag)))
+                for share, sk, n in ((1.0 - p["fraction"], p["s1"], p["n1"]),
+                                     (p["fraction"], p["s2"], p["n2"]))))]
             if side is not None:
-                parts.append((side, ((1.0, _height_step(gap_g + 0.5 * tau_g * mag), 0.0),)))
+                parts.append((side, ((1.0, _height_step(gap_g + 0.5 * tau_g * mag), 0.0,
+                                      _height_step(gap_g + self._angle_depth(
+                                          0.5 * tau_g * mag))),)))
             for src, components in parts:
                 for across, share in nodes:
                     coarse[:ch, :cw] = src if share is None else src * share
                     total += np.fft.rfft2(coarse) * self._spread(components, (ny, nx), cells,
-                                                                 across)
+                                                                 (across, table))
         if self.grid is not None:
             total /= self.grid_primary
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
@@ -805,8 +882,29 @@ class KernelModel:
         off_focus`, as :meth:`~xray_viz.physics.beam.Beam.at` puts it in the flat field)."""
         if self.grid is None:
             return s
-        s /= self.grid.off_focus(acquisition, *self.grid_spectrum)
+        s /= self.grid.off_focus(acquisition, *self.grid_spectrum[:2])
         return s
+
+
+def _compton_shifted(energies, weights, cone, coherent, *, angles=32, bins=48):
+    """``(energies, weights)``: a spectrum scattered once within ``cone`` (radians), a share
+    ``coherent`` of it at its own energies, the rest over the angles with the Klein-Nishina
+    cross section's weights (times ``sin theta``) at the Compton-shifted energies;
+    rebinned onto ``bins`` energies."""
+    e = np.asarray(energies, dtype=np.float64)[:, None]
+    theta = (np.arange(angles) + 0.5) * (cone / angles)
+    ratio = 1.0 / (1.0 + e / 511.0 * (1.0 - np.cos(theta))[None, :])       # E' / E
+    kn = ratio ** 2 * (ratio + 1.0 / ratio - np.sin(theta) ** 2) * np.sin(theta)
+    w0 = np.asarray(weights, dtype=np.float64)
+    w = (1.0 - coherent) * w0[:, None] * kn / kn.sum(axis=1, keepdims=True)
+    shifted = np.concatenate([(e * ratio).reshape(-1), e[:, 0]])
+    wall = np.concatenate([w.reshape(-1), coherent * w0])
+    edges = np.linspace(shifted.min(), shifted.max() + 1e-9, bins + 1)
+    where = np.digitize(shifted, edges) - 1
+    total = np.bincount(where, weights=wall, minlength=bins)
+    mean = np.bincount(where, weights=wall * shifted, minlength=bins)
+    keep = total > 0
+    return mean[keep] / total[keep], total[keep]
 
 
 def _height_step(height):
