@@ -291,13 +291,14 @@ def run_cases(cases, *, scattered, max_histories, cache=None, seed=0, small=None
 #: 1 over a shadow that covers the field, so stage 2 leaves the slabs as stage 1 fits them
 SLAB_PARAMETERS = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1", "n2")
 EDGE_PARAMETERS = ("b_edge", "c_edge", "l_edge")
-GRID_PARAMETERS = ("grid_depth",)
+GRID_PARAMETERS = ("grid_depth", "grid_hardening")
 #: start, low and high of each parameter
 BOUNDS = {"a0": (0.40, -5, 5), "a1": (1.02, 0.05, 5), "a2": (0.33, -5, 5),
           "a3": (-0.28, -5, 5), "a4": (0.02, -5, 5), "fraction": (0.95, 0.0, 1.0),
           "s1": (1.0, 0.001, 2.0), "s2": (0.49, 0.01, 10.0), "n1": (99.0, 0.0, 100.0),
           "n2": (1.67, 0.0, 30.0), "b_edge": (0.2, 0.0, 1.0), "c_edge": (0.5, 0.0, 1.0),
-          "l_edge": (50.0, 0.5, 100.0), "grid_depth": (50.0, 1.0, 2000.0)}
+          "l_edge": (50.0, 0.5, 100.0), "grid_depth": (50.0, 1.0, 2000.0),
+          "grid_hardening": (0.5, 0.0, 2.0)}
 
 #: more starts of the edge term's fit
 EDGE_STARTS = ((0.2, 1.0, 100.0), (0.35, 0.2, 1.0))

@@ -100,7 +100,7 @@ PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
 
 #: The fitted parameters, in the order of :attr:`KernelParameters.values`.
 PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
-                   "n2", "b_edge", "c_edge", "l_edge", "grid_depth")
+                   "n2", "b_edge", "c_edge", "l_edge", "grid_depth", "grid_hardening")
 
 #: The ranges of the fit: ``[low, high]`` each.
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
@@ -835,8 +835,8 @@ class KernelModel:
             source = sums[g]
             # the scatter's spectrum through a grid: hardened by half the body (the photons
             # cross about half of it before they scatter, at the source's energies)
-            table = None if self.grid is None else self._grid_table_for(cone, coherent,
-                                                                        0.5 * tau_g)
+            table = None if self.grid is None else self._grid_table_for(
+                cone, coherent, p["grid_hardening"] * tau_g)
             side = None
             if edge is not None:
                 # near the edge of the shadow, a share of the incoherent scatter leaves by
