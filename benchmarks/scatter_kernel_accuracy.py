@@ -71,16 +71,22 @@ def held_out():
          lambda: gridded(slab_scene(150.0, 250.0, 100.0, {"spectrum": {"kvp": 100.0, **AL}}))),
         ("water 200 mm, field 300 mm, gap 20 mm, 80 kVp, default grid",
          lambda: gridded(slab_scene(200.0, 300.0, 20.0, {"spectrum": {"kvp": 80.0, **AL}}))),
+        ("water 180 mm, field 300 mm, gap 40 mm, 100 kVp, grid 12:1, 70 lines/cm, "
+         "focused at 1500 mm",
+         lambda: gridded(slab_scene(180.0, 300.0, 40.0, {"spectrum": {"kvp": 100.0, **AL}}),
+                         ratio=12.0, frequency=70.0, focus_distance=1500.0)),
+        ("chest (CT + implant), 70 keV: outside the fitted ranges", phantom("chest")),
     ]
 
 
-def gridded(scene):
-    """``scene`` with the default anti-scatter grid (ratio 10, 60 lines/cm)."""
+def gridded(scene, **grid):
+    """``scene`` with an anti-scatter grid (default: ratio 10, 60 lines/cm, focused at
+    1000 mm; ``grid``: other :class:`~xray_viz.physics.grid.Grid` fields)."""
     import dataclasses
 
     from xray_viz.physics.grid import Grid
 
-    return scene.replace(detector=dataclasses.replace(scene.detector, grid=Grid()))
+    return scene.replace(detector=dataclasses.replace(scene.detector, grid=Grid(**grid)))
 
 
 def blocks(a, b, *, squared=False):
@@ -118,8 +124,11 @@ def compare(scene, s, e, log_t, parameters=None):
 
     import xray_viz
 
-    # each pixel's path length per body: the amplitude sees the materials (as render's does)
+    # each pixel's path length per body: the amplitude sees the materials (as render's does;
+    # not through a CT volume, whose columns are its voxel classes: as render's)
     lengths = xray_viz.render(scene, path_lengths=True).path_length
+    if lengths.shape[-1] != len(scene.bodies):
+        lengths = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         model = KernelModel.of(scene, parameters=load_parameters(parameters))
