@@ -38,6 +38,7 @@ import argparse
 import datetime
 import itertools
 import json
+import math
 import os
 import platform
 import subprocess
@@ -423,7 +424,9 @@ def main(argv=None):
     except (OSError, subprocess.CalledProcessError):
         commit = "unknown"
     doc = {"parameters": values,
-           "ranges": {"energy_kev": [round(min(energies), 2), round(max(energies), 2)],
+           # outward to 0.01 keV: the fit's own spectra inside the range
+           "ranges": {"energy_kev": [math.floor(100 * min(energies)) / 100,
+                                     math.ceil(100 * max(energies)) / 100],
                       "thickness_mm": [min(c[1] for c in cases), max(c[1] for c in cases)],
                       "field_mm": [min(c[2] for c in cases), max(c[2] for c in cases)],
                       "gap_mm": [min(c[3] for c in cases), max(c[3] for c in cases)]},

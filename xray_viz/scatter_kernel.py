@@ -142,6 +142,10 @@ GRID_ANGLES = 2001
 #: transmission (:meth:`KernelModel.scatter_transmission`).
 GRID_TAU_STEP = 10.0
 
+#: Cells along a side of the map of the bodies' exit heights, at most
+#: (:meth:`KernelModel.exit_heights`: each group's mean air gap).
+EXIT_CELLS = 32
+
 #: Kernels kept on a model at most (emptied when full).
 SPREADS_KEPT = 256
 
@@ -551,7 +555,7 @@ class KernelModel:
 
         The lowest of the bodies' surface points that project into the cell: their
         vertices, and points on a lattice over each triangle whose projection spans more
-        than a cell (about a cell apart), projected from the source (along the beam
+        than half a cell (at most half a cell apart), projected from the source (along the beam
         for a parallel one). A slab's is its exit face's everywhere; a cylinder's or a
         frog's rises toward the edges of its shadow, where the air gap the scatter crosses
         is longer than the global one (:meth:`geometry`).
@@ -579,9 +583,10 @@ class KernelModel:
         top = float(np.max((middle - verts) @ normal))          # the highest point
         stretch = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - top,
                                                                  1e-9)
-        # points about a cell apart once projected (a power of two in mm: a scan's views
-        # share them)
-        spacing = 2.0 ** round(math.log2(k * min(pu, pv) / stretch))
+        # points at most half a cell apart once projected, so that every cell a surface
+        # crosses holds some of its points (in quarter octaves of mm: a scan's views share
+        # them)
+        spacing = 2.0 ** (math.floor(4.0 * math.log2(0.5 * k * min(pu, pv) / stretch)) / 4.0)
         pts = (bodies.cached(("scatter_kernel", "surface", spacing),
                              lambda: _surface_points(meshes, spacing), limit=2)
                if hasattr(bodies, "cached") else _surface_points(meshes, spacing))
@@ -817,8 +822,11 @@ class KernelModel:
         coarse = np.zeros((ny, nx))
         cells = (k * pv, k * pu)
         # each group's air gap: the mean over its source of the cells' exit heights (the
-        # global gap where no surface point projects)
-        lift = self.exit_heights(acquisition, bodies, (ch, cw), k)
+        # global gap where no surface point projects), taken on cells of at most
+        # EXIT_CELLS a side
+        m = -(-max(ch, cw) // EXIT_CELLS)
+        lift = self.exit_heights(acquisition, bodies, (-(-ch // m), -(-cw // m)), k * m)
+        lift = np.repeat(np.repeat(lift, m, axis=0), m, axis=1)[:ch, :cw]
         lift = np.where(np.isfinite(lift), np.maximum(lift, gap), gap)
         nodes = self._grid_nodes(w, k, pu, cw)
         if self.grid is not None:
