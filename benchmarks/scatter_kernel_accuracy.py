@@ -124,15 +124,14 @@ def compare(scene, s, e, log_t, parameters=None):
 
     import xray_viz
 
-    # each pixel's path length per body: the amplitude sees the materials (as render's does;
-    # not through a CT volume, whose columns are its voxel classes: as render's)
+    # each pixel's path length per body (and voxel class): the amplitude sees the materials,
+    # as render's does
     lengths = xray_viz.render(scene, path_lengths=True).path_length
-    if lengths.shape[-1] != len(scene.bodies):
-        lengths = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         model = KernelModel.of(scene, parameters=load_parameters(parameters))
-        pred = model.scatter(log_t, scene.acquisition, scene.bodies, path_lengths=lengths)
+        pred = model.scatter(log_t, scene.acquisition, scene.bodies, path_lengths=lengths,
+                             volumes=scene.volumes)
     h, w = s.shape
     b = max(1, min(h, w) // 8)
     return (blocks(s, b), blocks(pred, b), blocks(e, b, squared=True),

@@ -900,8 +900,10 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
     # scattering (mm of water), summed band by band
     weights = scattering = None
     if (scatter is not None and scatter.mode == "kernel"
-            and projector.columns == len(projector.bodies)):
-        weights = scatter.kernel.path_weights(acquisition, projector.bodies)
+            and projector.columns == len(scatter.materials)):
+        weights = scatter.kernel.path_weights(acquisition, projector.bodies,
+                                              materials=scatter.materials,
+                                              volumes=scatter.scene.volumes)
         scattering = np.empty((h, w, weights.shape[1]))
     per_body = np.empty((h, w, projector.columns)) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
@@ -963,10 +965,15 @@ class ScatterSource:
         #: scatter, or None.
         self.smoothing = smoothing
         self.kernel = None
+        #: The path lengths' columns as the physics sees them: the bodies, then the voxel
+        #: volumes' classes (the kernel model's materials).
+        self.materials = tuple(scene.bodies)
         if mode == "kernel":
             from xray_viz.scatter_kernel import KernelModel
+            from xray_viz.volume import with_volume_materials
 
             self.kernel = KernelModel.of(scene)
+            self.materials = tuple(with_volume_materials(scene).bodies)
 
     @classmethod
     def of(cls, scene, scatter, *, histories=None, progress=None, smoothing=None):
@@ -1046,7 +1053,8 @@ class ScatterSource:
         option of that name)."""
         if self.mode == "kernel":
             s = np.asarray(self.kernel.scatter(log_t, acquisition, bodies,
-                                               scattering=scattering), dtype=np.float64)
+                                               scattering=scattering,
+                                               volumes=self.scene.volumes), dtype=np.float64)
             return s, {"mode": "kernel"}
         from xray_viz.transport import flat_signal, transport
 

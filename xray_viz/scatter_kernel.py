@@ -526,18 +526,22 @@ class KernelModel:
         return float((w[:, None] * t).sum() / (w.sum() * len(phi)))
 
     @staticmethod
-    def geometry(acquisition, bodies) -> tuple[float, float]:
+    def geometry(acquisition, bodies, volumes=()) -> tuple[float, float]:
         """``(gap, magnification)``: the air gap (mm) between the bodies' side nearest the
-        detector and the detector plane, and the source-to-detector distance over the
-        source-to-exit distance (1 for a parallel beam)."""
+        detector (and the voxel volumes' non-empty voxels', :func:`_volume_points`) and the
+        detector plane, and the source-to-detector distance over the source-to-exit
+        distance (1 for a parallel beam)."""
         f = acquisition.frame
-        if not len(bodies):
+        parts = [_volume_points(v, 4.0) for v in volumes]
+        if len(bodies):
+            parts.append(bodies.cached(("scatter_kernel", "points"),
+                                       lambda: np.vstack([np.asarray(b.mesh.vertices, float)
+                                                          for b in bodies]), limit=1)
+                         if hasattr(bodies, "cached") else
+                         np.vstack([np.asarray(b.mesh.vertices, float) for b in bodies]))
+        pts = np.vstack(parts) if parts else np.zeros((0, 3))
+        if not len(pts):
             return 0.0, 1.0
-        pts = bodies.cached(("scatter_kernel", "points"),
-                            lambda: np.vstack([np.asarray(b.mesh.vertices, float)
-                                               for b in bodies]), limit=1) \
-            if hasattr(bodies, "cached") else np.vstack([np.asarray(b.mesh.vertices, float)
-                                                         for b in bodies])
         normal = np.asarray(f.normal, float)
         # above the detector plane (einsum's own loop: no BLAS threads to wait for)
         gap = max(0.0, float(np.asarray(f.middle, float) @ normal
@@ -548,7 +552,7 @@ class KernelModel:
         return gap, d / max(d - gap, 1e-9)
 
     @staticmethod
-    def exit_heights(acquisition, bodies, cells, k) -> np.ndarray:
+    def exit_heights(acquisition, bodies, cells, k, volumes=()) -> np.ndarray:
         """``(ch, cw)`` float: mm above the detector plane of the bodies' side nearest it
         (their exit side) over each cell of ``k x k`` pixels of ``acquisition``; NaN where no
         body's surface projects.
@@ -572,14 +576,16 @@ class KernelModel:
         ch, cw = cells
         out = np.full(ch * cw, np.nan)
         meshes = [b.mesh for b in bodies if getattr(b, "mesh", None) is not None]
-        if not meshes:
+        if not meshes and not volumes:
             return out.reshape(ch, cw)
         normal, middle = np.asarray(f.normal, float), np.asarray(f.middle, float)
         pu, pv = (float(x) for x in f.pitch)
-        verts = (bodies.cached(("scatter_kernel", "points"), lambda: np.vstack(
-            [np.asarray(m.vertices, float) for m in meshes]), limit=1)
-            if hasattr(bodies, "cached") else np.vstack([np.asarray(m.vertices, float)
-                                                         for m in meshes]))
+        verts = np.vstack([np.asarray(m.vertices, float) for m in meshes]
+                          + [v.corners for v in volumes])
+        if meshes and hasattr(bodies, "cached"):
+            verts = np.vstack([bodies.cached(("scatter_kernel", "points"), lambda: np.vstack(
+                [np.asarray(m.vertices, float) for m in meshes]), limit=1)]
+                + [v.corners for v in volumes])
         top = float(np.max((middle - verts) @ normal))          # the highest point
         stretch = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - top,
                                                                  1e-9)
@@ -587,9 +593,12 @@ class KernelModel:
         # crosses holds some of its points (in quarter octaves of mm: a scan's views share
         # them)
         spacing = 2.0 ** (math.floor(4.0 * math.log2(0.5 * k * min(pu, pv) / stretch)) / 4.0)
-        pts = (bodies.cached(("scatter_kernel", "surface", spacing),
-                             lambda: _surface_points(meshes, spacing), limit=2)
-               if hasattr(bodies, "cached") else _surface_points(meshes, spacing))
+        pts = [_volume_points(v, spacing) for v in volumes]
+        if meshes:
+            pts.append(bodies.cached(("scatter_kernel", "surface", spacing),
+                                     lambda: _surface_points(meshes, spacing), limit=2)
+                       if hasattr(bodies, "cached") else _surface_points(meshes, spacing))
+        pts = np.vstack(pts)
         height = (middle - pts) @ normal
         src = np.asarray(f.source, float)
         if f.parallel:
@@ -647,10 +656,12 @@ class KernelModel:
                                                process=process)[0]) * rho / water
         return out
 
-    def path_weights(self, acquisition, bodies) -> np.ndarray:
-        """``(n_bodies, 2)``: each body's mm of path in mm of water that scatter as much
+    def path_weights(self, acquisition, bodies, *, materials=None, volumes=()) -> np.ndarray:
+        """``(n_materials, 2)``: each body's mm of path in mm of water that scatter as much
         toward the detector (:meth:`scattering_coefficients` within the :meth:`cone` of this
-        acquisition), and the coherent part of it.
+        acquisition), and the coherent part of it. ``materials``: the path lengths' columns
+        (default ``bodies``; with voxel ``volumes``, the bodies then the volumes' classes,
+        :func:`xray_viz.volume.with_volume_materials`).
 
         Examples
         --------
@@ -660,17 +671,18 @@ class KernelModel:
         >>> w.shape, bool(w[0, 1] > 0.5 * w[0, 0])             # mostly coherent, aluminium
         ((1, 2), True)
         """
-        gap, _ = self.geometry(acquisition, bodies)
+        gap, _ = self.geometry(acquisition, bodies, volumes)
         cone = self.cone(acquisition, gap)
-        return np.stack([self.scattering_coefficients(bodies, cone=cone),
-                         self.scattering_coefficients(bodies, cone=cone,
+        materials = bodies if materials is None else materials
+        return np.stack([self.scattering_coefficients(materials, cone=cone),
+                         self.scattering_coefficients(materials, cone=cone,
                                                       process="coherent")], axis=1)
 
-    def _water_coherent(self, acquisition, bodies) -> float:
+    def _water_coherent(self, acquisition, bodies, volumes=()) -> float:
         """The coherent share of water's scattering within this acquisition's cone."""
         from xray_viz.physics.materials import mass_scattering
 
-        gap, _ = self.geometry(acquisition, bodies)
+        gap, _ = self.geometry(acquisition, bodies, volumes)
         cone = self.cone(acquisition, gap)
         return float(mass_scattering("Water, Liquid", self.energy_kev, cone=cone,
                                      process="coherent")[0]
@@ -689,7 +701,7 @@ class KernelModel:
         return max(step, round(math.atan2(r, gap) / step) * step)
 
     def scatter(self, log_transmission, acquisition, bodies, *,
-                path_lengths=None, scattering=None) -> np.ndarray:
+                path_lengths=None, scattering=None, volumes=()) -> np.ndarray:
         """The scatter reaching each pixel, relative to the flat field.
 
         Parameters
@@ -707,6 +719,9 @@ class KernelModel:
             :meth:`scattering_coefficients`) instead of the water-equivalent thickness of
             its transmission: a body of high Z absorbs more and scatters less per unit of
             attenuation than water. Without them, every body is taken for water.
+        volumes : sequence of VoxelVolume, optional
+            The scene's voxel volumes (``Scene.volumes``): their non-empty voxels are
+            bodies' exit sides too (the air gaps).
         scattering : (H, W, 2) or (H, W) float, optional
             The same thickness already summed, ``path_lengths @ w`` with ``w`` the
             :meth:`path_weights` of this acquisition (what the renderer accumulates while
@@ -728,11 +743,14 @@ class KernelModel:
         scat = None
         if path_lengths is not None:
             lengths = np.asarray(path_lengths, dtype=np.float64)
-            if lengths.shape != (h, w, len(bodies)):
+            materials = tuple(bodies) + tuple(m for v in volumes for m in v.materials)
+            n = len(materials)
+            if lengths.shape != (h, w, n):
                 raise SceneError(f"scatter kernel: path_lengths of shape {lengths.shape} for "
-                                 f"a {h} x {w} image of {len(bodies)} bodies: pass "
-                                 f"Radiograph.path_length, ({h}, {w}, {len(bodies)})")
-            scat = np.einsum("ijk,kl->ijl", lengths, self.path_weights(acquisition, bodies))
+                                 f"a {h} x {w} image of {n} bodies and voxel classes: pass "
+                                 f"Radiograph.path_length, ({h}, {w}, {n})")
+            scat = np.einsum("ijk,kl->ijl", lengths, self.path_weights(
+                acquisition, bodies, materials=materials, volumes=volumes))
         elif scattering is not None:
             scat = np.asarray(scattering, dtype=np.float64)
             if scat.shape not in ((h, w), (h, w, 2)):
@@ -748,7 +766,7 @@ class KernelModel:
         top = float(self.water_thickness(-x.max())) if x.size else 0.0
         if top < TAU_MIN:                            # nothing attenuates: no scatter
             return np.zeros((h, w))
-        gap, mag = self.geometry(acquisition, bodies)
+        gap, mag = self.geometry(acquisition, bodies, volumes)
         field = max(w * pu, h * pv)
         for name, value, unit in (("thickness_mm", top, "water-equivalent thickness"),
                                   ("field_mm", field, "field side at the detector"),
@@ -799,7 +817,7 @@ class KernelModel:
         # the coherent share of each pixel's scatter (water's where the materials are not
         # given): single and forward, it has no share in what the edge term takes off
         if coherent is None:
-            share = self._water_coherent(acquisition, bodies)
+            share = self._water_coherent(acquisition, bodies, volumes)
             q_coh = q * share
         else:
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -825,13 +843,14 @@ class KernelModel:
         # global gap where no surface point projects), taken on cells of at most
         # EXIT_CELLS a side
         m = -(-max(ch, cw) // EXIT_CELLS)
-        lift = self.exit_heights(acquisition, bodies, (-(-ch // m), -(-cw // m)), k * m)
+        lift = self.exit_heights(acquisition, bodies, (-(-ch // m), -(-cw // m)), k * m,
+                                 volumes)
         lift = np.repeat(np.repeat(lift, m, axis=0), m, axis=1)[:ch, :cw]
         lift = np.where(np.isfinite(lift), np.maximum(lift, gap), gap)
         nodes = self._grid_nodes(w, k, pu, cw)
         if self.grid is not None:
             cone = self.cone(acquisition, gap)
-            coherent = self._water_coherent(acquisition, bodies)
+            coherent = self._water_coherent(acquisition, bodies, volumes)
         for g in range(n_groups):
             weight = float(sums[g].sum())
             if weight <= 0:
@@ -931,6 +950,17 @@ def _pooled(a, pre, hb, wb):
         for j in range(pre):
             acc += pad[i::pre, j::pre]
     return acc.reshape(-1) / (pre * pre)
+
+
+def _volume_points(volume, spacing):
+    """(n, 3) float: the centres of a voxel volume's non-empty voxels (scene mm), every
+    ``s``-th along each axis, ``s`` the most voxels within ``spacing`` mm (at least 1)."""
+    a = np.asarray(volume.affine, dtype=np.float64)
+    size = np.linalg.norm(a[:3, :3], axis=0)                   # mm per voxel along i, j, k
+    stride = tuple(max(1, int(spacing // s)) for s in size)
+    sub = np.asarray(volume.classes)[::stride[0], ::stride[1], ::stride[2]]
+    idx = np.argwhere(sub > 0) * np.asarray(stride)
+    return idx @ a[:3, :3].T + a[:3, 3]
 
 
 def _surface_points(meshes, spacing):
