@@ -533,25 +533,28 @@ def _image_bytes_per_pixel(scene) -> int:
     return per
 
 
-def _scatter_bytes_per_pixel(scatter) -> int:
+def _scatter_bytes_per_pixel(scatter, *, grid=False) -> int:
     """Bytes per pixel that the scatter of a render or of a scan's projection allocates, at
     the peak (0 without scatter).
 
     Every mode: the scatter image ``s`` (8), and what :func:`render` keeps in its
     :class:`Radiograph` (``primary`` and ``scatter``, 8 + 8) with the flat field they are made
     from (8). ``"kernel"``: the path lengths weighted by material the tracer sums for the
-    model (8) and the model's per-pixel work on the whole image at the most, without
-    pre-averaging (the image's ``ln(1 / T)``, its look-up index, the thickness, source and
-    group gathered, the cell and group indices, the source times the thickness, the
-    interpolated output: 9 arrays of 8, 72). ``"mc"``: the transport's tallies (a sum and its
-    square per pixel for each of its 4 images, 64) held by the run's total, a group's and one
-    batch per thread, its means and errors (128), the scatter's variance and error (16).
+    model, with their coherent part (16), and the model's per-pixel work on the whole image
+    at the most, without pre-averaging (the image's ``ln(1 / T)``, its look-up index, the
+    thickness, source and group gathered, the cell and group indices, the source times the
+    thickness, the interpolated output, the coherent share's source and its two
+    temporaries: 12 arrays of 8, 96); with a ``grid``, the off-focus cut-off it divides by
+    and its interpolation's points, weights and indices (64). ``"mc"``: the transport's
+    tallies (a sum and its square per pixel for each of its 4 images, 64) held by the run's
+    total, a group's and one batch per thread, its means and errors (128), the scatter's
+    variance and error (16).
     """
     if scatter in (None, "none"):
         return 0
     per = 8 + 24
     if scatter == "kernel":
-        return per + 8 + 72
+        return per + 16 + 96 + (64 if grid else 0)
     from xray_viz import _threads
 
     return per + (2 + max(1, _threads.count())) * 64 + 128 + 16
@@ -612,7 +615,8 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
         "bands": 3 * rows * w * n * n * per_ray,
         "meshes": _mesh_bytes(scene),
         "volumes": sum(v.layout_bytes(scene.acquisition.frame.ho) for v in volumes),
-        "scatter": pixels * _scatter_bytes_per_pixel(scatter),
+        "scatter": pixels * _scatter_bytes_per_pixel(
+            scatter, grid=getattr(scene.detector, "grid", None) is not None),
     }
     need["total"] = sum(need.values())
     return need

@@ -146,6 +146,9 @@ GRID_TAU_STEP = 10.0
 #: (:meth:`KernelModel.exit_heights`: each group's mean air gap).
 EXIT_CELLS = 32
 
+#: Surface points projected at a time (:meth:`KernelModel.exit_heights`).
+POINTS_CHUNK = 16384
+
 #: Kernels kept on a model at most (emptied when full).
 SPREADS_KEPT = 256
 
@@ -599,24 +602,30 @@ class KernelModel:
                                      lambda: _surface_points(meshes, spacing), limit=2)
                        if hasattr(bodies, "cached") else _surface_points(meshes, spacing))
         pts = np.vstack(pts)
-        height = (middle - pts) @ normal
-        src = np.asarray(f.source, float)
-        if f.parallel:
-            x = pts + (height / float(np.asarray(f.forward, float) @ normal))[:, None] * \
-                np.asarray(f.forward, float)
-        else:
-            d = pts - src
-            x = src + d * (float(f.distance) / (d @ normal))[:, None]
-        rel = x - middle
+        axes = np.stack([np.asarray(f.ho, float), np.asarray(f.ve, float), normal], axis=1)
         w, h = f.shape
-        col = (rel @ np.asarray(f.ho, float)) / pu + 0.5 * w     # from the left edge
-        row = 0.5 * h - (rel @ np.asarray(f.ve, float)) / pv     # from the top edge
-        ok = (col >= 0) & (col < w) & (row >= 0) & (row < h) & (height > -1e-9)
-        if not ok.any():
-            return out.reshape(ch, cw)
-        index = (row[ok] // k).astype(np.intp) * cw + (col[ok] // k).astype(np.intp)
         out[:] = np.inf
-        np.minimum.at(out, index, height[ok])
+        for lo in range(0, len(pts), POINTS_CHUNK):          # bounded temporaries
+            if f.parallel:
+                # along the beam onto the plane: (u, v) of the point, shifted
+                rel = (pts[lo:lo + POINTS_CHUNK] - middle) @ axes
+                fwd = np.asarray(f.forward, float) @ axes
+                height = -rel[:, 2]
+                u = rel[:, 0] + height / fwd[2] * fwd[0]
+                v = rel[:, 1] + height / fwd[2] * fwd[1]
+            else:
+                # from the source through the point onto the plane
+                rel = (pts[lo:lo + POINTS_CHUNK] - np.asarray(f.source, float)) @ axes
+                base = (np.asarray(f.source, float) - middle) @ axes
+                scale = float(f.distance) / rel[:, 2]
+                height = float(f.distance) - rel[:, 2]
+                u = base[0] + rel[:, 0] * scale
+                v = base[1] + rel[:, 1] * scale
+            col = u / pu + 0.5 * w                                # from the left edge
+            row = 0.5 * h - v / pv                                # from the top edge
+            ok = (col >= 0) & (col < w) & (row >= 0) & (row < h) & (height > -1e-9)
+            index = (row[ok] // k).astype(np.intp) * cw + (col[ok] // k).astype(np.intp)
+            np.minimum.at(out, index, height[ok])
         out[np.isinf(out)] = np.nan
         return out.reshape(ch, cw)
 
