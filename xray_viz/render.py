@@ -401,10 +401,12 @@ def _band_loop(projector, acquisition, n, *, beam=None, log_t=None, log_v=None, 
             # log domain.
             blocks.add(r0, r1, L)
         if weighted is not None:
-            lw = np.einsum("ij,jk->ik", L, weighted[0])   # no BLAS threads to wait for
-            k = lw.shape[1]
-            weighted[1][r0:r1] = (lw if nn == 1 else lw.reshape(-1, nn, k).mean(axis=1)
-                                  ).reshape(r1 - r0, w, k)
+            for c in range(weighted[0].shape[1]):
+                # no BLAS threads to wait for; one einsum per column (its loop for one
+                # vector is several times faster than for two)
+                lw = np.einsum("ij,j->i", L, weighted[0][:, c])
+                weighted[1][r0:r1, :, c] = (lw if nn == 1 else lw.reshape(-1, nn).mean(axis=1)
+                                            ).reshape(r1 - r0, w)
             del lw
         if (total is not None and nn > 1) or per_body is not None:
             # (pixels, bodies): the mean over each pixel's rays (one ray: the same numbers).
@@ -976,7 +978,10 @@ class ScatterSource:
             from xray_viz.scatter_kernel import KernelModel
             from xray_viz.volume import with_volume_materials
 
-            self.kernel = KernelModel.of(scene)
+            # kept on the bodies per source and detector: the renders of a loop over poses
+            # share its kernels (KernelModel._spread)
+            key = ("scatter_kernel", "model", repr(scene.source), repr(scene.detector))
+            self.kernel = scene.bodies.cached(key, lambda: KernelModel.of(scene), limit=2)
             self.materials = tuple(with_volume_materials(scene).bodies)
 
     @classmethod

@@ -562,7 +562,7 @@ class KernelModel:
 
         The lowest of the bodies' surface points that project into the cell: their
         vertices, and points on a lattice over each triangle whose projection spans more
-        than half a cell (at most half a cell apart), projected from the source (along the beam
+        than a cell (at most a cell apart), projected from the source (along the beam
         for a parallel one). A slab's is its exit face's everywhere; a cylinder's or a
         frog's rises toward the edges of its shadow, where the air gap the scatter crosses
         is longer than the global one (:meth:`geometry`).
@@ -583,25 +583,25 @@ class KernelModel:
             return out.reshape(ch, cw)
         normal, middle = np.asarray(f.normal, float), np.asarray(f.middle, float)
         pu, pv = (float(x) for x in f.pitch)
-        verts = np.vstack([np.asarray(m.vertices, float) for m in meshes]
-                          + [v.corners for v in volumes])
-        if meshes and hasattr(bodies, "cached"):
-            verts = np.vstack([bodies.cached(("scatter_kernel", "points"), lambda: np.vstack(
-                [np.asarray(m.vertices, float) for m in meshes]), limit=1)]
-                + [v.corners for v in volumes])
-        top = float(np.max((middle - verts) @ normal))          # the highest point
+        verts = [v.corners for v in volumes]
+        if meshes:
+            verts.append(bodies.cached(("scatter_kernel", "points"), lambda: np.vstack(
+                [np.asarray(m.vertices, float) for m in meshes]), limit=1)
+                if hasattr(bodies, "cached") else
+                np.vstack([np.asarray(m.vertices, float) for m in meshes]))
+        top = max(float(np.max(np.einsum("ij,j->i", x, -normal))) for x in verts) + float(
+            middle @ normal)                                    # the highest point
         stretch = 1.0 if f.parallel else float(f.distance) / max(float(f.distance) - top,
                                                                  1e-9)
-        # points at most half a cell apart once projected, so that every cell a surface
-        # crosses holds some of its points (in quarter octaves of mm: a scan's views share
-        # them)
-        spacing = 2.0 ** (math.floor(4.0 * math.log2(0.5 * k * min(pu, pv) / stretch)) / 4.0)
+        # points at most a cell apart once projected, so that a cell a surface crosses
+        # holds some of its points (in quarter octaves of mm: a scan's views share them)
+        spacing = 2.0 ** (math.floor(4.0 * math.log2(k * min(pu, pv) / stretch)) / 4.0)
         pts = [_volume_points(v, spacing) for v in volumes]
         if meshes:
             pts.append(bodies.cached(("scatter_kernel", "surface", spacing),
                                      lambda: _surface_points(meshes, spacing), limit=2)
                        if hasattr(bodies, "cached") else _surface_points(meshes, spacing))
-        pts = np.vstack(pts)
+        pts = pts[0] if len(pts) == 1 else np.vstack(pts)
         axes = np.stack([np.asarray(f.ho, float), np.asarray(f.ve, float), normal], axis=1)
         w, h = f.shape
         out[:] = np.inf
@@ -758,8 +758,12 @@ class KernelModel:
                 raise SceneError(f"scatter kernel: path_lengths of shape {lengths.shape} for "
                                  f"a {h} x {w} image of {n} bodies and voxel classes: pass "
                                  f"Radiograph.path_length, ({h}, {w}, {n})")
-            scat = np.einsum("ijk,kl->ijl", lengths, self.path_weights(
-                acquisition, bodies, materials=materials, volumes=volumes))
+            weights = self.path_weights(acquisition, bodies, materials=materials,
+                                        volumes=volumes)
+            # column by column: einsum's own loop for one vector is many times its loop
+            # for two
+            scat = np.stack([np.einsum("ijk,k->ij", lengths, weights[:, c])
+                             for c in range(weights.shape[1])], axis=-1)
         elif scattering is not None:
             scat = np.asarray(scattering, dtype=np.float64)
             if scat.shape not in ((h, w), (h, w, 2)):
@@ -974,8 +978,9 @@ def _volume_points(volume, spacing):
 
 def _surface_points(meshes, spacing):
     """(n, 3) float: the meshes' vertices and, on each triangle with an edge longer than
-    ``spacing`` mm, points at most ``spacing`` apart: rows from the vertex opposite its
-    shortest edge (the apex) to that edge, so that a sliver gets few."""
+    ``spacing`` mm, points at most ``spacing`` apart (rows from the vertex opposite its
+    shortest edge, the apex, to that edge, so that a sliver gets few); one of them per cube
+    of ``spacing / 2`` mm."""
     verts = [np.asarray(m.vertices, float) for m in meshes]
     out = [np.vstack(verts)]
     tris = np.concatenate([v[np.asarray(m.faces)] for v, m in zip(verts, meshes)])
@@ -999,7 +1004,12 @@ def _surface_points(meshes, spacing):
             w = np.stack([1.0 - s_, s_ * (1.0 - r_), s_ * r_], axis=1)     # (q, 3)
             corners = np.stack([a[sel], b[sel], c[sel]], axis=1)           # (t, 3, 3)
             out.append(np.einsum("qk,tkd->tqd", w, corners).reshape(-1, 3))
-    return np.vstack(out)
+    # one point per cube of half the spacing: a fine mesh's vertices thinned (each cell's
+    # lowest point then within half the spacing of the surface's)
+    pts = np.vstack(out)
+    _, first = np.unique(np.floor(pts * (2.0 / spacing)).astype(np.int64), axis=0,
+                         return_index=True)
+    return pts[np.sort(first)]
 
 
 def _linear(n, k, m):
