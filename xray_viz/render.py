@@ -618,7 +618,7 @@ def memory_needed(scene, *, supersample: int | None = None, engine: str = "fast"
         "meshes": _mesh_bytes(scene),
         "volumes": sum(v.layout_bytes(scene.acquisition.frame.ho) for v in volumes),
         "scatter": pixels * _scatter_bytes_per_pixel(
-            scatter, grid=getattr(scene.detector, "grid", None) is not None),
+            scatter, grid=scene.detector.grid is not None),
     }
     need["total"] = sum(need.values())
     return need

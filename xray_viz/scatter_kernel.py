@@ -29,26 +29,26 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
   aluminium then scatters toward the detector 4.7 times as much as water per mm, not the 2.6
   times of the whole cross sections. This is the material-dependent amplitude of Sun and
   Star-Lack's kernels in a simple form with no new parameter (the water fit read at another
-  thickness; single-scatter acceptance, the multiple scatter taken to follow it): it took
-  the 20 mm bone layer from 19 % high to 3 % (median) and the step wedge from 30 % low to 12 %
-  (BENCHMARKS.md). Small bodies (the limb, the frog) stayed 17-30 % high: a matter of
-  their shape, not of their material (the edge term below);
+  thickness; single-scatter acceptance, the multiple scatter taken to follow it). A voxel
+  volume's classes are read the same way (``volumes=``: their materials after the bodies');
 - ``A(tau, E)`` the scatter-to-primary ratio of an infinite slab of that thickness (the
   amplitude factor), ``ln A = a0 + a1 ln(tau / 100 mm) + a2 (tau / 100 mm - 1)
   + a3 ln(E / 50 keV) + a4 (tau / 100 mm) ln(E / 50 keV)``: Sun and Star-Lack's
   ``c T^alpha (ln 1/T)^beta`` written in the water-equivalent thickness, the spectrum entering
   by ``E``, the mean energy of the source's photons after 100 mm of water;
-- a body narrower than the field sends less than the slab of its thickness: a pixel ``d`` mm
-  from the edge of the bodies' shadow sends ``1 - b_edge exp(-d / (c_edge tau + l_edge))``
-  of it (1 where the shadow covers the field). The slab fit's amplitude includes the scatter
-  that the material beyond the irradiated field sends back into it (the calibration's slabs
-  are wider than the field); a body narrower than the field has none, and what it sends
-  sideways leaves it. ``b_edge`` is the share lost at the edge, ``c_edge tau + l_edge``
-  (mm at the detector; ``l_edge`` was a fixed 1 mm before the small bodies were in the fit)
-  how far into the body the loss reaches. Fitted on water cylinders, spheres and blocks
+- a body narrower than the field keeps less than the slab of its thickness: a pixel ``d`` mm
+  from the edge of the bodies' shadow sends a share ``b_edge exp(-d / (c_edge tau +
+  l_edge))`` of its incoherent scatter out by the body's sides instead (from the body's
+  middle, evenly per solid angle: most of it lands beyond a small field). The slab fit's
+  amplitude includes the scatter that the material beyond the irradiated field sends back
+  into it (the calibration's slabs are wider than the field); a body narrower than the field
+  has none, and what it sends sideways leaves it. The coherent share (water's within the
+  cone, or each pixel's from its path lengths: :meth:`KernelModel.path_weights`) is left
+  out: forward and single, it does not go sideways (most of what the aluminium step wedge
+  sends to its detector 490 mm below). Fitted on water cylinders, spheres and blocks
   narrower than the field with the slab parameters held (``benchmarks/
-  calibrate_scatter_kernel.py``, stage 2), the reach came out long (3.7 tau): the term is
-  close to a constant share (about a fifth) over a body 50-150 mm thick (BENCHMARKS.md);
+  calibrate_scatter_kernel.py``, stage 2), the reach bounded at ``tau + 100`` mm (a body
+  covering all of the field but a corner is nearly a slab);
 - ``K`` the scatter's spread, two components (Sun and Star-Lack's two-component kernel form):
   a forward-peaked one and a broad one (``fraction`` of the scatter). Each is the footprint
   on the detector of photons leaving a *virtual source* ``h_i = gap + s_i tau M`` mm above it
@@ -59,12 +59,29 @@ in the units of the flat field (those of ``exp(log_transmission)`` and of
   source-to-detector over the source-to-exit distance), then crosses the air ``gap``
   between the bodies' exit side and the detector, so that the spread in the body and across
   the gap add, and the photons far out arrive obliquely (what an anti-scatter grid weighs).
+  The ``gap`` of each group of thickness is the mean, over its scatter source, of the air
+  gaps below the bodies' exit side (:meth:`KernelModel.exit_heights`: a frog's or a
+  cylinder's exit side rises toward the edges of its shadow, 75-125 mm above the detector
+  for the frog; the lowest point alone made the frog's scatter too concentrated, 16 % high).
+
+Behind an anti-scatter grid (``[detector] grid``) each kernel is weighed by the grid's
+transmission at the angle its photons arrive at across the strips, measured from the strip
+where they arrive (the grid is focused: kernels at :data:`GRID_NODES` positions along ``u``),
+for the scatter's spectrum (:meth:`KernelModel.scatter_transmission`: the source's, hardened
+by ``grid_hardening`` times the group's thickness, scattered once within the cone the
+detector subtends, Compton-shifted); the angles as from ``grid_depth`` mm into the body at
+most (``depth / (1 + depth / grid_depth)``: most of the scatter from deep in a thick body is
+scattered again near its exit side and arrives more obliquely than from the kernel's
+source). Both fitted on water slabs and a cylinder behind the default grid (stage 3). The
+scatter is then relative to each pixel's flat field behind the grid, off-focus cut-off
+included (:meth:`~xray_viz.physics.grid.Grid.off_focus`, as the renderer's primary).
 
 The sum is evaluated by FFT on a coarse grid (at most :data:`COARSE` cells along a side) for a
 few groups of thickness (:data:`GROUPS`, each with its own kernel) and interpolated back to the
 pixels. The parameters are fitted by least squares on the transport's scatter images of water
 slabs (the amplitude and the kernels), then of water bodies narrower than the field (the edge
-term) (``benchmarks/calibrate_scatter_kernel.py``), and stored in
+term), then of water behind the default grid (the grid's angles and spectrum)
+(``benchmarks/calibrate_scatter_kernel.py``), and stored in
 ``xray_viz/data/scatter_kernel.json`` with the ranges of the fit: a scene outside them (its
 spectrum's energy, a water-equivalent thickness, the field size or the air gap) gets a
 :class:`~xray_viz.errors.ScatterModelWarning` naming the quantity and its value.
@@ -93,7 +110,8 @@ import numpy as np
 from xray_viz.errors import SceneError, ScatterModelWarning
 
 __all__ = ["KernelModel", "KernelParameters", "load_parameters", "PARAMETERS_FILE",
-           "PARAMETER_NAMES", "RANGE_NAMES", "COARSE", "GROUPS", "TOLERANCE", "TAU_MIN"]
+           "PARAMETER_NAMES", "RANGE_NAMES", "COARSE", "GROUPS", "TOLERANCE", "TAU_MIN",
+           "EXIT_CELLS", "GRID_NODES", "GRID_ANGLES", "GRID_TAU_STEP"]
 
 #: The calibration shipped with the package.
 PARAMETERS_FILE = Path(__file__).parent / "data" / "scatter_kernel.json"
@@ -106,11 +124,11 @@ PARAMETER_NAMES = ("a0", "a1", "a2", "a3", "a4", "fraction", "s1", "s2", "n1",
 RANGE_NAMES = ("energy_kev", "thickness_mm", "field_mm", "gap_mm")
 
 #: The model's stated error: the relative error of its scatter (and SPR) over blocks of a
-#: few mm against the transport, inside the fitted ranges, for water and, given the path
-#: lengths per body, bone layers in water, the limb and water bodies 50-100 mm across
-#: narrower than the field (BENCHMARKS.md, "Scatter kernel model": medians of 1.6-3 % on
-#: the cases it was not fitted on). The frog (thin tissues, 16 % high), aluminium far from
-#: the detector and large bodies near it miss it (see there).
+#: few mm against the transport, inside the fitted ranges, for water, bone layers in water,
+#: the bundled phantoms (the limb, the nested spheres, the aluminium step wedge, the frog's
+#: 15 tissues; given the path lengths per body) and water behind a grid (BENCHMARKS.md,
+#: "Scatter kernel model": medians of 1.5-6.3 % on the cases it was not fitted on, 5.8-8.7 %
+#: behind a grid). A large body close to the detector is 13-18 % low beside it (see there).
 TOLERANCE = 0.10
 
 #: Cells of the coarse grid along the detector's longer side, at most.
@@ -479,12 +497,12 @@ class KernelModel:
     def scatter_transmission(self, tan_angle) -> np.ndarray:
         """The grid's transmission of the scatter at the tangents ``tan_angle`` across its
         strips (from the local focused direction), weighted over the scatter's energies:
-        the source's photons after half the bodies' water-equivalent thickness as the
-        detector weighs them, scattered once within the cone the detector subtends (:meth:`cone`), water's coherent share
-        of it at their own energy, the rest Compton-shifted (Klein-Nishina;
-        :func:`_compton_shifted`); interpolated in a table over the angle
-        (:data:`GRID_ANGLES` nodes and 0) made for the cone of the last :meth:`scatter`.
-        1 without a grid."""
+        the source's photons as the detector weighs them, hardened by ``grid_hardening``
+        times the group's water-equivalent thickness, scattered once within the cone the
+        detector subtends (:meth:`cone`), water's coherent share of them at their own
+        energy, the rest Compton-shifted (Klein-Nishina); interpolated in a table over the
+        angle (:data:`GRID_ANGLES` nodes and 0) made for the group being summed by
+        :meth:`scatter`. 1 without a grid."""
         if self.grid is None:
             return np.ones(np.shape(tan_angle))
         theta, values = self._grid_table
@@ -531,7 +549,7 @@ class KernelModel:
     @staticmethod
     def geometry(acquisition, bodies, volumes=()) -> tuple[float, float]:
         """``(gap, magnification)``: the air gap (mm) between the bodies' side nearest the
-        detector (and the voxel volumes' non-empty voxels', :func:`_volume_points`) and the
+        detector (and the voxel volumes' non-empty voxels', every few mm) and the
         detector plane, and the source-to-detector distance over the source-to-exit
         distance (1 for a parallel beam)."""
         f = acquisition.frame
@@ -570,10 +588,10 @@ class KernelModel:
         Examples
         --------
         >>> import xray_viz
-        >>> scene = xray_viz.load_scene("sphere")                      # r 50 mm, 150 mm up
+        >>> scene = xray_viz.load_scene("sphere")     # r 40 mm, centre 500 mm up
         >>> h = KernelModel.exit_heights(scene.acquisition, scene.bodies, (8, 8), 32)
         >>> round(float(np.nanmin(h)), 0), bool(np.isnan(h[0, 0]))
-        (100.0, True)
+        (460.0, True)
         """
         f = acquisition.frame
         ch, cw = cells
