@@ -904,13 +904,20 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
     total = np.empty((h, w))
     # the kernel model reads each pixel's path lengths per body weighted by their materials'
     # scattering (mm of water), summed band by band
-    weights = scattering = None
+    weights = scattering = coherent = None
     if (scatter is not None and scatter.mode == "kernel"
             and projector.columns == len(scatter.materials)):
         weights = scatter.kernel.path_weights(acquisition, projector.bodies,
                                               materials=scatter.materials,
                                               volumes=scatter.scene.volumes)
         scattering = np.empty((h, w, weights.shape[1]))
+        # one material's share of coherent scattering (one body, or bodies of one
+        # material): the second column is the first's times it, not a second sum per ray
+        nonzero = weights[:, 0] > 0
+        shares = weights[nonzero, 1] / weights[nonzero, 0]
+        coherent = float(shares[0]) if len(shares) and np.ptp(shares) == 0.0 else None
+        if coherent is not None:
+            weights = weights[:, :1]
     per_body = np.empty((h, w, projector.columns)) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
                                         log_v=log_v, total=total, per_body=per_body,
@@ -919,6 +926,8 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
                                                                                scattering))
     t1 = time.perf_counter()
     _check_transmission(log_t)
+    if scattering is not None and coherent is not None:
+        np.multiply(scattering[..., 0], coherent, out=scattering[..., 1])
     s = None
     if scatter is not None:
         s, details = scatter(log_t, acquisition, projector.bodies, seed=scatter_seed,

@@ -882,6 +882,7 @@ class KernelModel:
         if self.grid is not None:
             cone = self.cone(acquisition, gap)
             coherent = self._water_coherent(acquisition, bodies, volumes)
+        sides = []
         for g in range(n_groups):
             weight = float(sums[g].sum())
             if weight <= 0:
@@ -911,14 +912,23 @@ class KernelModel:
                 for share, sk, n in ((1.0 - p["fraction"], p["s1"], p["n1"]),
                                      (p["fraction"], p["s2"], p["n2"]))))]
             if side is not None:
-                parts.append((side, ((1.0, _height_step(gap_g + 0.5 * tau_g * mag), 0.0,
-                                      _height_step(gap_g + self._angle_depth(
-                                          0.5 * tau_g * mag))),)))
-            for src, components in parts:
-                for across, share in nodes:
-                    coarse[:ch, :cw] = src if share is None else src * share
-                    total += np.fft.rfft2(coarse) * self._spread(components, (ny, nx), cells,
-                                                                 (across, table))
+                # one side emission for all groups (one transform): from the middle of the
+                # bodies, weighted over the groups by what each sends out
+                share = float(side.sum())
+                sides.append((side, share, gap_g + 0.5 * tau_g * mag, 0.5 * tau_g * mag,
+                              tau_g))
+            self._convolve(total, coarse, parts, nodes, cells, table)
+        if sides:
+            weight = sum(x[1] for x in sides)
+            if weight > 0:
+                mean = [sum(x[1] * x[i] for x in sides) / weight for i in (2, 3, 4)]
+                table = None if self.grid is None else self._grid_table_for(
+                    cone, coherent, p["grid_hardening"] * mean[2])
+                source = sum(x[0] for x in sides)
+                self._convolve(total, coarse, [(source, ((
+                    1.0, _height_step(mean[0]), 0.0,
+                    _height_step(mean[0] - mean[1] + self._angle_depth(mean[1]))),))],
+                    nodes, cells, table)
         if self.grid is not None:
             total /= self.grid_primary
         s = np.fft.irfft2(total, s=(ny, nx))[:ch, :cw]
@@ -933,6 +943,17 @@ class KernelModel:
         out = rows[:, lo] * (1.0 - t)
         out += rows[:, np.minimum(lo + 1, cw - 1)] * t
         return self._per_flat(np.maximum(out, 0.0, out=out), acquisition)
+
+    def _convolve(self, total, coarse, parts, nodes, cells, table):
+        """``total += rfft2(source) * spread`` for each ``(source, components)`` of ``parts``
+        (:meth:`_spread`), with a grid once per position along ``u`` (:meth:`_grid_nodes`),
+        the source shared between them."""
+        ch, cw = parts[0][0].shape
+        for src, components in parts:
+            for across, share in nodes:
+                coarse[:ch, :cw] = src if share is None else src * share
+                total += np.fft.rfft2(coarse) * self._spread(components, coarse.shape, cells,
+                                                             (across, table))
 
     def _per_flat(self, s, acquisition):
         """``s`` (relative to the focused flat field) relative to each pixel's flat field:
