@@ -910,14 +910,14 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
         weights = scatter.kernel.path_weights(acquisition, projector.bodies,
                                               materials=scatter.materials,
                                               volumes=scatter.scene.volumes)
-        scattering = np.empty((h, w, weights.shape[1]))
         # one material's share of coherent scattering (one body, or bodies of one
-        # material): the second column is the first's times it, not a second sum per ray
+        # material): the model takes it as a number, not a second sum per ray
         nonzero = weights[:, 0] > 0
         shares = weights[nonzero, 1] / weights[nonzero, 0]
         coherent = float(shares[0]) if len(shares) and np.ptp(shares) == 0.0 else None
         if coherent is not None:
             weights = weights[:, :1]
+        scattering = np.empty((h, w, weights.shape[1]))
     per_body = np.empty((h, w, projector.columns)) if path_lengths else None
     t_trace, t_bands, hits = _band_loop(projector, acquisition, n, beam=beam, log_t=log_t,
                                         log_v=log_v, total=total, per_body=per_body,
@@ -927,7 +927,7 @@ def _image(projector, beam, model, acquisition, n, *, seed, path_lengths=False,
     t1 = time.perf_counter()
     _check_transmission(log_t)
     if scattering is not None and coherent is not None:
-        np.multiply(scattering[..., 0], coherent, out=scattering[..., 1])
+        scattering = (scattering[..., 0], coherent)
     s = None
     if scatter is not None:
         s, details = scatter(log_t, acquisition, projector.bodies, seed=scatter_seed,
@@ -1066,12 +1066,16 @@ class ScatterSource:
 
     def __call__(self, log_t, acquisition, bodies, *, seed=None, scattering=None):
         """``(s, details)`` at ``acquisition``: see the class. ``scattering`` ((H, W, 2) mm of
-        water, optional): each pixel's path lengths weighted by ``self.kernel.path_weights``;
+        water, or ``((H, W), coherent share)`` for one material; optional): each pixel's path
+        lengths weighted by ``self.kernel.path_weights``;
         the kernel model's amplitude then sees the bodies' materials (``KernelModel.scatter``'s
         option of that name)."""
         if self.mode == "kernel":
+            share = None
+            if isinstance(scattering, tuple):             # one material's coherent share
+                scattering, share = scattering
             s = np.asarray(self.kernel.scatter(log_t, acquisition, bodies,
-                                               scattering=scattering,
+                                               scattering=scattering, coherent_share=share,
                                                volumes=self.scene.volumes), dtype=np.float64)
             return s, {"mode": "kernel"}
         from xray_viz.transport import flat_signal, transport

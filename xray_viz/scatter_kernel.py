@@ -728,7 +728,8 @@ class KernelModel:
         return max(step, round(math.atan2(r, gap) / step) * step)
 
     def scatter(self, log_transmission, acquisition, bodies, *,
-                path_lengths=None, scattering=None, volumes=()) -> np.ndarray:
+                path_lengths=None, scattering=None, coherent_share=None,
+                volumes=()) -> np.ndarray:
         """The scatter reaching each pixel, relative to the flat field.
 
         Parameters
@@ -746,6 +747,9 @@ class KernelModel:
             :meth:`scattering_coefficients`) instead of the water-equivalent thickness of
             its transmission: a body of high Z absorbs more and scatters less per unit of
             attenuation than water. Without them, every body is taken for water.
+        coherent_share : float, optional
+            With ``scattering`` of shape (H, W): the coherent part's share of it at every
+            pixel (one material's), instead of water's.
         volumes : sequence of VoxelVolume, optional
             The scene's voxel volumes (``Scene.volumes``): their non-empty voxels are
             bodies' exit sides too (the air gaps).
@@ -810,9 +814,9 @@ class KernelModel:
         k = max(1, -(-max(h, w) // COARSE))
         ch, cw = -(-h // k), -(-w // k)
         n_cells = ch * cw
-        # ln(1 / T) averaged over pre x pre pixels first (at least 4 x 4 of them per cell):
-        # the source varies little within 1/4 of a cell, and the rest costs 1 / pre^2
-        pre = next(p for p in (4, 2, 1) if k % p == 0 and k // p >= 4 or p == 1)
+        # ln(1 / T) averaged over pre x pre pixels first (at least 2 x 2 of them per cell):
+        # the source varies little within half a cell, and the rest costs 1 / pre^2
+        pre = next(p for p in (4, 2, 1) if k % p == 0 and k // p >= 2 or p == 1)
         if pre > 1:
             hb, wb = -(-h // pre), -(-w // pre)
             pad = log_t if (h % pre, w % pre) == (0, 0) else np.pad(
@@ -848,7 +852,8 @@ class KernelModel:
         # the coherent share of each pixel's scatter (water's where the materials are not
         # given): single and forward, it has no share in what the edge term takes off
         if coherent is None:
-            share = self._water_coherent(acquisition, bodies, volumes)
+            share = (self._water_coherent(acquisition, bodies, volumes)
+                     if coherent_share is None else float(coherent_share))
             q_coh = q * share
         else:
             with np.errstate(divide="ignore", invalid="ignore"):

@@ -599,3 +599,18 @@ def test_coherent_and_incoherent_scattering_add_to_the_whole():
     with pytest.raises(MaterialError, match="scattering process 'rayleigh'") as info:
         mass_scattering("Al", 60.0, process="rayleigh")
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("insert", [None, ("Bone, Cortical (ICRP)", 20.0)])
+def test_the_render_gives_the_model_of_the_path_lengths(insert):
+    # one material (its coherent share a number) or two (the renderer sums the coherent
+    # part per pixel): render(scatter="kernel") reads what the model gives from the path
+    # lengths per body
+    from xray_viz.physics.imaging import flat_field
+
+    scene = slab(thickness=150.0, field=150.0, gap=50.0, pixels=16, insert=insert)
+    image = xray_viz.render(scene, path_lengths=True)
+    expected = KernelModel.of(scene).scatter(-image.line_integral, scene.acquisition,
+                                             scene.bodies, path_lengths=image.path_length)
+    rendered = xray_viz.render(scene, scatter="kernel").scatter / flat_field(scene)
+    np.testing.assert_allclose(rendered, expected, rtol=1e-9, atol=1e-15)

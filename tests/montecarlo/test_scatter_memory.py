@@ -51,7 +51,7 @@ def test_memory_needed_counts_the_scatter_part_and_its_total():
 @pytest.mark.parametrize("mode, kwargs, grid", [("kernel", {}, False), ("kernel", {}, True),
                                               ("mc", {"histories": 40_000}, False)])
 def test_the_scatter_estimate_bounds_what_a_render_allocates(monkeypatch, mode, kwargs, grid):
-    """384 x 256 pixels: the kernel model's coarse grid has 6 x 6 pixels a cell there, its
+    """320 x 256 pixels: the kernel model's coarse grid has 5 x 5 pixels a cell there, its
     worst case (no pre-averaging: it works on every pixel); behind a grid, its off-focus
     cut-off too. The Monte Carlo on 2 threads (the estimate counts a batch's tallies per
     thread), with histories for 3 batches: both threads busy, whatever this machine's
@@ -62,7 +62,7 @@ def test_the_scatter_estimate_bounds_what_a_render_allocates(monkeypatch, mode, 
     from xray_viz.physics.grid import Grid
 
     monkeypatch.setattr(_threads, "count", lambda: 2)
-    scene = _cylinder((384, 256), 1.0)
+    scene = _cylinder((320, 256), 1.0)
     if grid:
         scene = scene.replace(detector=dataclasses.replace(scene.detector, grid=Grid()))
     w, h = scene.detector.shape
