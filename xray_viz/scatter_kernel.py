@@ -819,14 +819,7 @@ class KernelModel:
         pre = next(p for p in (4, 2, 1) if k % p == 0 and k // p >= 2 or p == 1)
         if pre > 1:
             hb, wb = -(-h // pre), -(-w // pre)
-            pad = log_t if (h % pre, w % pre) == (0, 0) else np.pad(
-                log_t, ((0, hb * pre - h), (0, wb * pre - w)), mode="edge")
-            acc = np.zeros((hb, wb))
-            for a in range(pre):                  # strided views: no reshaped copy
-                for b in range(pre):
-                    acc += pad[a::pre, b::pre]
-            x = acc.reshape(-1)
-            x *= -1.0 / (pre * pre)
+            x = np.negative(_pooled(log_t, pre, hb, wb))
             if scat is not None:
                 scat = _pooled(scat, pre, hb, wb)
             if coherent is not None:
@@ -1006,7 +999,8 @@ def _pooled(a, pre, hb, wb):
     for i in range(pre):                          # strided views: no reshaped copy
         for j in range(pre):
             acc += pad[i::pre, j::pre]
-    return acc.reshape(-1) / (pre * pre)
+    acc *= 1.0 / (pre * pre)
+    return acc.reshape(-1)
 
 
 def _volume_points(volume, spacing):
