@@ -271,7 +271,7 @@ class KernelModel:
         self.parameters = parameters
         self.grid, self.grid_primary = grid, float(grid_primary)
         self.grid_spectrum = grid_spectrum
-        self._grid_table, self._grid_tables = None, {}     # scatter_transmission's
+        self._grid_tables = {}                  # scatter_transmission's, by key
         self._spreads = (parameters, {})     # the kernels' spectra (_spread)
         self._table, self._table_params = None, None    # the look-up table (_lookup)
 
@@ -386,7 +386,8 @@ class KernelModel:
                     + p["a4"] * t * le)
         return np.exp(ln_a)
 
-    def gap_kernel(self, gap, shape, cells, n, across=0.0, angle=None) -> np.ndarray | None:
+    def gap_kernel(self, gap, shape, cells, n, across=0.0, angle=None,
+                   table=None) -> np.ndarray | None:
         """A component's kernel on the coarse grid (FFT order, each cell's share):
         ``(n + 1) h^(n+1) / (2 pi (r^2 + h^2)^((n+3)/2))`` per unit area, the footprint at
         the detector of photons leaving a point ``h = gap`` mm above it with intensity
@@ -403,26 +404,26 @@ class KernelModel:
         kx = np.arange(nx)
         kx = np.where(kx > nx // 2, kx - nx, kx) * cx
         angle = gap if angle is None else angle
-        out = self._footprint(ky[:, None], kx[None, :], gap, n, across, angle) * (cy * cx)
+        out = self._footprint(ky[:, None], kx[None, :], gap, n, across, angle,
+                              table) * (cy * cx)
         # the cells near the origin, where it changes within a cell: 9 x 9 points each
         m = min(3, ny // 2 - 1, nx // 2 - 1)
         sub = (np.arange(9) - 4.0) / 9.0
         idx = np.arange(-m, m + 1)
         y = ((idx[:, None] + sub[None, :]) * cy).reshape(-1)
         x = ((idx[:, None] + sub[None, :]) * cx).reshape(-1)
-        core = self._footprint(y[:, None], x[None, :], gap, n, across, angle)
+        core = self._footprint(y[:, None], x[None, :], gap, n, across, angle, table)
         core = core.reshape(2 * m + 1, 9, 2 * m + 1, 9).mean(axis=(1, 3)) * (cy * cx)
         out[np.ix_(idx % ny, idx % nx)] = core
         return out
 
-    def _spread(self, components, shape, cells, across=0.0) -> np.ndarray:
+    def _spread(self, components, shape, cells, across=0.0, table=None) -> np.ndarray:
         """``rfft2`` of a kernel: the sum of ``components``, ``(share, step, n, angle)``
         each, a :meth:`gap_kernel` at ``step`` times :data:`HEIGHT_STEP` mm (its photons'
         angles through a grid as if from ``angle`` times that); kept on the model for the
-        next calls with the same components, coarse grid, cells and ``across`` (a scan's
-        views share most of them)."""
-        key = (components, shape, cells, across)
-        across = across[0]
+        next calls with the same components, coarse grid, cells, ``across`` and grid table
+        ``table`` (:meth:`scatter_transmission`; a scan's views share most of them)."""
+        key = (components, shape, cells, across, table)
         cache = self._spreads
         if cache[0] is not self.parameters:
             cache = self._spreads = (self.parameters, {})
@@ -431,9 +432,9 @@ class KernelModel:
             kern = np.zeros(shape)
             for share, step, n, angle in components:
                 spread = self.gap_kernel(step * HEIGHT_STEP, shape, cells, n, across,
-                                         angle * HEIGHT_STEP)
+                                         angle * HEIGHT_STEP, table)
                 if spread is None:
-                    kern[0, 0] += share * self.grid_factor(n, across)
+                    kern[0, 0] += share * self.grid_factor(n, across, table)
                 else:
                     kern += share * spread
             hit = np.fft.rfft2(kern)
@@ -468,7 +469,7 @@ class KernelModel:
         d = distance_transform_edt(inside, sampling=cells)
         return np.maximum(d - 0.5 * min(cells), 0.0)
 
-    def _footprint(self, y, x, gap, n, across=0.0, angle=None):
+    def _footprint(self, y, x, gap, n, across=0.0, angle=None, table=None):
         """The per-area density of :meth:`gap_kernel` at offsets ``y``, ``x`` (mm), times
         the grid's transmission at ``tan = x / angle - (across + x) / focus_distance``
         across the strips (``angle`` default ``gap``; the angle from the strip where the
@@ -480,7 +481,7 @@ class KernelModel:
             (n + 3.0) / 2.0)
         if self.grid is not None:                  # across the strips: along u
             tan = x / (gap if angle is None else angle) - (across + x) / self.grid.focus_distance
-            dens = dens * self.scatter_transmission(tan)
+            dens = dens * self.scatter_transmission(tan, table)
         return dens
 
     def _angle_depth(self, depth):
@@ -494,45 +495,37 @@ class KernelModel:
             return depth
         return depth / (1.0 + depth / self.parameters.values["grid_depth"])
 
-    def scatter_transmission(self, tan_angle) -> np.ndarray:
+    def scatter_transmission(self, tan_angle, table=None) -> np.ndarray:
         """The grid's transmission of the scatter at the tangents ``tan_angle`` across its
         strips (from the local focused direction), weighted over the scatter's energies:
         the source's photons as the detector weighs them, hardened by ``grid_hardening``
         times the group's water-equivalent thickness, scattered once within the cone the
         detector subtends (:meth:`cone`), water's coherent share of them at their own
-        energy, the rest Compton-shifted (Klein-Nishina); interpolated in a table over the
-        angle (:data:`GRID_ANGLES` nodes and 0) made for the group being summed by
-        :meth:`scatter`. 1 without a grid."""
+        energy, the rest Compton-shifted (Klein-Nishina); interpolated in the table
+        ``table`` (the key :meth:`scatter` made it under: :data:`GRID_ANGLES` angles and 0).
+        1 without a grid."""
         if self.grid is None:
             return np.ones(np.shape(tan_angle))
-        theta, values = self._grid_table
+        theta, values = self._grid_tables[table]
         return np.interp(np.arctan(tan_angle), theta, values)
 
     def _grid_table_for(self, cone, coherent, tau):
-        """Set :meth:`scatter_transmission`'s table for this cone, coherent share and water
-        thickness ``tau`` (mm, in steps of :data:`GRID_TAU_STEP`: the scatter's spectrum is
-        the source's hardened by it); kept on the model per cone and step. Returns its
-        key."""
+        """The key of :meth:`scatter_transmission`'s table for this cone, coherent share and
+        water thickness ``tau`` (mm, in steps of :data:`GRID_TAU_STEP`: the scatter's
+        spectrum is the source's hardened by it), made and kept on the model on first use."""
         step = int(round(tau / GRID_TAU_STEP))
         key = (round(cone, 6), step)
-        table = self._grid_tables.get(key)
-        if table is None:
-            from xray_viz.physics.grid import PeriodGeometry
-
+        if key not in self._grid_tables:
             e, w0, mu = self.grid_spectrum
             e, w = _compton_shifted(e, w0 * np.exp(-step * GRID_TAU_STEP * mu), cone,
                                     coherent)
             theta = np.union1d(np.linspace(-0.5 * math.pi, 0.5 * math.pi, GRID_ANGLES)[1:-1],
                                [0.0])
-            mus, mui = self.grid.attenuation(e)
-            geometry = PeriodGeometry(np.tan(theta), 0.0, d=self.grid.strip_thickness,
-                                      period=self.grid.period, h=self.grid.strip_height)
-            values = sum(wk * geometry.mean(a, b) for wk, a, b in zip(w, mus, mui)) / w.sum()
-            table = self._grid_tables[key] = (theta, values)
-        self._grid_table = table
+            self._grid_tables[key] = (theta,
+                                      self.grid.spectrum_transmission(e, w, np.tan(theta)))
         return key
 
-    def grid_factor(self, n, across=0.0) -> float:
+    def grid_factor(self, n, across=0.0, table=None) -> float:
         """The grid's mean transmission of scatter leaving with intensity ``cos^n`` of its
         angle per unit solid angle (the no-gap limit of :meth:`gap_kernel`, ``across`` mm
         along ``u`` from the detector's middle); 1 without a grid."""
@@ -543,7 +536,7 @@ class KernelModel:
         w = np.cos(theta) ** n * np.sin(theta)
         tan_u = (np.tan(theta)[:, None] * np.cos(phi)[None, :]
                  - across / self.grid.focus_distance)
-        t = self.scatter_transmission(tan_u)
+        t = self.scatter_transmission(tan_u, table)
         return float((w[:, None] * t).sum() / (w.sum() * len(phi)))
 
     @staticmethod
@@ -705,12 +698,10 @@ class KernelModel:
                          self.scattering_coefficients(materials, cone=cone,
                                                       process="coherent")], axis=1)
 
-    def _water_coherent(self, acquisition, bodies, volumes=()) -> float:
-        """The coherent share of water's scattering within this acquisition's cone."""
+    def _water_coherent(self, cone) -> float:
+        """The coherent share of water's scattering within the cone (radians)."""
         from xray_viz.physics.materials import mass_scattering
 
-        gap, _ = self.geometry(acquisition, bodies, volumes)
-        cone = self.cone(acquisition, gap)
         return float(mass_scattering("Water, Liquid", self.energy_kev, cone=cone,
                                      process="coherent")[0]
                      / mass_scattering("Water, Liquid", self.energy_kev, cone=cone)[0])
@@ -845,7 +836,7 @@ class KernelModel:
         # the coherent share of each pixel's scatter (water's where the materials are not
         # given): single and forward, it has no share in what the edge term takes off
         if coherent is None:
-            share = (self._water_coherent(acquisition, bodies, volumes)
+            share = (self._water_coherent(self.cone(acquisition, gap))
                      if coherent_share is None else float(coherent_share))
             q_coh = q * share
         else:
@@ -879,7 +870,7 @@ class KernelModel:
         nodes = self._grid_nodes(w, k, pu, cw)
         if self.grid is not None:
             cone = self.cone(acquisition, gap)
-            coherent = self._water_coherent(acquisition, bodies, volumes)
+            coherent = self._water_coherent(cone)
         sides = []
         for g in range(n_groups):
             weight = float(sums[g].sum())
@@ -951,7 +942,7 @@ class KernelModel:
             for across, share in nodes:
                 coarse[:ch, :cw] = src if share is None else src * share
                 total += np.fft.rfft2(coarse) * self._spread(components, coarse.shape, cells,
-                                                             (across, table))
+                                                             across, table)
 
     def _per_flat(self, s, acquisition):
         """``s`` (relative to the focused flat field) relative to each pixel's flat field:

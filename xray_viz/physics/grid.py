@@ -245,6 +245,27 @@ class Grid:
         the strip there, whose tangent is ``across_mm / focus_distance``."""
         return np.asarray(tan_ray, dtype=np.float64) - np.asarray(across_mm) / self.focus_distance
 
+    def spectrum_transmission(self, energies_kev, weights, tan_angle, tan_along=0.0
+                              ) -> np.ndarray:
+        """``sum_k w_k T(E_k, t, s) / sum_k w_k``: the transmission of a spectrum (weights
+        ``weights`` at ``energies_kev``) at the tangents ``tan_angle`` across the strips and
+        ``tan_along`` along them (broadcast together), the period's geometry computed once
+        for all the energies.
+
+        Examples
+        --------
+        >>> g = Grid()
+        >>> one = g.spectrum_transmission([60.0], [1.0], [0.0, 0.05])
+        >>> bool(np.allclose(one, g.transmission(60.0, [0.0, 0.05])))
+        True
+        """
+        e = np.atleast_1d(np.asarray(energies_kev, dtype=np.float64))
+        w = np.atleast_1d(np.asarray(weights, dtype=np.float64))
+        mus, mui = self.attenuation(e)
+        geometry = PeriodGeometry(tan_angle, tan_along, d=self.strip_thickness,
+                                  period=self.period, h=self.strip_height)
+        return sum(wk * geometry.mean(a, b) for wk, a, b in zip(w, mus, mui)) / w.sum()
+
     def pixel_tangents(self, acquisition) -> tuple[np.ndarray, np.ndarray]:
         """``(t, s)``, each (H, W): the tangents across the strips (from the strip where the
         ray arrives, :meth:`focused_tan`) and along them of each pixel's primary ray, from
@@ -297,11 +318,8 @@ class Grid:
             axes.append(np.linspace(lo, hi, n))
         if axes[0][0] < 0.0 < axes[0][-1]:
             axes[0] = np.union1d(axes[0], [0.0])
-        mus, mui = self.attenuation(e)
-        geometry = PeriodGeometry(axes[0][:, None], axes[1][None, :], d=self.strip_thickness,
-                                  period=self.period, h=self.strip_height)
-        table = sum(wk * geometry.mean(a, b) for wk, a, b in zip(wts, mus, mui))
-        focused = float(wts @ self.transmission(e, 0.0))
+        table = self.spectrum_transmission(e, wts, axes[0][:, None], axes[1][None, :])
+        focused = float(self.spectrum_transmission(e, wts, 0.0))
         level = RegularGridInterpolator(axes, table / focused)(
             np.stack([t.reshape(-1), s.reshape(-1)], axis=1))
         return level.reshape(t.shape)
